@@ -1,0 +1,36 @@
+"""Policy registry: the CLI name maps to `module:Class`; the module's file name is its key.
+
+Imports are lazy so that running a frontier policy never imports torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from policies.base import Policy
+    from world.config import WorldConfig
+
+REGISTRY: dict[str, str] = {
+    "random": "policies.random_policy:RandomPolicy",
+    "nearest-frontier": "policies.nearest_frontier:NearestFrontier",
+    "coordinated-frontier": "policies.coordinated_frontier:CoordinatedFrontier",
+    "cost-utility": "policies.cost_utility:CostUtility",
+}
+
+BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility")
+
+
+def policy_class(name: str) -> type[Policy]:
+    """The class registered under `name`; an unknown name is a one-line ValueError."""
+    try:
+        target = REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown policy {name!r}; choose from {', '.join(REGISTRY)}") from None
+    module, cls = target.split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
+    return policy_class(name)(cfg, **kwargs)  # type: ignore[call-arg]

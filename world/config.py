@@ -1,0 +1,164 @@
+"""Typed world configuration (SPEC section 2) and the TOML/CLI loading shared by every entry point."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A bad configuration value or key; its message is one line meant for the user."""
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Every size and weight of the dynamic exploration world; defaults are the paper's values."""
+
+    height: int = 20
+    """Grid rows H."""
+    width: int = 20
+    """Grid columns W."""
+    n_static: int = 81
+    """Static blocks placed by the maze generator."""
+    n_dynamic: int = 70
+    """Dynamic blocks that appear during the mission (0 or `dynamic=False` gives a static map)."""
+    dynamic: bool = True
+    """Whether dynamic blocks are activated at all."""
+    add_every: int = 3
+    """Steps between dynamic-block batches (`m`); batch size is ceil(n_dynamic / floor(0.9 T / m))."""
+    n_robots: int = 10
+    """Robots N."""
+    spawn: str = "random"
+    """Start cells: `random` (distinct random free cells) or `corner` (free cells nearest the top-left)."""
+    vision: int = 5
+    """Side v of the square v x v patch each robot sees (odd)."""
+    comm_range: float = 10.0
+    """Euclidean communication range in cells; `inf` lets every robot hear every other."""
+    horizon: int = 30
+    """Mission length T in steps; every episode runs exactly T steps."""
+    explore_mode: str = "visit"
+    """`visit`: a cell is explored once a robot stood on it; `sense`: every cell seen is explored."""
+    r_back: float = -10.0
+    """Reward for standing on an already explored cell (visit) or revealing nothing new (sense)."""
+    r_coll: float = -10.0
+    """Reward per collision (block or robot) in a step."""
+    r_succ: float = 40.0
+    """Reward to every robot on the last step when the mission succeeded."""
+    r_fail: float = -5.0
+    """Reward to every robot on the last step when the mission failed."""
+    success_elratio: float = 0.9
+    """Success needs elratio at the last step at least this."""
+    success_max_block_collisions: int = 0
+    """Success needs the team's block collisions over the episode at most this."""
+    recent_len: int = 8
+    """How many recent positions a trajectory message carries besides the visited bitmap."""
+
+    def __post_init__(self) -> None:
+        def bad(msg: str) -> None:
+            raise ConfigError(f"world config: {msg}")
+
+        if self.height < 3 or self.width < 3:
+            bad(f"grid must be at least 3 x 3, got {self.height} x {self.width}")
+        if self.vision < 1 or self.vision % 2 == 0:
+            bad(f"vision must be a positive odd number, got {self.vision}")
+        if self.n_robots < 1:
+            bad(f"n_robots must be >= 1, got {self.n_robots}")
+        if self.horizon < 1:
+            bad(f"horizon must be >= 1, got {self.horizon}")
+        if self.add_every < 1:
+            bad(f"add_every must be >= 1, got {self.add_every}")
+        if not (self.comm_range >= 0):
+            bad(f"comm_range must be >= 0 (inf allowed), got {self.comm_range}")
+        if self.spawn not in ("random", "corner"):
+            bad(f"spawn must be 'random' or 'corner', got {self.spawn!r}")
+        if self.explore_mode not in ("visit", "sense"):
+            bad(f"explore_mode must be 'visit' or 'sense', got {self.explore_mode!r}")
+        if self.n_static < 0 or self.n_dynamic < 0:
+            bad("block counts must be >= 0")
+        cells = self.height * self.width
+        need = self.n_static + self.n_robots + (self.n_dynamic if self.dynamic else 0)
+        if need > cells:
+            bad(f"{need} blocks and robots do not fit on {cells} cells")
+        if self.dynamic and self.n_dynamic > 0 and math.floor(0.9 * self.horizon / self.add_every) < 1:
+            bad(f"add_every={self.add_every} leaves no batch before 90% of horizon={self.horizon}")
+        if self.recent_len < 1:
+            bad(f"recent_len must be >= 1, got {self.recent_len}")
+
+    @property
+    def cells(self) -> int:
+        return self.height * self.width
+
+    @property
+    def pad(self) -> int:
+        """Border of wall cells around the grid, wide enough for every vision patch."""
+        return max(1, self.vision // 2)
+
+    @property
+    def n_active_dynamic(self) -> int:
+        return self.n_dynamic if self.dynamic else 0
+
+    @property
+    def batch_size(self) -> int:
+        """Dynamic blocks per batch, n = ceil(n_dynamic / floor(0.9 T / m))."""
+        if self.n_active_dynamic == 0:
+            return 0
+        return math.ceil(self.n_dynamic / math.floor(0.9 * self.horizon / self.add_every))
+
+
+def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
+    """Build dataclass `cls` from `data`, rejecting unknown keys and coercing simple types."""
+    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(known)}")
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        ftype = known[key].type
+        ftype = ftype if isinstance(ftype, str) else getattr(ftype, "__name__", str(ftype))
+        try:
+            if ftype == "int":
+                if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+                    raise ValueError
+                kwargs[key] = int(value)
+            elif ftype == "float":
+                kwargs[key] = float(value)
+            elif ftype == "bool":
+                if isinstance(value, str):
+                    if value.lower() not in ("true", "false", "1", "0"):
+                        raise ValueError
+                    value = value.lower() in ("true", "1")
+                kwargs[key] = bool(value)
+            else:
+                kwargs[key] = value
+        except (TypeError, ValueError):
+            raise ConfigError(f"{where}: {key} must be {ftype}, got {value!r}") from None
+    return cls(**kwargs)
+
+
+def replace(cfg: T, **changes: Any) -> T:
+    """`dataclasses.replace` that ignores `None` values (unset CLI flags)."""
+    changes = {k: v for k, v in changes.items() if v is not None}
+    return dataclasses.replace(cfg, **changes)  # type: ignore[type-var]
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML experiment file; a missing or malformed file is a one-line ConfigError."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config file {path}: {exc}") from None
+
+
+def to_dict(cfg: Any) -> dict[str, Any]:
+    """Plain dict of a config dataclass (JSON-safe: inf becomes the string 'inf')."""
+    out = dataclasses.asdict(cfg)
+    return {k: ("inf" if isinstance(v, float) and math.isinf(v) else v) for k, v in out.items()}

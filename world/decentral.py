@@ -1,0 +1,146 @@
+"""The decentralized view of SPEC section 3, computed once here and used by every consumer.
+
+At tick t each robot publishes a trajectory message (its position, its own visited-cell bitmap,
+its recent positions and its v x v patch), hears the messages of the robots within
+`comm_range` and itself (its neighbourhood S_i(t)), and, for chained policies, takes the
+decoder state of its predecessor p(i) = max{j in S_i(t), j < i}.
+
+A `View` carries, for G groups (episodes) of N robot slots, every slot's message and who heard
+whom. The batched evaluator fills every slot; a robot process fills only the messages it heard
+and marks itself as the one receiver. Policies read member j's message for receiver i only where
+`hears[g, i, j]`, so the two settings compute the same decision.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from world.config import WorldConfig
+from world.core import Layout, WorldState, patches
+
+
+@dataclass
+class TrajMessages:
+    """Trajectory messages of N robot slots in G groups; grid coordinates, no padding."""
+
+    pos: np.ndarray  # [G, N, 2] int64 (y, x)
+    visited: np.ndarray  # [G, N, H*W] bool: the sender's own trajectory bitmap
+    recent: np.ndarray  # [G, N, L] int64 last L positions as y*W+x, oldest first, -1 none
+    patch: np.ndarray  # [G, N, v, v] uint8 (see world.core.patches)
+    present: np.ndarray  # [G, N] bool: the slot holds a message this tick
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.present.shape  # type: ignore[return-value]
+
+    def select(self, idx: np.ndarray) -> TrajMessages:
+        """Messages of groups `idx`."""
+        return TrajMessages(self.pos[idx], self.visited[idx], self.recent[idx], self.patch[idx],
+                            self.present[idx])
+
+    @classmethod
+    def empty(cls, cfg: WorldConfig, groups: int = 1) -> TrajMessages:
+        n = cfg.n_robots
+        return cls(
+            pos=np.zeros((groups, n, 2), dtype=np.int64),
+            visited=np.zeros((groups, n, cfg.cells), dtype=bool),
+            recent=np.full((groups, n, cfg.recent_len), -1, dtype=np.int64),
+            patch=np.zeros((groups, n, cfg.vision, cfg.vision), dtype=np.uint8),
+            present=np.zeros((groups, n), dtype=bool),
+        )
+
+
+def traj_messages(cfg: WorldConfig, state: WorldState) -> TrajMessages:
+    """Every live robot's trajectory message at the current tick, [B, N, ...]."""
+    lay = Layout.of(cfg)
+    return TrajMessages(
+        pos=lay.to_yx(state.pos), visited=state.visited, recent=state.recent,
+        patch=patches(cfg, state), present=state.alive.copy(),
+    )
+
+
+def neighbourhood(comm_range: float, pos: np.ndarray, present: np.ndarray) -> np.ndarray:
+    """hears[g, i, j]: robot i hears robot j (Euclidean distance <= comm_range, both present).
+
+    pos [G, N, 2], present [G, N] -> [G, N, N] bool; a present robot always hears itself.
+    """
+    both = present[:, :, None] & present[:, None, :]
+    if np.isinf(comm_range):
+        return both
+    d = pos[:, :, None, :] - pos[:, None, :, :]
+    dist2 = (d * d).sum(-1)
+    return both & (dist2 <= comm_range * comm_range)
+
+
+def predecessor(hears: np.ndarray) -> np.ndarray:
+    """p(i) = max{j in S_i, j < i}, or -1 where there is none: [G, N, N] bool -> [G, N] int64."""
+    n = hears.shape[-1]
+    lower = hears & np.tri(n, n, -1, dtype=bool)[None]
+    rev = lower[..., ::-1]
+    last = n - 1 - rev.argmax(-1)
+    return np.where(lower.any(-1), last, -1)
+
+
+@dataclass
+class View:
+    """What the receivers know at one tick; the single input of every policy's `act`."""
+
+    seed: int
+    episodes: np.ndarray  # [G] int64 episode numbers (key the counter-based noise)
+    tick: int
+    msgs: TrajMessages  # [G, N, ...]
+    hears: np.ndarray  # [G, N, N] bool
+    receivers: np.ndarray  # [G, N] bool: whose decision to compute
+    last_reward: np.ndarray  # [G, N] float32 (valid for receivers)
+
+    @property
+    def groups(self) -> int:
+        return self.hears.shape[0]
+
+    @property
+    def n(self) -> int:
+        return self.hears.shape[1]
+
+    def predecessor(self) -> np.ndarray:
+        return predecessor(self.hears)
+
+
+def batch_view(cfg: WorldConfig, state: WorldState) -> View:
+    """The view of every robot of every episode in the batch (the in-process evaluator's view)."""
+    msgs = traj_messages(cfg, state)
+    hears = neighbourhood(cfg.comm_range, msgs.pos, msgs.present)
+    return View(seed=state.seed, episodes=state.episodes, tick=state.t, msgs=msgs, hears=hears,
+                receivers=state.alive.copy(), last_reward=state.last_reward)
+
+
+def robot_view(cfg: WorldConfig, seed: int, episode: int, tick: int, robot: int,
+               heard: TrajMessages, last_reward: float) -> View:
+    """The view of one robot that heard `heard` ([1, N, ...], its own message included)."""
+    n = cfg.n_robots
+    hears = np.zeros((1, n, n), dtype=bool)
+    hears[0, robot] = heard.present[0]
+    receivers = np.zeros((1, n), dtype=bool)
+    receivers[0, robot] = True
+    reward = np.zeros((1, n), dtype=np.float32)
+    reward[0, robot] = last_reward
+    return View(seed=seed, episodes=np.array([episode], dtype=np.int64), tick=tick, msgs=heard,
+                hears=hears, receivers=receivers, last_reward=reward)
+
+
+def heard_by(cfg: WorldConfig, view: View, g: int, robot: int) -> TrajMessages:
+    """The messages robot `robot` of group `g` heard, as a [1, N, ...] bundle (others blanked)."""
+    m = view.msgs.select(np.array([g]))
+    mask = view.hears[g, robot]
+    blank = ~mask
+    m.pos = m.pos.copy()
+    m.visited = m.visited.copy()
+    m.recent = m.recent.copy()
+    m.patch = m.patch.copy()
+    m.pos[0, blank] = 0
+    m.visited[0, blank] = False
+    m.recent[0, blank] = -1
+    m.patch[0, blank] = 0
+    m.present = mask[None].copy()
+    return m
