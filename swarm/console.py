@@ -1,0 +1,125 @@
+"""Pure rich renderers: result data in, a `rich.table.Table` out (no printing, no I/O).
+
+The CLI prints what these return; tests render them into a capture console.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from rich.table import Table
+from rich.text import Text
+
+
+def _ok(flag: bool | None) -> Text:
+    if flag is None:
+        return Text("-", style="dim")
+    return Text("yes", style="green") if flag else Text("NO", style="bold red")
+
+
+def _pm(mean: float, std: float, fmt: str = ".3f") -> str:
+    return f"{mean:{fmt}} ± {std:{fmt}}"
+
+
+def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation") -> Table:
+    """One row per policy from `EvalResult.summary` dicts."""
+    table = Table(title=title, title_justify="left")
+    table.add_column("policy", style="bold")
+    for col in ("elratio", "reward/robot", "collisions", "block coll.", "success", "plan ms"):
+        table.add_column(col, justify="right")
+    for s in summaries:
+        table.add_row(
+            str(s["policy"]),
+            _pm(s["elratio_mean"], s["elratio_std"]),
+            _pm(s["reward_mean"], s.get("reward_std", 0.0), ".1f"),
+            f"{s['collisions_mean']:.2f}",
+            f"{s['block_collisions_mean']:.2f}",
+            f"{100 * s['success_rate']:.1f}%",
+            f"{s['planning_ms_per_decision']:.3f}",
+        )
+    return table
+
+
+def env_bench_table(result: Mapping[str, Any]) -> Table:
+    """Rows of `bench_env`: agent-steps/s per batch size and whether the project bar is met."""
+    bar_b = result.get("bar", {}).get("batch")
+    bar = result.get("bar", {}).get("agent_steps_per_s")
+    table = Table(title=f"World step + view, N={result['robots']}, T={result['horizon']} "
+                        f"(median of {result['repeats']} repeats)", title_justify="left")
+    table.add_column("batch B", justify="right")
+    table.add_column("agent-steps/s", justify="right", style="bold")
+    table.add_column("min .. max", justify="right")
+    table.add_column("per CPU-s", justify="right")
+    table.add_column("ms / step", justify="right")
+    table.add_column("reset ms / episode", justify="right")
+    table.add_column("bar", justify="right")
+    for r in result["rows"]:
+        meets = (r["agent_steps_per_s"] >= bar) if (bar and r["batch"] == bar_b) else None
+        table.add_row(
+            str(r["batch"]), f"{r['agent_steps_per_s']:,.0f}",
+            f"{r['min']:,.0f} .. {r['max']:,.0f}", f"{r['agent_steps_per_cpu_s']:,.0f}",
+            f"{r['step_ms']:.3f}",
+            f"{r['reset_ms_per_episode']:.2f}",
+            _ok(meets) if meets is None else Text.assemble(_ok(meets), f" (≥{bar:,.0f})"),
+        )
+    return table
+
+
+def policy_bench_table(result: Mapping[str, Any]) -> Table:
+    """Rows of `bench_policy`: planning ms per team decision of N robots."""
+    table = Table(title=f"Planning time per decision, {result['robots']} robots, G=1 "
+                        f"({result['decisions']} decisions each)", title_justify="left")
+    table.add_column("policy", style="bold")
+    for col in ("median ms", "p90 ms", "mean ± std ms", "bar ms", "meets bar"):
+        table.add_column(col, justify="right")
+    for r in result["rows"]:
+        table.add_row(
+            r["policy"], f"{r['median_ms']:.3f}", f"{r['p90_ms']:.3f}",
+            _pm(r["mean_ms"], r["std_ms"]), "-" if r["bar_ms"] is None else f"{r['bar_ms']:g}",
+            _ok(r["meets_bar"]),
+        )
+    return table
+
+
+def table1_table(rows: Sequence[Mapping[str, Any]]) -> Table:
+    """Table 1: our planning time next to the paper's."""
+    table = Table(title="Table 1: planning time per decision (ms), 10 robots",
+                  title_justify="left")
+    table.add_column("policy", style="bold")
+    table.add_column("ours mean ± std", justify="right")
+    table.add_column("ours median", justify="right")
+    table.add_column("ours p90", justify="right")
+    table.add_column("paper", justify="right")
+    for r in rows:
+        paper = ("-" if r["paper_mean_ms"] is None
+                 else _pm(r["paper_mean_ms"], r["paper_std_ms"], "g"))
+        table.add_row(r["policy"], _pm(r["mean_ms"], r["std_ms"]), f"{r['median_ms']:.3f}",
+                      f"{r['p90_ms']:.3f}", paper)
+    return table
+
+
+def sweep_table(title: str, x_name: str, rows: Sequence[Mapping[str, Any]]) -> Table:
+    """A sweep (Fig. 4/5): one row per x value, one column per policy, elratio mean ± std."""
+    policies = list(dict.fromkeys(r["policy"] for r in rows))
+    xs = list(dict.fromkeys(r[x_name] for r in rows))
+    cell = {(r["policy"], r[x_name]): r for r in rows}
+    table = Table(title=title, title_justify="left")
+    table.add_column(x_name, justify="right", style="bold")
+    for p in policies:
+        table.add_column(p, justify="right")
+    for x in xs:
+        vals = [cell.get((p, x)) for p in policies]
+        table.add_row(str(x), *("-" if v is None else _pm(v["elratio_mean"], v["elratio_std"])
+                                for v in vals))
+    return table
+
+
+def files_table(paths: Mapping[str, Sequence[str]]) -> Table:
+    """Which files each reproduced item wrote."""
+    table = Table(title="Written", title_justify="left")
+    table.add_column("item", style="bold")
+    table.add_column("files")
+    for item, files in paths.items():
+        table.add_row(item, "\n".join(files))
+    return table

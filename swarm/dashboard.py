@@ -1,0 +1,201 @@
+"""The live dashboard: pure render functions from a `SwarmView` to rich renderables.
+
+Nothing here opens a session or blocks; the supervisor feeds `SwarmView.apply_*` with the
+records it receives and `Live(get_renderable=...)` calls `render`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from rich.console import Group
+from rich.layout import Layout
+from rich.panel import Panel
+from rich.table import Table
+from rich.text import Text
+
+ROBOT_STYLES = ("bold red", "bold green", "bold yellow", "bold blue", "bold magenta", "bold cyan")
+
+
+@dataclass
+class RobotRow:
+    state: str = "starting"
+    pos: tuple[int, int] | None = None
+    msgs_in: int = 0
+    msgs_out: int = 0
+    latency_ms: float = 0.0
+    bad: int = 0
+    missed: int = 0
+    bytes_out: int = 0
+    alive: bool = False
+    restarts: int = 0
+
+
+@dataclass
+class SwarmView:
+    """Everything the dashboard shows, accumulated from status records."""
+
+    run_id: str
+    policy: str
+    height: int
+    width: int
+    n_robots: int
+    comm_range: float
+    episodes: int
+    static: set[tuple[int, int]] = field(default_factory=set)
+    dynamic: set[tuple[int, int]] = field(default_factory=set)
+    explored: set[tuple[int, int]] = field(default_factory=set)
+    robots: dict[int, RobotRow] = field(default_factory=dict)
+    ep: int = -1
+    tick: int = 0
+    elratio: float = 0.0
+    block_coll: int = 0
+    robot_coll: int = 0
+    ticks_done: int = 0
+    started: float = field(default_factory=time.monotonic)
+    tick_times: list[float] = field(default_factory=list)
+    world_alive: bool = False
+    timeouts: int = 0
+    bad: int = 0
+    late: int = 0
+    episodes_done: int = 0
+    faults: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for i in range(self.n_robots):
+            self.robots.setdefault(i, RobotRow())
+
+    def apply_status(self, rec: dict[str, Any], now: float | None = None) -> None:
+        """A world status record (one per tick)."""
+        now = time.monotonic() if now is None else now
+        if rec.get("ep") != self.ep:
+            if self.ep >= 0:
+                self.episodes_done += 1
+            self.ep = int(rec.get("ep", 0))
+            self.explored.clear()
+            self.dynamic.clear()
+        if "static" in rec:
+            self.static = {tuple(c) for c in rec["static"]}  # type: ignore[misc]
+        self.tick = int(rec.get("t", 0))
+        self.elratio = float(rec.get("elratio", 0.0))
+        self.block_coll = int(rec.get("block_coll", 0))
+        self.robot_coll = int(rec.get("robot_coll", 0))
+        self.dynamic = {tuple(c) for c in rec.get("dyn", [])}  # type: ignore[misc]
+        self.bad = int(rec.get("bad", 0))
+        self.late = int(rec.get("late", 0))
+        self.timeouts += len(rec.get("timeouts", []))
+        for i, (p, alive) in enumerate(zip(rec.get("pos", []), rec.get("alive", []))):
+            row = self.robots.setdefault(i, RobotRow())
+            row.pos = (int(p[0]), int(p[1]))
+            if alive:
+                self.explored.add(row.pos)
+        self.ticks_done += 1
+        self.tick_times = (self.tick_times + [now])[-20:]
+
+    def apply_robot(self, rec: dict[str, Any]) -> None:
+        row = self.robots.setdefault(int(rec.get("robot", -1)), RobotRow())
+        row.msgs_in = int(rec.get("msgs_in", 0))
+        row.msgs_out = int(rec.get("msgs_out", 0))
+        row.latency_ms = float(rec.get("latency_ms", 0.0))
+        row.bad = int(rec.get("bad", 0))
+        row.missed = int(rec.get("missed", 0))
+        row.bytes_out = int(rec.get("bytes_out", 0))
+
+    def set_alive(self, robot: int, alive: bool) -> None:
+        row = self.robots.setdefault(robot, RobotRow())
+        if alive and not row.alive and row.state == "lost":
+            row.restarts += 1
+        row.alive = alive
+        row.state = "acting" if alive else ("lost" if row.state != "starting" else "starting")
+
+    @property
+    def ticks_per_s(self) -> float:
+        if len(self.tick_times) < 2:
+            return 0.0
+        span = self.tick_times[-1] - self.tick_times[0]
+        return (len(self.tick_times) - 1) / span if span > 0 else 0.0
+
+
+def render_grid(v: SwarmView) -> Text:
+    """The map: static blocks, dynamic blocks, explored cells, robots by id."""
+    at: dict[tuple[int, int], list[int]] = {}
+    for i, row in v.robots.items():
+        if row.pos is not None and row.alive:
+            at.setdefault(row.pos, []).append(i)
+    text = Text()
+    for y in range(v.height):
+        for x in range(v.width):
+            c = (y, x)
+            if c in at:
+                ids = at[c]
+                label = str(ids[0] % 10) if len(ids) == 1 else "*"
+                text.append(label + " ", style=ROBOT_STYLES[ids[0] % len(ROBOT_STYLES)])
+            elif c in v.static:
+                text.append("██", style="grey50")
+            elif c in v.dynamic:
+                text.append("██", style="dark_orange")
+            elif c in v.explored:
+                text.append("· ", style="green")
+            else:
+                text.append("  ")
+        text.append("\n")
+    return text
+
+
+def render_links(v: SwarmView) -> int:
+    """Number of robot pairs currently within comm range (shown in the figures)."""
+    pos = [(i, r.pos) for i, r in v.robots.items() if r.pos is not None and r.alive]
+    n = 0
+    for a in range(len(pos)):
+        for b in range(a + 1, len(pos)):
+            (ya, xa), (yb, xb) = pos[a][1], pos[b][1]  # type: ignore[misc]
+            if (ya - yb) ** 2 + (xa - xb) ** 2 <= v.comm_range ** 2:
+                n += 1
+    return n
+
+
+def render_robots(v: SwarmView) -> Table:
+    table = Table(title="robots", expand=True, pad_edge=False)
+    for col in ("id", "state", "pos", "in", "out", "lat ms", "missed", "bad", "restarts"):
+        table.add_column(col, justify="right" if col not in ("state",) else "left")
+    for i in sorted(v.robots):
+        r = v.robots[i]
+        state = Text(r.state, style="green" if r.alive else "red")
+        table.add_row(str(i), state, "-" if r.pos is None else f"{r.pos[0]},{r.pos[1]}",
+                      str(r.msgs_in), str(r.msgs_out), f"{r.latency_ms:.1f}", str(r.missed),
+                      str(r.bad), str(r.restarts))
+    return table
+
+
+def render_figures(v: SwarmView) -> Table:
+    table = Table.grid(padding=(0, 2))
+    table.add_column(style="bold")
+    table.add_column()
+    elapsed = max(time.monotonic() - v.started, 1e-9)
+    rows = [
+        ("run", v.run_id), ("policy", v.policy),
+        ("episode", f"{max(v.episodes_done, 0)}/{v.episodes} (ep {v.ep})"),
+        ("tick", str(v.tick)), ("ticks/s", f"{v.ticks_per_s:.1f}"),
+        ("elratio", f"{v.elratio:.3f}"),
+        ("collisions", f"block {v.block_coll}  robot {v.robot_coll}"),
+        ("links in range", str(render_links(v))),
+        ("msgs/s", f"{sum(r.msgs_out for r in v.robots.values()) / elapsed:.0f}"),
+        ("bytes/s", f"{sum(r.bytes_out for r in v.robots.values()) / elapsed:.0f}"),
+        ("timeouts", str(v.timeouts)), ("bad / late", f"{v.bad} / {v.late}"),
+        ("robots alive", f"{sum(r.alive for r in v.robots.values())}/{v.n_robots}"),
+        ("faults", ", ".join(v.faults) or "none"),
+    ]
+    for k, val in rows:
+        table.add_row(k, val)
+    return table
+
+
+def render(v: SwarmView) -> Layout:
+    """The whole screen."""
+    layout = Layout()
+    layout.split_row(Layout(name="map", ratio=3), Layout(name="side", ratio=4))
+    layout["map"].update(Panel(render_grid(v), title=f"map {v.height}x{v.width}"))
+    layout["side"].update(Group(Panel(render_figures(v), title="swarm"), render_robots(v)))
+    return layout

@@ -1,0 +1,60 @@
+"""Policy names as the command line gives them, resolved against the registry and built.
+
+Every subcommand that takes `--policy`/`--policies` goes through here, so a learned policy
+registered in `policies.REGISTRY` becomes usable everywhere by its name alone.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from policies import BASELINES, REGISTRY, policy_class
+from policies.base import Policy
+from world.config import ConfigError, WorldConfig
+
+
+def resolve_policies(spec: str | list[str] | tuple[str, ...]) -> list[str]:
+    """`all`, one name or a comma-separated list -> registry names (order kept, no repeats)."""
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    names: list[str] = []
+    for item in (s.strip() for s in items):
+        if not item:
+            continue
+        expanded = list(BASELINES) if item == "all" else [item]
+        for name in expanded:
+            if name not in REGISTRY:
+                known = ", ".join(REGISTRY)
+                raise ConfigError(f"unknown policy {name!r}; choose from all, {known}")
+            if name not in names:
+                names.append(name)
+    if not names:
+        raise ConfigError("no policy given")
+    return names
+
+
+def load_class(name: str) -> type[Policy]:
+    """The registered class; a module that cannot be imported is a one-line ConfigError."""
+    try:
+        return policy_class(name)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    except ImportError as exc:
+        raise ConfigError(f"policy {name!r} is registered but cannot be imported: {exc}") from None
+
+
+def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> Policy:
+    """Instantiate policy `name` for `cfg`; learned policies load `checkpoint` when one is given.
+
+    A learned policy class loads a checkpoint through `cls.from_checkpoint(path, cfg)`.
+    """
+    cls = load_class(name)
+    if checkpoint is None:
+        return cls(cfg)
+    if not cls.learned:
+        raise ConfigError(f"--checkpoint applies to learned policies only, not {name!r}")
+    if not Path(checkpoint).is_file():
+        raise ConfigError(f"checkpoint not found: {checkpoint}")
+    loader = getattr(cls, "from_checkpoint", None)
+    if loader is None:
+        raise ConfigError(f"policy {name!r} cannot load checkpoints (no from_checkpoint)")
+    return loader(checkpoint, cfg)

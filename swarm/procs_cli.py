@@ -1,0 +1,160 @@
+"""Command-line front ends of the distributed processes: `swarm run`, `swarm world`, `swarm robot`.
+
+Registered into the `swarm` parser by swarm/cli.py; each command is a thin wrapper around an
+importable `main(...)` (swarm.supervisor, swarm.world_proc, swarm.robot_proc).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import secrets
+import sys
+from dataclasses import fields
+from typing import Any
+
+from swarm import zconfig
+from swarm.runconfig import RunConfig
+from world.config import ConfigError, WorldConfig, from_dict
+
+
+def _add_run_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("run (override [run] of --config)")
+    g.add_argument("--policy", help="policy every robot runs (default nearest-frontier)")
+    g.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
+    g.add_argument("--episodes", type=int, metavar="K", help="episodes to run (default 1)")
+    g.add_argument("--first-episode", type=int, metavar="E", help="number of the first episode")
+    g.add_argument("--run-id", metavar="ID", help="namespace of every key (default: random)")
+    g.add_argument("--tick-timeout", type=float, metavar="S",
+                   help="seconds the world waits for a tick's actions (default 2)")
+    g.add_argument("--sample", action="store_true", default=None,
+                   help="sample actions (counter-based noise) instead of greedy")
+
+
+def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
+    flags = {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
+             "first_episode": args.first_episode, "run_id": args.run_id,
+             "tick_timeout": args.tick_timeout, "seed": args.seed,
+             "greedy": False if args.sample else None}
+    table = dict(tables.get("run", {}))
+    given = {k: v for k, v in flags.items() if v is not None}
+    data = {**table, **given}
+    data.setdefault("run_id", f"r{secrets.token_hex(4)}")
+    try:
+        return from_dict(RunConfig, data, "[run]")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _spec(path: str) -> tuple[WorldConfig, RunConfig]:
+    """Read the spec file the supervisor writes: {"world": {...}, "run": {...}}."""
+    try:
+        with open(path) as fh:
+            data = json.load(fh)
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"cannot read spec {path}: {exc}") from None
+    world = dict(data.get("world", {}))
+    if world.get("comm_range") == "inf":
+        world["comm_range"] = float("inf")
+    run = {k: v for k, v in data.get("run", {}).items() if k in {f.name for f in fields(RunConfig)}}
+    return from_dict(WorldConfig, world, "spec world"), from_dict(RunConfig, run, "spec run")
+
+
+def _logging(verbose: bool) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from swarm import cli
+    from swarm.supervisor import SuperviseOptions
+    from swarm.supervisor import main as supervise
+
+    tables = cli.file_tables(args.config)
+    world = cli.world_config(args, tables)
+    run = run_config(args, tables)
+    opts = SuperviseOptions(headless=args.headless, json_path=args.json,
+                            restart_crashed=args.restart_crashed, log_dir=args.log_dir)
+    out, _ = cli._consoles()
+    try:
+        res = supervise(world, run, opts, console=out)
+    except KeyboardInterrupt:
+        print("swarm: interrupted; every process of the run was stopped", file=sys.stderr)
+        return 130
+    if args.headless:
+        print(json.dumps({"result": {k: v for k, v in res.items() if k != "actions"}}), flush=True)
+    else:
+        from swarm.console import eval_table
+
+        out.print(eval_table([res], title=f"swarm run {run.run_id}"))
+        out.print(f"ticks/s {res.get('ticks_per_s', 0):.1f}  messages {res.get('messages')}  "
+                  f"timeouts {res.get('timeouts')}  robots lost {res.get('robots_lost')}")
+    return 0
+
+
+def cmd_world(args: argparse.Namespace) -> int:
+    from swarm import cli
+    from swarm.atomic import write_json
+    from swarm.world_proc import main as world_main
+
+    _logging(args.verbose)
+    if args.spec:
+        world, run = _spec(args.spec)
+    else:
+        tables = cli.file_tables(args.config)
+        world, run = cli.world_config(args, tables), run_config(args, tables)
+        print(f"swarm world: run id {run.run_id}", file=sys.stderr, flush=True)
+    try:
+        res = world_main(world, run, zconfig.from_args(args))
+    except KeyboardInterrupt:
+        return 130
+    if args.json:
+        write_json(args.json, res)
+    return 0
+
+
+def cmd_robot(args: argparse.Namespace) -> int:
+    from swarm.robot_proc import main as robot_main
+
+    _logging(args.verbose)
+    try:
+        robot_main(args.id, args.run_id, zconfig.from_args(args), wait_world=args.wait)
+    except KeyboardInterrupt:
+        return 130
+    except TimeoutError as exc:
+        raise ConfigError(str(exc)) from None
+    return 0
+
+
+def add_parsers(sub: Any, add_common: Any, add_world: Any) -> None:
+    """Register `run`, `world` and `robot` on the `swarm` subparsers."""
+    p = sub.add_parser("run", help="spawn world + N robot processes over Zenoh, live dashboard",
+                       description="The distributed swarm: one world process and N robot "
+                                   "processes, each with its own Zenoh session, on loopback.")
+    add_common(p)
+    add_world(p)
+    _add_run_flags(p)
+    p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
+    p.add_argument("--restart-crashed", action="store_true", help="restart robots that die")
+    p.add_argument("--log-dir", metavar="DIR", help="children's logs (default: a temp dir)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("world", help="the world process (grid, clock, radio), by hand",
+                       description="Run the world process; robots join with `swarm robot`.")
+    add_common(p)
+    add_world(p)
+    _add_run_flags(p)
+    p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_world)
+
+    p = sub.add_parser("robot", help="one robot process, by hand",
+                       description="Join run RUN_ID as robot ID; the config comes from the world.")
+    p.add_argument("--id", type=int, required=True, help="robot id 0..N-1")
+    p.add_argument("--run-id", required=True, help="the run to join (printed by `swarm world`)")
+    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the world")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_robot)

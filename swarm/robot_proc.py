@@ -1,0 +1,270 @@
+"""A robot process: one robot, one Zenoh session, the same policy code as the batched evaluator.
+
+Per tick: take the observation from the world, append the position to its own trajectory,
+publish the trajectory message, take the radio's bundle of what it heard, (for a chained policy)
+take the predecessor's hidden-state message, decide with `world.decentral.robot_view` and the
+shared policy, publish the action (and its own hidden-state message). It keeps acting for as
+long as the world is alive and exits by itself when the world's liveliness token disappears.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgpack
+import numpy as np
+import zenoh
+
+from policies import make_policy, policy_class
+from policies.base import Policy
+from swarm.keys import Keys
+from swarm.messages import K_RSTATUS, Action, BadMessage, Bundle, Hidden, Obs, Traj, pack_record
+from swarm.runconfig import RunConfig
+from swarm.zconfig import ZenohOptions
+from world.config import WorldConfig, from_dict
+from world.decentral import TrajMessages, robot_view
+
+log = logging.getLogger("swarm.robot")
+
+
+@dataclass
+class RobotCounters:
+    msgs_in: int = 0
+    msgs_out: int = 0
+    bytes_in: int = 0
+    bytes_out: int = 0
+    bad: int = 0
+    stale: int = 0
+    missed: int = 0  # ticks it could not act on (no bundle or predecessor state in time)
+    last_latency_ms: float = 0.0
+    bad_by_key: dict[str, int] = field(default_factory=dict)
+
+
+def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> tuple[WorldConfig, RunConfig]:
+    """Ask the world for the run's configuration, retrying until `timeout`."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for reply in session.get(keys.config, timeout=1.0):
+            if reply.ok is None:
+                continue
+            rec = msgpack.unpackb(reply.ok.payload.to_bytes(), raw=False)
+            world = dict(rec["world"])
+            if world.get("comm_range") == "inf":
+                world["comm_range"] = float("inf")
+            return from_dict(WorldConfig, world, "world"), RunConfig(**rec["run"])
+        time.sleep(0.1)
+    raise TimeoutError(f"no world answered on {keys.config} within {timeout:g} s")
+
+
+class RobotProcess:
+    """Robot `robot` of a run."""
+
+    def __init__(self, robot: int, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
+                 policy: Policy) -> None:
+        if not 0 <= robot < cfg.n_robots:
+            raise ValueError(f"robot id {robot} outside 0..{cfg.n_robots - 1}")
+        self.robot, self.cfg, self.run_cfg, self.session = robot, cfg, run, session
+        self.keys = Keys(run.run_id)
+        self.policy = policy
+        self.q: queue.Queue[tuple[str, str, bytes | None]] = queue.Queue()
+        self.c = RobotCounters()
+        self.world_alive = False
+        self.world_seen = False
+        self.ep = -1
+        self.visited = np.zeros(cfg.cells, dtype=bool)
+        self.recent: list[int] = []
+        self._bundles: dict[tuple[int, int], Bundle] = {}
+        self._hidden: dict[tuple[int, int], Hidden] = {}
+        self.traj_pub = session.declare_publisher(self.keys.traj(robot))
+        self.act_pub = session.declare_publisher(self.keys.action(robot))
+        self.hid_pub = session.declare_publisher(self.keys.hidden(robot))
+        self.status_pub = session.declare_publisher(self.keys.robot_status(robot))
+
+    def _declare(self) -> list[Any]:
+        k, q, r = self.keys, self.q, self.robot
+        sub = lambda key, kind: self.session.declare_subscriber(  # noqa: E731
+            key, lambda s: q.put((kind, str(s.key_expr), s.payload.to_bytes())))
+        return [
+            sub(k.obs(r), "obs"), sub(k.inbox(r), "bundle"), sub(k.inbox_hidden(r), "hidden"),
+            self.session.liveliness().declare_subscriber(
+                k.alive_world, lambda s: q.put(
+                    ("wlive" if s.kind == zenoh.SampleKind.PUT else "wdead", str(s.key_expr), None)),
+                history=True),
+            self.session.liveliness().declare_token(k.alive_robot(r)),
+        ]
+
+    def _bad(self, key: str, why: str) -> None:
+        self.c.bad += 1
+        self.c.bad_by_key[key] = self.c.bad_by_key.get(key, 0) + 1
+        log.warning("robot %d dropped bad payload on %s: %s", self.robot, key, why)
+
+    def _next(self, deadline: float) -> tuple[str, Any] | None:
+        """The next valid message before `deadline` (bad ones dropped and counted)."""
+        while True:
+            try:
+                kind, key, payload = self.q.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                return None
+            if kind in ("wlive", "wdead"):
+                self.world_alive = kind == "wlive"
+                self.world_seen |= self.world_alive
+                return (kind, None)
+            self.c.msgs_in += 1
+            self.c.bytes_in += len(payload or b"")
+            try:
+                if kind == "obs":
+                    msg: Any = Obs.unpack(payload or b"", self.cfg)
+                elif kind == "bundle":
+                    msg = Bundle.unpack(payload or b"", self.cfg)
+                else:
+                    msg = Hidden.unpack(payload or b"", self.cfg)
+                if kind != "hidden" and msg.robot != self.robot:
+                    raise BadMessage(f"addressed to robot {msg.robot}")
+            except BadMessage as exc:
+                self._bad(key, str(exc))
+                continue
+            return (kind, msg)
+
+    def _wait(self, kind: str, ep: int, t: int, sender: int | None, deadline: float) -> Any:
+        """Wait for a bundle/hidden of tick (ep, t), keeping early ones and dropping stale ones."""
+        store = self._bundles if kind == "bundle" else self._hidden
+        want = (ep, t) if kind == "bundle" else (ep, t, sender)
+        while True:
+            got = store.pop(want, None)  # type: ignore[call-overload]
+            if got is not None:
+                return got
+            item = self._next(deadline)
+            if item is None:
+                return None
+            k, msg = item
+            if k == "wdead":
+                return None
+            if k == "obs":
+                self._pending_obs = msg
+                return None
+            if k in ("bundle", "hidden"):
+                key = (msg.ep, msg.t) if k == "bundle" else (msg.ep, msg.t, msg.robot)
+                if (msg.ep, msg.t) >= (ep, t):
+                    (self._bundles if k == "bundle" else self._hidden)[key] = msg  # type: ignore
+                else:
+                    self.c.stale += 1
+
+    def heard(self, bundle: Bundle) -> TrajMessages:
+        m = TrajMessages.empty(self.cfg)
+        for payload in bundle.trajs:
+            try:
+                tr = Traj.unpack(payload, self.cfg)
+            except BadMessage as exc:
+                self._bad(self.keys.inbox(self.robot), str(exc))
+                continue
+            j = tr.robot
+            m.present[0, j] = True
+            m.pos[0, j] = (tr.y, tr.x)
+            m.visited[0, j] = tr.visited_bits(self.cfg.cells)
+            rec = tr.recent[-self.cfg.recent_len:]
+            m.recent[0, j, self.cfg.recent_len - len(rec):] = rec
+            m.patch[0, j] = np.frombuffer(tr.patch, dtype=np.uint8).reshape(self.cfg.vision, -1)
+        return m
+
+    def on_obs(self, obs: Obs) -> None:
+        cfg, r = self.cfg, self.robot
+        if obs.ep != self.ep or obs.t == 0:
+            self.ep = obs.ep
+            self.policy.reset(1)
+            self.visited[:] = False
+            self.recent = []
+        cell = obs.y * cfg.width + obs.x
+        self.visited[cell] = True
+        self.recent = (self.recent + [cell])[-cfg.recent_len:]
+        if obs.done:
+            return
+        t_recv = time.monotonic()
+        traj = Traj(obs.ep, obs.t, r, obs.y, obs.x, np.packbits(self.visited).tobytes(),
+                    self.recent, obs.patch).pack()
+        self.traj_pub.put(traj)
+        self.c.msgs_out += 1
+        self.c.bytes_out += len(traj)
+        deadline = t_recv + self.run_cfg.tick_timeout
+        bundle = self._wait("bundle", obs.ep, obs.t, None, deadline)
+        if bundle is None:
+            self.c.missed += 1
+            return
+        self.c.last_latency_ms = 1e3 * (time.monotonic() - t_recv)
+        view = robot_view(cfg, self.run_cfg.seed, obs.ep, obs.t, r, self.heard(bundle), obs.reward)
+        t0 = time.perf_counter()
+        if self.policy.chained:
+            pred = int(view.predecessor()[0, r])
+            hidden = None
+            if pred >= 0:
+                hidden = self._wait("hidden", obs.ep, obs.t, pred, deadline)
+                if hidden is None:
+                    self.c.missed += 1
+                    return
+            action, state = self.policy.act_with_chain(  # type: ignore[attr-defined]
+                view, None if hidden is None else hidden.vector(),
+                None if hidden is None else hidden.action, greedy=self.run_cfg.greedy)
+            h = Hidden(obs.ep, obs.t, r, int(action), np.asarray(state, "<f4").tobytes()).pack()
+            self.hid_pub.put(h)
+            self.c.msgs_out += 1
+            self.c.bytes_out += len(h)
+        else:
+            action = int(self.policy.act(view, greedy=self.run_cfg.greedy)[0, r])
+        ms = 1e3 * (time.perf_counter() - t0)
+        a = Action(obs.ep, obs.t, r, int(action), ms).pack()
+        self.act_pub.put(a)
+        self.c.msgs_out += 1
+        self.c.bytes_out += len(a)
+        if obs.t % 5 == 0:
+            self.status()
+
+    def status(self) -> None:
+        rec = {"robot": self.robot, "ep": self.ep, "msgs_in": self.c.msgs_in,
+               "msgs_out": self.c.msgs_out, "bytes_in": self.c.bytes_in,
+               "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
+               "missed": self.c.missed, "latency_ms": self.c.last_latency_ms}
+        self.status_pub.put(pack_record(K_RSTATUS, rec))
+
+    def run(self, wait_world: float = 30.0) -> RobotCounters:
+        ents = self._declare()
+        try:
+            deadline = time.monotonic() + wait_world
+            while True:
+                self._pending_obs: Obs | None = None
+                item = self._next(deadline if not self.world_seen else time.monotonic() + 3600)
+                if item is None:
+                    if not self.world_seen:
+                        raise TimeoutError(f"no world within {wait_world:g} s")
+                    continue
+                kind, msg = item
+                if kind == "wdead" and self.world_seen:
+                    log.info("robot %d: world gone, exiting", self.robot)
+                    break
+                while kind == "obs" and msg is not None:
+                    self.on_obs(msg)
+                    msg, self._pending_obs = self._pending_obs, None
+                if not self.world_alive and self.world_seen:
+                    break
+            self.status()
+            return self.c
+        finally:
+            for e in ents:
+                e.undeclare()
+
+
+def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0) -> RobotCounters:
+    """Join run `run_id` as robot `robot`: fetch the config from the world, then act until it ends."""
+    keys = Keys(run_id)
+    with zenoh.open(zopts.to_config()) as session:
+        cfg, run = fetch_config(session, keys, wait_world)
+        if policy_class(run.policy).learned:  # frontier robots never import torch (~230 MB)
+            import torch
+
+            torch.set_num_threads(run.robot_threads)
+        kwargs = {"checkpoint": run.checkpoint} if run.checkpoint else {}
+        policy = make_policy(run.policy, cfg, **kwargs)
+        policy.reset(1)
+        return RobotProcess(robot, cfg, run, session, policy).run(wait_world)

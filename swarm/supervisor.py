@@ -1,0 +1,208 @@
+"""`swarm run`: spawn the world and N robot processes, supervise them, show the live dashboard.
+
+Every child is a fresh interpreter (subprocess, never fork: a forked Zenoh session hangs). The
+world listens on a free loopback port; robots and the supervisor's own session connect to it.
+Ctrl-C (or any exit) sends SIGINT to every child, then SIGKILL to whatever is left after 2 s,
+so no process of the run outlives it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from rich.console import Console
+from rich.live import Live
+
+from swarm.atomic import write_json
+from swarm.dashboard import SwarmView, render
+from swarm.keys import Keys
+from swarm.messages import K_CONTROL, K_RESULT, K_RSTATUS, K_STATUS, BadMessage, pack_record, unpack_record
+from swarm.runconfig import RunConfig
+from swarm.zconfig import ZenohOptions, free_port
+from world.config import WorldConfig, to_dict
+
+
+@dataclass
+class SuperviseOptions:
+    headless: bool = False
+    """Write JSON lines to stdout instead of the live dashboard."""
+    json_path: str | None = None
+    """Write the run's result (one JSON object) here, atomically."""
+    restart_crashed: bool = False
+    """Start a robot process again when it dies."""
+    log_dir: str | None = None
+    """Children's stderr goes to files here (default: a temporary directory)."""
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "swarm.cli", *args]
+
+
+def _wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"world process exited with code {proc.returncode} before listening")
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            if s.connect_ex((host, port)) == 0:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"world did not listen on {host}:{port} within {timeout:g} s")
+
+
+class Supervisor:
+    def __init__(self, cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
+                 console: Console | None = None) -> None:
+        self.cfg, self.run_cfg, self.opts = cfg, run, opts
+        self.console = console or Console()
+        self.keys = Keys(run.run_id)
+        self.port = free_port()
+        self.hub = f"tcp/127.0.0.1:{self.port}"
+        self.tmp = Path(tempfile.mkdtemp(prefix=f"swarm-{run.run_id}-"))
+        self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.world: subprocess.Popen[bytes] | None = None
+        self.robots: dict[int, subprocess.Popen[bytes]] = {}
+        self.q: queue.Queue[tuple[str, str, bytes | None]] = queue.Queue()
+        self.view = SwarmView(run.run_id, run.policy, cfg.height, cfg.width, cfg.n_robots,
+                              cfg.comm_range, run.episodes)
+        self.result: dict[str, Any] | None = None
+        self.crashes = 0
+        self.restarts = 0
+
+    def _spawn(self, args: list[str], name: str) -> subprocess.Popen[bytes]:
+        err = open(self.log_dir / f"{name}.log", "ab")
+        env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+        return subprocess.Popen(_cli(*args), stdout=subprocess.DEVNULL, stderr=err,
+                                stdin=subprocess.DEVNULL, env=env)
+
+    def spawn_robot(self, i: int) -> None:
+        self.robots[i] = self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
+                                      "--connect", self.hub], f"robot{i}")
+
+    def start(self) -> float:
+        spec = self.tmp / "spec.json"
+        write_json(spec, {"world": to_dict(self.cfg), "run": asdict(self.run_cfg)})
+        t0 = time.monotonic()
+        self.world = self._spawn(["world", "--spec", str(spec), "--listen", self.hub], "world")
+        _wait_port("127.0.0.1", self.port, self.world, 30.0)
+        for i in range(self.cfg.n_robots):
+            self.spawn_robot(i)
+        return t0
+
+    def stop_all(self, grace: float = 2.0) -> None:
+        procs = [p for p in [self.world, *self.robots.values()] if p is not None]
+        for p in procs:
+            if p.poll() is None:
+                try:
+                    p.send_signal(signal.SIGINT)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + grace
+        for p in procs:
+            try:
+                p.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+    def _handle(self, kind: str, key: str, payload: bytes | None) -> None:
+        v = self.view
+        try:
+            if kind == "status":
+                rec = unpack_record(payload or b"", K_STATUS)
+                v.apply_status(rec)
+                if self.opts.headless:
+                    print(json.dumps({"status": rec}), flush=True)
+            elif kind == "rstatus":
+                v.apply_robot(unpack_record(payload or b"", K_RSTATUS))
+            elif kind == "result":
+                self.result = unpack_record(payload or b"", K_RESULT)
+            elif kind in ("live", "dead"):
+                parts = key.split("/")
+                if parts[-2] == "robot" and parts[-1].isdigit():
+                    v.set_alive(int(parts[-1]), kind == "live")
+                elif parts[-1] == "world":
+                    v.world_alive = kind == "live"
+        except BadMessage:
+            pass
+
+    def supervise(self) -> dict[str, Any]:
+        conf = ZenohOptions(connect=[self.hub], listen=["tcp/127.0.0.1:0"]).to_config()
+        t_start = self.start()
+        first_tick: float | None = None
+        with zenoh.open(conf) as session:
+            q, k = self.q, self.keys
+            sub = lambda key, kind: session.declare_subscriber(  # noqa: E731
+                key, lambda s: q.put((kind, str(s.key_expr), s.payload.to_bytes())))
+            ents = [sub(k.status, "status"), sub(k.robot_status("*"), "rstatus"),
+                    sub(k.result, "result"),
+                    session.liveliness().declare_subscriber(
+                        f"{k.base}/alive/**", lambda s: q.put(
+                            ("live" if s.kind == zenoh.SampleKind.PUT else "dead",
+                             str(s.key_expr), None)), history=True)]
+            live = None if self.opts.headless else Live(
+                get_renderable=lambda: render(self.view), console=self.console,
+                refresh_per_second=4, screen=False, transient=False)
+            try:
+                if live:
+                    live.start()
+                while self.result is None:
+                    try:
+                        kind, key, payload = q.get(timeout=0.1)
+                        self._handle(kind, key, payload)
+                        if kind == "status" and first_tick is None:
+                            first_tick = time.monotonic()
+                    except queue.Empty:
+                        pass
+                    self._check_children()
+                    if self.world is not None and self.world.poll() is not None and q.empty():
+                        break
+            except KeyboardInterrupt:
+                session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
+                raise
+            finally:
+                if live:
+                    live.stop()
+                for e in ents:
+                    e.undeclare()
+                self.stop_all()
+        if self.result is None:
+            raise RuntimeError(f"world ended without a result (exit code "
+                               f"{self.world.returncode if self.world else '?'}); logs in {self.log_dir}")
+        res = dict(self.result)
+        res["startup_s"] = (first_tick - t_start) if first_tick else None
+        res["robot_crashes"] = self.crashes
+        res["robot_restarts"] = self.restarts
+        if self.opts.json_path:
+            write_json(self.opts.json_path, res)
+        return res
+
+    def _check_children(self) -> None:
+        for i, p in list(self.robots.items()):
+            if p.poll() is not None and self.result is None:
+                if p.returncode != 0:
+                    self.crashes += 1
+                if self.opts.restart_crashed:
+                    self.restarts += 1
+                    self.spawn_robot(i)
+                else:
+                    del self.robots[i]
+
+
+def main(cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
+         console: Console | None = None) -> dict[str, Any]:
+    return Supervisor(cfg, run, opts, console).supervise()

@@ -1,0 +1,214 @@
+"""The `swarm` CLI as a user runs it: real subprocesses, tiny budgets; plus its pure renderers."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from io import StringIO
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from swarm.cli import EvalConfig, file_tables, merged, world_config
+from swarm.console import env_bench_table, eval_table, policy_bench_table, sweep_table, table1_table
+from world.config import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+EVAL_KEYS = {"policy", "robots", "episodes", "seed", "elratio_mean", "elratio_std", "reward_mean",
+             "collisions_mean", "block_collisions_mean", "success_rate", "planning_ms_per_decision"}
+
+
+def swarm(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """Run `python -m swarm.cli ARGS` from the repository root."""
+    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], check=False, cwd=ROOT,
+                          text=True, capture_output=True, timeout=timeout)
+
+
+def has_policy(name: str) -> bool:
+    from policies import policy_class
+
+    try:
+        policy_class(name)
+    except ImportError:
+        return False
+    return True
+
+
+def test_eval_writes_contract_json(tmp_path: Path) -> None:
+    out = tmp_path / "eval.json"
+    r = swarm("eval", "--policy", "random", "--robots", "4", "--episodes", "12", "--seed", "3",
+              "--batch", "5", "--static", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "random" in r.stdout and "elratio" in r.stdout  # the rich results table
+    data = json.loads(out.read_text())
+    assert EVAL_KEYS <= set(data)
+    assert (data["policy"], data["robots"], data["episodes"], data["seed"]) == ("random", 4, 12, 3)
+    assert data["dynamic"] is False
+    assert 0.0 < data["elratio_mean"] <= 1.0 and data["elratio_std"] >= 0.0
+    assert 0.0 <= data["success_rate"] <= 1.0
+    assert data["collisions_mean"] >= data["block_collisions_mean"] >= 0.0
+    assert data["planning_ms_per_decision"] >= 0.0
+    assert not list(tmp_path.glob(".*.tmp"))  # the atomic writer cleaned up
+
+
+def test_eval_is_deterministic_and_frontier_beats_random(tmp_path: Path) -> None:
+    names = ["random"] + (["nearest-frontier"] if has_policy("nearest-frontier") else [])
+    runs = []
+    for k in range(2):
+        out = tmp_path / f"e{k}.json"
+        r = swarm("eval", "--policy", ",".join(names), "--episodes", "6", "--seed", "1",
+                  "--json", str(out))
+        assert r.returncode == 0, r.stderr
+        runs.append(json.loads(out.read_text()))
+    first = runs[0]["results"] if len(names) > 1 else [runs[0]]
+    second = runs[1]["results"] if len(names) > 1 else [runs[1]]
+    for a, b in zip(first, second, strict=True):
+        assert a["elratio_mean"] == b["elratio_mean"] and a["reward_mean"] == b["reward_mean"]
+    if len(names) > 1:
+        assert first[1]["elratio_mean"] > first[0]["elratio_mean"]
+
+
+@pytest.mark.parametrize("args", [
+    ["eval", "--episodes", "-3", "--policy", "random"],
+    ["eval", "--policy", "no-such-policy"],
+    ["eval", "--episodes", "many"],
+    ["eval", "--comm-range", "-1"],
+    ["eval", "--policy", "random", "--vision", "4"],
+    ["eval", "--policy", "random", "--checkpoint", "x.pt"],
+    ["eval", "--policy", "random", "--config", "{tmp}/missing.toml"],
+    ["eval", "--policy", "random", "--config", "{tmp}/malformed.toml"],
+    ["bench", "env", "--batch", "0,4"],
+    ["bench", "policy", "--policies", "random,bogus"],
+    ["repro", "fig9", "--out", "{tmp}/o"],
+    ["repro", "fig5", "--out", "{tmp}/o", "--add-every", "40", "--policies", "random"],
+    ["frobnicate"],
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str]) -> None:
+    (tmp_path / "malformed.toml").write_text("[world\nn_robots = = 3\n")
+    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args))
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("swarm: error: "), r.stderr
+    assert "Traceback" not in r.stderr + r.stdout
+
+
+def test_config_file_unknown_key_and_table_rejected(tmp_path: Path) -> None:
+    for body, word in [("[world]\nn_robotz = 3\n", "n_robotz"),
+                       ("[eval]\nepisodez = 3\n", "episodez"),
+                       ("[wrold]\nn_robots = 3\n", "wrold")]:
+        cfg = tmp_path / "exp.toml"
+        cfg.write_text(body)
+        r = swarm("eval", "--policy", "random", "--episodes", "2", "--config", str(cfg))
+        assert r.returncode == 2
+        assert len(r.stderr.strip().splitlines()) == 1 and word in r.stderr
+
+
+def test_config_file_applies_and_flags_override(tmp_path: Path) -> None:
+    cfg = tmp_path / "exp.toml"
+    cfg.write_text('[world]\nn_robots = 3\ndynamic = false\n\n'
+                   '[eval]\npolicy = "random"\nepisodes = 5\nseed = 9\n')
+    out = tmp_path / "e.json"
+    r = swarm("eval", "--config", str(cfg), "--episodes", "4", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    data = json.loads(out.read_text())
+    assert (data["robots"], data["episodes"], data["seed"], data["dynamic"]) == (3, 4, 9, False)
+
+
+def test_merge_precedence_in_process(tmp_path: Path) -> None:
+    cfg = tmp_path / "exp.toml"
+    cfg.write_text('[world]\nvision = 7\ncomm_range = 3.5\n[eval]\nbatch = 17\n')
+    tables = file_tables(str(cfg))
+    import argparse
+
+    args = argparse.Namespace(world_robots=None, dynamic=None, world_add_every=None, vision=None,
+                              comm_range=float("inf"), horizon=None, sense=True)
+    world = world_config(args, tables)
+    assert (world.vision, world.comm_range, world.explore_mode) == (7, float("inf"), "sense")
+    ev = merged(EvalConfig, tables["eval"], {"episodes": 3, "batch": None}, "[eval]")
+    assert (ev.batch, ev.episodes, ev.policy) == (17, 3, "nearest-frontier")
+    with pytest.raises(ConfigError):
+        merged(EvalConfig, {}, {"episodes": 0}, "[eval]")
+
+
+def test_bench_env_tiny(tmp_path: Path) -> None:
+    out = tmp_path / "env.json"
+    r = swarm("bench", "env", "--batch", "1,4", "--repeats", "2", "--episodes", "1",
+              "--robots", "3", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    data = json.loads(out.read_text())
+    assert set(data["agent_steps_per_s"]) == {"1", "4"}
+    assert all(v > 0 for v in data["agent_steps_per_s"].values())
+    assert data["robots"] == 3 and "agent-steps/s" in r.stdout
+
+
+def test_bench_policy_tiny(tmp_path: Path) -> None:
+    out = tmp_path / "pol.json"
+    r = swarm("bench", "policy", "--policies", "random", "--decisions", "8", "--warmup", "0",
+              "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    row = json.loads(out.read_text())["rows"][0]
+    assert row["policy"] == "random" and row["decisions"] == 8
+    assert 0 <= row["min_ms"] <= row["median_ms"] <= row["p90_ms"] <= row["max_ms"]
+
+
+def test_repro_all_tiny_writes_every_file(tmp_path: Path) -> None:
+    out = tmp_path / "repro"
+    r = swarm("repro", "all", "--out", str(out), "--policies", "random", "--episodes", "3",
+              "--robots", "2,4", "--add-every", "3,6", "--decisions", "5", "--seed", "7")
+    assert r.returncode == 0, r.stderr
+    for item in ("table1", "fig4", "fig5"):
+        for ext in ("csv", "md", "png", "json"):
+            assert (out / f"{item}.{ext}").stat().st_size > 0, (item, ext)
+        assert (out / f"{item}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        md = (out / f"{item}.md").read_text()
+        assert "swarm repro all" in md and "seed 7" in md and "|" in md
+    rows = list(csv.DictReader((out / "fig4.csv").open()))
+    assert [int(r["robots"]) for r in rows] == [2, 4]
+    assert all(0 < float(r["elratio_mean"]) <= 1 for r in rows)
+    fig5 = json.loads((out / "fig5.json").read_text())
+    assert [r["add_every"] for r in fig5["rows"]] == [3, 6]
+    table1 = list(csv.DictReader((out / "table1.csv").open()))
+    assert table1[0]["policy"] == "random" and float(table1[0]["mean_ms"]) >= 0
+
+
+def _render(table: object) -> str:
+    console = Console(record=True, width=200, file=StringIO())
+    console.print(table)
+    return console.export_text()
+
+
+def test_renderers_show_the_figures() -> None:
+    s = {"policy": "nearest-frontier", "elratio_mean": 0.8531, "elratio_std": 0.0412,
+         "reward_mean": -71.25, "reward_std": 20.0, "collisions_mean": 4.5,
+         "block_collisions_mean": 0.25, "success_rate": 0.375, "planning_ms_per_decision": 0.1234}
+    text = _render(eval_table([s], "eval test"))
+    for x in ("nearest-frontier", "0.853 ± 0.041", "37.5%", "0.123", "eval test"):
+        assert x in text
+
+    env = {"robots": 10, "horizon": 30, "repeats": 3, "bar": {"batch": 1024,
+                                                              "agent_steps_per_s": 4e6},
+           "rows": [{"batch": 1024, "agent_steps_per_s": 4.5e6, "min": 4e6, "max": 5e6,
+                     "agent_steps_per_cpu_s": 4.6e6, "step_ms": 2.2, "reset_ms_per_episode": 1.9}]}
+    text = _render(env_bench_table(env))
+    assert "4,500,000" in text and "yes" in text
+
+    pol = {"robots": 10, "decisions": 50, "rows": [
+        {"policy": "cost-utility", "median_ms": 3.5, "p90_ms": 5.0, "mean_ms": 3.7, "std_ms": 0.5,
+         "bar_ms": 3.0, "meets_bar": False}]}
+    text = _render(policy_bench_table(pol))
+    assert "cost-utility" in text and "3.500" in text and "NO" in text
+
+    t1 = [{"policy": "nearest-frontier", "mean_ms": 0.4, "std_ms": 0.1, "median_ms": 0.3,
+           "p90_ms": 0.6, "paper_mean_ms": 35.0, "paper_std_ms": 5.0},
+          {"policy": "random", "mean_ms": 0.01, "std_ms": 0.0, "median_ms": 0.01, "p90_ms": 0.02,
+           "paper_mean_ms": None, "paper_std_ms": None}]
+    text = _render(table1_table(t1))
+    assert "35 ± 5" in text and "random" in text
+
+    rows = [{"policy": p, "robots": n, "elratio_mean": 0.5 + n / 100, "elratio_std": 0.01}
+            for p in ("random", "nearest-frontier") for n in (2, 4)]
+    text = _render(sweep_table("Fig. 4", "robots", rows))
+    assert "0.540 ± 0.010" in text and "nearest-frontier" in text

@@ -1,0 +1,53 @@
+"""The dashboard's pure render functions, rendered into a capture console."""
+
+from __future__ import annotations
+
+import io
+
+from rich.console import Console
+
+from swarm.dashboard import SwarmView, render, render_robots
+
+
+def _view() -> SwarmView:
+    v = SwarmView("demo", "nearest-frontier", 6, 8, 3, 10.0, episodes=2)
+    v.apply_status({"ep": 0, "t": 1, "pos": [[0, 0], [2, 3], [5, 7]], "alive": [True, True, True],
+                    "elratio": 0.42, "block_coll": 1, "robot_coll": 0, "dyn": [[4, 4]],
+                    "timeouts": [], "static": [[1, 1], [1, 2]]}, now=0.0)
+    v.apply_status({"ep": 0, "t": 2, "pos": [[0, 1], [2, 3], [5, 7]], "alive": [True, True, True],
+                    "elratio": 0.5, "block_coll": 1, "robot_coll": 2, "dyn": [[4, 4], [3, 3]],
+                    "timeouts": [2]}, now=0.1)
+    for i in range(3):
+        v.set_alive(i, True)
+    v.apply_robot({"robot": 1, "msgs_in": 12, "msgs_out": 9, "latency_ms": 1.5, "bad": 3})
+    return v
+
+
+def _text(renderable: object, width: int = 140) -> str:
+    console = Console(file=io.StringIO(), width=width, record=True, color_system=None)
+    console.print(renderable)
+    return console.export_text()
+
+
+def test_dashboard_shows_grid_robots_and_figures() -> None:
+    v = _view()
+    text = _text(render(v))
+    assert "demo" in text and "nearest-frontier" in text
+    assert "0.500" in text  # elratio
+    assert "block 1  robot 2" in text
+    assert "ticks/s" in text and "10.0" in text  # two statuses 0.1 s apart
+    assert "██" in text  # static / dynamic blocks drawn
+    grid_rows = [line for line in text.splitlines() if "map 6x8" in line]
+    assert grid_rows
+
+
+def test_robot_table_counts_and_lost_robot() -> None:
+    v = _view()
+    v.set_alive(2, False)
+    text = _text(render_robots(v))
+    assert "lost" in text
+    rows = {line.split("│")[1].strip(): line for line in text.splitlines() if line.count("│") > 2}
+    cells = [c.strip() for c in rows["1"].split("│")]
+    assert cells[2:10] == ["acting", "2,3", "12", "9", "1.5", "0", "3", "0"]
+    assert "lost" in rows["2"]
+    assert v.timeouts == 1

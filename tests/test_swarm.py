@@ -1,0 +1,176 @@
+"""The distributed swarm with real processes and real Zenoh sessions on loopback (scouting off)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from policies import make_policy
+from swarm.evaluate import evaluate
+from swarm.keys import Keys
+from swarm.zconfig import ZenohOptions
+from world.config import WorldConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def swarm(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
+                          capture_output=True, timeout=timeout)
+
+
+def run_procs(run_id: str) -> list[int]:
+    """PIDs of live processes whose command line mentions the run id."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            stat = (d / "stat").read_text().split()
+        except OSError:
+            continue
+        if run_id in cmd and stat[2] != "Z" and int(d.name) != os.getpid():
+            pids.append(int(d.name))
+    return pids
+
+
+def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path) -> None:
+    out = tmp_path / "run.json"
+    r = swarm("run", "--headless", "--robots", "4", "--policy", "nearest-frontier",
+              "--episodes", "2", "--seed", "11", "--run-id", "eqnf", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    cfg = WorldConfig(n_robots=4)
+    ev = evaluate(cfg, make_policy("nearest-frontier", cfg), 11, 2, record_actions=True)
+    assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
+    summ = ev.summary(cfg)
+    for key in ("elratio_mean", "reward_mean", "collisions_mean", "success_rate"):
+        assert res[key] == pytest.approx(summ[key])
+    assert res["timeouts"] == 0 and res["messages"]["bad"] == 0
+    assert res["ticks_per_s"] > 0
+    lines = [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
+    assert sum("status" in rec for rec in lines) == 2 * cfg.horizon
+    assert "result" in lines[-1]
+
+
+def test_range_limited_delivery_out_of_range_hears_nothing(tmp_path: Path) -> None:
+    """comm_range 0: every bundle holds exactly the receiver's own message."""
+    out = tmp_path / "run.json"
+    r = swarm("run", "--headless", "--robots", "3", "--policy", "random", "--episodes", "1",
+              "--comm-range", "0", "--run-id", "range0", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    m = res["messages"]
+    assert m["traj_delivered"] == m["traj_in"] == 3 * 30
+    assert m["out_of_range"] > 0
+
+
+def test_malformed_payloads_are_dropped_and_counted(tmp_path: Path) -> None:
+    out = tmp_path / "run.json"
+    run_id = "badmsg"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
+         "random", "--episodes", "4", "--run-id", run_id, "--json", str(out), "--tick-timeout",
+         "1"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    keys = Keys(run_id)
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()  # the first tick's status: the swarm is up
+        assert "status" in first, proc.stderr.read() if proc.stderr else ""
+        # Join as a plain Zenoh client by the world's port, found from the supervisor's child.
+        hub = _hub_of(run_id)
+        with zenoh.open(ZenohOptions(connect=[hub]).to_config()) as s:
+            time.sleep(0.3)
+            junk = [b"", b"\xc1", b"\x93\x01\x01\x01", b"\x92\x01\x01", b"not msgpack at all"]
+            targets = [keys.traj(0), keys.hidden(1), keys.action(2), keys.control, keys.obs(0),
+                       keys.inbox(1), keys.inbox_hidden(2)]
+            for key in targets:
+                for payload in junk:
+                    s.put(key, payload)
+        proc.communicate(timeout=60)  # drain stdout: a full pipe would stall the supervisor
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    res = json.loads(out.read_text())
+    assert res["completed"] == 4
+    assert res["messages"]["bad"] > 0
+    assert res["robots_lost"] == 0 and res["robot_crashes"] == 0
+
+
+def _hub_of(run_id: str) -> str:
+    for pid in run_procs(run_id):
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        if b"robot" in cmd and b"--connect" in cmd:
+            return cmd[cmd.index(b"--connect") + 1].decode()
+    raise AssertionError("no robot process found")
+
+
+def test_killed_robot_is_noticed_and_mission_goes_on(tmp_path: Path) -> None:
+    out = tmp_path / "run.json"
+    run_id = "killone"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
+         "nearest-frontier", "--episodes", "6", "--run-id", run_id, "--json", str(out)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        proc.stdout.readline()
+        victim = [p for p in run_procs(run_id)
+                  if b"--id\x001\x00" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        assert victim
+        os.kill(victim[0], signal.SIGKILL)
+        proc.communicate(timeout=90)
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    res = json.loads(out.read_text())
+    assert res["completed"] == 6
+    assert res["robots_lost"] == 1
+    assert res["robot_crashes"] == 1
+
+
+def test_ctrl_c_leaves_no_process_behind() -> None:
+    run_id = "ctrlc"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
+         "random", "--episodes", "1000", "--run-id", run_id],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    proc.stdout.readline()
+    assert len(run_procs(run_id)) >= 4  # supervisor, world, 3 robots
+    proc.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    proc.communicate(timeout=10)
+    while run_procs(run_id) and time.monotonic() - t0 < 3.0:
+        time.sleep(0.05)
+    assert run_procs(run_id) == []
+    assert time.monotonic() - t0 < 3.5
+
+
+def test_two_runs_side_by_side_do_not_cross_talk(tmp_path: Path) -> None:
+    procs = []
+    for run_id, seed in (("sideA", 3), ("sideB", 4)):
+        procs.append((seed, tmp_path / f"{run_id}.json", subprocess.Popen(
+            [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
+             "nearest-frontier", "--episodes", "2", "--seed", str(seed), "--run-id", run_id,
+             "--json", str(tmp_path / f"{run_id}.json")],
+            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)))
+    cfg = WorldConfig(n_robots=3)
+    for seed, path, proc in procs:
+        assert proc.wait(timeout=120) == 0
+        res = json.loads(path.read_text())
+        ev = evaluate(cfg, make_policy("nearest-frontier", cfg), seed, 2, record_actions=True)
+        assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
+        assert res["messages"]["bad"] == 0 and res["messages"]["late"] == 0
