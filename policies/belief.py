@@ -64,9 +64,12 @@ class Belief:
         self.visited = np.zeros((groups, n, self.cfg.cells), dtype=bool)
 
     def update(self, view: View) -> None:
-        """Fold the messages each receiver heard this tick into its own row."""
+        """Fold the messages each receiver heard this tick into its own row (tick 0 clears it)."""
         if self.known.shape[0] != view.groups:
             self.reset(view.groups)
+        if view.tick == 0:  # a new episode, even if nobody called reset
+            self.known[view.receivers] = UNKNOWN
+            self.visited[view.receivers] = False
         n = self.cfg.n_robots
         heard = view.hears & view.receivers[:, :, None]  # [G, N(receiver), N(sender)]
         g, i, j = np.nonzero(heard)

@@ -39,9 +39,7 @@ class CoordinatedFrontier(NearestFrontier):
         """Weight of the path cost against the (0..1) utility."""
         self.reach = cfg.vision // 2 if reach is None else reach
         """Chebyshev radius over which an assigned target discounts its neighbours."""
-        yy, xx = np.divmod(np.arange(cfg.cells), cfg.width)
-        d = np.maximum(abs(yy[:, None] - yy[None]), abs(xx[:, None] - xx[None]))
-        self._discount = np.clip(1.0 - d / (self.reach + 1), 0.0, None).astype(np.float32)  # [HW, HW]
+        self._yx = np.stack(np.divmod(np.arange(cfg.cells), cfg.width))  # [2, HW]
 
     def first_moves(self, view: View, snap: Snapshot) -> np.ndarray:
         target = self.assign(view, snap)
@@ -62,10 +60,16 @@ class CoordinatedFrontier(NearestFrontier):
         dist = distance_fields(snap.passable_bits[r_idx], src, w, targets=snap.targets_bits[r_idx],
                                extra=math.floor(1.0 / self.beta))
         cost = np.full((snap.size, view.n, h * w), np.inf, dtype=np.float32)
-        d = dist.reshape(len(r_idx), -1).astype(np.float32)
-        ok = (dist.reshape(len(r_idx), -1) != UNREACHED) & snap.targets.reshape(snap.size, -1)[r_idx]
-        cost[r_idx, j_idx] = np.where(ok, d, np.inf)
+        d = dist.reshape(len(r_idx), -1)
+        ok = (d != UNREACHED) & snap.targets.reshape(snap.size, -1)[r_idx]
+        cost[r_idx, j_idx] = np.where(ok, d.astype(np.float32), np.inf)
         return cost
+
+    def discount(self, cells: np.ndarray) -> np.ndarray:
+        """P(d) of every cell for assigned target cells [K] (y*W+x): [K, H*W] float32."""
+        t = self._yx[:, cells]  # [2, K]
+        d = np.abs(self._yx[:, None, :] - t[:, :, None]).max(0)
+        return np.clip(1.0 - d / (self.reach + 1), 0.0, None).astype(np.float32)
 
     def assign(self, view: View, snap: Snapshot) -> np.ndarray:
         """Greedy assignment per receiver; returns its own target cell y*W+x [R] (-1: none)."""
@@ -87,6 +91,6 @@ class CoordinatedFrontier(NearestFrontier):
             own = live & (j == snap.i[todo])
             target[todo[own]] = c[own]
             taken[todo, j] = True
-            util[todo] = np.maximum(util[todo] - self._discount[c] * live[:, None], 0.0)
+            util[todo] = np.maximum(util[todo] - self.discount(c) * live[:, None], 0.0)
             todo = todo[live & ~own]
         return target

@@ -6,7 +6,7 @@ path to the best one. The gain is the number of cells inside the v x v vision wi
 that the team has not explored and does not know to be blocks (2D cumulative sums over the
 belief); the cost is the robot's wavefront distance (`grid_search.distance_fields`). Robots
 do not coordinate beyond sharing the belief; exact ties go to the counter-based noise keyed by
-the receiver (stream 1), and the first step is tie-broken as in nearest frontier.
+the receiver (stream 4), and the first step is tie-broken as in nearest frontier.
 
 A target more than max_gain / lambda steps further than the nearest frontier can never win, so
 each wavefront stops that many layers after touching its first target.
@@ -41,10 +41,11 @@ def window_sums(mask: np.ndarray, radius: int) -> np.ndarray:
 class CostUtility(NearestFrontier):
     name = "cost-utility"
 
-    def __init__(self, cfg: WorldConfig, lam: float = 1.0, radius: int | None = None) -> None:
+    def __init__(self, cfg: WorldConfig, lam: float | None = None,
+                 radius: int | None = None) -> None:
         super().__init__(cfg)
-        self.lam = lam
-        """Gain (cells) traded per step of path cost."""
+        self.lam = float(cfg.vision) if lam is None else lam
+        """Gain (cells) per step of path cost; default v, the most one step of sensing reveals."""
         self.radius = cfg.vision // 2 if radius is None else radius
         """Half side of the window whose unexplored cells count as a target's gain."""
 
@@ -56,7 +57,7 @@ class CostUtility(NearestFrontier):
         dist = distance_fields(snap.passable_bits, src, w, targets=snap.targets_bits,
                                extra=math.ceil(max_gain / self.lam))
         ok = snap.targets & (dist != UNREACHED)
-        u = uniform(view.seed, view.episodes[snap.g], view.tick, snap.i, h * w, stream=1)
+        u = uniform(view.seed, view.episodes[snap.g], view.tick, snap.i, h * w, stream=4)
         utility = gain - self.lam * dist.astype(np.float32) + 1e-3 * u.reshape(-1, h, w)
         utility = np.where(ok, utility, -np.inf).reshape(snap.size, -1)
         best = utility.argmax(1)

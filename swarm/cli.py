@@ -38,7 +38,7 @@ from world.config import ConfigError, WorldConfig, from_dict, load_toml
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
 SECTIONS = ("world", "eval", "bench", "repro", "run")
-BENCH_TABLES = ("env", "policy")
+BENCH_TABLES = ("env", "policy", "swarm")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -242,6 +242,19 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _ints(text: str | None) -> tuple[int, ...] | None:
+    if text is None:
+        return None
+    try:
+        return tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise ConfigError(f"expected comma-separated integers, got {text!r}") from None
+
+
+def _names(text: str | None) -> tuple[str, ...] | None:
+    return None if text is None else tuple(x.strip() for x in text.split(",") if x.strip())
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from swarm import bench
     from swarm.policy_spec import build_policy
@@ -258,6 +271,18 @@ def cmd_bench(args: argparse.Namespace) -> int:
         with RichProgress(err) as progress:
             result = bench.bench_env(world, cfg, progress)
         out.print(env_bench_table(result))
+    elif args.what == "swarm":
+        from swarm.bench_swarm import SwarmBenchConfig, bench_swarm
+        from swarm.console import swarm_bench_table
+
+        cfg = merged(SwarmBenchConfig, table,
+                     {"robots": _ints(args.robots_list), "policies": _names(args.policy),
+                      "episodes": args.episodes, "seed": args.seed,
+                      "checkpoint": args.checkpoint, "json": args.json}, where)
+        for name in cfg.policies:
+            build_policy(name, world, cfg.checkpoint)
+        result = bench_swarm(world, cfg, lambda row: err.print(f"  {row}"))
+        out.print(swarm_bench_table(result))
     else:
         cfg = merged(bench.PolicyBenchConfig, table,
                      {"policies": args.policies, "decisions": args.decisions,
@@ -351,13 +376,24 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(b)
     add_world(b)
     b.set_defaults(func=cmd_bench)
+    b = bsub.add_parser("swarm", help="ticks/s, startup s and RSS per robot of real swarm runs",
+                        description="Runs the distributed swarm (real processes, Zenoh on "
+                                    "loopback) per team size and policy; prints the figures.")
+    b.add_argument("--robots", dest="robots_list", metavar="N,N,..",
+                   help="team sizes (default 10,25,50)")
+    b.add_argument("--policy", metavar="A,B,..", help="policies (default nearest-frontier)")
+    b.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
+    b.add_argument("--episodes", type=int, help="episodes per run (default 5)")
+    add_common(b)
+    add_world(b, robots=False)
+    b.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("repro", help="reproduce a paper item: table1, fig4, fig5 or all",
                        description="Reproduce Table 1, Fig. 4 or Fig. 5: writes ITEM.csv, .md, "
                                    ".png and .json into --out.")
     p.add_argument("item", metavar="ITEM", help="table1, fig4, fig5 or all")
     p.add_argument("--out", metavar="DIR", help="output directory (required)")
-    p.add_argument("--episodes", type=int, metavar="K", help="episodes per point (default 100)")
+    p.add_argument("--episodes", type=int, metavar="K", help="episodes per point (default 200)")
     p.add_argument("--policies", metavar="A,B,..", help="policies (default: the baselines)")
     p.add_argument("--checkpoint", action="append", metavar="NAME=FILE",
                    help="checkpoint of a learned policy (repeatable)")

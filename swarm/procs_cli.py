@@ -7,6 +7,7 @@ importable `main(...)` (swarm.supervisor, swarm.world_proc, swarm.robot_proc).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import secrets
@@ -28,6 +29,9 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--run-id", metavar="ID", help="namespace of every key (default: random)")
     g.add_argument("--tick-timeout", type=float, metavar="S",
                    help="seconds the world waits for a tick's actions (default 2)")
+    g.add_argument("--pace", type=float, metavar="HZ",
+                   help="cap ticks/s so the run can be watched (default: 8 with the live "
+                        "dashboard, unlimited with --headless or --json-only use)")
     g.add_argument("--sample", action="store_true", default=None,
                    help="sample actions (counter-based noise) instead of greedy")
 
@@ -35,7 +39,7 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
 def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
     flags = {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
              "first_episode": args.first_episode, "run_id": args.run_id,
-             "tick_timeout": args.tick_timeout, "seed": args.seed,
+             "tick_timeout": args.tick_timeout, "seed": args.seed, "pace": args.pace,
              "greedy": False if args.sample else None}
     table = dict(tables.get("run", {}))
     given = {k: v for k, v in flags.items() if v is not None}
@@ -74,9 +78,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     tables = cli.file_tables(args.config)
     world = cli.world_config(args, tables)
     run = run_config(args, tables)
+    out, _ = cli._consoles()
+    if args.pace is None and "pace" not in tables.get("run", {}) and not args.headless \
+            and out.is_terminal:
+        run = dataclasses.replace(run, pace=8.0)  # watchable by default on a terminal
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             restart_crashed=args.restart_crashed, log_dir=args.log_dir)
-    out, _ = cli._consoles()
     try:
         res = supervise(world, run, opts, console=out)
     except KeyboardInterrupt:

@@ -46,7 +46,7 @@ class ReproConfig:
 
     out: str | None = None
     """Directory the item files are written to (required)."""
-    episodes: int = 100
+    episodes: int = 200
     """Episodes per point of Fig. 4 and Fig. 5."""
     seed: int = 0
     """Seed of every map; every policy and point sees the same episodes."""
@@ -195,11 +195,13 @@ def sweep(world: WorldConfig, item: str, cfg: ReproConfig, command: str,
         title = f"Fig. 4: exploration rate in {t} steps vs number of robots (static map)"
         note = "Paper: learned > nearest > coordinated > cost-utility."
         xlabel = "number of robots"
+        short = f"Fig. 4: static map, T = {t}"
     else:
         title = (f"Fig. 5: exploration rate in {t} steps vs block-adding period m "
                  f"(dynamic map, {world.n_robots} robots, {world.n_dynamic} blocks)")
         note = "Paper: CommAttn most stable."
         xlabel = "block-adding period m (steps between batches)"
+        short = f"Fig. 5: dynamic map, {world.n_robots} robots, T = {t}"
     md = header(title, command, cfg.seed,
                 f"elratio mean ± std over {cfg.episodes} episodes per point. {note}")
     policies = list(cfg.policies)
@@ -216,7 +218,7 @@ def sweep(world: WorldConfig, item: str, cfg: ReproConfig, command: str,
                         label=p)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(f"exploration rate in {t} steps (elratio)")
-        ax.set_title(title.split(":")[0])
+        ax.set_title(short)
         ax.grid(alpha=0.3)
         ax.legend()
 

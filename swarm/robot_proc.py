@@ -19,10 +19,11 @@ import msgpack
 import numpy as np
 import zenoh
 
-from policies import make_policy, policy_class
+from policies import policy_class
 from policies.base import Policy
 from swarm.keys import Keys
 from swarm.messages import K_RSTATUS, Action, BadMessage, Bundle, Hidden, Obs, Traj, pack_record
+from swarm.policy_spec import build_policy
 from swarm.runconfig import RunConfig
 from swarm.zconfig import ZenohOptions
 from world.config import WorldConfig, from_dict
@@ -264,7 +265,6 @@ def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0)
             import torch
 
             torch.set_num_threads(run.robot_threads)
-        kwargs = {"checkpoint": run.checkpoint} if run.checkpoint else {}
-        policy = make_policy(run.policy, cfg, **kwargs)
+        policy = build_policy(run.policy, cfg, run.checkpoint)
         policy.reset(1)
         return RobotProcess(robot, cfg, run, session, policy).run(wait_world)

@@ -17,7 +17,7 @@ class RunConfig:
     """Checkpoint file of a learned policy (a path the robots can read)."""
     seed: int = 0
     """Episode seed: episode e of the run is episode e of `swarm eval --seed`."""
-    episodes: int = 1
+    episodes: int = 5
     """Episodes to run, numbered first_episode, first_episode + 1, ..."""
     first_episode: int = 0
     """Number of the first episode."""
@@ -27,6 +27,8 @@ class RunConfig:
     """Seconds the world waits for a tick's actions before stepping without the missing ones."""
     start_timeout: float = 60.0
     """Seconds the world waits for every robot to come alive before the first tick."""
+    pace: float = 0.0
+    """Cap on ticks per second so a person can watch (0: as fast as the swarm goes)."""
     robot_threads: int = 1
     """torch threads per robot process (many processes share 2 cores)."""
 
@@ -36,5 +38,7 @@ class RunConfig:
         check_run_id(self.run_id)
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.pace < 0:
+            raise ValueError(f"pace must be >= 0, got {self.pace}")
         if self.tick_timeout <= 0 or self.start_timeout <= 0:
             raise ValueError("timeouts must be > 0")

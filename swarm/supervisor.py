@@ -37,7 +37,9 @@ from world.config import WorldConfig, to_dict
 @dataclass
 class SuperviseOptions:
     headless: bool = False
-    """Write JSON lines to stdout instead of the live dashboard."""
+    """No live dashboard."""
+    status_lines: bool = True
+    """With `headless`: write each world status as a JSON line on stdout."""
     json_path: str | None = None
     """Write the run's result (one JSON object) here, atomically."""
     restart_crashed: bool = False
@@ -82,6 +84,8 @@ class Supervisor:
         self.result: dict[str, Any] | None = None
         self.crashes = 0
         self.restarts = 0
+        self.rss_mb: dict[str, float] = {}  # peak resident memory per child, sampled
+        self._last_rss = 0.0
 
     def _spawn(self, args: list[str], name: str) -> subprocess.Popen[bytes]:
         err = open(self.log_dir / f"{name}.log", "ab")
@@ -125,7 +129,7 @@ class Supervisor:
             if kind == "status":
                 rec = unpack_record(payload or b"", K_STATUS)
                 v.apply_status(rec)
-                if self.opts.headless:
+                if self.opts.headless and self.opts.status_lines:
                     print(json.dumps({"status": rec}), flush=True)
             elif kind == "rstatus":
                 v.apply_robot(unpack_record(payload or b"", K_RSTATUS))
@@ -169,6 +173,7 @@ class Supervisor:
                     except queue.Empty:
                         pass
                     self._check_children()
+                    self._sample_rss()
                     if self.world is not None and self.world.poll() is not None and q.empty():
                         break
             except KeyboardInterrupt:
@@ -187,9 +192,31 @@ class Supervisor:
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["robot_crashes"] = self.crashes
         res["robot_restarts"] = self.restarts
+        robots = [v for k, v in self.rss_mb.items() if k.startswith("robot")]
+        res["rss_mb_per_robot"] = sum(robots) / len(robots) if robots else None
+        res["rss_mb_world"] = self.rss_mb.get("world")
+        res["robot_status"] = {str(i): {"msgs_in": r.msgs_in, "msgs_out": r.msgs_out,
+                                        "bad": r.bad, "missed": r.missed}
+                               for i, r in self.view.robots.items()}
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res
+
+    def _sample_rss(self, every: float = 0.5) -> None:
+        now = time.monotonic()
+        if now - self._last_rss < every:
+            return
+        self._last_rss = now
+        procs = {"world": self.world, **{f"robot{i}": p for i, p in self.robots.items()}}
+        for name, p in procs.items():
+            if p is None or p.poll() is not None:
+                continue
+            try:
+                with open(f"/proc/{p.pid}/status") as fh:
+                    kb = next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:"))
+            except (OSError, StopIteration, ValueError):
+                continue
+            self.rss_mb[name] = max(self.rss_mb.get(name, 0.0), kb / 1024)
 
     def _check_children(self) -> None:
         for i, p in list(self.robots.items()):

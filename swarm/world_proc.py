@@ -174,7 +174,11 @@ class WorldProcess:
         lay = core.Layout.of(cfg)
         actions_log: list[np.ndarray] = []
         ticks = 0
+        next_tick = time.monotonic()
         while True:
+            if self.run_cfg.pace > 0:
+                time.sleep(max(0.0, next_tick - time.monotonic()))
+                next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
             state.alive[0] = self.alive
             t = state.t
             yx = lay.to_yx(state.pos[0])

@@ -144,7 +144,7 @@ def test_same_key_same_episode_regardless_of_global_random_state(
     np.random.seed(2)
     np.random.random(17)
     second = core.generate_episode(cfg, seed, ep)
-    for a, b in zip(first, second):
+    for a, b in zip(first, second, strict=True):
         np.testing.assert_array_equal(a, b)
 
 

@@ -174,3 +174,43 @@ def test_two_runs_side_by_side_do_not_cross_talk(tmp_path: Path) -> None:
         ev = evaluate(cfg, make_policy("nearest-frontier", cfg), seed, 2, record_actions=True)
         assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
         assert res["messages"]["bad"] == 0 and res["messages"]["late"] == 0
+
+
+def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
+    """`swarm world` + `swarm robot` by hand (the README's two-terminal start); kill the world."""
+    from swarm.zconfig import free_port
+
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    out = tmp_path / "world.json"
+    world = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "world", "--run-id", "manual", "--robots", "2",
+         "--policy", "random", "--episodes", "1", "--listen", hub, "--json", str(out)],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    robots = [subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "robot", "--id", str(i), "--run-id", "manual",
+         "--connect", hub], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        for i in range(2)]
+    try:
+        assert world.wait(timeout=60) == 0
+        res = json.loads(out.read_text())
+        assert res["completed"] == 1 and res["timeouts"] == 0
+        for r in robots:  # the world is gone: robots leave by themselves
+            assert r.wait(timeout=10) == 0
+        # Second round: SIGKILL a world mid-run; its robots must still exit on their own.
+        world = subprocess.Popen(
+            [sys.executable, "-m", "swarm.cli", "world", "--run-id", "manual2", "--robots", "2",
+             "--policy", "random", "--episodes", "100000", "--listen", hub],
+            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        robots = [subprocess.Popen(
+            [sys.executable, "-m", "swarm.cli", "robot", "--id", str(i), "--run-id", "manual2",
+             "--connect", hub], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            for i in range(2)]
+        time.sleep(4.0)
+        assert all(r.poll() is None for r in robots)
+        world.kill()
+        for r in robots:
+            assert r.wait(timeout=10) == 0
+    finally:
+        for p in [world, *robots]:
+            if p.poll() is None:
+                p.kill()

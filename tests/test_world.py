@@ -21,7 +21,7 @@ from world.noise import uniform
 
 Cell = tuple[int, int]
 
-# SPEC: 9 actions = stay + 8 neighbours, here in the documented order stay, N, NE, E, SE, S, SW, W, NW.
+# SPEC: 9 actions = stay + 8 neighbours, in core's order: stay, N, NE, E, SE, S, SW, W, NW.
 MOVES: list[Cell] = [(0, 0), (-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1)]
 STAY, N, NE, E, SE, S, SW, W, NW = range(9)
 
@@ -77,7 +77,7 @@ class RefWorld:
     def blocked(self, c: Cell) -> bool:
         """Off-grid, static block or active dynamic block."""
         return (not self.in_grid(c) or c in self.blocks
-                or any(a and d == c for a, d in zip(self.active, self.dyn)))
+                or any(a and d == c for a, d in zip(self.active, self.dyn, strict=True)))
 
     def seen_from(self, c: Cell) -> set[Cell]:
         r = self.cfg.vision // 2
@@ -85,7 +85,8 @@ class RefWorld:
                 if self.in_grid((c[0] + dy, c[1] + dx))}
 
     def elratio(self) -> float:
-        covered = self.explored | self.blocks | {d for a, d in zip(self.active, self.dyn) if a}
+        on = {d for a, d in zip(self.active, self.dyn, strict=True) if a}
+        covered = self.explored | self.blocks | on
         return len(covered) / (self.cfg.height * self.cfg.width)
 
     def patch(self, i: int) -> np.ndarray:
@@ -161,7 +162,7 @@ def assert_matches(cfg: WorldConfig, state: core.WorldState, b: int, ref: RefWor
     assert state.dyn_active[b].tolist() == ref.active
     grid = lay.inner(state.grid[b])
     dyn_on = {(y, x) for y, x in np.argwhere(grid == core.DYNAMIC).tolist()}
-    assert dyn_on == {d for a, d in zip(ref.active, ref.dyn) if a}
+    assert dyn_on == {d for a, d in zip(ref.active, ref.dyn, strict=True) if a}
     assert state.block_coll[b].tolist() == ref.block_coll
     assert state.robot_coll[b].tolist() == ref.robot_coll
     assert state.elratio[b, :state.t + 1].tolist() == ref.elratios
@@ -182,15 +183,21 @@ Scenario = tuple[WorldConfig, list[Episode], np.ndarray]
 
 
 @st.composite
-def scenarios(draw: st.DrawFn) -> Scenario:
-    """A small config, B episodes (generated or arbitrary random maps) and T x [B, N] actions."""
-    h, w = draw(st.integers(3, 8)), draw(st.integers(3, 8))
+def scenarios(draw: st.DrawFn, crowded: bool = False) -> Scenario:
+    """A small config, B episodes (generated or arbitrary random maps) and T x [B, N] actions.
+
+    `crowded`: 3 x 3 to 4 x 4 grids packed with robots and dynamic blocks, so that overlaps,
+    refused moves and blocks pending under robots are the rule rather than the exception.
+    """
+    side = (3, 4) if crowded else (3, 8)
+    h, w = draw(st.integers(*side)), draw(st.integers(*side))
     cells = h * w
-    n_static = draw(st.integers(0, cells // 3))
-    n_robots = draw(st.integers(1, max(1, min(6, (cells - n_static) // 2))))
-    horizon = draw(st.integers(1, 14))
+    n_static = draw(st.integers(0, 2 if crowded else cells // 3))
+    most = cells - n_static - 1 if crowded else min(6, (cells - n_static) // 2)
+    n_robots = draw(st.integers(1, max(1, most)))
+    horizon = draw(st.integers(2 if crowded else 1, 14))
     k_max = cells - n_static - n_robots
-    dynamic = draw(st.booleans()) and k_max > 0 and horizon >= 2
+    dynamic = (crowded or draw(st.booleans())) and k_max > 0 and horizon >= 2
     n_dynamic = draw(st.integers(1, min(k_max, 12))) if dynamic else 0
     add_every = draw(st.integers(1, max(1, (9 * horizon) // 10)))
     cfg = WorldConfig(
@@ -207,7 +214,8 @@ def scenarios(draw: st.DrawFn) -> Scenario:
     episodes = []
     for _ in range(draw(st.integers(1, 3))):
         if draw(st.booleans()):
-            episodes.append(core.generate_episode(cfg, int(rng.integers(1000)), int(rng.integers(99))))
+            key = int(rng.integers(1000)), int(rng.integers(99))
+            episodes.append(core.generate_episode(cfg, *key))
         else:
             # arbitrary (maybe split) maps; dynamic cells may sit under a start to test pending
             blocks = np.zeros(cells, dtype=bool)
@@ -215,8 +223,8 @@ def scenarios(draw: st.DrawFn) -> Scenario:
             free = np.flatnonzero(~blocks)
             starts = rng.choice(free, n_robots, replace=False)
             dyn = rng.choice(free, cfg.n_active_dynamic, replace=False)
-            yx = lambda f: np.stack(np.divmod(f, w), axis=-1)  # noqa: E731
-            episodes.append((blocks.reshape(h, w), yx(starts), yx(dyn)))
+            episodes.append((blocks.reshape(h, w), np.stack(np.divmod(starts, w), axis=-1),
+                             np.stack(np.divmod(dyn, w), axis=-1)))
     # actions: a per-robot mix of staying (to sit on due blocks and re-visit) and random moves
     p_stay = rng.uniform(0.0, 0.8, size=(len(episodes), n_robots))
     moves = rng.integers(0, 9, size=(horizon, len(episodes), n_robots))
@@ -224,11 +232,9 @@ def scenarios(draw: st.DrawFn) -> Scenario:
     return cfg, episodes, np.where(stay, 0, moves)
 
 
-@settings(max_examples=50, deadline=None)
-@given(scenario=scenarios())
-def test_vectorized_step_matches_reference(scenario: Scenario) -> None:
-    """Positions, rewards, collisions, explored set, blocks, patches and success match exactly."""
-    cfg, episodes, actions = scenario
+def check_against_reference(cfg: WorldConfig, episodes: list[Episode],
+                             actions: np.ndarray) -> None:
+    """Run B episodes batched and through RefWorld; every step must agree exactly."""
     blocks = np.stack([e[0] for e in episodes])
     starts = np.stack([e[1] for e in episodes])
     dyn = np.stack([e[2] for e in episodes])
@@ -255,6 +261,30 @@ def test_vectorized_step_matches_reference(scenario: Scenario) -> None:
         core.step(cfg, state, actions[0])
 
 
+@settings(max_examples=50, deadline=None)
+@given(scenario=scenarios())
+def test_vectorized_step_matches_reference(scenario: Scenario) -> None:
+    """Positions, rewards, collisions, explored set, blocks, patches and success match exactly."""
+    check_against_reference(*scenario)
+
+
+@settings(max_examples=30, deadline=None)
+@given(scenario=scenarios(crowded=True))
+def test_vectorized_step_matches_reference_in_crowds(scenario: Scenario) -> None:
+    check_against_reference(*scenario)
+
+
+@pytest.mark.parametrize("mode", ["visit", "sense"])
+def test_vectorized_step_matches_reference_on_the_paper_world(mode: str) -> None:
+    """20 x 20, 81 static + 70 dynamic blocks, 10 robots, T = 30, v = 5: three episodes."""
+    cfg = WorldConfig(explore_mode=mode, success_elratio=0.5 if mode == "visit" else 0.9)
+    episodes = [core.generate_episode(cfg, 2019, ep) for ep in range(3)]
+    rng = np.random.default_rng(294)
+    actions = np.where(rng.random((cfg.horizon, 3, 10)) < 0.3, 0,
+                       rng.integers(0, 9, size=(cfg.horizon, 3, 10)))
+    check_against_reference(cfg, episodes, actions)
+
+
 def random_episode(cfg: WorldConfig, seed: int, episodes: list[int], action_seed: int,
                    p_stay: float = 0.3):
     """Run generated episodes with random actions, yielding (state, actions) after each step."""
@@ -278,13 +308,14 @@ def small_worlds(draw: st.DrawFn) -> WorldConfig:
         height=h, width=w, n_static=n_static, n_robots=n_robots, horizon=horizon,
         n_dynamic=draw(st.integers(0, min(15, h * w - n_static - n_robots))),
         add_every=draw(st.integers(1, max(1, (9 * horizon) // 10))),
-        vision=draw(st.sampled_from([1, 3, 5])), explore_mode=draw(st.sampled_from(["visit", "sense"])),
+        vision=draw(st.sampled_from([1, 3, 5])),
+        explore_mode=draw(st.sampled_from(["visit", "sense"])),
         spawn=draw(st.sampled_from(["random", "corner"])))
 
 
 small_world = small_worlds()
-worlds = st.one_of(small_world, st.just(WorldConfig()), st.just(WorldConfig(explore_mode="sense")),
-                   st.just(WorldConfig(add_every=1)), st.just(WorldConfig(dynamic=False)))
+worlds = small_world | st.sampled_from([WorldConfig(), WorldConfig(explore_mode="sense"),
+                                        WorldConfig(add_every=1), WorldConfig(dynamic=False)])
 
 
 @settings(max_examples=40, deadline=None)
@@ -342,6 +373,28 @@ def test_dynamic_block_schedule(cfg: WorldConfig, seed: int, action_seed: int,
     assert state.dyn_active.sum() == 2 * k - (~free_since_due).sum()
 
 
+def test_schedule_formula_over_all_small_configs() -> None:
+    """n = ceil(K / floor(0.9 T / m)); full batches every m steps from step m; all due by 0.9 T."""
+    checked = 0
+    for horizon in range(2, 41):
+        for add_every in range(1, (9 * horizon) // 10 + 1):
+            batches = (9 * horizon) // (10 * add_every)
+            for k in range(1, 73):
+                cfg = WorldConfig(n_static=0, n_robots=1, n_dynamic=k, horizon=horizon,
+                                  add_every=add_every)
+                n = -(-k // batches)
+                assert cfg.batch_size == n, (k, horizon, add_every)
+                due = core.dynamic_due(cfg)
+                assert 10 * int(due[-1]) <= 9 * horizon
+                steps, counts = np.unique(due, return_counts=True)
+                assert steps.tolist() == [add_every * (i + 1) for i in range(len(steps))]
+                assert (counts[:-1] == n).all() and 1 <= counts[-1] <= n
+                checked += 1
+    assert checked > 20_000
+    assert core.dynamic_due(WorldConfig(dynamic=False)).size == 0
+    assert WorldConfig().batch_size == 8  # the paper's 70 blocks, T = 30, m = 3
+
+
 def test_pending_block_waits_for_its_cell_without_holding_up_the_batch() -> None:
     """Two blocks due at step 1: the one under a robot waits; it appears once the robot leaves."""
     cfg = WorldConfig(height=5, width=5, n_static=0, n_robots=1, n_dynamic=3, add_every=2,
@@ -369,8 +422,9 @@ def test_same_seed_and_actions_give_identical_episodes(
          for s, _, _ in random_episode(cfg, seed, [0, 4], action_seed)]
     b = [(s.pos.copy(), s.last_reward.copy(), s.grid.copy(), s.explored.copy())
          for s, _, _ in random_episode(cfg, seed, [0, 4], action_seed)]
-    for x, y in zip(a, b):
-        for u, v in zip(x, y):
+    assert len(a) == len(b) == cfg.horizon
+    for x, y in zip(a, b, strict=True):
+        for u, v in zip(x, y, strict=True):
             np.testing.assert_array_equal(u, v)
 
 
@@ -406,8 +460,8 @@ def test_episodes_do_not_depend_on_their_batch(cfg: WorldConfig, seed: int,
 def tiny(n_robots: int, starts: list[Cell], blocks: list[Cell] = (), dyn: list[Cell] = (),
          **kw) -> tuple[WorldConfig, core.WorldState]:
     """A 5 x 5 world (unless overridden) with given robots, static and dynamic blocks."""
-    opts = dict(height=5, width=5, n_static=len(blocks), n_robots=n_robots,
-                dynamic=bool(dyn), n_dynamic=len(dyn), horizon=10, add_every=1)
+    opts = {"height": 5, "width": 5, "n_static": len(blocks), "n_robots": n_robots,
+            "dynamic": bool(dyn), "n_dynamic": len(dyn), "horizon": 10, "add_every": 1}
     opts.update(kw)
     cfg = WorldConfig(**opts)
     grid = np.zeros((1, cfg.height, cfg.width), dtype=bool)
@@ -485,7 +539,7 @@ def test_active_dynamic_block_refuses_moves() -> None:
 
 
 def test_final_step_pays_r_succ_or_r_fail_to_every_robot() -> None:
-    kw = dict(height=3, width=3, horizon=2, success_elratio=4 / 9)
+    kw = {"height": 3, "width": 3, "horizon": 2, "success_elratio": 4 / 9}
     cfg, state = tiny(2, [(0, 0), (2, 2)], **kw)
     assert core.step(cfg, state, [[E, W]]).tolist() == [[0.0, 0.0]]
     r = core.step(cfg, state, [[STAY, STAY]])  # 4 of 9 cells explored: success, but both stayed
@@ -496,7 +550,7 @@ def test_final_step_pays_r_succ_or_r_fail_to_every_robot() -> None:
     r = core.step(cfg, state, [[E, STAY]])  # robot 0 reaches a fresh cell, robot 1 stays
     assert state.elratio[0, -1] == 5 / 9 and state.success.tolist() == [True]
     assert r.tolist() == [[cfg.r_succ, cfg.r_back + cfg.r_succ]]
-    cfg, state = tiny(2, [(0, 0), (2, 2)], **dict(kw, success_elratio=0.9))
+    cfg, state = tiny(2, [(0, 0), (2, 2)], **{**kw, "success_elratio": 0.9})
     core.step(cfg, state, [[E, W]])
     r = core.step(cfg, state, [[S, NW]])  # two fresh cells, but 6/9 < 0.9
     assert state.success.tolist() == [False]
@@ -505,7 +559,7 @@ def test_final_step_pays_r_succ_or_r_fail_to_every_robot() -> None:
 
 
 def test_success_needs_elratio_and_few_enough_team_block_collisions() -> None:
-    kw = dict(height=3, width=3, horizon=2, success_elratio=4 / 9)
+    kw = {"height": 3, "width": 3, "horizon": 2, "success_elratio": 4 / 9}
     for allowed, succeeds in ((0, False), (1, True)):
         cfg, state = tiny(2, [(0, 0), (2, 2)], success_max_block_collisions=allowed, **kw)
         core.step(cfg, state, [[N, W]])  # robot 0 bumps the edge: one team block collision
