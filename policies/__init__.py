@@ -17,6 +17,10 @@ REGISTRY: dict[str, str] = {
     "nearest-frontier": "policies.nearest_frontier:NearestFrontier",
     "coordinated-frontier": "policies.coordinated_frontier:CoordinatedFrontier",
     "cost-utility": "policies.cost_utility:CostUtility",
+    "commattn": "policies.commattn:CommAttnPolicy",
+    "commnet": "policies.commnet:CommNetPolicy",
+    "vain": "policies.vain:VAINPolicy",
+    "bicnet": "policies.bicnet:BicNetPolicy",
 }
 
 BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility")

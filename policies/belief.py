@@ -5,7 +5,8 @@ receiver i folds in the messages it heard (its own included): the v x v patches 
 robots set cells known free or known block (the latest observation wins, so a dynamic block
 overwrites an older "free"), and their visited bitmaps are ORed into the team-visited map. Rows
 of robots that are not receivers this tick are never touched, so a robot process that holds
-only its own row computes exactly what the batched evaluator computes for that row.
+only its own row computes exactly what the batched evaluator computes for that row. A receiver's
+row is cleared at tick 0 (a new episode) even if nobody called `reset`.
 
 `explored` is what the team has covered: visited cells in `visit` mode, seen cells in `sense`
 mode. Frontier targets are the cells not explored and not known to be blocks (unknown cells

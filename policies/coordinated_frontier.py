@@ -30,6 +30,12 @@ from world.decentral import View
 from world.noise import uniform
 
 
+def _profile(n: int, reach: int) -> np.ndarray:
+    """max(0, 1 - |a - b| / (reach + 1)) for a, b in 0..n-1: [n, n] float32."""
+    d = np.abs(np.arange(n)[:, None] - np.arange(n)[None])
+    return np.clip(1.0 - d / (reach + 1), 0.0, None).astype(np.float32)
+
+
 class CoordinatedFrontier(NearestFrontier):
     name = "coordinated-frontier"
 
@@ -39,7 +45,9 @@ class CoordinatedFrontier(NearestFrontier):
         """Weight of the path cost against the (0..1) utility."""
         self.reach = cfg.vision // 2 if reach is None else reach
         """Chebyshev radius over which an assigned target discounts its neighbours."""
-        self._yx = np.stack(np.divmod(np.arange(cfg.cells), cfg.width))  # [2, HW]
+        # P(d) of a Chebyshev distance is the min of the per-axis profiles, [H, H] and [W, W]
+        self._py = _profile(cfg.height, self.reach)
+        self._px = _profile(cfg.width, self.reach)
 
     def first_moves(self, view: View, snap: Snapshot) -> np.ndarray:
         target = self.assign(view, snap)
@@ -67,30 +75,31 @@ class CoordinatedFrontier(NearestFrontier):
 
     def discount(self, cells: np.ndarray) -> np.ndarray:
         """P(d) of every cell for assigned target cells [K] (y*W+x): [K, H*W] float32."""
-        t = self._yx[:, cells]  # [2, K]
-        d = np.abs(self._yx[:, None, :] - t[:, :, None]).max(0)
-        return np.clip(1.0 - d / (self.reach + 1), 0.0, None).astype(np.float32)
+        y, x = np.divmod(cells, self.cfg.width)
+        return np.minimum(self._py[y][:, :, None], self._px[x][:, None, :]).reshape(len(cells), -1)
 
     def assign(self, view: View, snap: Snapshot) -> np.ndarray:
         """Greedy assignment per receiver; returns its own target cell y*W+x [R] (-1: none)."""
-        cells = self.cfg.cells
+        cost = self.costs(view, snap)
+        cols = np.flatnonzero(np.isfinite(cost).any(axis=(0, 1)))  # cells some member may take
         groups, gi = np.unique(snap.g, return_inverse=True)
         noise = uniform(view.seed, view.episodes[groups][:, None], view.tick,
-                        np.arange(view.n)[None], cells, stream=3).astype(np.float32)
-        score = -self.beta * self.costs(view, snap) + 1e-4 * noise[gi]  # [R, N, HW]
-        util = snap.targets.reshape(snap.size, -1).astype(np.float32)  # [R, HW]
+                        np.arange(view.n)[None], self.cfg.cells, stream=3)[..., cols]
+        score = -self.beta * cost[..., cols] + 1e-4 * noise.astype(np.float32)[gi]  # [R, N, C]
+        util = snap.targets.reshape(snap.size, -1)[:, cols].astype(np.float32)  # [R, C]
         taken = np.zeros((snap.size, view.n), dtype=bool)
         target = np.full(snap.size, -1, dtype=np.int64)
         todo = np.arange(snap.size)
-        while len(todo):
+        while len(todo) and len(cols):
             s = score[todo] + util[todo, None, :]
             s[taken[todo]] = -np.inf
             best = s.reshape(len(todo), -1).argmax(1)
-            j, c = np.divmod(best, cells)
+            j, c = np.divmod(best, len(cols))
             live = np.isfinite(s.reshape(len(todo), -1)[np.arange(len(todo)), best])
             own = live & (j == snap.i[todo])
-            target[todo[own]] = c[own]
+            target[todo[own]] = cols[c[own]]
             taken[todo, j] = True
-            util[todo] = np.maximum(util[todo] - self.discount(c) * live[:, None], 0.0)
+            hit = self.discount(cols[c])[:, cols] * live[:, None]
+            util[todo] = np.maximum(util[todo] - hit, 0.0)
             todo = todo[live & ~own]
         return target

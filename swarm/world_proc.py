@@ -209,7 +209,7 @@ class WorldProcess:
             acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
             for i, msg in inbox["action"].items():
                 acts[0, i] = msg.action
-            missing = [i for i in np.flatnonzero(self.alive) if i not in inbox["action"]]
+            missing = [int(i) for i in np.flatnonzero(self.alive) if i not in inbox["action"]]
             self.timeouts += len(missing)
             state.alive[0] = self.alive
             core.step(cfg, state, acts)

@@ -81,7 +81,7 @@ def test_malformed_payloads_are_dropped_and_counted(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
          "random", "--episodes", "4", "--run-id", run_id, "--json", str(out), "--tick-timeout",
-         "1"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+         "1", "--pace", "40"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     keys = Keys(run_id)
     try:
         assert proc.stdout is not None
@@ -104,7 +104,8 @@ def test_malformed_payloads_are_dropped_and_counted(tmp_path: Path) -> None:
             proc.kill()
     res = json.loads(out.read_text())
     assert res["completed"] == 4
-    assert res["messages"]["bad"] > 0
+    assert res["messages"]["bad"] >= 3 * len(junk)  # every junk payload on a world key
+    assert sum(r["bad"] for r in res["robot_status"].values()) > 0
     assert res["robots_lost"] == 0 and res["robot_crashes"] == 0
 
 
@@ -214,3 +215,29 @@ def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
         for p in [world, *robots]:
             if p.poll() is None:
                 p.kill()
+
+
+def test_restart_crashed_brings_a_killed_robot_back(tmp_path: Path) -> None:
+    out = tmp_path / "run.json"
+    run_id = "restart1"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
+         "nearest-frontier", "--episodes", "12", "--run-id", run_id, "--json", str(out),
+         "--restart-crashed"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        proc.stdout.readline()
+        victim = [p for p in run_procs(run_id)
+                  if b"--id\x002\x00" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        os.kill(victim[0], signal.SIGKILL)
+        proc.communicate(timeout=120)
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    res = json.loads(out.read_text())
+    assert res["completed"] == 12
+    assert res["robot_crashes"] == 1 and res["robot_restarts"] == 1
+    assert res["robots_lost"] == 0  # it was back (alive) by the end
+    last_ep = np.array(res["actions"][-1])
+    assert (last_ep[:, 2] != 0).any()  # and acting again

@@ -7,6 +7,7 @@ the SPEC alone, that the vectorized `world.core.step` must match exactly on rand
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -286,8 +287,8 @@ def test_vectorized_step_matches_reference_on_the_paper_world(mode: str) -> None
 
 
 def random_episode(cfg: WorldConfig, seed: int, episodes: list[int], action_seed: int,
-                   p_stay: float = 0.3):
-    """Run generated episodes with random actions, yielding (state, actions) after each step."""
+                   p_stay: float = 0.3) -> Iterator[tuple[core.WorldState, np.ndarray, np.ndarray]]:
+    """Run generated episodes with random actions; yield (state, actions, positions before)."""
     state = core.reset(cfg, seed, episodes)
     rng = np.random.default_rng(action_seed)
     for _ in range(cfg.horizon):
@@ -418,14 +419,19 @@ def test_pending_block_waits_for_its_cell_without_holding_up_the_batch() -> None
 @given(cfg=worlds, seed=st.integers(0, 2**31), action_seed=st.integers(0, 2**31))
 def test_same_seed_and_actions_give_identical_episodes(
         cfg: WorldConfig, seed: int, action_seed: int) -> None:
-    a = [(s.pos.copy(), s.last_reward.copy(), s.grid.copy(), s.explored.copy())
-         for s, _, _ in random_episode(cfg, seed, [0, 4], action_seed)]
-    b = [(s.pos.copy(), s.last_reward.copy(), s.grid.copy(), s.explored.copy())
-         for s, _, _ in random_episode(cfg, seed, [0, 4], action_seed)]
+    runs = []
+    for _ in range(2):
+        steps = [(s.pos.copy(), s.last_reward.copy(), s.grid.copy(), s.explored.copy())
+                 for s, _, _ in random_episode(cfg, seed, [0, 4], action_seed)]
+        runs.append((steps, core.metrics(cfg, s)))
+    (a, ma), (b, mb) = runs
     assert len(a) == len(b) == cfg.horizon
     for x, y in zip(a, b, strict=True):
         for u, v in zip(x, y, strict=True):
             np.testing.assert_array_equal(u, v)
+    for name in ("reward", "block_collisions", "robot_collisions", "elratio", "success",
+                 "repeat_ratio"):
+        np.testing.assert_array_equal(getattr(ma, name), getattr(mb, name))
 
 
 STATE_FIELDS = ["grid", "pos", "explored", "visited", "recent", "dyn_cells", "dyn_active",

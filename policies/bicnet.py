@@ -1,0 +1,50 @@
+"""BicNet (Peng et al. 2017), receiver-centric: a bidirectional GRU over the members of S_i in id
+order; the receiver's action and value come from the BiGRU output at its own position."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from policies.features import Members, bigru
+from policies.learned import LearnedPolicy
+from world.core import N_ACTIONS
+
+
+@dataclass
+class BicNetConfig:
+    """Sizes of the BicNet network."""
+
+    crop: int = 9
+    """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
+    embed: int = 64
+    """Width of the per-member token embedding fed to the BiGRU."""
+    hidden: int = 32
+    """BiGRU hidden size per direction."""
+
+
+class BicNet(nn.Module):
+    chained = False
+
+    def __init__(self, cfg: BicNetConfig, in_dim: int) -> None:
+        super().__init__()
+        e, h = cfg.embed, cfg.hidden
+        self.cfg = cfg
+        self.embed = nn.Sequential(nn.Linear(in_dim, e), nn.ReLU())
+        self.gru = nn.GRU(e, h, batch_first=True, bidirectional=True)
+        self.policy = nn.Sequential(nn.Linear(2 * h, 2 * h), nn.ReLU(), nn.Linear(2 * h, N_ACTIONS))
+        self.value = nn.Sequential(nn.Linear(2 * h, 2 * h), nn.ReLU(), nn.Linear(2 * h, 1))
+
+    def forward(self, members: Members) -> tuple[torch.Tensor, torch.Tensor]:
+        """Members [R, M, F] -> logits [R, 9], value [R]."""
+        out = bigru(self.gru, self.embed(members.x), members.lens)
+        mine = out[torch.arange(out.shape[0]), members.self_pos]
+        return self.policy(mine), self.value(mine)[:, 0]
+
+
+class BicNetPolicy(LearnedPolicy):
+    name = "bicnet"
+    config_cls = BicNetConfig
+    net_cls = BicNet

@@ -1,0 +1,71 @@
+"""Small checkpoint files: the model and world config that made them, the weights, and metadata.
+
+A checkpoint is a torch file holding a plain dict:
+
+    format      1
+    policy      registry name ("commattn", ...)
+    model       the network's config dataclass as a dict
+    world       the WorldConfig it was trained on (world.config.to_dict)
+    state_dict  the network's weights
+    meta        command, seed, epoch, update, ... (free-form, JSON-safe)
+    train       optional trainer state (optimizer, RNG, counters) for `swarm train --resume`
+
+Writes are atomic (temp file in the same directory, fsync, os.replace), so a crash mid-write
+leaves the previous checkpoint intact.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from world.config import ConfigError
+
+FORMAT = 1
+
+
+class CheckpointError(ConfigError):
+    """A checkpoint that is missing, unreadable or does not fit; one line for the user."""
+
+
+def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
+    """Write `payload` to `path` atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            torch.save({"format": FORMAT, **payload}, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Read a checkpoint written by `save_checkpoint`; any problem is a one-line CheckpointError."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint not found: {path}")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unpickling problem means "not a checkpoint"
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise CheckpointError(f"checkpoint {path} is unreadable: {first}") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise CheckpointError(f"checkpoint {path} is not a format-{FORMAT} checkpoint")
+    missing = [k for k in ("policy", "model", "world", "state_dict") if k not in data]
+    if missing:
+        raise CheckpointError(f"checkpoint {path} lacks {', '.join(missing)}")
+    return data

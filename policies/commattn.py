@@ -1,0 +1,149 @@
+"""CommAttn (Geng et al. 2019, section 3): BiGRU encoder over the neighbourhood, O(N^2) attention,
+and a GRU decoder chained over robot ids through the predecessor's hidden-state message.
+
+Receiver i (SPEC section 3): its heard members S_i, ordered by id, are encoded by a bidirectional
+GRU into h_j = [h_fwd_j, h_bwd_j]; with (s_{i-1}, a_{i-1}) the predecessor's decoder state and
+action (learned s_0 and a 'no action' token where p(i) = -1),
+
+    e_ij = m(s_{i-1}, h_j) = v^T tanh(W_s s_{i-1} + W_h h_j + b)     (matching net, a small MLP)
+    alpha_ij = softmax_j(e_ij) over S_i,   c_i = sum_j alpha_ij h_j
+    s_i = GRUCell([emb(a_{i-1}), c_i], s_{i-1})
+    p(a_i | a_<i) = softmax(g(emb(a_{i-1}), s_i, c_i)),   b = value([s_i, c_i]).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from policies.features import Members, bigru
+from policies.learned import LearnedPolicy
+from world.core import N_ACTIONS
+
+NO_ACTION = N_ACTIONS  # action-embedding index used where there is no predecessor
+
+
+@dataclass
+class CommAttnConfig:
+    """Sizes of the CommAttn network."""
+
+    crop: int = 9
+    """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
+    embed: int = 64
+    """Width of the per-member token embedding fed to the BiGRU."""
+    hidden: int = 32
+    """BiGRU hidden size per direction; h_j has 2 * hidden values."""
+    state: int = 64
+    """Decoder state size (the hidden-state message carries this many floats)."""
+    match: int = 32
+    """Hidden width of the matching net m(s, h)."""
+    action_embed: int = 16
+    """Width of the predecessor-action embedding."""
+
+
+@dataclass
+class Encoded:
+    """Encoder output of R receivers over their compact members."""
+
+    h: torch.Tensor  # [R, M, 2H]
+    keys: torch.Tensor  # [R, M, K] W_h h_j + b, precomputed for the matching net
+    mask: torch.Tensor  # [R, M] bool
+
+
+@dataclass
+class DecodeOut:
+    logits: torch.Tensor  # [R, 9]
+    value: torch.Tensor  # [R]
+    state: torch.Tensor  # [R, S]
+    context: torch.Tensor  # [R, 2H]
+    alpha: torch.Tensor  # [R, M] attention weights (0 on padding)
+
+
+class CommAttn(nn.Module):
+    """The network; `encode` once per receiver, `decode` one chain step for a set of receivers."""
+
+    chained = True
+
+    def __init__(self, cfg: CommAttnConfig, in_dim: int) -> None:
+        super().__init__()
+        e, h, s, k, a = cfg.embed, cfg.hidden, cfg.state, cfg.match, cfg.action_embed
+        self.cfg = cfg
+        self.embed = nn.Sequential(nn.Linear(in_dim, e), nn.ReLU())
+        self.gru = nn.GRU(e, h, batch_first=True, bidirectional=True)
+        self.s0 = nn.Parameter(torch.zeros(s))
+        self.action = nn.Embedding(N_ACTIONS + 1, a)
+        self.match_s = nn.Linear(s, k, bias=False)
+        self.match_h = nn.Linear(2 * h, k)
+        self.match_v = nn.Linear(k, 1, bias=False)
+        self.cell = nn.GRUCell(a + 2 * h, s)
+        self.policy = nn.Sequential(nn.Linear(a + s + 2 * h, s), nn.ReLU(), nn.Linear(s, N_ACTIONS))
+        self.value = nn.Sequential(nn.Linear(s + 2 * h, s), nn.ReLU(), nn.Linear(s, 1))
+
+    @property
+    def state_size(self) -> int:
+        return self.cfg.state
+
+    def encode(self, members: Members) -> Encoded:
+        h = bigru(self.gru, self.embed(members.x), members.lens)
+        return Encoded(h=h, keys=self.match_h(h), mask=members.mask)
+
+    def decode(self, enc: Encoded, rows: torch.Tensor | None, s_prev: torch.Tensor,
+               a_prev: torch.Tensor) -> DecodeOut:
+        """One decoder step for receivers `rows` (all if None) given (s_{p(i)}, a_{p(i)})."""
+        h, keys, mask = (enc.h, enc.keys, enc.mask) if rows is None else (
+            enc.h[rows], enc.keys[rows], enc.mask[rows])
+        energy = self.match_v(torch.tanh(keys + self.match_s(s_prev)[:, None, :]))[..., 0]
+        alpha = torch.softmax(energy.masked_fill(~mask, float("-inf")), dim=1)
+        context = (alpha[..., None] * h).sum(1)
+        emb = self.action(a_prev)
+        state = self.cell(torch.cat([emb, context], dim=-1), s_prev)
+        logits = self.policy(torch.cat([emb, state, context], dim=-1))
+        value = self.value(torch.cat([state, context], dim=-1))[:, 0]
+        return DecodeOut(logits, value, state, context, alpha)
+
+    def chain(self, enc: Encoded, robot: torch.Tensor, pred: torch.Tensor,
+              choose: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]) -> tuple[DecodeOut, torch.Tensor]:
+        """Decode every receiver in id order; receiver r takes the state and action of receiver
+        `pred[r]` (-1: none). `choose(rows, logits)` gives the actions of `rows`. Returns the step
+        outputs and the actions, both in row order."""
+        order = torch.argsort(robot, stable=True)
+        pos_of = torch.empty_like(order)
+        pos_of[order] = torch.arange(len(order))
+        ids = robot[order]
+        bounds = torch.searchsorted(ids, torch.arange(int(ids.max()) + 2 if len(ids) else 1))
+        states: list[torch.Tensor] = []
+        actions: list[torch.Tensor] = []
+        outs: list[DecodeOut] = []
+        for k in range(len(bounds) - 1):
+            lo, hi = int(bounds[k]), int(bounds[k + 1])
+            if lo == hi:
+                continue
+            rows = order[lo:hi]
+            pr = pred[rows]
+            has = pr >= 0
+            s_prev = self.s0.expand(len(rows), -1)
+            a_prev = torch.full((len(rows),), NO_ACTION, dtype=torch.long)
+            if bool(has.any()):
+                at = pos_of[pr.clamp(min=0)]
+                s_prev = torch.where(has[:, None], torch.cat(states)[at.clamp(max=lo - 1)], s_prev)
+                a_prev = torch.where(has, torch.cat(actions)[at.clamp(max=lo - 1)], a_prev)
+            out = self.decode(enc, rows, s_prev, a_prev)
+            a = choose(rows, out.logits)
+            states.append(out.state)
+            actions.append(a)
+            outs.append(out)
+        back = lambda name: torch.cat([getattr(o, name) for o in outs])[pos_of]  # noqa: E731
+        m = enc.mask.shape[1]
+        alpha = torch.cat([o.alpha for o in outs])[pos_of] if outs else enc.mask.new_zeros((0, m))
+        out = DecodeOut(back("logits"), back("value"), back("state"), back("context"), alpha)
+        return out, torch.cat(actions)[pos_of]
+
+
+class CommAttnPolicy(LearnedPolicy):
+    name = "commattn"
+    chained = True
+    config_cls = CommAttnConfig
+    net_cls = CommAttn

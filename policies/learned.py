@@ -1,0 +1,239 @@
+"""The shared wrapper that makes a torch network a `Policy` (acting, chaining, training, checkpoints).
+
+Acting: features from the View, the network under `torch.inference_mode`, then greedy (argmax) or
+sampled actions by Gumbel-max with counter-based noise `world.noise.uniform(seed, episode, tick,
+robot, 9, stream=0)`, never torch's generator: a robot process and the batched evaluator draw
+the same action. Chained networks (CommAttn) decode receivers in id order; the batched `act`
+runs the whole chain, a robot process calls `act_with_chain` with its predecessor's message.
+
+Training: `evaluate(views, actions)` recomputes log-probabilities, values and entropies with
+gradients for a recorded batch of ticks (teacher-forcing the chain with the recorded actions).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from torch import nn
+
+from policies.base import Policy
+from policies.checkpoint import CheckpointError, load_checkpoint
+from policies.features import Featurizer, Tokens
+from world.config import ConfigError, WorldConfig, from_dict, to_dict
+from world.core import N_ACTIONS
+from world.decentral import View
+from world.noise import uniform
+
+NO_ACTION = N_ACTIONS
+WORLD_SHAPE_KEYS = ("vision", "recent_len")  # world fields that change the token width
+
+
+@dataclass
+class Decision:
+    """What a batched decision computed, arrays [G, N, ...] (zeros off the receivers)."""
+
+    actions: np.ndarray  # [G, N] int64
+    value: np.ndarray  # [G, N] float32 baseline b(s)
+    state: np.ndarray | None  # [G, N, S] decoder states s_i (chained policies), else None
+    context: np.ndarray | None  # [G, N, 2H] communication vectors c_i (chained), else None
+
+
+@dataclass
+class Evaluation:
+    """Per-decision outputs with gradients for a batch of recorded ticks, rows in tick-major,
+    group-major, id order (the order of `np.nonzero(view.receivers)` per tick)."""
+
+    logp: torch.Tensor  # [R] log p(a | s) of the recorded action
+    value: torch.Tensor  # [R] b(s)
+    entropy: torch.Tensor  # [R]
+    tick: np.ndarray  # [R] index into the `views` list
+    group: np.ndarray  # [R]
+    robot: np.ndarray  # [R]
+
+
+def gumbel(view: View, group: np.ndarray, robot: np.ndarray) -> torch.Tensor:
+    """Gumbel noise [R, 9] float64 of each receiver, from the counter-based generator (stream 0)."""
+    u = uniform(view.seed, view.episodes[group], view.tick, robot, N_ACTIONS, stream=0)
+    with np.errstate(divide="ignore"):
+        return torch.from_numpy(-np.log(-np.log(u)))
+
+
+def chooser(noise: torch.Tensor | None) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+    """Greedy argmax (noise None) or Gumbel-max sampling of rows `rows` from their logits."""
+    if noise is None:
+        return lambda rows, logits: logits.argmax(-1)
+    return lambda rows, logits: (logits.double() + noise[rows]).argmax(-1)
+
+
+class LearnedPolicy(Policy):
+    """A torch network behind the Policy interface; subclasses set name, config_cls, net_cls."""
+
+    learned = True
+    config_cls: ClassVar[type]
+    net_cls: ClassVar[type[nn.Module]]
+
+    def __init__(self, cfg: WorldConfig, checkpoint: str | Path | None = None,
+                 model: Any | None = None) -> None:
+        super().__init__(cfg)
+        state_dict = None
+        self.meta: dict[str, Any] = {}
+        if checkpoint is not None:
+            data = load_checkpoint(checkpoint)
+            model, state_dict = self._check(data, Path(checkpoint))
+            self.meta = dict(data.get("meta", {}))
+        self.model_cfg = model if model is not None else self.config_cls()
+        self.features = Featurizer(cfg, crop=self.model_cfg.crop)
+        self.net = self.net_cls(self.model_cfg, self.features.dim)
+        if state_dict is not None:
+            self.net.load_state_dict(state_dict)
+
+    def _check(self, data: dict[str, Any], path: Path) -> tuple[Any, dict[str, torch.Tensor]]:
+        """The model config and weights of a checkpoint, if they fit this policy and world."""
+        if data["policy"] != self.name:
+            raise CheckpointError(f"checkpoint {path} holds policy {data['policy']!r}, not {self.name!r}")
+        try:
+            model = from_dict(self.config_cls, data["model"], where=f"checkpoint {path} model")
+        except ConfigError as exc:
+            raise CheckpointError(str(exc)) from None
+        for key in WORLD_SHAPE_KEYS:
+            theirs, ours = data["world"].get(key), getattr(self.cfg, key)
+            if theirs != ours:
+                raise CheckpointError(f"checkpoint {path} was trained with {key}={theirs}, "
+                                      f"this world has {key}={ours}")
+        expected = self.net_cls(model, Featurizer(self.cfg, crop=model.crop).dim).state_dict()
+        weights = data["state_dict"]
+        for name, tensor in expected.items():
+            got = weights.get(name)
+            if got is None or tuple(got.shape) != tuple(tensor.shape):
+                shape = None if got is None else tuple(got.shape)
+                raise CheckpointError(f"checkpoint {path} does not fit {self.name}: {name} has shape "
+                                      f"{shape}, expected {tuple(tensor.shape)}")
+        extra = sorted(set(weights) - set(expected))
+        if extra:
+            raise CheckpointError(f"checkpoint {path} has unexpected weights {', '.join(extra[:3])}")
+        return model, weights
+
+    def payload(self, meta: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The checkpoint dict of this policy (see policies.checkpoint)."""
+        return {"policy": self.name, "model": dataclasses.asdict(self.model_cfg),
+                "world": to_dict(self.cfg), "state_dict": self.net.state_dict(),
+                "meta": dict(meta or {})}
+
+    @property
+    def state_size(self) -> int:
+        """Floats in a hidden-state message (chained policies)."""
+        return self.model_cfg.state if self.chained else 0
+
+    # ----------------------------------------------------------------- acting
+    def act(self, view: View, greedy: bool = True) -> np.ndarray:
+        return self.decide(view, greedy).actions
+
+    def decide(self, view: View, greedy: bool = True) -> Decision:
+        """Actions, values and (chained) decoder states of every receiver of the view."""
+        with torch.inference_mode():
+            tok = self.features(view)
+            noise = None if greedy else gumbel(view, tok.group, tok.robot)
+            choose = chooser(noise)
+            members = tok.compact()
+            g, i = tok.group, tok.robot
+            shape = view.receivers.shape
+            actions = np.zeros(shape, dtype=np.int64)
+            value = np.zeros(shape, dtype=np.float32)
+            if not self.chained:
+                logits, v = self.net(members)
+                actions[g, i] = choose(None, logits).numpy()
+                value[g, i] = v.numpy()
+                return Decision(actions, value, None, None)
+            pred = self._pred_rows([view], tok)
+            if bool((pred == -2).any()):
+                raise ValueError("a receiver's predecessor is not a receiver of this view; "
+                                 "use act_with_chain with the predecessor's hidden-state message")
+            out, a = self.net.chain(self.net.encode(members), torch.from_numpy(i), pred, choose)
+            actions[g, i] = a.numpy()
+            value[g, i] = out.value.numpy()
+            state = np.zeros(shape + (self.state_size,), dtype=np.float32)
+            state[g, i] = out.state.numpy()
+            context = np.zeros(shape + (out.context.shape[1],), dtype=np.float32)
+            context[g, i] = out.context.numpy()
+            return Decision(actions, value, state, context)
+
+    def act_with_chain(self, view: View, pred_state: np.ndarray | None, pred_action: np.ndarray | None,
+                       greedy: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """One receiver per group given its predecessor's hidden-state message.
+
+        pred_state [G, S] float32 and pred_action [G] int (rows of receivers without a
+        predecessor are ignored; pass None when no receiver has one). Returns actions [G, N]
+        and the receivers' new states [G, S] (their own hidden-state messages).
+        """
+        if not self.chained:
+            raise TypeError(f"{self.name} is not a chained policy")
+        with torch.inference_mode():
+            tok = self.features(view)
+            if len(tok.group) != view.groups or (tok.group != np.arange(view.groups)).any():
+                raise ValueError("act_with_chain needs exactly one receiver per group")
+            p = view.predecessor()[tok.group, tok.robot]
+            has = torch.from_numpy(p >= 0)
+            s_prev = self.net.s0.expand(len(p), -1)
+            a_prev = torch.full((len(p),), NO_ACTION, dtype=torch.long)
+            if bool(has.any()):
+                if pred_state is None or pred_action is None:
+                    raise ValueError("a receiver has a predecessor but no hidden-state message was given")
+                ps = torch.as_tensor(np.asarray(pred_state, dtype=np.float32)).reshape(len(p), -1)
+                pa = torch.as_tensor(np.asarray(pred_action, dtype=np.int64)).reshape(len(p))
+                if bool(((pa < 0) | (pa >= N_ACTIONS))[has].any()):
+                    raise ValueError("predecessor action must lie in 0..8")
+                s_prev = torch.where(has[:, None], ps, s_prev)
+                a_prev = torch.where(has, pa, a_prev)
+            noise = None if greedy else gumbel(view, tok.group, tok.robot)
+            out = self.net.decode(self.net.encode(tok.compact()), None, s_prev, a_prev)
+            a = chooser(noise)(torch.arange(len(p)), out.logits)
+            actions = np.zeros(view.receivers.shape, dtype=np.int64)
+            actions[tok.group, tok.robot] = a.numpy()
+            return actions, out.state.numpy().copy()
+
+    # --------------------------------------------------------------- training
+    def evaluate(self, views: Sequence[View], actions: Sequence[np.ndarray]) -> Evaluation:
+        """Log-probs of the recorded actions [G, N] per view, values and entropies, with grad."""
+        parts = [self.features(v) for v in views]
+        groups = [v.receivers.shape[0] for v in views]
+        offset = np.concatenate([[0], np.cumsum(groups)[:-1]]).astype(np.int64)
+        tok = Tokens(
+            tokens=torch.cat([p.tokens for p in parts]) if parts else torch.zeros(0),
+            mask=torch.cat([p.mask for p in parts]),
+            group=np.concatenate([p.group + o for p, o in zip(parts, offset)]),
+            robot=np.concatenate([p.robot for p in parts]),
+        )
+        tick = np.concatenate([np.full(len(p.group), t) for t, p in enumerate(parts)])
+        taken = torch.from_numpy(np.concatenate(
+            [a[p.group, p.robot] for a, p in zip(actions, parts)]).astype(np.int64))
+        members = tok.compact()
+        if self.chained:
+            pred = self._pred_rows(views, tok)
+            out, _ = self.net.chain(self.net.encode(members), torch.from_numpy(tok.robot), pred,
+                                    lambda rows, logits: taken[rows])
+            logits, value = out.logits, out.value
+        else:
+            logits, value = self.net(members)
+        logp_all = torch.log_softmax(logits, dim=-1)
+        logp = logp_all.gather(1, taken[:, None])[:, 0]
+        entropy = -(logp_all.exp() * logp_all).sum(-1)
+        return Evaluation(logp, value, entropy, tick, np.concatenate(
+            [p.group for p in parts]), tok.robot)
+
+    @staticmethod
+    def _pred_rows(views: Sequence[View], tok: Tokens) -> torch.Tensor:
+        """Row of each receiver's predecessor: -1 none, -2 a predecessor that is not a receiver."""
+        pred_id = np.concatenate([v.predecessor() for v in views])  # [G_total, N]
+        n = pred_id.shape[1]
+        row_of = np.full(pred_id.shape, -2, dtype=np.int64)
+        row_of[tok.group, tok.robot] = np.arange(len(tok.group))
+        p = pred_id[tok.group, tok.robot]
+        rows = np.where(p >= 0, row_of[tok.group, np.clip(p, 0, n - 1)], -1)
+        return torch.from_numpy(rows)
+

@@ -1,0 +1,63 @@
+"""VAIN (Hoshen 2017), receiver-centric: every member j of S_i gets an embedding e_j and an
+attention vector a_j; receiver i pools the others with the kernel exp(-||a_i - a_j||^2), O(N).
+
+    comm_i = sum_{j in S_i, j != i} softmax_j(-||a_i - a_j||^2) e_j   (0 when i is alone)
+    logits, value = heads([e_i, comm_i])
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from policies.features import Members
+from policies.learned import LearnedPolicy
+from world.core import N_ACTIONS
+
+
+@dataclass
+class VAINConfig:
+    """Sizes of the VAIN network."""
+
+    crop: int = 9
+    """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
+    hidden: int = 64
+    """Width of the member embedding e_j and of the decoder."""
+    attention: int = 16
+    """Length of the attention vector a_j."""
+
+
+class VAIN(nn.Module):
+    chained = False
+
+    def __init__(self, cfg: VAINConfig, in_dim: int) -> None:
+        super().__init__()
+        h = cfg.hidden
+        self.cfg = cfg
+        self.encoder = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU())
+        self.attend = nn.Linear(h, cfg.attention)
+        self.decoder = nn.Sequential(nn.Linear(2 * h, h), nn.ReLU())
+        self.policy = nn.Linear(h, N_ACTIONS)
+        self.value = nn.Linear(h, 1)
+
+    def forward(self, members: Members) -> tuple[torch.Tensor, torch.Tensor]:
+        """Members [R, M, F] -> logits [R, 9], value [R]."""
+        rows = torch.arange(members.x.shape[0])
+        e = self.encoder(members.x)
+        a = self.attend(e)
+        e_i, a_i = e[rows, members.self_pos], a[rows, members.self_pos]
+        d2 = ((a - a_i[:, None, :]) ** 2).sum(-1)
+        others = members.mask.clone()
+        others[rows, members.self_pos] = False
+        w = torch.softmax((-d2).masked_fill(~others, -1e9), dim=1) * others  # alone: no message
+        comm = (w[..., None] * e).sum(1)
+        z = self.decoder(torch.cat([e_i, comm], dim=-1))
+        return self.policy(z), self.value(z)[:, 0]
+
+
+class VAINPolicy(LearnedPolicy):
+    name = "vain"
+    config_cls = VAINConfig
+    net_cls = VAIN
