@@ -421,9 +421,11 @@ def test_same_seed_and_actions_give_identical_episodes(
         cfg: WorldConfig, seed: int, action_seed: int) -> None:
     runs = []
     for _ in range(2):
-        steps = [(s.pos.copy(), s.last_reward.copy(), s.grid.copy(), s.explored.copy())
-                 for s, _, _ in random_episode(cfg, seed, [0, 4], action_seed)]
-        runs.append((steps, core.metrics(cfg, s)))
+        steps = []
+        for state, _, _ in random_episode(cfg, seed, [0, 4], action_seed):
+            steps.append((state.pos.copy(), state.last_reward.copy(), state.grid.copy(),
+                          state.explored.copy()))
+        runs.append((steps, core.metrics(cfg, state)))
     (a, ma), (b, mb) = runs
     assert len(a) == len(b) == cfg.horizon
     for x, y in zip(a, b, strict=True):

@@ -1,0 +1,308 @@
+"""Fault models of the radio layer (SPEC section 5), seeded and per run, per robot or per link.
+
+A `FaultPlan` holds a default `LinkFault` (latency + jitter, loss rate, bandwidth cap with queue
+or drop), overrides per sender robot and per (sender -> receiver) link, partitions (groups that
+cannot hear each other) and process faults (crash, hang, restart of a robot at a run tick).
+
+Per-message decisions that do not depend on wall-clock time (loss, partition, latency draw) are
+pure functions of the counter-based noise keyed by (fault seed, episode, tick, sender,
+receiver, kind), so the batched trainer can apply exactly the drops the swarm's radio makes
+(`delivery_mask`). With every fault at zero, nothing is dropped or delayed: the run is identical
+to one without the fault layer.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from world.config import ConfigError
+from world.noise import uniform
+
+STREAM_LOSS, STREAM_JITTER = 11, 12
+KIND_TRAJ, KIND_HIDDEN = 0, 1
+
+
+@dataclass(frozen=True)
+class LinkFault:
+    """Faults of one directed link (or of every link of a sender, or the default)."""
+
+    latency_ms: float = 0.0
+    """Fixed one-way delay."""
+    jitter_ms: float = 0.0
+    """Extra delay drawn uniformly in [0, jitter_ms) per message."""
+    loss: float = 0.0
+    """Probability that a message is lost."""
+    bandwidth: float = 0.0
+    """Cap in bytes/s of the sender's outgoing radio traffic on this link (0: unlimited)."""
+    burst: float = 0.0
+    """Token-bucket depth in bytes (0: one second's worth of `bandwidth`)."""
+    overflow: str = "queue"
+    """What the token bucket does with a message that exceeds the cap: `queue` or `drop`."""
+
+    def __post_init__(self) -> None:
+        if self.latency_ms < 0 or self.jitter_ms < 0 or self.bandwidth < 0 or self.burst < 0:
+            raise ConfigError("latency, jitter, bandwidth and burst must be >= 0")
+        if not 0.0 <= self.loss <= 1.0:
+            raise ConfigError(f"loss must be in [0, 1], got {self.loss}")
+        if self.overflow not in ("queue", "drop"):
+            raise ConfigError(f"overflow must be 'queue' or 'drop', got {self.overflow!r}")
+
+    @property
+    def zero(self) -> bool:
+        return (self.latency_ms == 0 and self.jitter_ms == 0 and self.loss == 0
+                and self.bandwidth == 0)
+
+
+@dataclass(frozen=True)
+class ProcessFault:
+    """`kind` (crash, hang or restart) of robot `robot` when the run reaches tick `tick`."""
+
+    kind: str
+    robot: int
+    tick: int
+
+
+@dataclass(frozen=True)
+class FaultPlan:
+    default: LinkFault = field(default_factory=LinkFault)
+    per_robot: dict[int, LinkFault] = field(default_factory=dict)
+    per_link: dict[tuple[int, int], LinkFault] = field(default_factory=dict)
+    partition: tuple[tuple[int, ...], ...] = ()
+    process: tuple[ProcessFault, ...] = ()
+    seed: int = 0
+
+    def link(self, sender: int, receiver: int) -> LinkFault:
+        return self.per_link.get((sender, receiver), self.per_robot.get(sender, self.default))
+
+    @property
+    def zero(self) -> bool:
+        return (self.default.zero and all(f.zero for f in self.per_robot.values())
+                and all(f.zero for f in self.per_link.values()) and not self.partition)
+
+    def group_of(self, n: int) -> np.ndarray:
+        """Partition group id per robot [n]; robots in no listed group form one more group."""
+        g = np.full(n, len(self.partition), dtype=np.int64)
+        for k, members in enumerate(self.partition):
+            for r in members:
+                if 0 <= r < n:
+                    g[r] = k
+        return g
+
+    def describe(self) -> list[str]:
+        """Short human-readable lines of the faults in force (dashboard, logs)."""
+        out = []
+
+        def fmt(f: LinkFault) -> str:
+            parts = []
+            if f.latency_ms or f.jitter_ms:
+                parts.append(f"latency {f.latency_ms:g}+{f.jitter_ms:g}ms")
+            if f.loss:
+                parts.append(f"loss {f.loss:g}")
+            if f.bandwidth:
+                parts.append(f"bw {f.bandwidth:g}B/s {f.overflow}")
+            return " ".join(parts)
+
+        if not self.default.zero:
+            out.append("all: " + fmt(self.default))
+        out += [f"robot {r}: {fmt(f)}" for r, f in sorted(self.per_robot.items())]
+        out += [f"link {a}->{b}: {fmt(f)}" for (a, b), f in sorted(self.per_link.items())]
+        if self.partition:
+            out.append("partition " + "/".join(",".join(map(str, g)) for g in self.partition))
+        out += [f"{p.kind} {p.robot}@{p.tick}" for p in self.process]
+        return out
+
+    def to_record(self) -> dict[str, Any]:
+        """A msgpack/JSON-safe form (live `swarm fault` updates, results)."""
+        lf = lambda f: {k: getattr(f, k) for k in LinkFault.__dataclass_fields__}  # noqa: E731
+        return {
+            "default": lf(self.default),
+            "per_robot": {str(r): lf(f) for r, f in self.per_robot.items()},
+            "per_link": {f"{a}-{b}": lf(f) for (a, b), f in self.per_link.items()},
+            "partition": [list(g) for g in self.partition],
+            "process": [[p.kind, p.robot, p.tick] for p in self.process],
+            "seed": self.seed,
+        }
+
+    @classmethod
+    def from_record(cls, rec: dict[str, Any]) -> FaultPlan:
+        try:
+            lf = lambda d: LinkFault(**d)  # noqa: E731
+            return cls(
+                default=lf(rec.get("default", {})),
+                per_robot={int(r): lf(d) for r, d in rec.get("per_robot", {}).items()},
+                per_link={tuple(int(x) for x in k.split("-")): lf(d)  # type: ignore[misc]
+                          for k, d in rec.get("per_link", {}).items()},
+                partition=tuple(tuple(int(r) for r in g) for g in rec.get("partition", [])),
+                process=tuple(ProcessFault(str(k), int(r), int(t))
+                              for k, r, t in rec.get("process", [])),
+                seed=int(rec.get("seed", 0)),
+            )
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise ConfigError(f"bad fault record: {exc}") from None
+
+
+# --------------------------------------------------------------------- parsing of CLI values
+
+_UNITS_TIME = {"us": 1e-3, "ms": 1.0, "s": 1000.0, "": 1.0}
+_UNITS_RATE = {"b": 1.0, "kb": 1e3, "mb": 1e6, "kib": 1024.0, "mib": 1024.0 ** 2}
+
+
+def parse_duration_ms(text: str) -> float:
+    """`50ms`, `0.2s`, `300` (ms) -> milliseconds."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*(us|ms|s|)\s*", str(text).lower())
+    if not m:
+        raise ConfigError(f"bad duration {text!r}: use e.g. 50ms or 0.2s")
+    return float(m.group(1)) * _UNITS_TIME[m.group(2)]
+
+
+def parse_rate(text: str) -> float:
+    """`2kB/s`, `500B/s`, `1MB/s`, `2000` (bytes/s) -> bytes per second."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*(b|kb|mb|kib|mib)?(?:/s)?\s*", str(text).lower())
+    if not m:
+        raise ConfigError(f"bad bandwidth {text!r}: use e.g. 2kB/s")
+    return float(m.group(1)) * _UNITS_RATE[m.group(2) or "b"]
+
+
+def parse_ids(text: str) -> tuple[int, ...]:
+    """`0-4` or `0,2,5` or `1-3,7` -> robot ids."""
+    out: list[int] = []
+    for part in str(text).split(","):
+        part = part.strip()
+        m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
+        if not m:
+            raise ConfigError(f"bad robot list {text!r}: use e.g. 0-4 or 0,2,5")
+        lo, hi = int(m.group(1)), int(m.group(2) or m.group(1))
+        if hi < lo:
+            raise ConfigError(f"bad robot range {part!r}")
+        out += range(lo, hi + 1)
+    return tuple(out)
+
+
+def parse_partition(text: str) -> tuple[tuple[int, ...], ...]:
+    """`0-4/5-9` -> ((0..4), (5..9)); a robot may be in one group only."""
+    groups = tuple(parse_ids(g) for g in str(text).split("/") if g.strip())
+    seen: set[int] = set()
+    for g in groups:
+        if seen & set(g):
+            raise ConfigError(f"partition {text!r} puts a robot in two groups")
+        seen |= set(g)
+    return groups
+
+
+def parse_process(kind: str, text: str) -> ProcessFault:
+    """`3@20` -> robot 3 at run tick 20."""
+    m = re.fullmatch(r"\s*(\d+)\s*@\s*(\d+)\s*", str(text))
+    if not m:
+        raise ConfigError(f"bad --{kind} {text!r}: use ROBOT@TICK, e.g. 3@20")
+    return ProcessFault(kind, int(m.group(1)), int(m.group(2)))
+
+
+def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFault:
+    """A LinkFault from a TOML/CLI mapping with human units (latency = "50ms", ...)."""
+    base = base or LinkFault()
+    known = {"latency", "jitter", "loss", "bandwidth", "burst", "overflow"}
+    unknown = set(d) - known
+    if unknown:
+        raise ConfigError(f"unknown fault key(s) {', '.join(sorted(unknown))}; known: "
+                          f"{', '.join(sorted(known))}")
+    ch: dict[str, Any] = {}
+    if "latency" in d:
+        ch["latency_ms"] = parse_duration_ms(d["latency"])
+    if "jitter" in d:
+        ch["jitter_ms"] = parse_duration_ms(d["jitter"])
+    if "loss" in d:
+        try:
+            ch["loss"] = float(d["loss"])
+        except (TypeError, ValueError):
+            raise ConfigError(f"bad loss {d['loss']!r}") from None
+    if "bandwidth" in d:
+        ch["bandwidth"] = parse_rate(d["bandwidth"])
+    if "burst" in d:
+        ch["burst"] = float(d["burst"])
+    if "overflow" in d:
+        ch["overflow"] = str(d["overflow"])
+    return replace(base, **ch)
+
+
+def plan_from_table(t: dict[str, Any], seed: int = 0) -> FaultPlan:
+    """`[faults]` of an experiment file: latency, jitter, loss, bandwidth, overflow, partition,
+    crash/hang/restart lists, `[faults.robot.K]` and `[faults.link."A-B"]` overrides."""
+    t = dict(t)
+    per_robot_t = t.pop("robot", {})
+    per_link_t = t.pop("link", {})
+    partition = parse_partition(t.pop("partition")) if "partition" in t else ()
+    process: list[ProcessFault] = []
+    for kind in ("crash", "hang", "restart"):
+        items = t.pop(kind, [])
+        items = [items] if isinstance(items, str) else items
+        process += [parse_process(kind, x) for x in items]
+    fseed = int(t.pop("seed", seed))
+    default = link_fault_from(t)
+    per_robot = {int(k): link_fault_from(v, default) for k, v in per_robot_t.items()}
+    per_link = {}
+    for k, v in per_link_t.items():
+        a, sep, b = str(k).partition("-")
+        if not sep or not a.isdigit() or not b.isdigit():
+            raise ConfigError(f"bad link {k!r}: use \"SENDER-RECEIVER\"")
+        per_link[(int(a), int(b))] = link_fault_from(v, default)
+    return FaultPlan(default, per_robot, per_link, partition, tuple(process), fseed)
+
+
+# --------------------------------------------------------------------- per-message decisions
+
+
+def delivery_mask(plan: FaultPlan, episodes: np.ndarray, tick: int, n: int,
+                  kind: int = KIND_TRAJ, budget_ms: float | None = None) -> np.ndarray:
+    """[G, N, N] bool: does j's message reach i (loss, partition, and latency within budget)?
+
+    The same decisions the swarm's radio makes for each (episode, tick, sender, receiver); the
+    diagonal (a robot's own message) is always delivered. Bandwidth queueing depends on wall
+    time and message sizes and is applied by the radio only.
+    """
+    episodes = np.asarray(episodes, dtype=np.int64)
+    g = len(episodes)
+    ok = np.ones((g, n, n), dtype=bool)
+    if plan.zero:
+        return ok
+    loss, lat, jit = link_arrays(plan, n)
+    recv = np.arange(n)[:, None]
+    send = np.arange(n)[None, :]
+    u = uniform(plan.seed, episodes[:, None, None], tick, send * 1000 + recv, 1,
+                stream=STREAM_LOSS + 100 * kind)[..., 0]
+    ok &= ~(u < loss.T[None])  # loss[j, i] is the link j -> i; ok[g, i, j]
+    if plan.partition:
+        grp = plan.group_of(n)
+        ok &= (grp[:, None] == grp[None, :])[None]
+    if budget_ms is not None:
+        ok &= (delay_ms(plan, episodes, tick, n, kind, lat, jit) <= budget_ms)
+    idx = np.arange(n)
+    ok[:, idx, idx] = True
+    return ok
+
+
+def link_arrays(plan: FaultPlan, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-link loss, latency and jitter as [sender, receiver] arrays."""
+    loss = np.zeros((n, n))
+    lat = np.zeros((n, n))
+    jit = np.zeros((n, n))
+    for j in range(n):
+        for i in range(n):
+            f = plan.link(j, i)
+            loss[j, i], lat[j, i], jit[j, i] = f.loss, f.latency_ms, f.jitter_ms
+    return loss, lat, jit
+
+
+def delay_ms(plan: FaultPlan, episodes: np.ndarray, tick: int, n: int, kind: int,
+             lat: np.ndarray | None = None, jit: np.ndarray | None = None) -> np.ndarray:
+    """[G, N(receiver), N(sender)] one-way delay of each message, latency + jitter draw."""
+    if lat is None or jit is None:
+        _, lat, jit = link_arrays(plan, n)
+    recv = np.arange(n)[:, None]
+    send = np.arange(n)[None, :]
+    u = uniform(plan.seed, np.asarray(episodes)[:, None, None], tick, send * 1000 + recv, 1,
+                stream=STREAM_JITTER + 100 * kind)[..., 0]
+    return lat.T[None] + jit.T[None] * u

@@ -1,0 +1,420 @@
+"""REINFORCE with a state-specific baseline for the learned policies (paper sections 3 and 4.3).
+
+Reads top to bottom: config, rollout, loss, curriculum, the training loop, the benchmark.
+
+Per update: `batch` episodes run batched on the world core with sampled actions (counter-based
+noise, the same code path the evaluator and swarm use); per robot j and tick t the return
+G_t = sum_{k >= t} gamma^(k - t) r_k; the loss is the paper's
+
+    loss_j = sum_t [ -log p(a_t | s_t) (G_t - b(s_t)) + alpha (G_t - b(s_t))^2 ]
+
+summed over robots and averaged over episodes, with b detached in the first term, plus an
+optional entropy bonus. Episodes of update u are episodes u*batch .. of the training seed
+`train_seed_offset + seed`, disjoint from the evaluation seeds (0, 1, ...): a run is a pure
+function of its config, and `--resume` continues exactly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import io
+import json
+import math
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from policies import make_policy
+from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from policies.learned import LearnedPolicy
+from swarm.evaluate import evaluate
+from world import core
+from world.config import WorldConfig, from_dict, replace
+from world.decentral import TrajMessages, View, batch_view
+
+
+@dataclass
+class TrainConfig:
+    """Everything that determines a training run besides the world."""
+
+    policy: str = "commattn"
+    """Registry name of a learned policy: commattn, commnet, vain, bicnet."""
+    seed: int = 0
+    """Run seed: initial weights and the training / validation episode seeds."""
+    epochs: int = 50
+    """Epochs (the paper: 50); a checkpoint is written after each."""
+    updates: int = 100
+    """Weight updates per epoch (the paper: 100)."""
+    batch: int = 288
+    """Episodes per update (the paper: 288)."""
+    lr: float = 1e-3
+    """Adam learning rate."""
+    alpha: float = 0.03
+    """Weight of the baseline term alpha (G - b)^2 (the paper's alpha)."""
+    gamma: float = 1.0
+    """Discount of the return G_t; 1.0 sums the rewards as the paper does."""
+    reward_scale: float = 0.1
+    """Rewards are multiplied by this before the loss so that alpha (G - b)^2 stays O(1)."""
+    adv_norm: bool = True
+    """Normalise G - b over the batch (zero mean, unit std) in the policy-gradient term."""
+    ent_coef: float = 0.01
+    """Entropy bonus per decision (0 disables)."""
+    max_grad_norm: float = 1.0
+    """Clip the global gradient norm to this (0 disables)."""
+    curriculum_step: int = 10
+    """Dynamic blocks added per curriculum level (levels 0, step, 2 step, .. up to the world's
+    n_dynamic); 0 trains on the full world from the start."""
+    curriculum_threshold: float = 0.75
+    """Advance a level when the running mean elratio of the training episodes reaches this."""
+    curriculum_min_updates: int = 10
+    """Updates spent at a level before it may advance."""
+    curriculum_max_updates: int = 60
+    """Updates after which a level advances regardless of elratio (0: never forced)."""
+    curriculum_ema: float = 0.9
+    """Smoothing of the running mean elratio: ema = ema * c + (1 - c) * batch mean."""
+    train_seed_offset: int = 1_000_000
+    """Training episodes use world seed offset + seed; validation uses 2 * offset + seed."""
+    val_episodes: int = 96
+    """Greedy validation episodes on the full world after every epoch (0 disables)."""
+    threads: int = 2
+    """torch.set_num_threads for the run."""
+    chunk_ticks: int = 10
+    """Ticks per backward pass (bounds memory; the gradient is the same for any value)."""
+
+
+# ------------------------------------------------------------------------------------ rollout
+@dataclass
+class Rollout:
+    """One batch of finished episodes, arrays [T, B, N] unless noted."""
+
+    views: list[View]
+    actions: list[np.ndarray]  # T of [B, N]
+    value: np.ndarray  # b(s) at acting time (for the advantage)
+    reward: np.ndarray
+    metrics: core.EpisodeMetrics
+
+
+def frozen(view: View) -> View:
+    """A copy of a view that later world steps cannot change (the core mutates state in place)."""
+    m = view.msgs
+    msgs = TrajMessages(m.pos.copy(), m.visited.copy(), m.recent.copy(), m.patch.copy(),
+                        m.present.copy())
+    return dataclasses.replace(view, episodes=view.episodes.copy(), msgs=msgs,
+                               receivers=view.receivers.copy(), last_reward=view.last_reward.copy())
+
+
+def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.ndarray) -> Rollout:
+    """Run `episodes` of `seed` to the horizon with sampled actions."""
+    state = core.reset(world, seed, episodes)
+    policy.reset(len(episodes))
+    views, actions, values, rewards = [], [], [], []
+    while not state.done:
+        view = frozen(batch_view(world, state))
+        d = policy.decide(view, greedy=False)
+        rewards.append(core.step(world, state, d.actions))
+        views.append(view)
+        actions.append(d.actions)
+        values.append(d.value)
+    return Rollout(views, actions, np.stack(values), np.stack(rewards), core.metrics(world, state))
+
+
+def returns(reward: np.ndarray, gamma: float) -> np.ndarray:
+    """G_t = r_t + gamma G_{t+1} along axis 0."""
+    out = np.zeros_like(reward, dtype=np.float64)
+    acc = np.zeros(reward.shape[1:])
+    for t in range(reward.shape[0] - 1, -1, -1):
+        acc = reward[t] + gamma * acc
+        out[t] = acc
+    return out
+
+
+# --------------------------------------------------------------------------------------- loss
+def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout, cfg: TrainConfig) -> dict[str, float]:
+    """One REINFORCE step on a rollout; returns the loss parts per episode."""
+    ret = returns(roll.reward * cfg.reward_scale, cfg.gamma)
+    adv = ret - roll.value
+    live = np.stack([v.receivers for v in roll.views])
+    if cfg.adv_norm:
+        adv = (adv - adv[live].mean()) / (adv[live].std() + 1e-8)
+    b = roll.reward.shape[1]
+    opt.zero_grad(set_to_none=True)
+    totals = {"loss": 0.0, "pg": 0.0, "baseline": 0.0, "entropy": 0.0}
+    n_dec = 0
+    for t0 in range(0, len(roll.views), cfg.chunk_ticks):
+        ev = policy.evaluate(roll.views[t0:t0 + cfg.chunk_ticks], roll.actions[t0:t0 + cfg.chunk_ticks])
+        at = (t0 + ev.tick, ev.group, ev.robot)
+        a = torch.from_numpy(adv[at].astype(np.float32))
+        g = torch.from_numpy(ret[at].astype(np.float32))
+        pg = -(ev.logp * a).sum()
+        base = cfg.alpha * ((g - ev.value) ** 2).sum()
+        ent = ev.entropy.sum()
+        loss = (pg + base - cfg.ent_coef * ent) / b
+        loss.backward()
+        totals["loss"] += loss.item()
+        totals["pg"] += pg.item() / b
+        totals["baseline"] += base.item() / b
+        totals["entropy"] += ent.item()
+        n_dec += len(ev.tick)
+    totals["entropy"] /= max(n_dec, 1)
+    params = [p for p in policy.net.parameters() if p.grad is not None]
+    norm = torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm if cfg.max_grad_norm > 0 else math.inf)
+    totals["grad_norm"] = float(norm)
+    opt.step()
+    return totals
+
+
+# --------------------------------------------------------------------------------- curriculum
+@dataclass
+class Curriculum:
+    """Exploration-ratio-based curriculum (paper 4.3): dynamic blocks are introduced in levels.
+
+    Level k trains with min(k * step, n_dynamic) dynamic blocks (same add_every). After each
+    update the running mean elratio is ema <- c ema + (1 - c) mean(batch elratio) (reset when a
+    level starts); the level advances once it has run `min_updates` and ema >= threshold, or
+    after `max_updates` regardless, until the world's own n_dynamic is reached.
+    """
+
+    level: int = 0
+    updates_at_level: int = 0
+    ema: float | None = None
+
+    def world(self, world: WorldConfig, cfg: TrainConfig) -> WorldConfig:
+        if cfg.curriculum_step <= 0 or not world.dynamic:
+            return world
+        return replace(world, n_dynamic=min(self.level * cfg.curriculum_step, world.n_dynamic))
+
+    def observe(self, elratio: float, world: WorldConfig, cfg: TrainConfig) -> bool:
+        """Record one update's mean elratio; True when the level advanced."""
+        c = cfg.curriculum_ema
+        self.ema = elratio if self.ema is None else c * self.ema + (1 - c) * elratio
+        self.updates_at_level += 1
+        if self.world(world, cfg).n_dynamic >= world.n_dynamic or cfg.curriculum_step <= 0:
+            return False
+        ready = self.updates_at_level >= cfg.curriculum_min_updates and self.ema >= cfg.curriculum_threshold
+        forced = 0 < cfg.curriculum_max_updates <= self.updates_at_level
+        if ready or forced:
+            self.level, self.updates_at_level, self.ema = self.level + 1, 0, None
+            return True
+        return False
+
+
+# ------------------------------------------------------------------------------------ logging
+CURVE_FIELDS = ["update", "epoch", "episodes", "n_dynamic", "elratio", "success", "reward",
+                "collisions", "block_collisions", "entropy", "loss", "pg", "baseline", "grad_norm",
+                "episodes_per_s", "elapsed_s"]
+
+
+def _truncate(path: Path, keep: int, is_csv: bool) -> None:
+    """Drop log rows past update `keep` (written after the checkpoint a run resumes from)."""
+    if not path.exists():
+        return
+    lines = path.read_text().splitlines(keepends=True)
+    out = lines[:1] if is_csv else []
+    for line in lines[1:] if is_csv else lines:
+        row = next(csv.reader([line])) if is_csv else None
+        upd = int(row[0]) if is_csv else json.loads(line).get("update", 0)
+        if upd <= keep:
+            out.append(line)
+    path.write_text("".join(out))
+
+
+def _progress_line(row: dict[str, Any], total: int) -> str:
+    return (f"epoch {row['epoch']} update {row['update']}/{total}  {row['episodes_per_s']:.0f} ep/s  "
+            f"elratio {row['elratio']:.3f}  success {row['success']:.2f}  reward {row['reward']:.1f}  "
+            f"loss {row['loss']:.3f}  dyn {row['n_dynamic']}")
+
+
+# ---------------------------------------------------------------------------------- the loop
+def main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool = False,
+         console: Any | None = None) -> dict[str, Any]:
+    """Train (or resume) into `out`: checkpoint.pt, log.jsonl, curve.csv. Returns the last row."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    console = console or Console(stderr=True)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out / "checkpoint.pt"
+    log_path, curve_path = out / "log.jsonl", out / "curve.csv"
+    cur = Curriculum()
+    epoch0, upd = 0, 0
+    if resume and ckpt_path.exists():
+        data = load_checkpoint(ckpt_path)
+        tr = data.get("train")
+        if tr is None:
+            raise CheckpointError(f"{ckpt_path} holds no trainer state; cannot resume")
+        epochs = cfg.epochs
+        cfg = from_dict(TrainConfig, tr["config"], where="checkpoint train config")
+        cfg = dataclasses.replace(cfg, epochs=max(epochs, cfg.epochs))
+        world = from_dict(WorldConfig, data["world"], where="checkpoint world")
+        torch.set_num_threads(cfg.threads)
+        policy = make_policy(cfg.policy, world, checkpoint=ckpt_path)
+        opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
+        opt.load_state_dict(tr["optimizer"])
+        torch.set_rng_state(tr["rng"])
+        epoch0, upd = tr["epoch"], tr["update"]
+        cur = Curriculum(**tr["curriculum"])
+        _truncate(log_path, upd, is_csv=False)
+        _truncate(curve_path, upd, is_csv=True)
+        console.print(f"resuming {cfg.policy} from epoch {epoch0}, update {upd}")
+    else:
+        torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        policy = make_policy(cfg.policy, world)
+        if not isinstance(policy, LearnedPolicy):
+            raise ValueError(f"policy {cfg.policy!r} is not a learned policy")
+        opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
+        log_path.write_text("")
+        curve_path.write_text(",".join(CURVE_FIELDS) + "\n")
+    train_seed = cfg.train_seed_offset + cfg.seed
+    total = cfg.epochs * cfg.updates
+    command = " ".join(sys.argv)
+    last: dict[str, Any] = {}
+    start = time.perf_counter()
+    columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+               TimeRemainingColumn(), TextColumn("{task.fields[stats]}")]
+    with Progress(*columns, console=console, disable=not console.is_terminal) as bar:
+        task = bar.add_task(f"train {cfg.policy}", total=total, completed=upd, stats="")
+        for epoch in range(epoch0, cfg.epochs):
+            for _ in range(cfg.updates):
+                t0 = time.perf_counter()
+                level_world = cur.world(world, cfg)
+                episodes = upd * cfg.batch + np.arange(cfg.batch)
+                roll = collect(policy, level_world, train_seed, episodes)
+                parts = update(policy, opt, roll, cfg)
+                upd += 1
+                m = roll.metrics
+                dt = time.perf_counter() - t0
+                row = {"update": upd, "epoch": epoch + 1, "episodes": upd * cfg.batch,
+                       "n_dynamic": level_world.n_active_dynamic,
+                       "elratio": float(m.elratio.mean()), "success": float(m.success.mean()),
+                       "reward": float(m.reward.mean()), "collisions": float(m.collisions.mean()),
+                       "block_collisions": float(m.block_collisions.mean()), **parts,
+                       "episodes_per_s": cfg.batch / dt, "elapsed_s": time.perf_counter() - start}
+                cur.observe(row["elratio"], world, cfg)
+                with log_path.open("a") as fh:
+                    fh.write(json.dumps({"kind": "update", **row}) + "\n")
+                with curve_path.open("a") as fh:
+                    buf = io.StringIO()
+                    csv.writer(buf).writerow([_fmt(row[k]) for k in CURVE_FIELDS])
+                    fh.write(buf.getvalue())
+                bar.update(task, advance=1, stats=_progress_line(row, total))
+                if not console.is_terminal and upd % 10 == 0:
+                    console.print(_progress_line(row, total), highlight=False)
+                last = row
+            val: dict[str, Any] = {}
+            if cfg.val_episodes > 0:
+                res = evaluate(world, policy, 2 * cfg.train_seed_offset + cfg.seed, cfg.val_episodes,
+                               batch=min(cfg.val_episodes, 288), greedy=True)
+                val = {f"val_{k}": v for k, v in res.summary(world).items()
+                       if k in ("elratio_mean", "success_rate", "reward_mean", "collisions_mean",
+                                "block_collisions_mean")}
+            meta = {"command": command, "seed": cfg.seed, "epoch": epoch + 1, "update": upd,
+                    "episodes": upd * cfg.batch, **val}
+            payload = policy.payload(meta)
+            payload["train"] = {"config": dataclasses.asdict(cfg), "optimizer": opt.state_dict(),
+                                "rng": torch.get_rng_state(), "epoch": epoch + 1, "update": upd,
+                                "curriculum": dataclasses.asdict(cur)}
+            save_checkpoint(ckpt_path, payload)
+            with log_path.open("a") as fh:
+                fh.write(json.dumps({"kind": "epoch", "update": upd, "epoch": epoch + 1,
+                                     "curriculum_level": cur.level, **val}) + "\n")
+            console.print(f"epoch {epoch + 1}/{cfg.epochs}  update {upd}  train elratio "
+                          f"{last.get('elratio', float('nan')):.3f}  "
+                          + "  ".join(f"{k} {v:.3f}" for k, v in val.items()), highlight=False)
+    return last
+
+
+def _fmt(v: Any) -> Any:
+    return f"{v:.6g}" if isinstance(v, float) else v
+
+
+# --------------------------------------------------------------------------------------- CLI
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """`swarm train` flags; every TrainConfig field is a flag (unset flags keep the default)."""
+    parser.add_argument("--out", type=Path, required=True, help="run directory (checkpoint, logs)")
+    parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    for f in dataclasses.fields(TrainConfig):
+        flag = "--" + f.name.replace("_", "-")
+        kind = {"int": int, "float": float, "str": str}.get(str(f.type))
+        if str(f.type) == "bool":
+            parser.add_argument(flag, type=lambda s: s.lower() in ("1", "true", "yes"), default=None,
+                                metavar="BOOL", help=_field_doc(f.name))
+        else:
+            parser.add_argument(flag, type=kind, default=None, help=_field_doc(f.name))
+
+
+def _field_doc(name: str) -> str:
+    """The docstring under a TrainConfig field (for --help)."""
+    import ast
+    import inspect
+
+    tree = ast.parse(inspect.getsource(TrainConfig))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    for node, nxt in zip(body, body[1:]):
+        if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == name:
+            if isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant):
+                return " ".join(str(nxt.value.value).split()).replace("%", "%%")
+    return ""
+
+
+def from_args(args: argparse.Namespace, base: TrainConfig | None = None) -> TrainConfig:
+    """TrainConfig from parsed flags over `base` (e.g. a TOML [train] table)."""
+    base = base or TrainConfig()
+    return replace(base, **{f.name: getattr(args, f.name, None) for f in dataclasses.fields(TrainConfig)})
+
+
+# --------------------------------------------------------------------------------- benchmark
+def bench_train(policy: str = "commattn", batch: int = 288, updates: int = 3, threads: int = 2,
+                world: WorldConfig | None = None, seed: int = 0) -> dict[str, Any]:
+    """Seconds per update (rollout of `batch` episodes + REINFORCE step) on the full world;
+    the first update is a warm-up and not counted. Median figures."""
+    world = world or WorldConfig()
+    torch.set_num_threads(threads)
+    torch.manual_seed(seed)
+    cfg = TrainConfig(policy=policy, batch=batch, threads=threads)
+    pol = make_policy(policy, world)
+    opt = torch.optim.Adam(pol.net.parameters(), lr=cfg.lr)
+    roll_s, learn_s = [], []
+    for u in range(updates + 1):
+        t0 = time.perf_counter()
+        roll = collect(pol, world, cfg.train_seed_offset + seed, u * batch + np.arange(batch))
+        t1 = time.perf_counter()
+        update(pol, opt, roll, cfg)
+        t2 = time.perf_counter()
+        if u > 0:
+            roll_s.append(t1 - t0)
+            learn_s.append(t2 - t1)
+    per = [a + b for a, b in zip(roll_s, learn_s)]
+    return {"policy": policy, "batch": batch, "robots": world.n_robots, "horizon": world.horizon,
+            "threads": threads, "updates": updates,
+            "seconds_per_update": statistics.median(per),
+            "rollout_s": statistics.median(roll_s), "learn_s": statistics.median(learn_s),
+            "episodes_per_s": batch / statistics.median(per)}
+
+
+def cli(argv: list[str] | None = None) -> int:
+    """`python -m swarm.train ...` (until `swarm train` is wired into swarm.cli)."""
+    parser = argparse.ArgumentParser(prog="python -m swarm.train", description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    parser.add_argument("--robots", type=int, default=None, help="robots N")
+    parser.add_argument("--static", action="store_true", help="no dynamic blocks")
+    args = parser.parse_args(argv)
+    world = replace(WorldConfig(), n_robots=args.robots, dynamic=False if args.static else None)
+    main(from_args(args), world, args.out, resume=args.resume)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(cli())
+
+
+__all__ = ["TrainConfig", "main", "add_arguments", "from_args", "bench_train"]
