@@ -79,20 +79,21 @@ class Obs:
     patch: bytes  # v*v codes, see world.core.patches
     reward: float  # reward of the previous step (0 at t = 0)
     done: bool  # the episode has ended: no action is expected for this tick
+    budget_ms: float  # time left until the world's action deadline when it sent this
 
     def pack(self) -> bytes:
         return _pack(K_OBS, self.ep, self.t, self.robot, self.y, self.x, self.patch, self.reward,
-                     self.done)
+                     self.done, self.budget_ms)
 
     @classmethod
     def unpack(cls, payload: bytes, cfg: WorldConfig) -> Obs:
-        ep, t, robot, y, x, patch, reward, done = _unpack(payload, K_OBS, 8)
+        ep, t, robot, y, x, patch, reward, done, budget = _unpack(payload, K_OBS, 9)
         if not isinstance(done, bool):
             raise BadMessage("done must be a bool")
         return cls(_int(ep, "ep", 0, BIG), _int(t, "t", 0, cfg.horizon),
                    _int(robot, "robot", 0, cfg.n_robots - 1), _int(y, "y", 0, cfg.height - 1),
                    _int(x, "x", 0, cfg.width - 1), _bytes(patch, "patch", cfg.vision ** 2),
-                   _float(reward, "reward"), done)
+                   _float(reward, "reward"), done, _float(budget, "budget_ms"))
 
 
 @dataclass

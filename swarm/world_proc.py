@@ -11,6 +11,7 @@ payload is dropped and counted with its key, never raised.
 
 from __future__ import annotations
 
+import heapq
 import logging
 import queue
 import time
@@ -28,11 +29,12 @@ from swarm.messages import (
     K_CONTROL, K_RESULT, K_STATUS, Action, BadMessage, Bundle, Hidden, Obs, Traj, pack_record,
     unpack_record,
 )
+from swarm.faults import FaultPlan
 from swarm.radio import Radio
 from swarm.runconfig import RunConfig
 from swarm.zconfig import ZenohOptions
 from world import core
-from world.config import WorldConfig, to_dict
+from world.config import ConfigError, WorldConfig, to_dict
 
 log = logging.getLogger("swarm.world")
 
@@ -41,11 +43,16 @@ class WorldProcess:
     """One world of one run; `run()` plays every episode and returns the result record."""
 
     def __init__(self, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
-                 on_status: Callable[[dict[str, Any]], None] | None = None) -> None:
+                 on_status: Callable[[dict[str, Any]], None] | None = None,
+                 faults: FaultPlan | None = None) -> None:
         self.cfg, self.run_cfg, self.session = cfg, run, session
         self.keys = Keys(run.run_id)
         self.q: queue.Queue[tuple[str, str, bytes | None]] = queue.Queue()
-        self.radio = Radio(cfg)
+        self.radio = Radio(cfg, faults)
+        self._pending_plan: FaultPlan | None = None
+        self._due: list[tuple[float, int, str, bytes]] = []  # scheduled radio deliveries
+        self._seq = 0
+        self.run_tick = 0
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.bad: dict[str, int] = {}
@@ -106,11 +113,14 @@ class WorldProcess:
 
     def _pump(self, deadline: float, tick: tuple[int, int] | None = None,
               inbox: dict[str, dict[int, Any]] | None = None) -> bool:
-        """Handle one queued event before `deadline`; False when the deadline passed."""
+        """Handle one queued event (or due delivery) before `deadline`; False when it passed."""
+        self._flush_due()
+        wait_until = min(deadline, self._due[0][0]) if self._due else deadline
         try:
-            kind, key, payload = self.q.get(timeout=max(0.0, deadline - time.monotonic()))
+            kind, key, payload = self.q.get(timeout=max(0.0, wait_until - time.monotonic()))
         except queue.Empty:
-            return False
+            self._flush_due()
+            return time.monotonic() < deadline
         if kind in ("live", "dead"):
             self._liveness(kind, key)
             return True
@@ -122,6 +132,11 @@ class WorldProcess:
                 return True
             if rec.get("stop"):
                 self.stop = True
+            if "faults" in rec:
+                try:
+                    self._pending_plan = FaultPlan.from_record(rec["faults"])
+                except ConfigError as exc:
+                    self._count_bad(key, str(exc))
             return True
         if tick is None or inbox is None:
             return True
@@ -143,30 +158,45 @@ class WorldProcess:
         if kind == "traj":
             self.radio.counters.traj_in += 1
             self.radio.counters.bytes_in += len(payload or b"")
-            inbox["traj"][msg.robot] = payload
+            inbox["traj"][msg.robot] = (payload, time.monotonic())
         elif kind == "hidden":
             self.radio.counters.hidden_in += 1
             if inbox.get("delivered"):
-                self._forward_hidden(msg, payload or b"")
+                self._forward_hidden(msg, payload or b"", inbox)
             else:
                 inbox["hidden"][msg.robot] = (msg, payload)
         else:
             inbox["action"][msg.robot] = msg
         return True
 
-    def _forward_hidden(self, msg: Hidden, payload: bytes) -> None:
-        for i in self.radio.hidden_receivers(msg.robot):
-            self._put(self.keys.inbox_hidden(i), payload)
+    def _schedule(self, when: float, key: str, payload: bytes) -> None:
+        if when <= time.monotonic():
+            self._put(key, payload)
+        else:
+            self._seq += 1
+            heapq.heappush(self._due, (when, self._seq, key, payload))
+
+    def _flush_due(self) -> None:
+        now = time.monotonic()
+        while self._due and self._due[0][0] <= now:
+            _, _, key, payload = heapq.heappop(self._due)
+            self._put(key, payload)
+
+    def _forward_hidden(self, msg: Hidden, payload: bytes, inbox: dict[str, Any]) -> None:
+        for i, when in self.radio.hidden_deliveries(msg.ep, msg.t, msg.robot, len(payload),
+                                                    time.monotonic(), inbox["hidden_deadline"]):
+            self._schedule(when, self.keys.inbox_hidden(i), payload)
             self.radio.counters.hidden_delivered += 1
 
     def _deliver(self, state: core.WorldState, ep: int, t: int, inbox: dict[str, Any]) -> None:
         lay = core.Layout.of(self.cfg)
-        bundles = self.radio.bundles(lay.to_yx(state.pos[0]), inbox["traj"])
-        for i, payloads in bundles.items():
-            self._put(self.keys.inbox(i), Bundle(ep, t, i, payloads).pack())
+        bundles = self.radio.bundles(ep, t, lay.to_yx(state.pos[0]), inbox["traj"],
+                                     inbox["traj_deadline"])
+        for i, (when, payloads) in bundles.items():
+            self._schedule(when, self.keys.inbox(i), Bundle(ep, t, i, payloads).pack())
         inbox["delivered"] = True
         for msg, payload in inbox["hidden"].values():
-            self._forward_hidden(msg, payload)
+            self._forward_hidden(msg, payload, inbox)
 
     def play_episode(self, ep: int) -> tuple[core.WorldState, list[np.ndarray], int]:
         cfg, keys = self.cfg, self.keys
@@ -179,21 +209,30 @@ class WorldProcess:
             if self.run_cfg.pace > 0:
                 time.sleep(max(0.0, next_tick - time.monotonic()))
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
+            if self._pending_plan is not None:
+                self.radio.set_plan(self._pending_plan)
+                log.info("faults now: %s", "; ".join(self._pending_plan.describe()) or "none")
+                self._pending_plan = None
+            self._due.clear()  # nothing of an older tick is ever delivered
             state.alive[0] = self.alive
             t = state.t
             yx = lay.to_yx(state.pos[0])
             patch = core.patches(cfg, state)[0]
             done = state.done
+            start = time.monotonic()
+            timeout = self.run_cfg.tick_timeout
+            deadline = start + timeout
+            budget_ms = 1e3 * timeout
             for i in np.flatnonzero(self.alive):
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
                                                  patch[i].tobytes(), float(state.last_reward[0, i]),
-                                                 bool(done)).pack())
+                                                 bool(done), budget_ms).pack())
             if done or self.stop:
                 return state, actions_log, ticks
-            inbox: dict[str, Any] = {"traj": {}, "hidden": {}, "action": {}, "delivered": False}
-            start = time.monotonic()
-            deadline = start + self.run_cfg.tick_timeout
-            traj_deadline = start + self.run_cfg.tick_timeout / 2
+            traj_deadline = start + timeout / 2  # the radio stops waiting for senders
+            inbox: dict[str, Any] = {"traj": {}, "hidden": {}, "action": {}, "delivered": False,
+                                     "traj_deadline": start + 0.8 * timeout,
+                                     "hidden_deadline": start + 0.9 * timeout}
             while True:
                 live = set(np.flatnonzero(self.alive).tolist())
                 if not inbox["delivered"] and (live <= set(inbox["traj"])
@@ -215,6 +254,7 @@ class WorldProcess:
             core.step(cfg, state, acts)
             actions_log.append(acts[0].copy())
             ticks += 1
+            self.run_tick += 1
             self._status(state, ep, missing)
 
     def _status(self, state: core.WorldState, ep: int, missing: list[int]) -> None:
@@ -225,6 +265,11 @@ class WorldProcess:
             "block_coll": int(state.block_coll.sum()), "robot_coll": int(state.robot_coll.sum()),
             "dyn": lay.to_yx(state.dyn_cells[0][state.dyn_active[0]]).tolist(),
             "timeouts": missing, "bad": sum(self.bad.values()), "late": self.late,
+            "run_tick": self.run_tick, "radio": self.radio.counters.totals(),
+            "faults": self.radio.plan.describe(),
+            "links": {f"{a}-{b}": [s.delivered, s.lost + s.cut + s.dropped_bw, s.late, s.queued]
+                      for (a, b), s in self.radio.counters.links.items()
+                      if s.lost or s.cut or s.late or s.queued or s.dropped_bw},
         }
         if state.t == 1:
             rec["static"] = np.argwhere(lay.inner(state.grid[0]) == core.STATIC).tolist()
@@ -272,13 +317,12 @@ class WorldProcess:
             out.update(res.summary(self.cfg))
             out.pop("planning_ms_per_decision", None)
         c = self.radio.counters
+        messages = c.totals()
+        messages["late"] += self.late  # radio-late copies + messages of an older tick
         out.update({
             "ticks": ticks, "ticks_per_s": ticks / wall if wall > 0 else 0.0,
-            "messages": {"traj_in": c.traj_in, "traj_delivered": c.traj_delivered,
-                         "hidden_in": c.hidden_in, "hidden_delivered": c.hidden_delivered,
-                         "out_of_range": c.out_of_range, "late": self.late,
-                         "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad),
-                         "bytes_in": c.bytes_in, "bytes_out": c.bytes_out},
+            "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad)},
+            "faults": self.radio.plan.to_record(),
             "timeouts": self.timeouts,
             "robots_lost": int((self.ever_alive & ~self.alive).sum()),
             "actions": actions,
@@ -287,7 +331,8 @@ class WorldProcess:
 
 
 def main(cfg: WorldConfig, run: RunConfig, zopts: ZenohOptions,
-         on_status: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+         on_status: Callable[[dict[str, Any]], None] | None = None,
+         faults: FaultPlan | None = None) -> dict[str, Any]:
     """Open a session, play the run, return its result record."""
     with zenoh.open(zopts.to_config()) as session:
-        return WorldProcess(cfg, run, session, on_status).run()
+        return WorldProcess(cfg, run, session, on_status, faults).run()
