@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from policies.features import Members, bigru
+from policies.features import Members, TokenEmbed, bigru
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
@@ -28,18 +28,18 @@ class BicNetConfig:
 class BicNet(nn.Module):
     chained = False
 
-    def __init__(self, cfg: BicNetConfig, in_dim: int) -> None:
+    def __init__(self, cfg: BicNetConfig, member_dim: int, pair_dim: int) -> None:
         super().__init__()
         e, h = cfg.embed, cfg.hidden
         self.cfg = cfg
-        self.embed = nn.Sequential(nn.Linear(in_dim, e), nn.ReLU())
+        self.embed = TokenEmbed(member_dim, pair_dim, e)
         self.gru = nn.GRU(e, h, batch_first=True, bidirectional=True)
         self.policy = nn.Sequential(nn.Linear(2 * h, 2 * h), nn.ReLU(), nn.Linear(2 * h, N_ACTIONS))
         self.value = nn.Sequential(nn.Linear(2 * h, 2 * h), nn.ReLU(), nn.Linear(2 * h, 1))
 
     def forward(self, members: Members) -> tuple[torch.Tensor, torch.Tensor]:
         """Members [R, M, F] -> logits [R, 9], value [R]."""
-        out = bigru(self.gru, self.embed(members.x), members.lens)
+        out = bigru(self.gru, self.embed(members), members)
         mine = out[torch.arange(out.shape[0]), members.self_pos]
         return self.policy(mine), self.value(mine)[:, 0]
 

@@ -16,10 +16,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
-from policies.features import Members, bigru
+from policies.features import Members, TokenEmbed, bigru
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
@@ -67,11 +68,11 @@ class CommAttn(nn.Module):
 
     chained = True
 
-    def __init__(self, cfg: CommAttnConfig, in_dim: int) -> None:
+    def __init__(self, cfg: CommAttnConfig, member_dim: int, pair_dim: int) -> None:
         super().__init__()
         e, h, s, k, a = cfg.embed, cfg.hidden, cfg.state, cfg.match, cfg.action_embed
         self.cfg = cfg
-        self.embed = nn.Sequential(nn.Linear(in_dim, e), nn.ReLU())
+        self.embed = TokenEmbed(member_dim, pair_dim, e)
         self.gru = nn.GRU(e, h, batch_first=True, bidirectional=True)
         self.s0 = nn.Parameter(torch.zeros(s))
         self.action = nn.Embedding(N_ACTIONS + 1, a)
@@ -87,59 +88,58 @@ class CommAttn(nn.Module):
         return self.cfg.state
 
     def encode(self, members: Members) -> Encoded:
-        h = bigru(self.gru, self.embed(members.x), members.lens)
-        return Encoded(h=h, keys=self.match_h(h), mask=members.mask)
+        h = bigru(self.gru, self.embed(members), members)
+        _, mask = members.pad_index(0)
+        return Encoded(h=h, keys=self.match_h(h), mask=mask)
 
-    def decode(self, enc: Encoded, rows: torch.Tensor | None, s_prev: torch.Tensor,
-               a_prev: torch.Tensor) -> DecodeOut:
-        """One decoder step for receivers `rows` (all if None) given (s_{p(i)}, a_{p(i)})."""
-        h, keys, mask = (enc.h, enc.keys, enc.mask) if rows is None else (
-            enc.h[rows], enc.keys[rows], enc.mask[rows])
-        energy = self.match_v(torch.tanh(keys + self.match_s(s_prev)[:, None, :]))[..., 0]
-        alpha = torch.softmax(energy.masked_fill(~mask, float("-inf")), dim=1)
-        context = (alpha[..., None] * h).sum(1)
+    def decode(self, enc: Encoded, s_prev: torch.Tensor, a_prev: torch.Tensor) -> DecodeOut:
+        """One decoder step for the receivers of `enc` given (s_{p(i)}, a_{p(i)})."""
+        energy = self.match_v(torch.tanh(enc.keys + self.match_s(s_prev)[:, None, :]))[..., 0]
+        alpha = torch.softmax(energy.masked_fill(~enc.mask, float("-inf")), dim=1)
+        context = (alpha[..., None] * enc.h).sum(1)
         emb = self.action(a_prev)
         state = self.cell(torch.cat([emb, context], dim=-1), s_prev)
         logits = self.policy(torch.cat([emb, state, context], dim=-1))
         value = self.value(torch.cat([state, context], dim=-1))[:, 0]
         return DecodeOut(logits, value, state, context, alpha)
 
-    def chain(self, enc: Encoded, robot: torch.Tensor, pred: torch.Tensor,
-              choose: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]) -> tuple[DecodeOut, torch.Tensor]:
-        """Decode every receiver in id order; receiver r takes the state and action of receiver
-        `pred[r]` (-1: none). `choose(rows, logits)` gives the actions of `rows`. Returns the step
-        outputs and the actions, both in row order."""
-        order = torch.argsort(robot, stable=True)
-        pos_of = torch.empty_like(order)
-        pos_of[order] = torch.arange(len(order))
-        ids = robot[order]
-        bounds = torch.searchsorted(ids, torch.arange(int(ids.max()) + 2 if len(ids) else 1))
+    def chain(self, enc: Encoded, robot: np.ndarray, pred: torch.Tensor,
+              choose: Callable[[slice, torch.Tensor], torch.Tensor]) -> tuple[DecodeOut, torch.Tensor]:
+        """Decode every receiver in id order (rows must be id-major, as `Members` are); receiver r
+        takes the state and action of row `pred[r]` (-1: none, s_0 and the no-action token).
+        `choose(rows, logits)` gives the actions of a block of rows. Returns the step outputs and
+        the actions in row order."""
+        if len(robot) and (np.diff(robot) < 0).any():
+            raise ValueError("chain needs receivers in id-major order")
+        sizes = np.bincount(robot, minlength=1).tolist() if len(robot) else []
+        blocks = zip(sizes, enc.h.split(sizes), enc.keys.split(sizes), enc.mask.split(sizes))
         states: list[torch.Tensor] = []
         actions: list[torch.Tensor] = []
         outs: list[DecodeOut] = []
-        for k in range(len(bounds) - 1):
-            lo, hi = int(bounds[k]), int(bounds[k + 1])
-            if lo == hi:
+        lo = 0
+        for size, h, keys, mask in blocks:
+            if size == 0:
                 continue
-            rows = order[lo:hi]
-            pr = pred[rows]
+            pr = pred[lo:lo + size]
             has = pr >= 0
-            s_prev = self.s0.expand(len(rows), -1)
-            a_prev = torch.full((len(rows),), NO_ACTION, dtype=torch.long)
+            s_prev = self.s0.expand(size, -1)
+            a_prev = torch.full((size,), NO_ACTION, dtype=torch.long)
             if bool(has.any()):
-                at = pos_of[pr.clamp(min=0)]
-                s_prev = torch.where(has[:, None], torch.cat(states)[at.clamp(max=lo - 1)], s_prev)
-                a_prev = torch.where(has, torch.cat(actions)[at.clamp(max=lo - 1)], a_prev)
-            out = self.decode(enc, rows, s_prev, a_prev)
-            a = choose(rows, out.logits)
+                at = pr.clamp(0, lo - 1)
+                s_prev = torch.where(has[:, None], torch.cat(states)[at], s_prev)
+                a_prev = torch.where(has, torch.cat(actions)[at], a_prev)
+            out = self.decode(Encoded(h, keys, mask), s_prev, a_prev)
             states.append(out.state)
-            actions.append(a)
+            actions.append(choose(slice(lo, lo + size), out.logits))
             outs.append(out)
-        back = lambda name: torch.cat([getattr(o, name) for o in outs])[pos_of]  # noqa: E731
-        m = enc.mask.shape[1]
-        alpha = torch.cat([o.alpha for o in outs])[pos_of] if outs else enc.mask.new_zeros((0, m))
-        out = DecodeOut(back("logits"), back("value"), back("state"), back("context"), alpha)
-        return out, torch.cat(actions)[pos_of]
+            lo += size
+        if not outs:
+            z = enc.h.new_zeros
+            return DecodeOut(z(0, N_ACTIONS), z(0), z(0, self.cfg.state), z(0, enc.h.shape[2]),
+                             z(0, enc.h.shape[1])), torch.zeros(0, dtype=torch.long)
+        cat = lambda name: torch.cat([getattr(o, name) for o in outs])  # noqa: E731
+        out = DecodeOut(cat("logits"), cat("value"), cat("state"), cat("context"), cat("alpha"))
+        return out, torch.cat(actions)
 
 
 class CommAttnPolicy(LearnedPolicy):

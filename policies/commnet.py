@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from policies.features import Members
+from policies.features import Members, TokenEmbed
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
@@ -33,11 +33,11 @@ class CommNetConfig:
 class CommNet(nn.Module):
     chained = False
 
-    def __init__(self, cfg: CommNetConfig, in_dim: int) -> None:
+    def __init__(self, cfg: CommNetConfig, member_dim: int, pair_dim: int) -> None:
         super().__init__()
         h = cfg.hidden
         self.cfg = cfg
-        self.encoder = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU())
+        self.encoder = TokenEmbed(member_dim, pair_dim, h)
         self.own = nn.ModuleList(nn.Linear(h, h) for _ in range(cfg.steps))
         self.comm = nn.ModuleList(nn.Linear(h, h, bias=False) for _ in range(cfg.steps))
         self.policy = nn.Sequential(nn.Linear(h, h), nn.ReLU(), nn.Linear(h, N_ACTIONS))
@@ -45,9 +45,9 @@ class CommNet(nn.Module):
 
     def forward(self, members: Members) -> tuple[torch.Tensor, torch.Tensor]:
         """Members [R, M, F] -> logits [R, 9], value [R]."""
-        m = members.mask[..., None].float()
+        h0, mask = members.padded(self.encoder(members))
+        m = mask[..., None].float()
         others = (members.lens - 1).clamp(min=1).float()[:, None, None]
-        h0 = self.encoder(members.x) * m
         h = h0
         for own, comm in zip(self.own, self.comm):
             c = ((h.sum(1, keepdim=True) - h) / others) * m

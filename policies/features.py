@@ -1,18 +1,18 @@
 """Member tokens of the learned policies: what receiver i reads about member j of its neighbourhood.
 
-For every receiver i (R of them) and every robot slot j (N, ordered by id) a token [F] built only
-from j's trajectory message and i's own position, and a mask `hears[g, i, j]`. A token holds:
+A token for (receiver i, member j in S_i) has two parts:
 
-- j's v x v patch as three one-hot planes (block, off-grid, robot), 3 v v values;
-- j's absolute position, normalised to [0, 1];
-- j's trajectory seen from i: an egocentric `crop x crop` window of j's visited bitmap centred
-  on the *receiver's* cell (1 visited, 0 not, -1 off-grid), and j's recent positions relative to
-  i (dy / H, dx / W and a valid flag each);
-- j's position relative to i, an is-self flag and the tick fraction t / T.
+- a *member* part, the same for every receiver, computed once per (group, robot): j's v x v
+  patch as three one-hot planes (block, off-grid, robot) and j's absolute position in [0, 1];
+- a *pair* part, relative to the receiver: an egocentric `crop x crop` window of j's visited
+  bitmap centred on the *receiver's* cell (1 visited, 0 not, -1 off-grid), j's recent positions
+  relative to i (dy / H, dx / W, valid flag), j's position relative to i, an is-self flag and
+  the tick fraction t / T.
 
-Per-member pieces are computed once per (group, robot) and gathered; pair pieces are one gather.
-`compact` moves each receiver's heard members to the front (id order kept), which is the layout
-the networks run on: unheard members never enter a computation.
+Only heard pairs exist: `Members` lists them receiver by receiver, members in id order (the
+canonical pair order), so an unheard robot never enters a computation. Receivers are id-major
+(all robot-0 receivers of every group, then robot 1, ...), the order CommAttn's chain decodes
+in. `Members.dense()` gives the [R, N, F] tokens and [R, N] mask view of the same data.
 """
 
 from __future__ import annotations
@@ -21,65 +21,115 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
+from torch import nn
+from torch.nn.utils.rnn import PackedSequence
 
 from world.config import WorldConfig
 from world.decentral import View
 
 
 @dataclass
-class Tokens:
-    """Dense member tokens of R receivers: slot j is robot j."""
-
-    tokens: torch.Tensor  # [R, N, F] float32, zero where not heard
-    mask: torch.Tensor  # [R, N] bool: receiver heard member j (itself included)
-    group: np.ndarray  # [R] int64 group of each receiver
-    robot: np.ndarray  # [R] int64 id of each receiver (group-major, id order)
-
-    def compact(self) -> Members:
-        return compact(self.tokens, self.mask, torch.from_numpy(self.robot))
-
-
-@dataclass
 class Members:
-    """Each receiver's heard members moved to the front, in id order; M = largest neighbourhood."""
+    """Heard (receiver, member) pairs of R receivers in G groups of N robot slots."""
 
-    x: torch.Tensor  # [R, M, F]
-    mask: torch.Tensor  # [R, M] bool
-    lens: torch.Tensor  # [R] int64 neighbourhood sizes (>= 1: a receiver hears itself)
-    member: torch.Tensor  # [R, M] int64 robot id in each compact slot (-1 past the end)
-    self_pos: torch.Tensor  # [R] int64 compact slot holding the receiver itself
+    member_feats: torch.Tensor  # [G*N, Fm] per-member part, row g*N + j
+    pair_member: torch.Tensor  # [P] int64 row of member_feats of each pair
+    pair_feats: torch.Tensor  # [P, Fp] receiver-relative part
+    lens: torch.Tensor  # [R] int64 |S_i| (>= 1: a receiver hears itself)
+    start: torch.Tensor  # [R] int64 first pair of each receiver (its members follow in id order)
+    self_pos: torch.Tensor  # [R] int64 slot of the receiver among its own members
+    group: np.ndarray  # [R] int64
+    robot: np.ndarray  # [R] int64
+    n: int  # robot slots N
+
+    @property
+    def receivers(self) -> int:
+        return len(self.group)
+
+    @property
+    def width(self) -> int:
+        """Largest neighbourhood M."""
+        return int(self.lens.max()) if self.receivers else 1
+
+    def pad_index(self, fill: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Pair index [R, M] of each receiver's slots (`fill` past its end) and the mask [R, M]."""
+        slots = torch.arange(self.width)[None, :]
+        mask = slots < self.lens[:, None]
+        return torch.where(mask, self.start[:, None] + slots, torch.full_like(slots, fill)), mask
+
+    def padded(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-pair rows [P, D] -> [R, M, D] (zeros past each neighbourhood) and mask [R, M]."""
+        idx, mask = self.pad_index(x.shape[0])
+        return torch.cat([x, x.new_zeros(1, x.shape[1])])[idx], mask
+
+    def dense(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Tokens [R, N, F] with slot j = robot j (zero where unheard) and the mask [R, N]."""
+        member_ids = (self.pair_member % self.n)
+        receiver = torch.repeat_interleave(torch.arange(self.receivers), self.lens)
+        tokens = torch.cat([self.member_feats[self.pair_member], self.pair_feats], dim=1)
+        out = tokens.new_zeros(self.receivers, self.n, tokens.shape[1])
+        out[receiver, member_ids] = tokens
+        mask = torch.zeros(self.receivers, self.n, dtype=torch.bool)
+        mask[receiver, member_ids] = True
+        return out, mask
+
+    @staticmethod
+    def cat(parts: list[Members]) -> Members:
+        """Members of several views as one batch (groups renumbered), re-sorted id-major."""
+        goff = np.cumsum([0] + [len(p.member_feats) // p.n for p in parts])
+        poff = np.cumsum([0] + [len(p.pair_member) for p in parts])
+        group = np.concatenate([p.group + o for p, o in zip(parts, goff)])
+        robot = np.concatenate([p.robot for p in parts])
+        order = np.lexsort((group, robot))
+        pick = torch.from_numpy(order)
+        n = parts[0].n
+        return Members(
+            member_feats=torch.cat([p.member_feats for p in parts]),
+            pair_member=torch.cat([p.pair_member + int(o) * n for p, o in zip(parts, goff)]),
+            pair_feats=torch.cat([p.pair_feats for p in parts]),
+            lens=torch.cat([p.lens for p in parts])[pick],
+            start=torch.cat([p.start + int(o) for p, o in zip(parts, poff)])[pick],
+            self_pos=torch.cat([p.self_pos for p in parts])[pick],
+            group=group[order], robot=robot[order], n=n,
+        )
 
 
-def compact(tokens: torch.Tensor, mask: torch.Tensor, robot: torch.Tensor) -> Members:
-    """Stable-move heard slots to the front: [R, N, F], [R, N] -> Members with M = max |S_i|."""
-    r, n, _ = tokens.shape
-    lens = mask.sum(1)
-    m = int(lens.max()) if r else 1
-    # heard slots first, each side in id order: sort key = (not heard) * n + id
-    key = (~mask).long() * n + torch.arange(n)
-    order = key.argsort(dim=1)[:, :m]
-    x = tokens.gather(1, order[..., None].expand(-1, -1, tokens.shape[2]))
-    cmask = torch.arange(m)[None, :] < lens[:, None]
-    member = torch.where(cmask, order, torch.full_like(order, -1))
-    self_pos = (mask & (torch.arange(n)[None, :] < robot[:, None])).sum(1)
-    return Members(x=x, mask=cmask, lens=lens, member=member, self_pos=self_pos)
+class TokenEmbed(nn.Module):
+    """relu(W_m member + W_p pair + b) per heard pair: the member part is embedded once per robot."""
+
+    def __init__(self, member_dim: int, pair_dim: int, out: int) -> None:
+        super().__init__()
+        self.member = nn.Linear(member_dim, out)
+        self.pair = nn.Linear(pair_dim, out, bias=False)
+
+    def forward(self, m: Members) -> torch.Tensor:
+        """[P, out] in canonical pair order."""
+        return torch.relu(self.member(m.member_feats)[m.pair_member] + self.pair(m.pair_feats))
 
 
-def bigru(gru: torch.nn.GRU, x: torch.Tensor, lens: torch.Tensor) -> torch.Tensor:
-    """Bidirectional GRU over each receiver's compact members: [R, M, E] -> [R, M, 2H].
+def bigru(gru: nn.GRU, x: torch.Tensor, m: Members) -> torch.Tensor:
+    """Bidirectional GRU over each receiver's members in id order: pairs [P, E] -> [R, M, 2H].
 
-    Packing makes the backward direction start at each sequence's own last member, so padding
-    never reaches a valid output; padded outputs are zero.
+    The pairs are packed (time-major, longest neighbourhood first), so each backward pass starts
+    at its receiver's own last member and padding never reaches a valid output.
     """
-    packed = pack_padded_sequence(x, lens, batch_first=True, enforce_sorted=False)
-    out, _ = gru(packed)
-    out, _ = pad_packed_sequence(out, batch_first=True, total_length=x.shape[1])
-    return out
+    r, width = m.receivers, m.width
+    lens = m.lens
+    rank = torch.empty_like(lens)
+    rank[torch.argsort(-lens, stable=True)] = torch.arange(r)
+    batch_sizes = (lens[None, :] > torch.arange(width)[:, None]).sum(1)
+    offs = torch.cumsum(batch_sizes, 0) - batch_sizes
+    idx, mask = m.pad_index(0)
+    packed_pos = torch.where(mask, offs[None, :] + rank[:, None], torch.full_like(idx, x.shape[0]))
+    order = torch.empty(x.shape[0], dtype=torch.long)
+    order[packed_pos[mask]] = idx[mask]  # packed position -> canonical pair
+    out, _ = gru(PackedSequence(x[order], batch_sizes))
+    data = out.data
+    return torch.cat([data, data.new_zeros(1, data.shape[1])])[packed_pos]
 
 
 class Featurizer:
-    """Turns a View into member tokens for its receivers; `dim` is the token width F."""
+    """Turns a View into `Members` for its receivers; `member_dim + pair_dim` is the token width F."""
 
     def __init__(self, cfg: WorldConfig, crop: int = 9) -> None:
         if crop < 1 or crop % 2 == 0:
@@ -87,51 +137,51 @@ class Featurizer:
         self.cfg = cfg
         self.crop = crop
         c = crop // 2
-        self.wc = cfg.width + 2 * c
-        self.hc = cfg.height + 2 * c
+        self.hc, self.wc = cfg.height + 2 * c, cfg.width + 2 * c
         dy, dx = np.meshgrid(np.arange(crop), np.arange(crop), indexing="ij")
         self.window = torch.from_numpy((dy * self.wc + dx).ravel())  # from the window's corner
-        v2 = cfg.vision * cfg.vision
-        self.parts = {"patch": 3 * v2, "abs": 2, "crop": crop * crop, "recent": 3 * cfg.recent_len,
-                      "rel": 2, "self": 1, "tick": 1}
-        self.dim = sum(self.parts.values())
+        self.member_dim = 3 * cfg.vision * cfg.vision + 2
+        self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
 
-    def __call__(self, view: View) -> Tokens:
+    @property
+    def dim(self) -> int:
+        return self.member_dim + self.pair_dim
+
+    def __call__(self, view: View) -> Members:
         cfg = self.cfg
         h, w, c = cfg.height, cfg.width, self.crop // 2
         msgs = view.msgs
-        g_np, i_np = np.nonzero(view.receivers)
-        g, i = torch.from_numpy(g_np), torch.from_numpy(i_np)
         groups, n = view.receivers.shape
-        r = len(g_np)
+        i_np, g_np = np.nonzero(view.receivers.T)  # id-major receivers
+        heard = view.hears[g_np, i_np]  # [R, N]
+        r_np, j_np = np.nonzero(heard)  # canonical pairs: receiver-major, members in id order
+        lens = heard.sum(1)
+        g, i, j = (torch.from_numpy(a) for a in (g_np[r_np], i_np[r_np], j_np))
+
+        code = torch.from_numpy(msgs.patch.reshape(groups * n, -1))
+        low = code & 3
+        pos = torch.from_numpy(msgs.pos).reshape(groups * n, 2)
+        norm = torch.tensor([max(h - 1, 1), max(w - 1, 1)], dtype=torch.float32)
+        member = torch.cat([low == 1, low == 2, (code & 4) != 0], dim=1).float()
+        member = torch.cat([member, pos.float() / norm], dim=1)
+
         scale = torch.tensor([h, w], dtype=torch.float32)
-
-        # per member [G, N, .]: patch planes and absolute position
-        code = torch.from_numpy(msgs.patch.reshape(groups, n, -1).astype(np.int64))
-        planes = torch.cat([(code & 3) == 1, (code & 3) == 2, (code & 4) != 0], dim=-1).float()
-        pos = torch.from_numpy(msgs.pos.astype(np.int64))
-        absolute = pos.float() / torch.tensor([max(h - 1, 1), max(w - 1, 1)], dtype=torch.float32)
-        member = torch.cat([planes, absolute], dim=-1)[g]  # [R, N, .]
-
-        # pair pieces [R, N, .]: everything relative to the receiver's cell
-        rpos = pos[g, i]  # [R, 2]
-        rel = (pos[g] - rpos[:, None, :]).float() / scale
-        visited = torch.from_numpy(msgs.visited).view(groups, n, h, w)
-        vpad = torch.full((groups, n, self.hc, self.wc), -1.0)
-        vpad[:, :, c:c + h, c:c + w] = visited.float()
-        corner = rpos[:, 0] * self.wc + rpos[:, 1]  # window corner in padded coordinates
-        idx = (g[:, None] * n + torch.arange(n)[None, :]) * (self.hc * self.wc)  # [R, N]
-        crop = vpad.view(-1)[idx[:, :, None] + (corner[:, None] + self.window[None, :])[:, None, :]]
-        recent = torch.from_numpy(msgs.recent)[g]  # [R, N, L]
+        mrow = g * n + j  # member's row
+        rpos = pos[g * n + i]  # receiver's cell [P, 2]
+        rel = (pos[mrow] - rpos).float() / scale
+        vpad = torch.full((groups * n, self.hc, self.wc), -1, dtype=torch.int8)
+        vpad[:, c:c + h, c:c + w] = torch.from_numpy(msgs.visited).view(groups * n, h, w)
+        corner = mrow * (self.hc * self.wc) + rpos[:, 0] * self.wc + rpos[:, 1]
+        crop = vpad.view(-1)[corner[:, None] + self.window[None, :]].float()
+        recent = torch.from_numpy(msgs.recent).reshape(groups * n, -1)[mrow]  # [P, L]
         valid = recent >= 0
         ry = torch.div(recent, w, rounding_mode="floor")
-        rx = recent - ry * w
-        ryx = (torch.stack([ry, rx], dim=-1) - rpos[:, None, None, :]).float() / scale
-        ryx = ryx * valid[..., None]
-        recent_f = torch.cat([ryx.flatten(2), valid.float()], dim=-1)
-        is_self = (torch.arange(n)[None, :] == i[:, None]).float()[..., None]
-        tick = torch.full((r, n, 1), view.tick / cfg.horizon)
-        tokens = torch.cat([member, crop, recent_f, rel, is_self, tick], dim=-1)
-        mask = torch.from_numpy(view.hears[g_np, i_np])
-        tokens = tokens * mask[..., None]
-        return Tokens(tokens=tokens, mask=mask, group=g_np, robot=i_np)
+        ryx = (torch.stack([ry, recent - ry * w], dim=-1) - rpos[:, None, :]).float() / scale
+        ryx = (ryx * valid[..., None]).flatten(1)
+        pair = torch.cat([crop, ryx, valid.float(), rel, (i == j).float()[:, None],
+                          torch.full((len(j), 1), view.tick / cfg.horizon)], dim=1)
+        lens_t = torch.from_numpy(lens)
+        self_pos = torch.from_numpy((heard & (np.arange(n)[None, :] < i_np[:, None])).sum(1))
+        return Members(member_feats=member, pair_member=mrow, pair_feats=pair, lens=lens_t,
+                       start=torch.cumsum(lens_t, 0) - lens_t, self_pos=self_pos,
+                       group=g_np, robot=i_np, n=n)

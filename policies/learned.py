@@ -24,7 +24,7 @@ from torch import nn
 
 from policies.base import Policy
 from policies.checkpoint import CheckpointError, load_checkpoint
-from policies.features import Featurizer, Tokens
+from policies.features import Featurizer, Members
 from world.config import ConfigError, WorldConfig, from_dict, to_dict
 from world.core import N_ACTIONS
 from world.decentral import View
@@ -42,6 +42,7 @@ class Decision:
     value: np.ndarray  # [G, N] float32 baseline b(s)
     state: np.ndarray | None  # [G, N, S] decoder states s_i (chained policies), else None
     context: np.ndarray | None  # [G, N, 2H] communication vectors c_i (chained), else None
+    inputs: Members | None = None  # the features, when kept for training
 
 
 @dataclass
@@ -64,8 +65,8 @@ def gumbel(view: View, group: np.ndarray, robot: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(-np.log(-np.log(u)))
 
 
-def chooser(noise: torch.Tensor | None) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
-    """Greedy argmax (noise None) or Gumbel-max sampling of rows `rows` from their logits."""
+def chooser(noise: torch.Tensor | None) -> Callable[[slice, torch.Tensor], torch.Tensor]:
+    """Greedy argmax (noise None) or Gumbel-max sampling of a block of rows from their logits."""
     if noise is None:
         return lambda rows, logits: logits.argmax(-1)
     return lambda rows, logits: (logits.double() + noise[rows]).argmax(-1)
@@ -89,7 +90,7 @@ class LearnedPolicy(Policy):
             self.meta = dict(data.get("meta", {}))
         self.model_cfg = model if model is not None else self.config_cls()
         self.features = Featurizer(cfg, crop=self.model_cfg.crop)
-        self.net = self.net_cls(self.model_cfg, self.features.dim)
+        self.net = self.net_cls(self.model_cfg, self.features.member_dim, self.features.pair_dim)
         if state_dict is not None:
             self.net.load_state_dict(state_dict)
 
@@ -106,7 +107,8 @@ class LearnedPolicy(Policy):
             if theirs != ours:
                 raise CheckpointError(f"checkpoint {path} was trained with {key}={theirs}, "
                                       f"this world has {key}={ours}")
-        expected = self.net_cls(model, Featurizer(self.cfg, crop=model.crop).dim).state_dict()
+        feats = Featurizer(self.cfg, crop=model.crop)
+        expected = self.net_cls(model, feats.member_dim, feats.pair_dim).state_dict()
         weights = data["state_dict"]
         for name, tensor in expected.items():
             got = weights.get(name)
@@ -134,34 +136,34 @@ class LearnedPolicy(Policy):
     def act(self, view: View, greedy: bool = True) -> np.ndarray:
         return self.decide(view, greedy).actions
 
-    def decide(self, view: View, greedy: bool = True) -> Decision:
-        """Actions, values and (chained) decoder states of every receiver of the view."""
+    def decide(self, view: View, greedy: bool = True, keep_inputs: bool = False) -> Decision:
+        """Actions, values and (chained) decoder states of every receiver of the view;
+        `keep_inputs` keeps the features for a later `evaluate` (the trainer)."""
         with torch.inference_mode():
-            tok = self.features(view)
-            noise = None if greedy else gumbel(view, tok.group, tok.robot)
-            choose = chooser(noise)
-            members = tok.compact()
-            g, i = tok.group, tok.robot
+            members = self.features(view)
+            g, i = members.group, members.robot
+            choose = chooser(None if greedy else gumbel(view, g, i))
             shape = view.receivers.shape
             actions = np.zeros(shape, dtype=np.int64)
             value = np.zeros(shape, dtype=np.float32)
+            kept = members if keep_inputs else None
             if not self.chained:
                 logits, v = self.net(members)
-                actions[g, i] = choose(None, logits).numpy()
+                actions[g, i] = choose(slice(None), logits).numpy()
                 value[g, i] = v.numpy()
-                return Decision(actions, value, None, None)
-            pred = self._pred_rows([view], tok)
+                return Decision(actions, value, None, None, kept)
+            pred = self._pred_rows([view], members)
             if bool((pred == -2).any()):
                 raise ValueError("a receiver's predecessor is not a receiver of this view; "
                                  "use act_with_chain with the predecessor's hidden-state message")
-            out, a = self.net.chain(self.net.encode(members), torch.from_numpy(i), pred, choose)
+            out, a = self.net.chain(self.net.encode(members), i, pred, choose)
             actions[g, i] = a.numpy()
             value[g, i] = out.value.numpy()
             state = np.zeros(shape + (self.state_size,), dtype=np.float32)
             state[g, i] = out.state.numpy()
             context = np.zeros(shape + (out.context.shape[1],), dtype=np.float32)
             context[g, i] = out.context.numpy()
-            return Decision(actions, value, state, context)
+            return Decision(actions, value, state, context, kept)
 
     def act_with_chain(self, view: View, pred_state: np.ndarray | None, pred_action: np.ndarray | None,
                        greedy: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -173,49 +175,48 @@ class LearnedPolicy(Policy):
         """
         if not self.chained:
             raise TypeError(f"{self.name} is not a chained policy")
+        if (view.receivers.sum(1) != 1).any():
+            raise ValueError("act_with_chain needs exactly one receiver per group")
         with torch.inference_mode():
-            tok = self.features(view)
-            if len(tok.group) != view.groups or (tok.group != np.arange(view.groups)).any():
-                raise ValueError("act_with_chain needs exactly one receiver per group")
-            p = view.predecessor()[tok.group, tok.robot]
+            members = self.features(view)
+            order = np.argsort(members.group)  # group g's receiver is row order[g]
+            p = view.predecessor()[members.group, members.robot]
             has = torch.from_numpy(p >= 0)
             s_prev = self.net.s0.expand(len(p), -1)
             a_prev = torch.full((len(p),), NO_ACTION, dtype=torch.long)
             if bool(has.any()):
                 if pred_state is None or pred_action is None:
                     raise ValueError("a receiver has a predecessor but no hidden-state message was given")
-                ps = torch.as_tensor(np.asarray(pred_state, dtype=np.float32)).reshape(len(p), -1)
-                pa = torch.as_tensor(np.asarray(pred_action, dtype=np.int64)).reshape(len(p))
+                rows = torch.from_numpy(members.group)
+                ps = torch.as_tensor(np.asarray(pred_state, dtype=np.float32)).reshape(view.groups, -1)[rows]
+                pa = torch.as_tensor(np.asarray(pred_action, dtype=np.int64)).reshape(view.groups)[rows]
                 if bool(((pa < 0) | (pa >= N_ACTIONS))[has].any()):
                     raise ValueError("predecessor action must lie in 0..8")
                 s_prev = torch.where(has[:, None], ps, s_prev)
                 a_prev = torch.where(has, pa, a_prev)
-            noise = None if greedy else gumbel(view, tok.group, tok.robot)
-            out = self.net.decode(self.net.encode(tok.compact()), None, s_prev, a_prev)
-            a = chooser(noise)(torch.arange(len(p)), out.logits)
+            noise = None if greedy else gumbel(view, members.group, members.robot)
+            out = self.net.decode(self.net.encode(members), s_prev, a_prev)
+            a = chooser(noise)(slice(None), out.logits)
             actions = np.zeros(view.receivers.shape, dtype=np.int64)
-            actions[tok.group, tok.robot] = a.numpy()
-            return actions, out.state.numpy().copy()
+            actions[members.group, members.robot] = a.numpy()
+            return actions, out.state.numpy()[order].copy()
 
     # --------------------------------------------------------------- training
-    def evaluate(self, views: Sequence[View], actions: Sequence[np.ndarray]) -> Evaluation:
-        """Log-probs of the recorded actions [G, N] per view, values and entropies, with grad."""
-        parts = [self.features(v) for v in views]
-        groups = [v.receivers.shape[0] for v in views]
-        offset = np.concatenate([[0], np.cumsum(groups)[:-1]]).astype(np.int64)
-        tok = Tokens(
-            tokens=torch.cat([p.tokens for p in parts]) if parts else torch.zeros(0),
-            mask=torch.cat([p.mask for p in parts]),
-            group=np.concatenate([p.group + o for p, o in zip(parts, offset)]),
-            robot=np.concatenate([p.robot for p in parts]),
-        )
-        tick = np.concatenate([np.full(len(p.group), t) for t, p in enumerate(parts)])
-        taken = torch.from_numpy(np.concatenate(
-            [a[p.group, p.robot] for a, p in zip(actions, parts)]).astype(np.int64))
-        members = tok.compact()
+    def evaluate(self, views: Sequence[View], actions: Sequence[np.ndarray],
+                 inputs: Sequence[Members] | None = None) -> Evaluation:
+        """Log-probs of the recorded actions [G, N] per view, values and entropies, with grad.
+        `inputs` are the views' features kept at acting time (recomputed when None)."""
+        parts = list(inputs) if inputs is not None else [self.features(v) for v in views]
+        groups = np.cumsum([0] + [v.receivers.shape[0] for v in views])
+        members = Members.cat(parts)
+        tick = np.searchsorted(groups, members.group, side="right") - 1
+        group = members.group - groups[tick]
+        flat = np.concatenate([a.reshape(-1) for a in actions])
+        n = views[0].receivers.shape[1]
+        taken = torch.from_numpy(flat[members.group * n + members.robot].astype(np.int64))
         if self.chained:
-            pred = self._pred_rows(views, tok)
-            out, _ = self.net.chain(self.net.encode(members), torch.from_numpy(tok.robot), pred,
+            pred = self._pred_rows(views, members)
+            out, _ = self.net.chain(self.net.encode(members), members.robot, pred,
                                     lambda rows, logits: taken[rows])
             logits, value = out.logits, out.value
         else:
@@ -223,17 +224,14 @@ class LearnedPolicy(Policy):
         logp_all = torch.log_softmax(logits, dim=-1)
         logp = logp_all.gather(1, taken[:, None])[:, 0]
         entropy = -(logp_all.exp() * logp_all).sum(-1)
-        return Evaluation(logp, value, entropy, tick, np.concatenate(
-            [p.group for p in parts]), tok.robot)
+        return Evaluation(logp, value, entropy, tick, group, members.robot)
 
     @staticmethod
-    def _pred_rows(views: Sequence[View], tok: Tokens) -> torch.Tensor:
+    def _pred_rows(views: Sequence[View], members: Members) -> torch.Tensor:
         """Row of each receiver's predecessor: -1 none, -2 a predecessor that is not a receiver."""
         pred_id = np.concatenate([v.predecessor() for v in views])  # [G_total, N]
         n = pred_id.shape[1]
         row_of = np.full(pred_id.shape, -2, dtype=np.int64)
-        row_of[tok.group, tok.robot] = np.arange(len(tok.group))
-        p = pred_id[tok.group, tok.robot]
-        rows = np.where(p >= 0, row_of[tok.group, np.clip(p, 0, n - 1)], -1)
-        return torch.from_numpy(rows)
-
+        row_of[members.group, members.robot] = np.arange(members.receivers)
+        p = pred_id[members.group, members.robot]
+        return torch.from_numpy(np.where(p >= 0, row_of[members.group, np.clip(p, 0, n - 1)], -1))

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from policies.features import Members
+from policies.features import Members, TokenEmbed
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
@@ -32,11 +32,12 @@ class VAINConfig:
 class VAIN(nn.Module):
     chained = False
 
-    def __init__(self, cfg: VAINConfig, in_dim: int) -> None:
+    def __init__(self, cfg: VAINConfig, member_dim: int, pair_dim: int) -> None:
         super().__init__()
         h = cfg.hidden
         self.cfg = cfg
-        self.encoder = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU())
+        self.encoder = nn.Sequential(nn.Linear(h, h), nn.ReLU())
+        self.embed = TokenEmbed(member_dim, pair_dim, h)
         self.attend = nn.Linear(h, cfg.attention)
         self.decoder = nn.Sequential(nn.Linear(2 * h, h), nn.ReLU())
         self.policy = nn.Linear(h, N_ACTIONS)
@@ -44,12 +45,12 @@ class VAIN(nn.Module):
 
     def forward(self, members: Members) -> tuple[torch.Tensor, torch.Tensor]:
         """Members [R, M, F] -> logits [R, 9], value [R]."""
-        rows = torch.arange(members.x.shape[0])
-        e = self.encoder(members.x)
+        e, mask = members.padded(self.encoder(self.embed(members)))
+        rows = torch.arange(e.shape[0])
         a = self.attend(e)
         e_i, a_i = e[rows, members.self_pos], a[rows, members.self_pos]
         d2 = ((a - a_i[:, None, :]) ** 2).sum(-1)
-        others = members.mask.clone()
+        others = mask.clone()
         others[rows, members.self_pos] = False
         w = torch.softmax((-d2).masked_fill(~others, -1e9), dim=1) * others  # alone: no message
         comm = (w[..., None] * e).sum(1)

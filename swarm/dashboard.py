@@ -61,7 +61,10 @@ class SwarmView:
     bad: int = 0
     late: int = 0
     episodes_done: int = 0
-    faults: list[str] = field(default_factory=list)
+    faults: list[str] = field(default_factory=list)  # link faults in force (from the world)
+    events: list[str] = field(default_factory=list)  # process faults applied (supervisor)
+    links: dict[str, list[int]] = field(default_factory=dict)  # "a-b": delivered, dropped, late, queued
+    radio: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for i in range(self.n_robots):
@@ -86,6 +89,9 @@ class SwarmView:
         self.bad = int(rec.get("bad", 0))
         self.late = int(rec.get("late", 0))
         self.timeouts += len(rec.get("timeouts", []))
+        self.faults = list(rec.get("faults", self.faults))
+        self.links = dict(rec.get("links", self.links))
+        self.radio = dict(rec.get("radio", self.radio))
         for i, (p, alive) in enumerate(zip(rec.get("pos", []), rec.get("alive", []))):
             row = self.robots.setdefault(i, RobotRow())
             row.pos = (int(p[0]), int(p[1]))
@@ -144,7 +150,7 @@ def render_grid(v: SwarmView) -> Text:
     return text
 
 
-def render_links(v: SwarmView) -> int:
+def links_in_range(v: SwarmView) -> int:
     """Number of robot pairs currently within comm range (shown in the figures)."""
     pos = [(i, r.pos) for i, r in v.robots.items() if r.pos is not None and r.alive]
     n = 0
@@ -180,15 +186,29 @@ def render_figures(v: SwarmView) -> Table:
         ("tick", str(v.tick)), ("ticks/s", f"{v.ticks_per_s:.1f}"),
         ("elratio", f"{v.elratio:.3f}"),
         ("collisions", f"block {v.block_coll}  robot {v.robot_coll}"),
-        ("links in range", str(render_links(v))),
+        ("links in range", str(links_in_range(v))),
         ("msgs/s", f"{sum(r.msgs_out for r in v.robots.values()) / elapsed:.0f}"),
         ("bytes/s", f"{sum(r.bytes_out for r in v.robots.values()) / elapsed:.0f}"),
         ("timeouts", str(v.timeouts)), ("bad / late", f"{v.bad} / {v.late}"),
         ("robots alive", f"{sum(r.alive for r in v.robots.values())}/{v.n_robots}"),
-        ("faults", ", ".join(v.faults) or "none"),
+        ("faults", "; ".join(v.faults) or "none"),
+        ("radio", " ".join(f"{k} {v.radio.get(k, 0)}" for k in ("lost", "cut", "late", "queued",
+                                                                "dropped_bw"))),
+        ("process faults", "; ".join(v.events) or "none"),
     ]
     for k, val in rows:
         table.add_row(k, val)
+    return table
+
+
+def render_links(v: SwarmView, top: int = 8) -> Table:
+    """The links the faults hurt most: delivered, dropped, late and queued messages."""
+    table = Table(title="faulted links", expand=True, pad_edge=False)
+    for col in ("link", "delivered", "dropped", "late", "queued"):
+        table.add_column(col, justify="right")
+    worst = sorted(v.links.items(), key=lambda kv: -(kv[1][1] + kv[1][2] + kv[1][3]))[:top]
+    for link, (delivered, dropped, late, queued) in worst:
+        table.add_row(link.replace("-", "→"), str(delivered), str(dropped), str(late), str(queued))
     return table
 
 
@@ -197,5 +217,8 @@ def render(v: SwarmView) -> Layout:
     layout = Layout()
     layout.split_row(Layout(name="map", ratio=3), Layout(name="side", ratio=4))
     layout["map"].update(Panel(render_grid(v), title=f"map {v.height}x{v.width}"))
-    layout["side"].update(Group(Panel(render_figures(v), title="swarm"), render_robots(v)))
+    side = [Panel(render_figures(v), title="swarm"), render_robots(v)]
+    if v.links:
+        side.append(render_links(v))
+    layout["side"].update(Group(*side))
     return layout

@@ -194,11 +194,11 @@ def parse_partition(text: str) -> tuple[tuple[int, ...], ...]:
 
 
 def parse_process(kind: str, text: str) -> ProcessFault:
-    """`3@20` -> robot 3 at run tick 20."""
-    m = re.fullmatch(r"\s*(\d+)\s*@\s*(\d+)\s*", str(text))
+    """`3@20` -> robot 3 at run tick 20; `3` -> robot 3 at once (tick -1)."""
+    m = re.fullmatch(r"\s*(\d+)\s*(?:@\s*(\d+))?\s*", str(text))
     if not m:
         raise ConfigError(f"bad --{kind} {text!r}: use ROBOT@TICK, e.g. 3@20")
-    return ProcessFault(kind, int(m.group(1)), int(m.group(2)))
+    return ProcessFault(kind, int(m.group(1)), int(m.group(2)) if m.group(2) else -1)
 
 
 def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFault:

@@ -17,6 +17,7 @@ from typing import Any
 
 from swarm import zconfig
 from swarm.runconfig import RunConfig
+from swarm.faults import plan_from_table
 from world.config import ConfigError, WorldConfig, from_dict
 
 
@@ -36,6 +37,38 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
                    help="sample actions (counter-based noise) instead of greedy")
 
 
+def _add_fault_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)")
+    g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms")
+    g.add_argument("--jitter", metavar="DUR", help="extra uniform delay in [0, DUR), e.g. 10ms")
+    g.add_argument("--loss", metavar="P", help="message loss probability, e.g. 0.1")
+    g.add_argument("--bandwidth", metavar="RATE", help="per-robot radio cap, e.g. 2kB/s")
+    g.add_argument("--overflow", choices=["queue", "drop"],
+                   help="what the bandwidth cap does with excess messages (default queue)")
+    g.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other, "
+                   "e.g. 0-4/5-9")
+    for kind, what in (("crash", "SIGKILL"), ("hang", "SIGSTOP"), ("restart", "restart/SIGCONT")):
+        g.add_argument(f"--{kind}", action="append", metavar="ROBOT@TICK",
+                       help=f"{what} robot ROBOT at run tick TICK (repeatable)")
+    g.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
+
+
+def fault_table(args: argparse.Namespace, tables: dict[str, Any]) -> dict[str, Any]:
+    """The `[faults]` table of the file overridden by the fault flags given."""
+    table = dict(tables.get("faults", {}))
+    for key in ("latency", "jitter", "loss", "bandwidth", "overflow", "partition"):
+        value = getattr(args, key, None)
+        if value is not None:
+            table[key] = value
+    for kind in ("crash", "hang", "restart"):
+        if getattr(args, kind, None):
+            table[kind] = list(getattr(args, kind))
+    if getattr(args, "fault_seed", None) is not None:
+        table["seed"] = args.fault_seed
+    plan_from_table(table)  # validate now: a bad value is a one-line error before any spawn
+    return table
+
+
 def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
     flags = {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
              "first_episode": args.first_episode, "run_id": args.run_id,
@@ -51,8 +84,8 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
         raise ConfigError(str(exc)) from None
 
 
-def _spec(path: str) -> tuple[WorldConfig, RunConfig]:
-    """Read the spec file the supervisor writes: {"world": {...}, "run": {...}}."""
+def _spec(path: str) -> tuple[WorldConfig, RunConfig, dict[str, Any]]:
+    """Read the spec file the supervisor writes: {"world": {...}, "run": {...}, "faults": {...}}."""
     try:
         with open(path) as fh:
             data = json.load(fh)
@@ -62,7 +95,8 @@ def _spec(path: str) -> tuple[WorldConfig, RunConfig]:
     if world.get("comm_range") == "inf":
         world["comm_range"] = float("inf")
     run = {k: v for k, v in data.get("run", {}).items() if k in {f.name for f in fields(RunConfig)}}
-    return from_dict(WorldConfig, world, "spec world"), from_dict(RunConfig, run, "spec run")
+    return (from_dict(WorldConfig, world, "spec world"), from_dict(RunConfig, run, "spec run"),
+            dict(data.get("faults", {})))
 
 
 def _logging(verbose: bool) -> None:
@@ -78,6 +112,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     tables = cli.file_tables(args.config)
     world = cli.world_config(args, tables)
     run = run_config(args, tables)
+    faults = fault_table(args, tables)
     out, _ = cli._consoles()
     if args.pace is None and "pace" not in tables.get("run", {}) and not args.headless \
             and out.is_terminal:
@@ -85,7 +120,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             restart_crashed=args.restart_crashed, log_dir=args.log_dir)
     try:
-        res = supervise(world, run, opts, console=out)
+        res = supervise(world, run, opts, console=out, faults=faults)
     except KeyboardInterrupt:
         print("swarm: interrupted; every process of the run was stopped", file=sys.stderr)
         return 130
@@ -107,13 +142,14 @@ def cmd_world(args: argparse.Namespace) -> int:
 
     _logging(args.verbose)
     if args.spec:
-        world, run = _spec(args.spec)
+        world, run, faults = _spec(args.spec)
     else:
         tables = cli.file_tables(args.config)
         world, run = cli.world_config(args, tables), run_config(args, tables)
+        faults = fault_table(args, tables)
         print(f"swarm world: run id {run.run_id}", file=sys.stderr, flush=True)
     try:
-        res = world_main(world, run, zconfig.from_args(args))
+        res = world_main(world, run, zconfig.from_args(args), faults=faults)
     except KeyboardInterrupt:
         return 130
     if args.json:
@@ -134,6 +170,44 @@ def cmd_robot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fault(args: argparse.Namespace) -> int:
+    """Change the faults of a running swarm: link faults go to the world (applied from the next
+    tick), process faults to the supervisor (applied at once)."""
+    import zenoh
+
+    from swarm.keys import Keys
+    from swarm.messages import K_CONTROL, pack_record
+    from swarm.supervisor import lookup_run
+
+    table = fault_table(args, {})
+    process = [f"{kind}:{text}" for kind in ("crash", "hang", "restart")
+               for text in (getattr(args, kind) or [])]
+    link = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
+    if args.clear:
+        link = {}
+    if not link and not process and not args.clear:
+        raise ConfigError("no fault given (see swarm fault --help)")
+    opts = zconfig.from_args(args)
+    if not opts.connect:
+        opts.connect = [lookup_run(args.run)]
+    keys = Keys(args.run)
+    rec: dict[str, Any] = {}
+    if link or args.clear:
+        rec["faults_table"] = link
+        rec["replace"] = bool(args.clear or args.replace)
+    if process:
+        rec["process"] = process
+    with zenoh.open(opts.to_config()) as session:
+        import time
+
+        time.sleep(0.3)  # let the session join the run's network before the one put
+        sent_at = time.time()
+        session.put(keys.control, pack_record(K_CONTROL, rec))
+        time.sleep(0.1)
+    print(json.dumps({"run": args.run, "sent_at": sent_at, "control": rec}))
+    return 0
+
+
 def add_parsers(sub: Any, add_common: Any, add_world: Any) -> None:
     """Register `run`, `world` and `robot` on the `swarm` subparsers."""
     p = sub.add_parser("run", help="spawn world + N robot processes over Zenoh, live dashboard",
@@ -142,6 +216,7 @@ def add_parsers(sub: Any, add_common: Any, add_world: Any) -> None:
     add_common(p)
     add_world(p)
     _add_run_flags(p)
+    _add_fault_flags(p)
     p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
     p.add_argument("--restart-crashed", action="store_true", help="restart robots that die")
     p.add_argument("--log-dir", metavar="DIR", help="children's logs (default: a temp dir)")
@@ -152,10 +227,22 @@ def add_parsers(sub: Any, add_common: Any, add_world: Any) -> None:
     add_common(p)
     add_world(p)
     _add_run_flags(p)
+    _add_fault_flags(p)
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
     p.set_defaults(func=cmd_world)
+
+    p = sub.add_parser("fault", help="change the faults of a running swarm",
+                       description="Live fault injection into run RUN: link faults apply from "
+                                   "the world's next tick; crash/hang/restart at once.")
+    p.add_argument("--run", required=True, help="run id (see the dashboard)")
+    p.add_argument("--replace", action="store_true",
+                   help="replace the link faults in force instead of changing the given ones")
+    p.add_argument("--clear", action="store_true", help="remove every link fault")
+    _add_fault_flags(p)
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_fault)
 
     p = sub.add_parser("robot", help="one robot process, by hand",
                        description="Join run RUN_ID as robot ID; the config comes from the world.")

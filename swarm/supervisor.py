@@ -31,7 +31,8 @@ from swarm.keys import Keys
 from swarm.messages import K_CONTROL, K_RESULT, K_RSTATUS, K_STATUS, BadMessage, pack_record, unpack_record
 from swarm.runconfig import RunConfig
 from swarm.zconfig import ZenohOptions, free_port
-from world.config import WorldConfig, to_dict
+from swarm.faults import ProcessFault, parse_process, plan_from_table
+from world.config import ConfigError, WorldConfig, to_dict
 
 
 @dataclass
@@ -46,6 +47,20 @@ class SuperviseOptions:
     """Start a robot process again when it dies."""
     log_dir: str | None = None
     """Children's stderr goes to files here (default: a temporary directory)."""
+
+
+def _registry(run_id: str) -> Path:
+    """Where a running supervisor notes its hub endpoint, for `swarm fault --run ID`."""
+    return Path(tempfile.gettempdir()) / "swarm-runs" / f"{run_id}.json"
+
+
+def lookup_run(run_id: str) -> str:
+    """The hub endpoint of a run started on this machine by `swarm run`."""
+    try:
+        return str(json.loads(_registry(run_id).read_text())["hub"])
+    except (OSError, ValueError, KeyError):
+        raise ConfigError(f"no running swarm {run_id!r} on this machine; "
+                          f"give --connect ENDPOINT") from None
 
 
 def _cli(*args: str) -> list[str]:
@@ -67,8 +82,13 @@ def _wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: flo
 
 class Supervisor:
     def __init__(self, cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
-                 console: Console | None = None) -> None:
+                 console: Console | None = None, faults: dict[str, Any] | None = None) -> None:
         self.cfg, self.run_cfg, self.opts = cfg, run, opts
+        self.faults = dict(faults or {})
+        plan = plan_from_table(self.faults, run.seed)
+        self.process_faults = sorted(plan.process, key=lambda p: p.tick)
+        self.hung: set[int] = set()
+        self.fault_log: list[str] = []
         self.console = console or Console()
         self.keys = Keys(run.run_id)
         self.port = free_port()
@@ -99,7 +119,9 @@ class Supervisor:
 
     def start(self) -> float:
         spec = self.tmp / "spec.json"
-        write_json(spec, {"world": to_dict(self.cfg), "run": asdict(self.run_cfg)})
+        write_json(spec, {"world": to_dict(self.cfg), "run": asdict(self.run_cfg),
+                          "faults": self.faults})
+        write_json(_registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
         self.world = self._spawn(["world", "--spec", str(spec), "--listen", self.hub], "world")
         _wait_port("127.0.0.1", self.port, self.world, 30.0)
@@ -109,6 +131,14 @@ class Supervisor:
 
     def stop_all(self, grace: float = 2.0) -> None:
         procs = [p for p in [self.world, *self.robots.values()] if p is not None]
+        for i in self.hung:  # a stopped process cannot take SIGINT
+            p = self.robots.get(i)
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGCONT)
+        try:
+            _registry(self.run_cfg.run_id).unlink()
+        except OSError:
+            pass
         for p in procs:
             if p.poll() is None:
                 try:
@@ -129,20 +159,45 @@ class Supervisor:
             if kind == "status":
                 rec = unpack_record(payload or b"", K_STATUS)
                 v.apply_status(rec)
+                while self.process_faults and self.process_faults[0].tick <= rec.get("run_tick", 0):
+                    self._process_fault(self.process_faults.pop(0))
                 if self.opts.headless and self.opts.status_lines:
                     print(json.dumps({"status": rec}), flush=True)
             elif kind == "rstatus":
                 v.apply_robot(unpack_record(payload or b"", K_RSTATUS))
             elif kind == "result":
                 self.result = unpack_record(payload or b"", K_RESULT)
+            elif kind == "control":
+                rec = unpack_record(payload or b"", K_CONTROL)
+                for text in rec.get("process", []):
+                    kind_, _, rest = str(text).partition(":")
+                    self._process_fault(parse_process(kind_, rest))
             elif kind in ("live", "dead"):
                 parts = key.split("/")
                 if parts[-2] == "robot" and parts[-1].isdigit():
                     v.set_alive(int(parts[-1]), kind == "live")
                 elif parts[-1] == "world":
                     v.world_alive = kind == "live"
-        except BadMessage:
+        except (BadMessage, ConfigError):
             pass
+
+    def _process_fault(self, f: ProcessFault) -> None:
+        """crash = SIGKILL, hang = SIGSTOP, restart = SIGCONT a hung robot or respawn a dead one."""
+        p = self.robots.get(f.robot)
+        self.fault_log.append(f"{f.kind} {f.robot}@{self.view.ticks_done}")
+        self.view.events = self.view.events[-5:] + [self.fault_log[-1]]
+        if f.kind == "crash" and p is not None and p.poll() is None:
+            p.kill()
+        elif f.kind == "hang" and p is not None and p.poll() is None:
+            p.send_signal(signal.SIGSTOP)
+            self.hung.add(f.robot)
+        elif f.kind == "restart":
+            if f.robot in self.hung and p is not None and p.poll() is None:
+                p.send_signal(signal.SIGCONT)
+                self.hung.discard(f.robot)
+            elif p is None or p.poll() is not None:
+                self.restarts += 1
+                self.spawn_robot(f.robot)
 
     def supervise(self) -> dict[str, Any]:
         conf = ZenohOptions(connect=[self.hub], listen=["tcp/127.0.0.1:0"]).to_config()
@@ -153,7 +208,7 @@ class Supervisor:
             sub = lambda key, kind: session.declare_subscriber(  # noqa: E731
                 key, lambda s: q.put((kind, str(s.key_expr), s.payload.to_bytes())))
             ents = [sub(k.status, "status"), sub(k.robot_status("*"), "rstatus"),
-                    sub(k.result, "result"),
+                    sub(k.result, "result"), sub(k.control, "control"),
                     session.liveliness().declare_subscriber(
                         f"{k.base}/alive/**", lambda s: q.put(
                             ("live" if s.kind == zenoh.SampleKind.PUT else "dead",
@@ -192,6 +247,7 @@ class Supervisor:
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["robot_crashes"] = self.crashes
         res["robot_restarts"] = self.restarts
+        res["process_faults"] = self.fault_log
         robots = [v for k, v in self.rss_mb.items() if k.startswith("robot")]
         res["rss_mb_per_robot"] = sum(robots) / len(robots) if robots else None
         res["rss_mb_world"] = self.rss_mb.get("world")
@@ -231,5 +287,5 @@ class Supervisor:
 
 
 def main(cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
-         console: Console | None = None) -> dict[str, Any]:
-    return Supervisor(cfg, run, opts, console).supervise()
+         console: Console | None = None, faults: dict[str, Any] | None = None) -> dict[str, Any]:
+    return Supervisor(cfg, run, opts, console, faults).supervise()

@@ -34,6 +34,7 @@ import torch
 
 from policies import make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from policies.features import Members
 from policies.learned import LearnedPolicy
 from swarm.evaluate import evaluate
 from world import core
@@ -97,6 +98,7 @@ class Rollout:
 
     views: list[View]
     actions: list[np.ndarray]  # T of [B, N]
+    inputs: list[Members]  # T features computed at acting time (reused by the update)
     value: np.ndarray  # b(s) at acting time (for the advantage)
     reward: np.ndarray
     metrics: core.EpisodeMetrics
@@ -115,15 +117,17 @@ def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.n
     """Run `episodes` of `seed` to the horizon with sampled actions."""
     state = core.reset(world, seed, episodes)
     policy.reset(len(episodes))
-    views, actions, values, rewards = [], [], [], []
+    views, actions, inputs, values, rewards = [], [], [], [], []
     while not state.done:
         view = frozen(batch_view(world, state))
-        d = policy.decide(view, greedy=False)
+        d = policy.decide(view, greedy=False, keep_inputs=True)
         rewards.append(core.step(world, state, d.actions))
         views.append(view)
         actions.append(d.actions)
+        inputs.append(d.inputs)
         values.append(d.value)
-    return Rollout(views, actions, np.stack(values), np.stack(rewards), core.metrics(world, state))
+    return Rollout(views, actions, inputs, np.stack(values), np.stack(rewards),
+                   core.metrics(world, state))
 
 
 def returns(reward: np.ndarray, gamma: float) -> np.ndarray:
@@ -149,7 +153,8 @@ def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout, cfg
     totals = {"loss": 0.0, "pg": 0.0, "baseline": 0.0, "entropy": 0.0}
     n_dec = 0
     for t0 in range(0, len(roll.views), cfg.chunk_ticks):
-        ev = policy.evaluate(roll.views[t0:t0 + cfg.chunk_ticks], roll.actions[t0:t0 + cfg.chunk_ticks])
+        span = slice(t0, t0 + cfg.chunk_ticks)
+        ev = policy.evaluate(roll.views[span], roll.actions[span], roll.inputs[span])
         at = (t0 + ev.tick, ev.group, ev.robot)
         a = torch.from_numpy(adv[at].astype(np.float32))
         g = torch.from_numpy(ret[at].astype(np.float32))
@@ -237,7 +242,13 @@ def main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool = False,
          console: Any | None = None) -> dict[str, Any]:
     """Train (or resume) into `out`: checkpoint.pt, log.jsonl, curve.csv. Returns the last row."""
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
 
     console = console or Console(stderr=True)
     out = Path(out)

@@ -29,7 +29,7 @@ from swarm.messages import (
     K_CONTROL, K_RESULT, K_STATUS, Action, BadMessage, Bundle, Hidden, Obs, Traj, pack_record,
     unpack_record,
 )
-from swarm.faults import FaultPlan
+from swarm.faults import FaultPlan, plan_from_table
 from swarm.radio import Radio
 from swarm.runconfig import RunConfig
 from swarm.zconfig import ZenohOptions
@@ -44,11 +44,12 @@ class WorldProcess:
 
     def __init__(self, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
                  on_status: Callable[[dict[str, Any]], None] | None = None,
-                 faults: FaultPlan | None = None) -> None:
+                 faults: dict[str, Any] | None = None) -> None:
         self.cfg, self.run_cfg, self.session = cfg, run, session
         self.keys = Keys(run.run_id)
         self.q: queue.Queue[tuple[str, str, bytes | None]] = queue.Queue()
-        self.radio = Radio(cfg, faults)
+        self.fault_table = dict(faults or {})  # human-unit [faults] table; live changes merge in
+        self.radio = Radio(cfg, plan_from_table(self.fault_table, run.seed))
         self._pending_plan: FaultPlan | None = None
         self._due: list[tuple[float, int, str, bytes]] = []  # scheduled radio deliveries
         self._seq = 0
@@ -132,9 +133,13 @@ class WorldProcess:
                 return True
             if rec.get("stop"):
                 self.stop = True
-            if "faults" in rec:
+            if isinstance(rec.get("faults_table"), dict):
+                table = rec["faults_table"] if rec.get("replace") else {
+                    **self.fault_table, **rec["faults_table"]}
+                table = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
                 try:
-                    self._pending_plan = FaultPlan.from_record(rec["faults"])
+                    self._pending_plan = plan_from_table(table, self.run_cfg.seed)
+                    self.fault_table = table
                 except ConfigError as exc:
                     self._count_bad(key, str(exc))
             return True
@@ -265,7 +270,7 @@ class WorldProcess:
             "block_coll": int(state.block_coll.sum()), "robot_coll": int(state.robot_coll.sum()),
             "dyn": lay.to_yx(state.dyn_cells[0][state.dyn_active[0]]).tolist(),
             "timeouts": missing, "bad": sum(self.bad.values()), "late": self.late,
-            "run_tick": self.run_tick, "radio": self.radio.counters.totals(),
+            "run_tick": self.run_tick, "wall": time.time(), "radio": self.radio.counters.totals(),
             "faults": self.radio.plan.describe(),
             "links": {f"{a}-{b}": [s.delivered, s.lost + s.cut + s.dropped_bw, s.late, s.queued]
                       for (a, b), s in self.radio.counters.links.items()
@@ -332,7 +337,7 @@ class WorldProcess:
 
 def main(cfg: WorldConfig, run: RunConfig, zopts: ZenohOptions,
          on_status: Callable[[dict[str, Any]], None] | None = None,
-         faults: FaultPlan | None = None) -> dict[str, Any]:
+         faults: dict[str, Any] | None = None) -> dict[str, Any]:
     """Open a session, play the run, return its result record."""
     with zenoh.open(zopts.to_config()) as session:
         return WorldProcess(cfg, run, session, on_status, faults).run()

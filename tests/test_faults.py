@@ -1,0 +1,199 @@
+"""Fault models: parsing, seeded statistics, the radio's decisions, and the real swarm under faults."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from policies import make_policy
+from swarm.evaluate import evaluate
+from swarm.faults import (
+    FaultPlan, LinkFault, delivery_mask, parse_duration_ms, parse_partition, parse_process,
+    parse_rate, plan_from_table,
+)
+from swarm.radio import Radio, TokenBucket
+from world.config import ConfigError, WorldConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def swarm(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
+                          capture_output=True, timeout=timeout)
+
+
+# ------------------------------------------------------------------------------- parsing
+
+
+def test_parsing_of_human_units() -> None:
+    assert parse_duration_ms("50ms") == 50 and parse_duration_ms("0.2s") == 200
+    assert parse_duration_ms("300") == 300
+    assert parse_rate("2kB/s") == 2000 and parse_rate("500B/s") == 500 and parse_rate("1MB/s") == 1e6
+    assert parse_partition("0-4/5-9") == ((0, 1, 2, 3, 4), (5, 6, 7, 8, 9))
+    p = parse_process("crash", "3@20")
+    assert (p.kind, p.robot, p.tick) == ("crash", 3, 20)
+    for bad in (lambda: parse_duration_ms("fast"), lambda: parse_rate("lots"),
+                lambda: parse_partition("0-4/3-6"), lambda: parse_process("crash", "x@1"),
+                lambda: plan_from_table({"loss": 1.5}), lambda: plan_from_table({"lag": "1ms"})):
+        with pytest.raises(ConfigError):
+            bad()
+
+
+def test_bad_fault_flag_is_one_line_error() -> None:
+    r = swarm("run", "--headless", "--robots", "2", "--loss", "2.0")
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "loss" in r.stderr and "Traceback" not in r.stderr
+
+
+# ------------------------------------------------------------------------------- statistics
+
+
+def test_zero_plan_delivers_everything() -> None:
+    ok = delivery_mask(FaultPlan(), np.arange(5), 3, 6)
+    assert ok.all()
+    assert FaultPlan(default=LinkFault(loss=0.0, latency_ms=0.0)).zero
+
+
+def test_loss_rate_matches_setting_and_is_seeded() -> None:
+    plan = plan_from_table({"loss": 0.3, "seed": 7})
+    masks = np.stack([delivery_mask(plan, np.arange(50), t, 10) for t in range(30)])
+    off = ~np.eye(10, dtype=bool)
+    lost = 1.0 - masks[..., off].mean()
+    assert lost == pytest.approx(0.3, abs=0.01)
+    assert masks[..., np.eye(10, dtype=bool)].all()  # own message never lost
+    again = np.stack([delivery_mask(plan, np.arange(50), t, 10) for t in range(30)])
+    assert np.array_equal(masks, again)
+    other = plan_from_table({"loss": 0.3, "seed": 8})
+    assert not np.array_equal(masks[0], delivery_mask(other, np.arange(50), 0, 10))
+
+
+def test_partition_cuts_exactly_cross_group_links() -> None:
+    plan = plan_from_table({"partition": "0-1/2-4"})
+    ok = delivery_mask(plan, np.arange(3), 0, 6)[0]
+    grp = np.array([0, 0, 1, 1, 1, 2])  # robot 5 in no group: a group of its own
+    assert np.array_equal(ok, grp[:, None] == grp[None, :])
+
+
+def test_latency_budget_and_jitter_distribution() -> None:
+    plan = plan_from_table({"latency": "50ms", "jitter": "20ms", "seed": 1})
+    within_60 = np.stack([delivery_mask(plan, np.arange(40), t, 8, budget_ms=60.0)
+                          for t in range(20)])
+    frac = within_60[..., ~np.eye(8, dtype=bool)].mean()
+    assert frac == pytest.approx(0.5, abs=0.03)  # P(50 + 20 U <= 60) = 0.5
+    assert not delivery_mask(plan, np.arange(4), 0, 8, budget_ms=49.0)[:, ~np.eye(8, dtype=bool)].any()
+
+
+def test_token_bucket_queues_and_drops_at_the_configured_rate() -> None:
+    q = TokenBucket(rate=1000.0, depth=200.0)
+    waits = [q.send(100, now=0.01 * k, queue=True) for k in range(100)]  # 10 kB/s offered
+    assert waits[0] == 0.0 and waits[-1] == pytest.approx((100 * 100 - 200 - 1000 * 0.99) / 1000,
+                                                           rel=0.05)
+    d = TokenBucket(rate=1000.0, depth=200.0)
+    sent = [d.send(100, now=0.01 * k, queue=False) is not None for k in range(1000)]
+    assert np.mean(sent) == pytest.approx(0.1, abs=0.01)  # 1 kB/s of 10 kB/s gets through
+
+
+def test_radio_bundles_arrive_after_latency_and_late_copies_are_cut() -> None:
+    cfg = WorldConfig(n_robots=3, comm_range=float("inf"))
+    radio = Radio(cfg, plan_from_table({"latency": "100ms"}))
+    pos = np.array([[0, 0], [0, 1], [0, 2]])
+    senders = {i: (bytes([i]) * 10, 1.0) for i in range(3)}
+    out = radio.bundles(0, 0, pos, senders, deadline=1.5)
+    for i, (when, payloads) in out.items():
+        assert when == pytest.approx(1.1) and len(payloads) == 3
+    radio2 = Radio(cfg, plan_from_table({"latency": "100ms"}))
+    out2 = radio2.bundles(0, 0, pos, senders, deadline=1.05)
+    assert all(len(p) == 1 for _, p in out2.values())  # only the own message is on time
+    assert radio2.counters.late == 6
+
+
+# ------------------------------------------------------------------------------- real swarm
+
+
+def _run(tmp_path: Path, name: str, *extra: str, timeout: float = 180) -> dict:
+    out = tmp_path / f"{name}.json"
+    r = swarm("run", "--headless", "--run-id", name, "--json", str(out), *extra, timeout=timeout)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads(out.read_text())
+
+
+def test_zero_faults_are_identical_to_no_fault_layer(tmp_path: Path) -> None:
+    res = _run(tmp_path, "zero", "--robots", "3", "--episodes", "2", "--seed", "5",
+               "--loss", "0", "--latency", "0ms", "--jitter", "0ms")
+    cfg = WorldConfig(n_robots=3)
+    ev = evaluate(cfg, make_policy("nearest-frontier", cfg), 5, 2, record_actions=True)
+    assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
+    m = res["messages"]
+    assert m["lost"] == m["late"] == m["cut"] == m["queued"] == 0
+
+
+def test_swarm_loss_statistics_and_partition_counts(tmp_path: Path) -> None:
+    res = _run(tmp_path, "loss", "--robots", "4", "--episodes", "3", "--comm-range", "inf",
+               "--policy", "random", "--loss", "0.3", "--fault-seed", "3")
+    m = res["messages"]
+    copies = 3 * 30 * 4 * 3  # ticks x senders x other receivers
+    assert m["lost"] == pytest.approx(0.3 * copies, rel=0.15)
+    assert m["traj_delivered"] == 3 * 30 * 4 + copies - m["lost"]
+    res = _run(tmp_path, "part", "--robots", "4", "--episodes", "1", "--comm-range", "inf",
+               "--policy", "random", "--partition", "0-1/2-3")
+    m = res["messages"]
+    assert m["cut"] == 30 * 8  # 8 cross-group copies every tick, no more
+    assert m["traj_delivered"] == 30 * 8  # 2 groups x 2 x 2, own messages included
+    assert m["lost"] == 0
+
+
+def test_crash_and_restart_mid_episode(tmp_path: Path) -> None:
+    res = _run(tmp_path, "crashrs", "--robots", "3", "--episodes", "3", "--crash", "1@10",
+               "--restart", "1@40", "--pace", "60")
+    assert res["completed"] == 3
+    assert res["process_faults"][:2] == ["crash 1@10", "restart 1@40"] or len(
+        res["process_faults"]) == 2
+    assert res["robot_restarts"] == 1 and res["robots_lost"] == 0
+    acts = np.array(res["actions"])  # [ep, T, N]
+    assert (acts[2, :, 1] != 0).any()  # robot 1 acts again in the last episode
+
+
+def test_heavy_loss_and_latency_never_deadlock(tmp_path: Path) -> None:
+    """50% loss + 300 ms latency for 100 ticks: every tick completes within its deadline."""
+    t0 = time.monotonic()
+    res = _run(tmp_path, "heavy", "--robots", "3", "--episodes", "4", "--horizon", "25",
+               "--loss", "0.5", "--latency", "300ms", "--tick-timeout", "0.5", timeout=240)
+    assert res["ticks"] == 100 and res["completed"] == 4
+    assert time.monotonic() - t0 < 100 * 0.5 + 30
+    assert res["messages"]["lost"] > 0
+
+
+def test_live_fault_change_takes_effect_within_one_tick(tmp_path: Path) -> None:
+    run_id = "livef"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
+         "random", "--episodes", "4", "--pace", "10", "--comm-range", "inf", "--run-id", run_id],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        statuses = [json.loads(proc.stdout.readline())["status"] for _ in range(5)]
+        r = swarm("fault", "--run", run_id, "--partition", "0/1/2", timeout=30)
+        assert r.returncode == 0, r.stderr
+        sent_at = json.loads(r.stdout)["sent_at"]
+        for _ in range(60):
+            rec = json.loads(proc.stdout.readline())["status"]
+            statuses.append(rec)
+            if rec["faults"]:
+                break
+        assert rec["faults"] == ["partition 0/1/2"]
+        # ticks that ended after the command was sent but still ran without it: at most the one
+        # in progress when it arrived
+        assert sum(1 for s in statuses if s["wall"] > sent_at and not s["faults"]) <= 1
+        # and it bites: from the next tick on, no robot hears another
+        nxt = json.loads(proc.stdout.readline())["status"]
+        assert nxt["radio"]["cut"] - rec["radio"]["cut"] == 6
+    finally:
+        proc.send_signal(signal.SIGINT)  # a clean stop: the supervisor ends its children
+        proc.communicate(timeout=10)
