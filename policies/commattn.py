@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from policies.features import Members, TokenEmbed, bigru
+from policies.features import Members, TokenEmbed, bigru, rows
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
@@ -126,8 +126,8 @@ class CommAttn(nn.Module):
             a_prev = torch.full((size,), NO_ACTION, dtype=torch.long)
             if bool(has.any()):
                 at = pr.clamp(0, lo - 1)
-                s_prev = torch.where(has[:, None], torch.cat(states)[at], s_prev)
-                a_prev = torch.where(has, torch.cat(actions)[at], a_prev)
+                s_prev = torch.where(has[:, None], rows(torch.cat(states), at), s_prev)
+                a_prev = torch.where(has, rows(torch.cat(actions), at), a_prev)
             out = self.decode(Encoded(h, keys, mask), s_prev, a_prev)
             states.append(out.state)
             actions.append(choose(slice(lo, lo + size), out.logits))

@@ -208,8 +208,24 @@ def cmd_fault(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_experiment(args: argparse.Namespace) -> int:
+    from swarm.experiment import main as experiment_main
+
+    return experiment_main(args.file, args.resume, args.out)
+
+
 def add_parsers(sub: Any, add_common: Any, add_world: Any) -> None:
-    """Register `run`, `world` and `robot` on the `swarm` subparsers."""
+    """Register `run`, `world`, `robot`, `fault` and `experiment` on the `swarm` subparsers."""
+    p = sub.add_parser("experiment", help="sweep a fault parameter over policies on the swarm",
+                       description="Run the TOML experiment FILE (see deploy/experiments/): "
+                                   "one real swarm run per (policy, value, seed); writes CSV, "
+                                   "Markdown and PNG.")
+    p.add_argument("file", metavar="FILE", help="TOML experiment file")
+    p.add_argument("--out", metavar="DIR", help="output directory (default: [experiment] out)")
+    p.add_argument("--resume", action="store_true", help="skip runs already in the CSV")
+    p.add_argument("--seed", type=int, help=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_experiment)
+
     p = sub.add_parser("run", help="spawn world + N robot processes over Zenoh, live dashboard",
                        description="The distributed swarm: one world process and N robot "
                                    "processes, each with its own Zenoh session, on loopback.")

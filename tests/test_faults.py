@@ -197,3 +197,19 @@ def test_live_fault_change_takes_effect_within_one_tick(tmp_path: Path) -> None:
     finally:
         proc.send_signal(signal.SIGINT)  # a clean stop: the supervisor ends its children
         proc.communicate(timeout=10)
+
+
+def test_experiment_sweep_writes_csv_png_and_resumes(tmp_path: Path) -> None:
+    r = swarm("experiment", "deploy/experiments/tiny.toml", "--out", str(tmp_path), timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = (tmp_path / "tiny.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2 * 2 * 2  # header + policies x values x seeds
+    assert (tmp_path / "tiny.png").read_bytes()[:4] == b"\x89PNG"
+    md = (tmp_path / "tiny.md").read_text()
+    assert "swarm experiment deploy/experiments/tiny.toml" in md and "nearest-frontier" in md
+    lost = {(row.split(",")[0], row.split(",")[1]): int(row.split(",")[10]) for row in rows[1:]}
+    assert all(v == 0 for (p, val), v in lost.items() if val == "0.0")
+    assert all(v > 0 for (p, val), v in lost.items() if val == "0.5")
+    before = (tmp_path / "tiny.csv").read_text()
+    r = swarm("experiment", "deploy/experiments/tiny.toml", "--out", str(tmp_path), "--resume")
+    assert r.returncode == 0 and (tmp_path / "tiny.csv").read_text() == before
