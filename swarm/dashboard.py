@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rich.console import Group
-from rich.layout import Layout
 from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
@@ -212,13 +211,17 @@ def render_links(v: SwarmView, top: int = 8) -> Table:
     return table
 
 
-def render(v: SwarmView) -> Layout:
-    """The whole screen."""
-    layout = Layout()
-    layout.split_row(Layout(name="map", ratio=3), Layout(name="side", ratio=4))
-    layout["map"].update(Panel(render_grid(v), title=f"map {v.height}x{v.width}"))
+def render(v: SwarmView) -> Table:
+    """The whole screen: the map beside the figures, the robot table and the faulted links.
+
+    A grid table (not a Layout) so that it takes the height of its content on any console.
+    """
     side = [Panel(render_figures(v), title="swarm"), render_robots(v)]
     if v.links:
         side.append(render_links(v))
-    layout["side"].update(Group(*side))
-    return layout
+    screen = Table.grid(padding=(0, 1))
+    screen.add_column(no_wrap=True)
+    screen.add_column(ratio=1)
+    screen.add_row(Panel(render_grid(v), title=f"map {v.height}x{v.width}", expand=False),
+                   Group(*side))
+    return screen

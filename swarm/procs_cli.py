@@ -129,9 +129,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         from swarm.console import eval_table
 
+        m = res.get("messages", {})
+        out.print()
         out.print(eval_table([res], title=f"swarm run {run.run_id}"))
-        out.print(f"ticks/s {res.get('ticks_per_s', 0):.1f}  messages {res.get('messages')}  "
-                  f"timeouts {res.get('timeouts')}  robots lost {res.get('robots_lost')}")
+        out.print(f"ticks/s {res.get('ticks_per_s', 0):.1f}   startup {res.get('startup_s') or 0:.1f} s"
+                  f"   messages delivered {m.get('traj_delivered')} lost {m.get('lost')} "
+                  f"late {m.get('late')} bad {m.get('bad')}   timeouts {res.get('timeouts')}   "
+                  f"robots lost {res.get('robots_lost')}")
+        if args.json:
+            out.print(f"wrote {args.json}")
     return 0
 
 
@@ -149,7 +155,8 @@ def cmd_world(args: argparse.Namespace) -> int:
         faults = fault_table(args, tables)
         print(f"swarm world: run id {run.run_id}", file=sys.stderr, flush=True)
     try:
-        res = world_main(world, run, zconfig.from_args(args), faults=faults)
+        res = world_main(world, run, zconfig.from_args(args), faults=faults,
+                         watch_parent=bool(args.spec))
     except KeyboardInterrupt:
         return 130
     if args.json:
