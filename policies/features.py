@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import nn
-from torch.nn.utils.rnn import PackedSequence
 
 from world.config import WorldConfig
 from world.decentral import View
@@ -116,22 +115,30 @@ class TokenEmbed(nn.Module):
 def bigru(gru: nn.GRU, x: torch.Tensor, m: Members) -> torch.Tensor:
     """Bidirectional GRU over each receiver's members in id order: pairs [P, E] -> [R, M, 2H].
 
-    The pairs are packed (time-major, longest neighbourhood first), so each backward pass starts
-    at its receiver's own last member and padding never reaches a valid output.
+    Receivers are bucketed by neighbourhood size, so every sequence of a bucket has the same
+    length: no padding ever enters a recurrence (both directions start at the receiver's own
+    first / last member) and the plain, unpacked GRU runs (fast on CPU, also backwards).
+    Outputs past a neighbourhood's end are zero.
     """
-    r, width = m.receivers, m.width
-    lens = m.lens
-    rank = torch.empty_like(lens)
-    rank[torch.argsort(-lens, stable=True)] = torch.arange(r)
-    batch_sizes = (lens[None, :] > torch.arange(width)[:, None]).sum(1)
-    offs = torch.cumsum(batch_sizes, 0) - batch_sizes
-    idx, mask = m.pad_index(0)
-    packed_pos = torch.where(mask, offs[None, :] + rank[:, None], torch.full_like(idx, x.shape[0]))
-    order = torch.empty(x.shape[0], dtype=torch.long)
-    order[packed_pos[mask]] = idx[mask]  # packed position -> canonical pair
-    out, _ = gru(PackedSequence(rows(x, order), batch_sizes))
-    data = out.data
-    return rows(torch.cat([data, data.new_zeros(1, data.shape[1])]), packed_pos)
+    lens, start = m.lens, m.start
+    order = torch.argsort(lens, stable=True)
+    sizes, counts = torch.unique_consecutive(lens[order], return_counts=True)
+    sizes_l, counts_l = sizes.tolist(), counts.tolist()
+    # one gather puts every bucket's sequences, [count, size] each, back to back
+    seq_start = start[order]
+    within = torch.cat([torch.arange(s).repeat(c) for s, c in zip(sizes_l, counts_l)])
+    first = torch.repeat_interleave(seq_start, lens[order])
+    inputs = rows(x, first + within).split([s * c for s, c in zip(sizes_l, counts_l)])
+    outs = [gru(inp.view(c, s, -1))[0].reshape(c * s, -1)
+            for inp, s, c in zip(inputs, sizes_l, counts_l)]
+    # pair (receiver order[k], slot j) sits at row offset[k] + j of the concatenated outputs
+    offset = torch.cumsum(lens[order], 0) - lens[order]
+    where = torch.full((m.receivers, m.width), x.shape[0], dtype=torch.long)
+    slots = torch.arange(m.width)[None, :]
+    valid = slots < lens[order][:, None]
+    where[order] = torch.where(valid, offset[:, None] + slots, where[order])
+    flat = torch.cat(outs + [x.new_zeros(1, outs[0].shape[1])])
+    return rows(flat, where)
 
 
 class Featurizer:

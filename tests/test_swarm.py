@@ -241,3 +241,15 @@ def test_restart_crashed_brings_a_killed_robot_back(tmp_path: Path) -> None:
     assert res["robots_lost"] == 0  # it was back (alive) by the end
     last_ep = np.array(res["actions"][-1])
     assert (last_ep[:, 2] != 0).any()  # and acting again
+
+
+def test_bench_swarm_prints_and_writes_figures(tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    r = swarm("bench", "swarm", "--robots", "2,3", "--episodes", "1", "--json", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "ticks/s" in r.stdout
+    rows = json.loads(out.read_text())["rows"]
+    assert [row["robots"] for row in rows] == [2, 3]
+    for row in rows:
+        assert row["ticks_per_s"] > 0 and row["startup_s"] > 0
+        assert 5 < row["rss_mb_per_robot"] < 250  # a frontier robot never imports torch
