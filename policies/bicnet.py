@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from policies.features import Members, TokenEmbed, bigru
+from policies.features import Members, TokenEmbed, bigru, rows
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
@@ -19,7 +19,7 @@ class BicNetConfig:
 
     crop: int = 9
     """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
-    embed: int = 64
+    embed: int = 32
     """Width of the per-member token embedding fed to the BiGRU."""
     hidden: int = 32
     """BiGRU hidden size per direction."""
@@ -39,8 +39,8 @@ class BicNet(nn.Module):
 
     def forward(self, members: Members) -> tuple[torch.Tensor, torch.Tensor]:
         """Members [R, M, F] -> logits [R, 9], value [R]."""
-        out = bigru(self.gru, self.embed(members), members)
-        mine = out[torch.arange(out.shape[0]), members.self_pos]
+        seq = bigru(self.gru, self.embed(members), members)
+        mine = rows(seq.flat, seq.where[torch.arange(members.receivers), members.self_pos])
         return self.policy(mine), self.value(mine)[:, 0]
 
 

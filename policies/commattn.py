@@ -33,7 +33,7 @@ class CommAttnConfig:
 
     crop: int = 9
     """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
-    embed: int = 64
+    embed: int = 32
     """Width of the per-member token embedding fed to the BiGRU."""
     hidden: int = 32
     """BiGRU hidden size per direction; h_j has 2 * hidden values."""
@@ -88,9 +88,9 @@ class CommAttn(nn.Module):
         return self.cfg.state
 
     def encode(self, members: Members) -> Encoded:
-        h = bigru(self.gru, self.embed(members), members)
+        seq = bigru(self.gru, self.embed(members), members)
         _, mask = members.pad_index(0)
-        return Encoded(h=h, keys=self.match_h(h), mask=mask)
+        return Encoded(h=seq.padded(), keys=seq.padded(self.match_h(seq.flat)), mask=mask)
 
     def decode(self, enc: Encoded, s_prev: torch.Tensor, a_prev: torch.Tensor) -> DecodeOut:
         """One decoder step for the receivers of `enc` given (s_{p(i)}, a_{p(i)})."""

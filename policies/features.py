@@ -112,13 +112,25 @@ class TokenEmbed(nn.Module):
         return torch.relu(rows(self.member(m.member_feats), m.pair_member) + self.pair(m.pair_feats))
 
 
-def bigru(gru: nn.GRU, x: torch.Tensor, m: Members) -> torch.Tensor:
-    """Bidirectional GRU over each receiver's members in id order: pairs [P, E] -> [R, M, 2H].
+@dataclass
+class Sequences:
+    """Per-pair outputs of a recurrence in its own row order, and where each receiver's slots are."""
+
+    flat: torch.Tensor  # [P, D]
+    where: torch.Tensor  # [R, M] row of flat for (receiver, slot); P past the neighbourhood
+
+    def padded(self, x: torch.Tensor | None = None) -> torch.Tensor:
+        """`flat` (or any [P, D'] aligned with it) as [R, M, D'], zeros past each neighbourhood."""
+        x = self.flat if x is None else x
+        return rows(torch.cat([x, x.new_zeros(1, x.shape[1])]), self.where)
+
+
+def bigru(gru: nn.GRU, x: torch.Tensor, m: Members) -> Sequences:
+    """Bidirectional GRU over each receiver's members in id order: pairs [P, E] -> [P, 2H].
 
     Receivers are bucketed by neighbourhood size, so every sequence of a bucket has the same
     length: no padding ever enters a recurrence (both directions start at the receiver's own
     first / last member) and the plain, unpacked GRU runs (fast on CPU, also backwards).
-    Outputs past a neighbourhood's end are zero.
     """
     lens, start = m.lens, m.start
     order = torch.argsort(lens, stable=True)
@@ -137,8 +149,7 @@ def bigru(gru: nn.GRU, x: torch.Tensor, m: Members) -> torch.Tensor:
     slots = torch.arange(m.width)[None, :]
     valid = slots < lens[order][:, None]
     where[order] = torch.where(valid, offset[:, None] + slots, where[order])
-    flat = torch.cat(outs + [x.new_zeros(1, outs[0].shape[1])])
-    return rows(flat, where)
+    return Sequences(torch.cat(outs), where)
 
 
 class Featurizer:

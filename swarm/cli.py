@@ -37,7 +37,7 @@ from swarm.console import (
 from world.config import ConfigError, WorldConfig, from_dict, load_toml
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
-SECTIONS = ("world", "eval", "bench", "repro", "run")
+SECTIONS = ("world", "eval", "bench", "repro", "run", "faults")
 BENCH_TABLES = ("env", "policy", "swarm")
 
 
@@ -197,7 +197,8 @@ def _command() -> str:
 # ---------------------------------------------------------------------------- subcommands
 
 
-def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None) -> list[dict[str, Any]]:
+def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
+             faults: Any = None) -> list[dict[str, Any]]:
     """Evaluate each policy of `cfg.policy` on the same episodes; summaries in order."""
     from swarm.bench import NullProgress
     from swarm.evaluate import evaluate
@@ -212,9 +213,23 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None) -> list[
     for name, policy in zip(names, policies, strict=True):
         progress.start(f"eval {name}", cfg.episodes)
         res = evaluate(world, policy, cfg.seed, cfg.episodes, batch=cfg.batch, greedy=cfg.greedy,
-                       on_progress=progress.advance)
-        out.append({**res.summary(world), "policy": name, "checkpoint": cfg.checkpoint})
+                       on_progress=progress.advance, faults=faults)
+        out.append({**res.summary(world), "policy": name, "checkpoint": cfg.checkpoint,
+                    **({"faults": faults.describe()} if faults is not None else {})})
     return out
+
+
+def _eval_faults(args: argparse.Namespace, tables: dict[str, Any]) -> Any:
+    """Message faults for the batched evaluator: `[faults]` loss/partition/seed and the flags."""
+    from swarm.faults import plan_from_table
+
+    table = {k: v for k, v in tables.get("faults", {}).items()
+             if k in ("loss", "partition", "seed")}
+    for key, flag in (("loss", args.loss), ("partition", args.partition),
+                      ("seed", args.fault_seed)):
+        if flag is not None:
+            table[key] = flag
+    return plan_from_table(table) if table else None
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -225,9 +240,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
                  {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
                   "seed": args.seed, "batch": args.batch, "greedy": greedy, "json": args.json},
                  "[eval]")
+    faults = _eval_faults(args, tables)
     out, err = _consoles()
     with RichProgress(err) as progress:
-        summaries = run_eval(world, cfg, progress)
+        summaries = run_eval(world, cfg, progress, faults)
     map_kind = f"dynamic (m={world.add_every})" if world.dynamic else "static"
     out.print(eval_table(summaries, f"eval: {world.n_robots} robots, {map_kind} map, "
                                     f"{cfg.episodes} episodes, seed {cfg.seed}"))
@@ -351,6 +367,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, metavar="K", help="episodes (default 1000)")
     p.add_argument("--batch", type=int, metavar="B", help="episodes stepped at once (default 250)")
     p.add_argument("--sample", action="store_true", help="sample actions instead of greedy")
+    f = p.add_argument_group("message faults (the swarm radio's seeded draws)")
+    f.add_argument("--loss", metavar="P", help="message loss probability")
+    f.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other")
+    f.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
     add_common(p)
     add_world(p)
     p.set_defaults(func=cmd_eval)

@@ -9,9 +9,22 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from policies.base import Policy
+from swarm.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, delivery_mask
 from world import core
 from world.config import WorldConfig
-from world.decentral import batch_view
+from world.decentral import View, batch_view
+
+
+def apply_faults(view: View, faults: FaultPlan) -> None:
+    """Drop the trajectory and hidden-state messages the radio would drop at this tick."""
+    n = view.n
+    view.hears = view.hears & delivery_mask(faults, view.episodes, view.tick, n, KIND_TRAJ)
+    pred = view.predecessor()
+    hidden = delivery_mask(faults, view.episodes, view.tick, n, KIND_HIDDEN)
+    g, i = np.nonzero(pred >= 0)
+    ok = np.ones(pred.shape, dtype=bool)
+    ok[g, i] = hidden[g, i, pred[g, i]]
+    view.chain_ok = ok
 
 
 @dataclass
@@ -60,8 +73,13 @@ class EvalResult:
 
 def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, batch: int = 250,
              first_episode: int = 0, greedy: bool = True, record_actions: bool = False,
-             on_progress: Callable[[int], None] | None = None) -> EvalResult:
-    """Run episodes first_episode .. first_episode + n_episodes - 1 of `seed` in batches."""
+             on_progress: Callable[[int], None] | None = None,
+             faults: FaultPlan | None = None) -> EvalResult:
+    """Run episodes first_episode .. first_episode + n_episodes - 1 of `seed` in batches.
+
+    `faults` applies the radio's message faults that do not depend on wall time (loss,
+    partition; the same seeded draws as the swarm's radio) to every tick's view.
+    """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     parts: list[core.EpisodeMetrics] = []
@@ -77,6 +95,8 @@ def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, ba
         acts = []
         while not state.done:
             view = batch_view(cfg, state)
+            if faults is not None and not faults.zero:
+                apply_faults(view, faults)
             t0 = time.perf_counter()
             a = policy.act(view, greedy=greedy)
             planning += time.perf_counter() - t0

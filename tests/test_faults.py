@@ -213,3 +213,16 @@ def test_experiment_sweep_writes_csv_png_and_resumes(tmp_path: Path) -> None:
     before = (tmp_path / "tiny.csv").read_text()
     r = swarm("experiment", "deploy/experiments/tiny.toml", "--out", str(tmp_path), "--resume")
     assert r.returncode == 0 and (tmp_path / "tiny.csv").read_text() == before
+
+
+def test_batched_eval_applies_the_radios_exact_loss_draws(tmp_path: Path) -> None:
+    """Loss and partition do not depend on wall time: swarm and batch drop the same messages."""
+    res = _run(tmp_path, "lossq", "--robots", "4", "--episodes", "2", "--seed", "9",
+               "--loss", "0.4", "--partition", "0-2/3", "--fault-seed", "5")
+    cfg = WorldConfig(n_robots=4)
+    plan = plan_from_table({"loss": 0.4, "partition": "0-2/3", "seed": 5})
+    ev = evaluate(cfg, make_policy("nearest-frontier", cfg), 9, 2, record_actions=True,
+                  faults=plan)
+    clean = evaluate(cfg, make_policy("nearest-frontier", cfg), 9, 2, record_actions=True)
+    assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
+    assert not np.array_equal(np.stack(ev.actions, 1), np.stack(clean.actions, 1))

@@ -106,6 +106,9 @@ class View:
     hears: np.ndarray  # [G, N, N] bool
     receivers: np.ndarray  # [G, N] bool: whose decision to compute
     last_reward: np.ndarray  # [G, N] float32 (valid for receivers)
+    chain_ok: np.ndarray | None = None  # [G, N]: receiver got p(i)'s hidden-state message
+    # (None: every receiver with a predecessor got it; where False a chained policy decodes as
+    # if it had no predecessor, which is what a robot does when that message is lost or late)
 
     @property
     def groups(self) -> int:
