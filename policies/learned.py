@@ -39,6 +39,7 @@ class Decision:
     """What a batched decision computed, arrays [G, N, ...] (zeros off the receivers)."""
 
     actions: np.ndarray  # [G, N] int64
+    probs: np.ndarray  # [G, N, 9] float32 action distribution of each receiver
     value: np.ndarray  # [G, N] float32 baseline b(s)
     state: np.ndarray | None  # [G, N, S] decoder states s_i (chained policies), else None
     context: np.ndarray | None  # [G, N, 2H] communication vectors c_i (chained), else None
@@ -146,25 +147,28 @@ class LearnedPolicy(Policy):
             choose = chooser(None if greedy else gumbel(view, g, i))
             shape = view.receivers.shape
             actions = np.zeros(shape, dtype=np.int64)
+            probs = np.zeros(shape + (N_ACTIONS,), dtype=np.float32)
             value = np.zeros(shape, dtype=np.float32)
             kept = members if keep_inputs else None
             if not self.chained:
                 logits, v = self.net(members)
                 actions[g, i] = choose(slice(None), logits).numpy()
+                probs[g, i] = torch.softmax(logits, -1).numpy()
                 value[g, i] = v.numpy()
-                return Decision(actions, value, None, None, kept)
+                return Decision(actions, probs, value, None, None, kept)
             pred = self._pred_rows([view], members)
             if bool((pred == -2).any()):
                 raise ValueError("a receiver's predecessor is not a receiver of this view; "
                                  "use act_with_chain with the predecessor's hidden-state message")
             out, a = self.net.chain(self.net.encode(members), i, pred, choose)
             actions[g, i] = a.numpy()
+            probs[g, i] = torch.softmax(out.logits, -1).numpy()
             value[g, i] = out.value.numpy()
             state = np.zeros(shape + (self.state_size,), dtype=np.float32)
             state[g, i] = out.state.numpy()
             context = np.zeros(shape + (out.context.shape[1],), dtype=np.float32)
             context[g, i] = out.context.numpy()
-            return Decision(actions, value, state, context, kept)
+            return Decision(actions, probs, value, state, context, kept)
 
     def act_with_chain(self, view: View, pred_state: np.ndarray | None, pred_action: np.ndarray | None,
                        greedy: bool = True) -> tuple[np.ndarray, np.ndarray]:

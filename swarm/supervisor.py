@@ -115,7 +115,8 @@ class Supervisor:
 
     def spawn_robot(self, i: int) -> None:
         self.robots[i] = self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
-                                      "--connect", self.hub], f"robot{i}")
+                                      "--connect", self.hub, "--zenoh-mode", "client"],
+                                     f"robot{i}")
 
     def start(self) -> float:
         spec = self.tmp / "spec.json"
@@ -123,7 +124,8 @@ class Supervisor:
                           "faults": self.faults})
         write_json(_registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
-        self.world = self._spawn(["world", "--spec", str(spec), "--listen", self.hub], "world")
+        self.world = self._spawn(["world", "--spec", str(spec), "--listen", self.hub,
+                                  "--zenoh-mode", "router"], "world")
         _wait_port("127.0.0.1", self.port, self.world, 30.0)
         for i in range(self.cfg.n_robots):
             self.spawn_robot(i)
@@ -200,7 +202,7 @@ class Supervisor:
                 self.spawn_robot(f.robot)
 
     def supervise(self) -> dict[str, Any]:
-        conf = ZenohOptions(connect=[self.hub], listen=["tcp/127.0.0.1:0"]).to_config()
+        conf = ZenohOptions(mode="client", connect=[self.hub]).to_config()
         t_start = self.start()
         first_tick: float | None = None
         with zenoh.open(conf) as session:

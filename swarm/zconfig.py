@@ -38,7 +38,9 @@ class ZenohOptions:
             conf.insert_json5("transport/link/tx/lease", "1000")
             conf.insert_json5("transport/shared_memory/enabled", "false")
         conf.insert_json5("mode", json.dumps(self.mode))
-        listen = self.listen or ([] if self.config_file else ["tcp/127.0.0.1:0"])
+        # a client never listens; a peer or router listens on an ephemeral loopback port
+        default = [] if self.config_file or self.mode == "client" else ["tcp/127.0.0.1:0"]
+        listen = self.listen or default
         if listen:
             conf.insert_json5("listen/endpoints", json.dumps(listen))
         if self.connect:
