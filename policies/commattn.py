@@ -137,7 +137,7 @@ class CommAttn(nn.Module):
             z = enc.h.new_zeros
             return DecodeOut(z(0, N_ACTIONS), z(0), z(0, self.cfg.state), z(0, enc.h.shape[2]),
                              z(0, enc.h.shape[1])), torch.zeros(0, dtype=torch.long)
-        cat = lambda name: torch.cat([getattr(o, name) for o in outs])  # noqa: E731
+        cat = lambda name: torch.cat([getattr(o, name) for o in outs])
         out = DecodeOut(cat("logits"), cat("value"), cat("state"), cat("context"), cat("alpha"))
         return out, torch.cat(actions)
 

@@ -16,8 +16,8 @@ from dataclasses import fields
 from typing import Any
 
 from swarm import zconfig
-from swarm.runconfig import RunConfig
 from swarm.faults import plan_from_table
+from swarm.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig, from_dict
 
 

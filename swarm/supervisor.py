@@ -27,11 +27,19 @@ from rich.live import Live
 
 from swarm.atomic import write_json
 from swarm.dashboard import SwarmView, render
+from swarm.faults import ProcessFault, parse_process, plan_from_table
 from swarm.keys import Keys
-from swarm.messages import K_CONTROL, K_RESULT, K_RSTATUS, K_STATUS, BadMessage, pack_record, unpack_record
+from swarm.messages import (
+    K_CONTROL,
+    K_RESULT,
+    K_RSTATUS,
+    K_STATUS,
+    BadMessage,
+    pack_record,
+    unpack_record,
+)
 from swarm.runconfig import RunConfig
 from swarm.zconfig import ZenohOptions, free_port
-from swarm.faults import ProcessFault, parse_process, plan_from_table
 from world.config import ConfigError, WorldConfig, to_dict
 
 

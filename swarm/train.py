@@ -143,33 +143,32 @@ def returns(reward: np.ndarray, gamma: float) -> np.ndarray:
 
 # --------------------------------------------------------------------------------------- loss
 def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout, cfg: TrainConfig) -> dict[str, float]:
-    """One REINFORCE step on a rollout; returns the loss parts per episode."""
+    """One REINFORCE step on a rollout; returns the loss parts per decision.
+
+    The loss is the paper's sum over robots and ticks divided by the number of decisions in the
+    batch (a constant scale, so that gradient clipping means the same for any batch size).
+    """
     ret = returns(roll.reward * cfg.reward_scale, cfg.gamma)
     adv = ret - roll.value
     live = np.stack([v.receivers for v in roll.views])
     if cfg.adv_norm:
         adv = (adv - adv[live].mean()) / (adv[live].std() + 1e-8)
-    b = roll.reward.shape[1]
+    decisions = int(live.sum())
     opt.zero_grad(set_to_none=True)
     totals = {"loss": 0.0, "pg": 0.0, "baseline": 0.0, "entropy": 0.0}
-    n_dec = 0
     for t0 in range(0, len(roll.views), cfg.chunk_ticks):
         span = slice(t0, t0 + cfg.chunk_ticks)
         ev = policy.evaluate(roll.views[span], roll.actions[span], roll.inputs[span])
         at = (t0 + ev.tick, ev.group, ev.robot)
         a = torch.from_numpy(adv[at].astype(np.float32))
         g = torch.from_numpy(ret[at].astype(np.float32))
-        pg = -(ev.logp * a).sum()
-        base = cfg.alpha * ((g - ev.value) ** 2).sum()
-        ent = ev.entropy.sum()
-        loss = (pg + base - cfg.ent_coef * ent) / b
+        pg = -(ev.logp * a).sum() / decisions
+        base = cfg.alpha * ((g - ev.value) ** 2).sum() / decisions
+        ent = ev.entropy.sum() / decisions
+        loss = pg + base - cfg.ent_coef * ent
         loss.backward()
-        totals["loss"] += loss.item()
-        totals["pg"] += pg.item() / b
-        totals["baseline"] += base.item() / b
-        totals["entropy"] += ent.item()
-        n_dec += len(ev.tick)
-    totals["entropy"] /= max(n_dec, 1)
+        for key, val in (("loss", loss), ("pg", pg), ("baseline", base), ("entropy", ent)):
+            totals[key] += val.item()
     params = [p for p in policy.net.parameters() if p.grad is not None]
     norm = torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm if cfg.max_grad_norm > 0 else math.inf)
     totals["grad_norm"] = float(norm)
@@ -368,13 +367,14 @@ def _field_doc(name: str) -> str:
     """The docstring under a TrainConfig field (for --help)."""
     import ast
     import inspect
+    import itertools
 
     tree = ast.parse(inspect.getsource(TrainConfig))
     body = tree.body[0].body  # type: ignore[attr-defined]
-    for node, nxt in zip(body, body[1:]):
-        if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == name:
-            if isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant):
-                return " ".join(str(nxt.value.value).split()).replace("%", "%%")
+    for node, nxt in itertools.pairwise(body):
+        if (isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == name
+                and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)):
+            return " ".join(str(nxt.value.value).split()).replace("%", "%%")
     return ""
 
 
@@ -428,5 +428,3 @@ def cli(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     sys.exit(cli())
 
-
-__all__ = ["TrainConfig", "main", "add_arguments", "from_args", "bench_train"]

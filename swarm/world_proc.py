@@ -12,8 +12,8 @@ payload is dropped and counted with its key, never raised.
 from __future__ import annotations
 
 import heapq
-import os
 import logging
+import os
 import queue
 import time
 from collections.abc import Callable
@@ -25,12 +25,21 @@ import numpy as np
 import zenoh
 
 from swarm.evaluate import EvalResult
+from swarm.faults import FaultPlan, plan_from_table
 from swarm.keys import Keys
 from swarm.messages import (
-    K_CONTROL, K_RESULT, K_STATUS, Action, BadMessage, Bundle, Hidden, Obs, Traj, pack_record,
+    K_CONTROL,
+    K_RESULT,
+    K_STATUS,
+    Action,
+    BadMessage,
+    Bundle,
+    Hidden,
+    Obs,
+    Traj,
+    pack_record,
     unpack_record,
 )
-from swarm.faults import FaultPlan, plan_from_table
 from swarm.radio import Radio
 from swarm.runconfig import RunConfig
 from swarm.zconfig import ZenohOptions

@@ -15,8 +15,14 @@ import pytest
 from policies import make_policy
 from swarm.evaluate import evaluate
 from swarm.faults import (
-    FaultPlan, LinkFault, delivery_mask, parse_duration_ms, parse_partition, parse_process,
-    parse_rate, plan_from_table,
+    FaultPlan,
+    LinkFault,
+    delivery_mask,
+    parse_duration_ms,
+    parse_partition,
+    parse_process,
+    parse_rate,
+    plan_from_table,
 )
 from swarm.radio import Radio, TokenBucket
 from world.config import ConfigError, WorldConfig

@@ -1,0 +1,240 @@
+"""The learned policies (CommAttn, CommNet, VAIN, BicNet), their checkpoints and the trainer."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from rich.console import Console
+
+from policies import make_policy
+from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from swarm.evaluate import evaluate
+from swarm.train import TrainConfig, collect, main, update
+from world import core
+from world.config import WorldConfig
+from world.decentral import batch_view, heard_by, robot_view
+
+LEARNED = ["commattn", "commnet", "vain", "bicnet"]
+SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=4, horizon=8, add_every=2,
+                    vision=3, comm_range=3.0, recent_len=4)
+TINY = WorldConfig(height=6, width=6, n_static=4, n_dynamic=3, n_robots=3, horizon=9, add_every=3,
+                   vision=3, comm_range=float("inf"))
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def quiet() -> Console:
+    return Console(file=io.StringIO())
+
+
+def policy(name: str, cfg: WorldConfig = SMALL, seed: int = 0):
+    torch.manual_seed(seed)
+    return make_policy(name, cfg)
+
+
+def layout_state(robots_yx: list[tuple[int, int]], cfg: WorldConfig = SMALL) -> core.WorldState:
+    """One episode on an open 8 x 8 map (blocks only in the far corner) with robots at `robots_yx`."""
+    blocks = np.zeros((1, cfg.height, cfg.width), dtype=bool)
+    blocks[0, 7, 0] = blocks[0, 7, 1] = blocks[0, 6, 0] = blocks[0, 0, 7] = blocks[0, 1, 7] = True
+    blocks[0, 0, 6] = True
+    dyn = np.array([[[3, 3], [4, 4], [5, 5], [2, 5]]])
+    return core.from_layout(cfg, blocks, np.array([robots_yx]), dyn, seed=7, episodes=np.array([3]))
+
+
+def midgame(cfg: WorldConfig = SMALL, groups: int = 6, ticks: int = 3) -> core.WorldState:
+    state = core.reset(cfg, 11, np.arange(groups))
+    rng = np.random.default_rng(0)
+    for _ in range(ticks):
+        core.step(cfg, state, rng.integers(0, 9, (groups, cfg.n_robots)))
+    return state
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_shapes_and_masks(name: str) -> None:
+    pol = policy(name)
+    state = midgame()
+    state.alive[0, 2] = False  # a crashed robot is neither receiver nor member
+    view = batch_view(SMALL, state)
+    members = pol.features(view)
+    tokens, mask = members.dense()
+    r = int(view.receivers.sum())
+    assert tokens.shape == (r, SMALL.n_robots, pol.features.dim)
+    assert mask.numpy().tolist() == view.hears[members.group, members.robot].tolist()
+    assert (tokens[~mask] == 0).all()
+    assert mask[torch.arange(r), torch.from_numpy(members.robot)].all()  # a receiver hears itself
+    d = pol.decide(view, greedy=False)
+    assert d.actions.shape == (6, SMALL.n_robots) and d.actions.dtype == np.int64
+    assert d.actions.min() >= 0 and d.actions.max() <= 8
+    assert d.actions[0, 2] == 0 and d.value[0, 2] == 0
+    assert np.allclose(d.probs[view.receivers].sum(-1), 1, atol=1e-5)
+    if pol.chained:
+        assert d.state.shape == (6, SMALL.n_robots, pol.state_size)
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_out_of_range_robot_changes_nothing(name: str) -> None:
+    """Robots 0 and 1 hear each other; robot 3 moves between two far cells out of their range
+    (and of robot 2, which is far from 0 and 1 too): 0's and 1's distributions stay the same."""
+    pol = policy(name)
+    probs = []
+    for far in ((6, 6), (7, 5)):
+        state = layout_state([(0, 0), (1, 1), (0, 5), far])
+        view = batch_view(SMALL, state)
+        assert not view.hears[0, :2, 2:].any()
+        probs.append(pol.decide(view, greedy=True).probs[0])
+    assert np.array_equal(probs[0][:2], probs[1][:2])
+    assert not np.array_equal(probs[0][3], probs[1][3])
+
+
+@pytest.mark.parametrize("name", LEARNED)
+@pytest.mark.parametrize("greedy", [True, False])
+def test_batched_equals_single_robot(name: str, greedy: bool) -> None:
+    pol = policy(name)
+    view = batch_view(SMALL, midgame())
+    d = pol.decide(view, greedy=greedy)
+    pred = view.predecessor()
+    for g in range(view.groups):
+        for i in range(SMALL.n_robots):
+            rv = robot_view(SMALL, view.seed, int(view.episodes[g]), view.tick, i,
+                            heard_by(SMALL, view, g, i), 0.0)
+            if pol.chained:
+                p = pred[g, i]
+                state = d.state[g, p][None] if p >= 0 else None
+                action = d.actions[g, p][None] if p >= 0 else None
+                a, s = pol.act_with_chain(rv, state, action, greedy=greedy)
+                np.testing.assert_allclose(s[0], d.state[g, i], atol=1e-5)
+            else:
+                a = pol.act(rv, greedy=greedy)
+            assert a[0, i] == d.actions[g, i]
+            assert (np.delete(a[0], i) == 0).all()
+
+
+def test_commattn_decoder_uses_exactly_the_predecessor() -> None:
+    """Robot 2 hears 0 but not 1, so p(2) = 0: its batched state is the one act_with_chain gives
+    from robot 0's message, not from robot 1's (the id predecessor); changing the predecessor's
+    state or action changes the decision's state, and robot 1 moving (unheard by 0 and 2) does
+    not change robot 2 at all."""
+    pol = policy("commattn")
+    outs = []
+    for one in ((4, 7), (5, 7)):
+        state = layout_state([(0, 0), one, (1, 1), (7, 7)])
+        view = batch_view(SMALL, state)
+        assert view.predecessor()[0, 2] == 0 and view.predecessor()[0, 1] == -1
+        outs.append((view, pol.decide(view)))
+    (view, d), (_, d2) = outs
+    np.testing.assert_array_equal(d.state[0, 2], d2.state[0, 2])
+    np.testing.assert_array_equal(d.probs[0, 2], d2.probs[0, 2])
+    rv = robot_view(SMALL, view.seed, 3, view.tick, 2, heard_by(SMALL, view, 0, 2), 0.0)
+    _, s_pred = pol.act_with_chain(rv, d.state[0, 0][None], d.actions[0, :1])
+    np.testing.assert_allclose(s_pred[0], d.state[0, 2], atol=1e-6)
+    _, s_other = pol.act_with_chain(rv, d.state[0, 1][None], d.actions[0, 1:2])
+    assert not np.allclose(s_other[0], d.state[0, 2], atol=1e-4)
+    _, s_action = pol.act_with_chain(rv, d.state[0, 0][None], np.array([(d.actions[0, 0] + 1) % 9]))
+    assert not np.allclose(s_action[0], d.state[0, 2], atol=1e-4)
+    with pytest.raises(ValueError):
+        pol.act_with_chain(rv, None, None)
+    with pytest.raises(ValueError):
+        pol.act(rv)  # the predecessor is not a receiver of a one-robot view
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_gradients_reach_every_parameter(name: str) -> None:
+    pol = policy(name)
+    views = [batch_view(SMALL, midgame(ticks=t)) for t in (2, 4)]
+    acts = [np.random.default_rng(t).integers(0, 9, v.receivers.shape) for t, v in enumerate(views)]
+    ev = pol.evaluate(views, acts)
+    assert ev.logp.shape == ev.value.shape == ev.entropy.shape == (len(ev.tick),)
+    assert (ev.logp <= 0).all()
+    (ev.logp.sum() + ev.value.sum() + ev.entropy.sum()).backward()
+    for pname, p in pol.net.named_parameters():
+        assert p.grad is not None and p.grad.abs().sum() > 0, pname
+
+
+@pytest.mark.parametrize("name", ["commattn", "vain"])
+def test_update_is_deterministic(name: str) -> None:
+    cfg = TrainConfig(policy=name, batch=8)
+    roll = collect(policy(name, SMALL), SMALL, 5, np.arange(8))
+    weights = []
+    for _ in range(2):
+        pol = policy(name, SMALL)
+        opt = torch.optim.Adam(pol.net.parameters(), lr=1e-3)
+        parts = update(pol, opt, roll, cfg)
+        assert np.isfinite(list(parts.values())).all()
+        weights.append({k: v.clone() for k, v in pol.net.state_dict().items()})
+    for key in weights[0]:
+        assert torch.equal(weights[0][key], weights[1][key]), key
+    assert any(not torch.equal(v, policy(name, SMALL).net.state_dict()[k]) for k, v in weights[0].items())
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_checkpoint_roundtrip_and_errors(name: str, tmp_path: Path) -> None:
+    pol = policy(name, seed=3)
+    path = tmp_path / "model.pt"
+    save_checkpoint(path, pol.payload({"command": "test", "seed": 3, "epoch": 0, "update": 0}))
+    assert not list(tmp_path.glob(".*tmp"))
+    loaded = make_policy(name, SMALL, checkpoint=path)
+    view = batch_view(SMALL, midgame())
+    np.testing.assert_array_equal(loaded.act(view, greedy=False), pol.act(view, greedy=False))
+    assert loaded.meta["seed"] == 3
+    other = "commnet" if name != "commnet" else "vain"
+    with pytest.raises(CheckpointError, match=f"holds policy '{name}'") as err:
+        make_policy(other, SMALL, checkpoint=path)
+    assert "\n" not in str(err.value)
+    with pytest.raises(CheckpointError, match="vision") as err:
+        make_policy(name, dataclasses.replace(SMALL, vision=5), checkpoint=path)
+    data = load_checkpoint(path)
+    first = next(iter(data["state_dict"]))
+    data["state_dict"][first] = torch.zeros(3, 3, 3)
+    save_checkpoint(path, data)
+    with pytest.raises(CheckpointError, match="does not fit") as err:
+        make_policy(name, SMALL, checkpoint=path)
+    assert "\n" not in str(err.value)
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="unreadable"):
+        make_policy(name, SMALL, checkpoint=tmp_path / "junk.pt")
+
+
+def _curve(path: Path) -> list[list[str]]:
+    rows = list(csv.reader(path.open()))
+    drop = {rows[0].index("episodes_per_s"), rows[0].index("elapsed_s")}
+    return [[v for k, v in enumerate(r) if k not in drop] for r in rows]
+
+
+def test_resume_reproduces_the_uninterrupted_run(tmp_path: Path) -> None:
+    cfg = TrainConfig(policy="commattn", epochs=2, updates=2, batch=6, threads=1, val_episodes=4,
+                      curriculum_step=2, curriculum_min_updates=1, curriculum_max_updates=2)
+    main(cfg, SMALL, tmp_path / "full", console=quiet())
+    main(dataclasses.replace(cfg, epochs=1), SMALL, tmp_path / "part", console=quiet())
+    with (tmp_path / "part" / "curve.csv").open("a") as fh:
+        fh.write("99,2,0,0,0,0,0,0,0,0,0,0,0,0,0,0\n")  # a row written after the checkpoint
+    main(cfg, SMALL, tmp_path / "part", resume=True, console=quiet())
+    assert _curve(tmp_path / "full" / "curve.csv") == _curve(tmp_path / "part" / "curve.csv")
+    full, part = (load_checkpoint(tmp_path / d / "checkpoint.pt") for d in ("full", "part"))
+    assert full["train"]["update"] == part["train"]["update"] == 4
+    for key, value in full["state_dict"].items():
+        assert torch.equal(value, part["state_dict"][key]), key
+    assert full["meta"]["epoch"] == 2 and "val_elratio_mean" in full["meta"]
+    levels = [int(r[3]) for r in _curve(tmp_path / "full" / "curve.csv")[1:]]
+    assert levels[0] == 0 and levels[-1] > 0  # the curriculum introduced dynamic blocks
+
+
+def test_tiny_training_beats_random(tmp_path: Path) -> None:
+    cfg = TrainConfig(policy="commattn", epochs=1, updates=150, batch=32, lr=3e-3, threads=1,
+                      val_episodes=0, curriculum_step=0)
+    main(cfg, TINY, tmp_path, console=quiet())
+    trained = make_policy("commattn", TINY, checkpoint=tmp_path / "checkpoint.pt")
+    mine = evaluate(TINY, trained, seed=0, n_episodes=300, greedy=False).elratio.mean()
+    rand = evaluate(TINY, make_policy("random", TINY), seed=0, n_episodes=300).elratio.mean()
+    assert mine > rand + 0.03, (mine, rand)
