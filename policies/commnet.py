@@ -49,7 +49,7 @@ class CommNet(nn.Module):
         m = mask[..., None].float()
         others = (members.lens - 1).clamp(min=1).float()[:, None, None]
         h = h0
-        for own, comm in zip(self.own, self.comm):
+        for own, comm in zip(self.own, self.comm, strict=True):
             c = ((h.sum(1, keepdim=True) - h) / others) * m
             h = torch.tanh(own(h) + comm(c) + h0) * m
         mine = h[torch.arange(h.shape[0]), members.self_pos]

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import nn
+from torch.nn.utils.rnn import PackedSequence
 
 from world.config import WorldConfig
 from world.decentral import View
@@ -77,17 +78,19 @@ class Members:
         """Members of several views as one batch (groups renumbered), re-sorted id-major."""
         goff = np.cumsum([0] + [len(p.member_feats) // p.n for p in parts])
         poff = np.cumsum([0] + [len(p.pair_member) for p in parts])
-        group = np.concatenate([p.group + o for p, o in zip(parts, goff)])
+        group = np.concatenate([p.group + o for p, o in zip(parts, goff[:-1], strict=True)])
         robot = np.concatenate([p.robot for p in parts])
         order = np.lexsort((group, robot))
         pick = torch.from_numpy(order)
         n = parts[0].n
         return Members(
             member_feats=torch.cat([p.member_feats for p in parts]),
-            pair_member=torch.cat([p.pair_member + int(o) * n for p, o in zip(parts, goff)]),
+            pair_member=torch.cat([p.pair_member + int(o) * n
+                                   for p, o in zip(parts, goff[:-1], strict=True)]),
             pair_feats=torch.cat([p.pair_feats for p in parts]),
             lens=torch.cat([p.lens for p in parts])[pick],
-            start=torch.cat([p.start + int(o) for p, o in zip(parts, poff)])[pick],
+            start=torch.cat([p.start + int(o)
+                             for p, o in zip(parts, poff[:-1], strict=True)])[pick],
             self_pos=torch.cat([p.self_pos for p in parts])[pick],
             group=group[order], robot=robot[order], n=n,
         )
@@ -100,7 +103,8 @@ def rows(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
 
 
 class TokenEmbed(nn.Module):
-    """relu(W_m member + W_p pair + b) per heard pair: the member part is embedded once per robot."""
+    """relu(W_m member + W_p pair + b) per heard pair; the member part is embedded once per
+    robot and gathered."""
 
     def __init__(self, member_dim: int, pair_dim: int, out: int) -> None:
         super().__init__()
@@ -109,12 +113,14 @@ class TokenEmbed(nn.Module):
 
     def forward(self, m: Members) -> torch.Tensor:
         """[P, out] in canonical pair order."""
-        return torch.relu(rows(self.member(m.member_feats), m.pair_member) + self.pair(m.pair_feats))
+        member = rows(self.member(m.member_feats), m.pair_member)
+        return torch.relu(member + self.pair(m.pair_feats))
 
 
 @dataclass
 class Sequences:
-    """Per-pair outputs of a recurrence in its own row order, and where each receiver's slots are."""
+    """Per-pair outputs of a recurrence in its own row order, and where each receiver's slots
+    are."""
 
     flat: torch.Tensor  # [P, D]
     where: torch.Tensor  # [R, M] row of flat for (receiver, slot); P past the neighbourhood
@@ -128,21 +134,26 @@ class Sequences:
 def bigru(gru: nn.GRU, x: torch.Tensor, m: Members) -> Sequences:
     """Bidirectional GRU over each receiver's members in id order: pairs [P, E] -> [P, 2H].
 
-    Receivers are bucketed by neighbourhood size, so every sequence of a bucket has the same
-    length: no padding ever enters a recurrence (both directions start at the receiver's own
-    first / last member) and the plain, unpacked GRU runs (fast on CPU, also backwards).
+    With gradients, receivers are bucketed by neighbourhood size, so every sequence of a bucket
+    has the same length: no padding ever enters a recurrence (both directions start at the
+    receiver's own first / last member) and the plain, unpacked GRU runs (its backward is fast on
+    CPU, a packed one's is not). Without gradients one packed call does the same (fewer calls).
     """
+    if not torch.is_grad_enabled():
+        return _bigru_packed(gru, x, m)
     lens, start = m.lens, m.start
     order = torch.argsort(lens, stable=True)
     sizes, counts = torch.unique_consecutive(lens[order], return_counts=True)
     sizes_l, counts_l = sizes.tolist(), counts.tolist()
     # one gather puts every bucket's sequences, [count, size] each, back to back
     seq_start = start[order]
-    within = torch.cat([torch.arange(s).repeat(c) for s, c in zip(sizes_l, counts_l)])
+    within = torch.cat([torch.arange(s).repeat(c)
+                        for s, c in zip(sizes_l, counts_l, strict=True)])
     first = torch.repeat_interleave(seq_start, lens[order])
-    inputs = rows(x, first + within).split([s * c for s, c in zip(sizes_l, counts_l)])
+    inputs = rows(x, first + within).split(
+        [s * c for s, c in zip(sizes_l, counts_l, strict=True)])
     outs = [gru(inp.view(c, s, -1))[0].reshape(c * s, -1)
-            for inp, s, c in zip(inputs, sizes_l, counts_l)]
+            for inp, s, c in zip(inputs, sizes_l, counts_l, strict=True)]
     # pair (receiver order[k], slot j) sits at row offset[k] + j of the concatenated outputs
     offset = torch.cumsum(lens[order], 0) - lens[order]
     where = torch.full((m.receivers, m.width), x.shape[0], dtype=torch.long)
@@ -152,8 +163,23 @@ def bigru(gru: nn.GRU, x: torch.Tensor, m: Members) -> Sequences:
     return Sequences(torch.cat(outs), where)
 
 
+def _bigru_packed(gru: nn.GRU, x: torch.Tensor, m: Members) -> Sequences:
+    """`bigru` as one packed call (time-major, longest neighbourhood first)."""
+    lens = m.lens
+    rank = torch.empty_like(lens)
+    rank[torch.argsort(-lens, stable=True)] = torch.arange(m.receivers)
+    batch_sizes = (lens[None, :] > torch.arange(m.width)[:, None]).sum(1)
+    offs = torch.cumsum(batch_sizes, 0) - batch_sizes
+    idx, mask = m.pad_index(0)
+    where = torch.where(mask, offs[None, :] + rank[:, None], torch.full_like(idx, x.shape[0]))
+    order = torch.empty(x.shape[0], dtype=torch.long)
+    order[where[mask]] = idx[mask]  # packed position -> canonical pair
+    out, _ = gru(PackedSequence(rows(x, order), batch_sizes))
+    return Sequences(out.data, where)
+
+
 class Featurizer:
-    """Turns a View into `Members` for its receivers; `member_dim + pair_dim` is the token width F."""
+    """Turns a View into `Members` for its receivers; member_dim + pair_dim is the token width."""
 
     def __init__(self, cfg: WorldConfig, crop: int = 9) -> None:
         if crop < 1 or crop % 2 == 0:

@@ -1,4 +1,4 @@
-"""The shared wrapper that makes a torch network a `Policy` (acting, chaining, training, checkpoints).
+"""The wrapper that makes a torch network a `Policy`: acting, chaining, training, checkpoints.
 
 Acting: features from the View, the network under `torch.inference_mode`, then greedy (argmax) or
 sampled actions by Gumbel-max with counter-based noise `world.noise.uniform(seed, episode, tick,
@@ -99,7 +99,8 @@ class LearnedPolicy(Policy):
     def _check(self, data: dict[str, Any], path: Path) -> tuple[Any, dict[str, torch.Tensor]]:
         """The model config and weights of a checkpoint, if they fit this policy and world."""
         if data["policy"] != self.name:
-            raise CheckpointError(f"checkpoint {path} holds policy {data['policy']!r}, not {self.name!r}")
+            raise CheckpointError(f"checkpoint {path} holds policy {data['policy']!r}, "
+                                  f"not {self.name!r}")
         try:
             model = from_dict(self.config_cls, data["model"], where=f"checkpoint {path} model")
         except ConfigError as exc:
@@ -116,11 +117,12 @@ class LearnedPolicy(Policy):
             got = weights.get(name)
             if got is None or tuple(got.shape) != tuple(tensor.shape):
                 shape = None if got is None else tuple(got.shape)
-                raise CheckpointError(f"checkpoint {path} does not fit {self.name}: {name} has shape "
-                                      f"{shape}, expected {tuple(tensor.shape)}")
+                raise CheckpointError(f"checkpoint {path} does not fit {self.name}: {name} has "
+                                      f"shape {shape}, expected {tuple(tensor.shape)}")
         extra = sorted(set(weights) - set(expected))
         if extra:
-            raise CheckpointError(f"checkpoint {path} has unexpected weights {', '.join(extra[:3])}")
+            raise CheckpointError(f"checkpoint {path} has unexpected weights "
+                                  f"{', '.join(extra[:3])}")
         return model, weights
 
     def payload(self, meta: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -170,7 +172,8 @@ class LearnedPolicy(Policy):
             context[g, i] = out.context.numpy()
             return Decision(actions, probs, value, state, context, kept)
 
-    def act_with_chain(self, view: View, pred_state: np.ndarray | None, pred_action: np.ndarray | None,
+    def act_with_chain(self, view: View, pred_state: np.ndarray | None,
+                       pred_action: np.ndarray | None,
                        greedy: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """One receiver per group given its predecessor's hidden-state message.
 
@@ -191,10 +194,13 @@ class LearnedPolicy(Policy):
             a_prev = torch.full((len(p),), NO_ACTION, dtype=torch.long)
             if bool(has.any()):
                 if pred_state is None or pred_action is None:
-                    raise ValueError("a receiver has a predecessor but no hidden-state message was given")
+                    raise ValueError("a receiver has a predecessor but no hidden-state message "
+                                     "was given")
                 rows = torch.from_numpy(members.group)
-                ps = torch.as_tensor(np.asarray(pred_state, dtype=np.float32)).reshape(view.groups, -1)[rows]
-                pa = torch.as_tensor(np.asarray(pred_action, dtype=np.int64)).reshape(view.groups)[rows]
+                ps = torch.as_tensor(np.asarray(pred_state, dtype=np.float32))
+                ps = ps.reshape(view.groups, -1)[rows]
+                pa = torch.as_tensor(np.asarray(pred_action, dtype=np.int64))
+                pa = pa.reshape(view.groups)[rows]
                 if bool(((pa < 0) | (pa >= N_ACTIONS))[has].any()):
                     raise ValueError("predecessor action must lie in 0..8")
                 s_prev = torch.where(has[:, None], ps, s_prev)

@@ -45,7 +45,7 @@ def policy(name: str, cfg: WorldConfig = SMALL, seed: int = 0):
 
 
 def layout_state(robots_yx: list[tuple[int, int]], cfg: WorldConfig = SMALL) -> core.WorldState:
-    """One episode on an open 8 x 8 map (blocks only in the far corner) with robots at `robots_yx`."""
+    """One episode on an open 8 x 8 map (blocks only in corners) with robots at `robots_yx`."""
     blocks = np.zeros((1, cfg.height, cfg.width), dtype=bool)
     blocks[0, 7, 0] = blocks[0, 7, 1] = blocks[0, 6, 0] = blocks[0, 0, 7] = blocks[0, 1, 7] = True
     blocks[0, 0, 6] = True
@@ -175,7 +175,8 @@ def test_update_is_deterministic(name: str) -> None:
         weights.append({k: v.clone() for k, v in pol.net.state_dict().items()})
     for key in weights[0]:
         assert torch.equal(weights[0][key], weights[1][key]), key
-    assert any(not torch.equal(v, policy(name, SMALL).net.state_dict()[k]) for k, v in weights[0].items())
+    start = policy(name, SMALL).net.state_dict()
+    assert any(not torch.equal(v, start[k]) for k, v in weights[0].items())
 
 
 @pytest.mark.parametrize("name", LEARNED)
@@ -235,6 +236,41 @@ def test_tiny_training_beats_random(tmp_path: Path) -> None:
                       val_episodes=0, curriculum_step=0)
     main(cfg, TINY, tmp_path, console=quiet())
     trained = make_policy("commattn", TINY, checkpoint=tmp_path / "checkpoint.pt")
-    mine = evaluate(TINY, trained, seed=0, n_episodes=300, greedy=False).elratio.mean()
+    mine = evaluate(TINY, trained, seed=0, n_episodes=300, greedy=True).elratio.mean()
     rand = evaluate(TINY, make_policy("random", TINY), seed=0, n_episodes=300).elratio.mean()
-    assert mine > rand + 0.03, (mine, rand)
+    assert mine > rand + 0.08, (mine, rand)  # measured: 0.70 vs 0.52
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_training_recomputes_what_acting_computed(name: str) -> None:
+    """evaluate() (grad, teacher-forced chain) gives the log-probs and values decide() acted on."""
+    pol = policy(name)
+    views = [batch_view(SMALL, midgame(ticks=t)) for t in (1, 3)]
+    decisions = [pol.decide(v, greedy=False, keep_inputs=True) for v in views]
+    for inputs in (None, [d.inputs for d in decisions]):
+        ev = pol.evaluate(views, [d.actions for d in decisions], inputs)
+        for k, (t, g, i) in enumerate(zip(ev.tick, ev.group, ev.robot, strict=True)):
+            d = decisions[t]
+            expected = np.log(d.probs[g, i, d.actions[g, i]])
+            assert ev.logp[k].item() == pytest.approx(expected, abs=1e-5)
+            assert ev.value[k].item() == pytest.approx(d.value[g, i], abs=1e-5)
+
+
+def test_cli_flags_and_overwrite_guard(tmp_path: Path) -> None:
+    import argparse
+
+    from swarm.train import add_arguments, from_args
+    from world.config import ConfigError
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--seed", type=int, default=None)  # a shared flag of the CLI
+    add_arguments(parser)
+    args = parser.parse_args(["--out", str(tmp_path), "--policy", "vain", "--epochs", "2",
+                              "--seed", "4", "--adv-norm", "false", "--lr", "0.01"])
+    cfg = from_args(args)
+    assert (cfg.policy, cfg.epochs, cfg.seed, cfg.adv_norm, cfg.lr) == ("vain", 2, 4, False, 0.01)
+    assert cfg.batch == TrainConfig().batch
+    tiny = dataclasses.replace(cfg, epochs=1, updates=1, batch=2, val_episodes=0)
+    main(tiny, SMALL, tmp_path, console=quiet())
+    with pytest.raises(ConfigError, match="--resume"):
+        main(tiny, SMALL, tmp_path, console=quiet())
