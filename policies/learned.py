@@ -189,6 +189,8 @@ class LearnedPolicy(Policy):
             members = self.features(view)
             order = np.argsort(members.group)  # group g's receiver is row order[g]
             p = view.predecessor()[members.group, members.robot]
+            if view.chain_ok is not None:  # lost or late hidden-state message: no predecessor
+                p = np.where(view.chain_ok[members.group, members.robot], p, -1)
             has = torch.from_numpy(p >= 0)
             s_prev = self.net.s0.expand(len(p), -1)
             a_prev = torch.full((len(p),), NO_ACTION, dtype=torch.long)
@@ -240,7 +242,10 @@ class LearnedPolicy(Policy):
     @staticmethod
     def _pred_rows(views: Sequence[View], members: Members) -> torch.Tensor:
         """Row of each receiver's predecessor: -1 none, -2 a predecessor that is not a receiver."""
-        pred_id = np.concatenate([v.predecessor() for v in views])  # [G_total, N]
+        # a predecessor whose hidden-state message was lost or late counts as none (chain_ok)
+        pred_id = np.concatenate([np.where(v.chain_ok, v.predecessor(), -1)
+                                  if v.chain_ok is not None else v.predecessor()
+                                  for v in views])  # [G_total, N]
         n = pred_id.shape[1]
         row_of = np.full(pred_id.shape, -2, dtype=np.int64)
         row_of[members.group, members.robot] = np.arange(members.receivers)

@@ -45,7 +45,7 @@ def load_class(name: str) -> type[Policy]:
 def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> Policy:
     """Instantiate policy `name` for `cfg`; learned policies load `checkpoint` when one is given.
 
-    A learned policy class loads a checkpoint through `cls.from_checkpoint(path, cfg)`.
+    A learned policy class loads a checkpoint through its constructor: `cls(cfg, checkpoint=path)`.
     """
     cls = load_class(name)
     if checkpoint is None:
@@ -54,7 +54,9 @@ def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> 
         raise ConfigError(f"--checkpoint applies to learned policies only, not {name!r}")
     if not Path(checkpoint).is_file():
         raise ConfigError(f"checkpoint not found: {checkpoint}")
-    loader = getattr(cls, "from_checkpoint", None)
-    if loader is None:
-        raise ConfigError(f"policy {name!r} cannot load checkpoints (no from_checkpoint)")
-    return loader(checkpoint, cfg)
+    from policies.checkpoint import CheckpointError
+
+    try:
+        return cls(cfg, checkpoint=checkpoint)  # type: ignore[call-arg]
+    except CheckpointError as exc:
+        raise ConfigError(str(exc)) from None

@@ -40,7 +40,8 @@ class RobotCounters:
     bytes_out: int = 0
     bad: int = 0
     stale: int = 0
-    missed: int = 0  # ticks it could not act on (no bundle or predecessor state in time)
+    missed: int = 0  # ticks it could not act on (no bundle in time)
+    missed_hidden: int = 0  # predecessor's hidden-state message lost or late: decoded without
     last_latency_ms: float = 0.0
     bad_by_key: dict[str, int] = field(default_factory=dict)
 
@@ -203,13 +204,17 @@ class RobotProcess:
             hidden = None
             if pred >= 0:
                 hidden = self._wait("hidden", obs.ep, obs.t, pred, deadline)
-                if hidden is None:
-                    self.c.missed += 1
-                    return
-            action, state = self.policy.act_with_chain(  # type: ignore[attr-defined]
-                view, None if hidden is None else hidden.vector(),
-                None if hidden is None else hidden.action, greedy=self.run_cfg.greedy)
-            h = Hidden(obs.ep, obs.t, r, int(action), np.asarray(state, "<f4").tobytes()).pack()
+                if hidden is None or len(hidden.state) != 4 * self.policy.state_size:
+                    # lost, late or malformed: decode as if there were no predecessor
+                    self.c.missed_hidden += 1
+                    view.chain_ok = np.zeros((1, cfg.n_robots), dtype=bool)
+                    hidden = None
+            actions, state = self.policy.act_with_chain(  # type: ignore[attr-defined]
+                view, None if hidden is None else hidden.vector()[None],
+                None if hidden is None else np.array([hidden.action]),
+                greedy=self.run_cfg.greedy)
+            action = int(actions[0, r])
+            h = Hidden(obs.ep, obs.t, r, action, np.asarray(state[0], "<f4").tobytes()).pack()
             self.hid_pub.put(h)
             self.c.msgs_out += 1
             self.c.bytes_out += len(h)
@@ -227,7 +232,7 @@ class RobotProcess:
         rec = {"robot": self.robot, "ep": self.ep, "msgs_in": self.c.msgs_in,
                "msgs_out": self.c.msgs_out, "bytes_in": self.c.bytes_in,
                "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
-               "missed": self.c.missed, "latency_ms": self.c.last_latency_ms}
+               "missed": self.c.missed, "missed_hidden": self.c.missed_hidden, "latency_ms": self.c.last_latency_ms}
         self.status_pub.put(pack_record(K_RSTATUS, rec))
 
     def run(self, wait_world: float = 30.0) -> RobotCounters:

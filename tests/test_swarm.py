@@ -253,3 +253,21 @@ def test_bench_swarm_prints_and_writes_figures(tmp_path: Path) -> None:
     for row in rows:
         assert row["ticks_per_s"] > 0 and row["startup_s"] > 0
         assert 5 < row["rss_mb_per_robot"] < 250  # a frontier robot never imports torch
+
+
+@pytest.mark.parametrize("sample", [False, True])
+def test_commattn_swarm_matches_batched_eval_tick_by_tick(tmp_path: Path, sample: bool) -> None:
+    """The shipped CommAttn checkpoint over the predecessor chain of hidden-state messages."""
+    ckpt = str(ROOT / "checkpoints" / "commattn.pt")
+    out = tmp_path / "run.json"
+    args = ["run", "--headless", "--robots", "10", "--policy", "commattn", "--checkpoint", ckpt,
+            "--episodes", "1", "--seed", "21", "--run-id", f"eqca{int(sample)}", "--json", str(out)]
+    r = swarm(*args, *(["--sample"] if sample else []), timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(out.read_text())
+    cfg = WorldConfig()
+    ev = evaluate(cfg, make_policy("commattn", cfg, checkpoint=ckpt), 21, 1,
+                  record_actions=True, greedy=not sample)
+    assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
+    assert res["messages"]["hidden_delivered"] > 0 and res["timeouts"] == 0
+    assert res["elratio_mean"] == pytest.approx(ev.summary(cfg)["elratio_mean"])
