@@ -37,8 +37,8 @@ from swarm.console import (
 from world.config import ConfigError, WorldConfig, from_dict, load_toml
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
-SECTIONS = ("world", "eval", "bench", "repro", "run", "faults")
-BENCH_TABLES = ("env", "policy", "swarm")
+SECTIONS = ("world", "eval", "bench", "repro", "run", "faults", "train")
+BENCH_TABLES = ("env", "policy", "swarm", "train")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -271,6 +271,18 @@ def _names(text: str | None) -> tuple[str, ...] | None:
     return None if text is None else tuple(x.strip() for x in text.split(",") if x.strip())
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    from swarm import train
+
+    tables = file_tables(args.config)
+    world = world_config(args, tables)
+    base = from_dict(train.TrainConfig, tables.get("train", {}), "[train]")
+    cfg = train.from_args(args, base)
+    out, _ = _consoles()
+    train.main(cfg, world, args.out, resume=args.resume, console=out)
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from swarm import bench
     from swarm.policy_spec import build_policy
@@ -287,6 +299,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         with RichProgress(err) as progress:
             result = bench.bench_env(world, cfg, progress)
         out.print(env_bench_table(result))
+    elif args.what == "train":
+        from swarm.train import bench_train
+
+        cfg = argparse.Namespace(json=args.json)
+        result = bench_train(args.policy or "commattn", batch=args.batch or 288,
+                             updates=args.updates or 3, threads=args.threads or 2, world=world,
+                             seed=args.seed or 0)
+        out.print(result)
     elif args.what == "swarm":
         from swarm.bench_swarm import SwarmBenchConfig, bench_swarm
         from swarm.console import swarm_bench_table
@@ -396,6 +416,16 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(b)
     add_world(b)
     b.set_defaults(func=cmd_bench)
+    b = bsub.add_parser("train", help="seconds per REINFORCE update of a learned policy",
+                        description="One update = rollout of --batch episodes (30 steps, N "
+                                    "robots) + the REINFORCE step; median over --updates.")
+    b.add_argument("--policy", help="learned policy (default commattn)")
+    b.add_argument("--batch", type=int, help="episodes per update (default 288)")
+    b.add_argument("--updates", type=int, help="timed updates after one warm-up (default 3)")
+    b.add_argument("--threads", type=int, help="torch threads (default 2)")
+    add_common(b)
+    add_world(b)
+    b.set_defaults(func=cmd_bench)
     b = bsub.add_parser("swarm", help="ticks/s, startup s and RSS per robot of real swarm runs",
                         description="Runs the distributed swarm (real processes, Zenoh on "
                                     "loopback) per team size and policy; prints the figures.")
@@ -424,6 +454,16 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(p)
     add_world(p, robots=False, schedule=False)
     p.set_defaults(func=cmd_repro)
+
+    p = sub.add_parser("train", help="train a learned policy with REINFORCE (batched)",
+                       description="REINFORCE with the state-specific baseline; checkpoint "
+                                   "every epoch; --resume continues exactly.")
+    add_common(p, results=False)
+    add_world(p)
+    from swarm.train import add_arguments as add_train_arguments
+
+    add_train_arguments(p)
+    p.set_defaults(func=cmd_train)
 
     from swarm.procs_cli import add_parsers  # run, world, robot: the distributed swarm
 

@@ -37,6 +37,8 @@ from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoin
 from policies.features import Members
 from policies.learned import LearnedPolicy
 from swarm.evaluate import evaluate
+from swarm.evaluate import apply_faults
+from swarm.faults import FaultPlan, plan_from_table
 from world import core
 from world.config import ConfigError, WorldConfig, from_dict, replace
 from world.decentral import TrajMessages, View, batch_view
@@ -48,6 +50,9 @@ class TrainConfig:
 
     policy: str = "commattn"
     """Registry name of a learned policy: commattn, commnet, vain, bicnet."""
+    train_loss: float = 0.0
+    """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
+    with this probability, with the swarm radio's seeded loss model (0: no faults)."""
     seed: int = 0
     """Run seed: initial weights and the training / validation episode seeds."""
     epochs: int = 50
@@ -117,13 +122,23 @@ def frozen(view: View) -> View:
                                receivers=view.receivers.copy(), last_reward=view.last_reward.copy())
 
 
-def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.ndarray) -> Rollout:
+def train_faults(cfg: TrainConfig) -> FaultPlan | None:
+    """The message-fault model applied during rollouts (`--train-loss`)."""
+    if cfg.train_loss <= 0:
+        return None
+    return plan_from_table({"loss": cfg.train_loss, "seed": cfg.seed + 3_000_000})
+
+
+def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.ndarray,
+            faults: FaultPlan | None = None) -> Rollout:
     """Run `episodes` of `seed` to the horizon with sampled actions."""
     state = core.reset(world, seed, episodes)
     policy.reset(len(episodes))
     views, actions, inputs, values, rewards = [], [], [], [], []
     while not state.done:
         view = frozen(batch_view(world, state))
+        if faults is not None and not faults.zero:
+            apply_faults(view, faults)  # the swarm radio's message loss, during training
         d = policy.decide(view, greedy=False, keep_inputs=True)
         rewards.append(core.step(world, state, d.actions))
         views.append(view)
@@ -308,7 +323,7 @@ def main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool = False,
                 t0 = time.perf_counter()
                 level_world = cur.world(world, cfg)
                 episodes = upd * cfg.batch + np.arange(cfg.batch)
-                roll = collect(policy, level_world, train_seed, episodes)
+                roll = collect(policy, level_world, train_seed, episodes, train_faults(cfg))
                 parts = update(policy, opt, roll, cfg)
                 upd += 1
                 m = roll.metrics
