@@ -156,14 +156,13 @@ def test_swarm_loss_statistics_and_partition_counts(tmp_path: Path) -> None:
 
 
 def test_crash_and_restart_mid_episode(tmp_path: Path) -> None:
-    res = _run(tmp_path, "crashrs", "--robots", "3", "--episodes", "3", "--crash", "1@10",
-               "--restart", "1@40", "--pace", "60")
-    assert res["completed"] == 3
-    assert res["process_faults"][:2] == ["crash 1@10", "restart 1@40"] or len(
-        res["process_faults"]) == 2
+    res = _run(tmp_path, "crashrs", "--robots", "3", "--episodes", "6", "--crash", "1@10",
+               "--restart", "1@40", "--pace", "40")
+    assert res["completed"] == 6
+    assert [f.split("@")[0] for f in res["process_faults"]] == ["crash 1", "restart 1"]
     assert res["robot_restarts"] == 1 and res["robots_lost"] == 0
     acts = np.array(res["actions"])  # [ep, T, N]
-    assert (acts[2, :, 1] != 0).any()  # robot 1 acts again in the last episode
+    assert (acts[-1, :, 1] != 0).any()  # robot 1 acts again in the last episode
 
 
 def test_heavy_loss_and_latency_never_deadlock(tmp_path: Path) -> None:
