@@ -83,7 +83,6 @@ class LearnedPolicy(Policy):
     def __init__(self, cfg: WorldConfig, checkpoint: str | Path | None = None,
                  model: Any | None = None) -> None:
         super().__init__(cfg)
-        torch.set_flush_denormal(True)  # tiny activations/gradients otherwise slow CPU math ~10x
         state_dict = None
         self.meta: dict[str, Any] = {}
         if checkpoint is not None:

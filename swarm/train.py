@@ -263,6 +263,17 @@ def _progress_line(row: dict[str, Any], total: int) -> str:
 def main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool = False,
          console: Any | None = None) -> dict[str, Any]:
     """Train (or resume) into `out`: checkpoint.pt, log.jsonl, curve.csv. Returns the last row."""
+    # Denormal floats slow CPU math ~10x in late training; flushing them is process-global
+    # state, so it is on for the run only (not in the policy: other code shares the process).
+    torch.set_flush_denormal(True)
+    try:
+        return _main(cfg, world, out, resume, console)
+    finally:
+        torch.set_flush_denormal(False)
+
+
+def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
+          console: Any | None) -> dict[str, Any]:
     from rich.console import Console
     from rich.progress import (
         BarColumn,

@@ -223,7 +223,8 @@ def test_restart_crashed_brings_a_killed_robot_back(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
          "nearest-frontier", "--episodes", "12", "--run-id", run_id, "--json", str(out),
-         "--restart-crashed"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+         "--restart-crashed", "--pace", "50"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         proc.stdout.readline()
