@@ -127,6 +127,7 @@ class Supervisor:
                                      f"robot{i}")
 
     def start(self) -> float:
+        """Write the spec and start the world; robots follow once the supervisor listens."""
         spec = self.tmp / "spec.json"
         write_json(spec, {"world": to_dict(self.cfg), "run": asdict(self.run_cfg),
                           "faults": self.faults})
@@ -135,8 +136,6 @@ class Supervisor:
         self.world = self._spawn(["world", "--spec", str(spec), "--listen", self.hub,
                                   "--zenoh-mode", "router"], "world")
         _wait_port("127.0.0.1", self.port, self.world, 30.0)
-        for i in range(self.cfg.n_robots):
-            self.spawn_robot(i)
         return t0
 
     def stop_all(self, grace: float = 2.0) -> None:
@@ -223,6 +222,9 @@ class Supervisor:
                         f"{k.base}/alive/**", lambda s: q.put(
                             ("live" if s.kind == zenoh.SampleKind.PUT else "dead",
                              str(s.key_expr), None)), history=True)]
+            # Robots only after our subscriptions reached the world: the first tick is not missed.
+            for i in range(self.cfg.n_robots):
+                self.spawn_robot(i)
             live = None if self.opts.headless else Live(
                 get_renderable=lambda: render(self.view), console=self.console,
                 refresh_per_second=4, screen=False, transient=False)
