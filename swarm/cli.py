@@ -272,12 +272,12 @@ def _names(text: str | None) -> tuple[str, ...] | None:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from swarm import train
+    from swarm import train, train_config
 
     tables = file_tables(args.config)
     world = world_config(args, tables)
-    base = from_dict(train.TrainConfig, tables.get("train", {}), "[train]")
-    cfg = train.from_args(args, base)
+    base = from_dict(train_config.TrainConfig, tables.get("train", {}), "[train]")
+    cfg = train_config.from_args(args, base)
     out, _ = _consoles()
     train.main(cfg, world, args.out, resume=args.resume, console=out)
     return 0
@@ -460,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "every epoch; --resume continues exactly.")
     add_common(p, results=False)
     add_world(p)
-    from swarm.train import add_arguments as add_train_arguments
+    from swarm.train_config import add_arguments as add_train_arguments
 
     add_train_arguments(p)
     p.set_defaults(func=cmd_train)

@@ -36,71 +36,14 @@ from policies import make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from policies.features import Members
 from policies.learned import LearnedPolicy
-from swarm.evaluate import evaluate
-from swarm.evaluate import apply_faults
+from swarm.evaluate import apply_faults, evaluate
 from swarm.faults import FaultPlan, plan_from_table
+from swarm.train_config import TrainConfig, add_arguments, from_args  # noqa: F401
 from world import core
 from world.config import ConfigError, WorldConfig, from_dict, replace
 from world.decentral import TrajMessages, View, batch_view
 
 
-@dataclass
-class TrainConfig:
-    """Everything that determines a training run besides the world."""
-
-    policy: str = "commattn"
-    """Registry name of a learned policy: commattn, commnet, vain, bicnet."""
-    train_loss: float = 0.0
-    """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
-    with this probability, with the swarm radio's seeded loss model (0: no faults)."""
-    seed: int = 0
-    """Run seed: initial weights and the training / validation episode seeds."""
-    epochs: int = 50
-    """Epochs (the paper: 50); a checkpoint is written after each."""
-    updates: int = 100
-    """Weight updates per epoch (the paper: 100)."""
-    batch: int = 288
-    """Episodes per update (the paper: 288)."""
-    lr: float = 3e-3
-    """Adam learning rate (1e-3 learned several times slower in pilots)."""
-    alpha: float = 0.03
-    """Weight of the baseline term alpha (G - b)^2 (the paper's alpha)."""
-    gamma: float = 1.0
-    """Discount of the return G_t; 1.0 sums the rewards as the paper does."""
-    reward_scale: float = 0.01
-    """Rewards are multiplied by this before the loss: returns of order 1 keep the baseline term
-    alpha (G - b)^2 from swamping the policy gradient in the shared layers (at 0.1 the policy
-    did not learn in pilots)."""
-    adv_norm: bool = True
-    """Normalise G - b over the batch (zero mean, unit std) in the policy-gradient term."""
-    ent_coef: float = 0.01
-    """Entropy bonus per decision (0 disables)."""
-    max_grad_norm: float = 1.0
-    """Clip the global gradient norm to this (0 disables)."""
-    curriculum_step: int = 10
-    """Dynamic blocks added per curriculum level (levels 0, step, 2 step, .. up to the world's
-    n_dynamic); 0 trains on the full world from the start."""
-    curriculum_threshold: float = 0.65
-    """Advance a level when the running mean elratio of the training episodes reaches this."""
-    curriculum_min_updates: int = 5
-    """Updates spent at a level before it may advance."""
-    curriculum_max_updates: int = 30
-    """Updates after which a level advances regardless of elratio (0: never forced)."""
-    curriculum_ema: float = 0.9
-    """Smoothing of the running mean elratio: ema = ema * c + (1 - c) * batch mean."""
-    train_seed_offset: int = 1_000_000
-    """Training episodes use world seed offset + seed; validation uses 2 * offset + seed."""
-    val_episodes: int = 96
-    """Validation episodes (greedy, then sampled) on the full world after every epoch, on a
-    seed of their own (0 disables)."""
-    threads: int = 2
-    """torch.set_num_threads for the run."""
-    chunk_ticks: int = 3
-    """Ticks per backward pass: bounds memory and keeps tensors cache-sized (3 is fastest here);
-    the gradient is the same for any value."""
-
-
-# ------------------------------------------------------------------------------------ rollout
 @dataclass
 class Rollout:
     """One batch of finished episodes, arrays [T, B, N] unless noted."""
@@ -387,45 +330,6 @@ def _fmt(v: Any) -> Any:
 
 
 # --------------------------------------------------------------------------------------- CLI
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """`swarm train` flags; every TrainConfig field is a flag (unset flags keep the default).
-    Flags the parser already has (a shared --seed, say) are left as they are."""
-    parser.add_argument("--out", type=Path, required=True, help="run directory (checkpoint, logs)")
-    parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
-    for f in dataclasses.fields(TrainConfig):
-        flag = "--" + f.name.replace("_", "-")
-        if flag in parser._option_string_actions:
-            continue
-        kind = {"int": int, "float": float, "str": str}.get(str(f.type))
-        if str(f.type) == "bool":
-            parser.add_argument(flag, type=lambda s: s.lower() in ("1", "true", "yes"),
-                                default=None, metavar="BOOL", help=_field_doc(f.name))
-        else:
-            parser.add_argument(flag, type=kind, default=None, help=_field_doc(f.name))
-
-
-def _field_doc(name: str) -> str:
-    """The docstring under a TrainConfig field (for --help)."""
-    import ast
-    import inspect
-    import itertools
-
-    tree = ast.parse(inspect.getsource(TrainConfig))
-    body = tree.body[0].body  # type: ignore[attr-defined]
-    for node, nxt in itertools.pairwise(body):
-        if (isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == name
-                and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)):
-            return " ".join(str(nxt.value.value).split()).replace("%", "%%")
-    return ""
-
-
-def from_args(args: argparse.Namespace, base: TrainConfig | None = None) -> TrainConfig:
-    """TrainConfig from parsed flags over `base` (e.g. a TOML [train] table)."""
-    base = base or TrainConfig()
-    names = [f.name for f in dataclasses.fields(TrainConfig)]
-    return replace(base, **{name: getattr(args, name, None) for name in names})
-
-
 # --------------------------------------------------------------------------------- benchmark
 def bench_train(policy: str = "commattn", batch: int = 288, updates: int = 3, threads: int = 2,
                 world: WorldConfig | None = None, seed: int = 0) -> dict[str, Any]:
