@@ -43,6 +43,7 @@ def bench_swarm(world: WorldConfig, cfg: SwarmBenchConfig, progress: Any = None)
             res = Supervisor(wcfg, run, SuperviseOptions(headless=True, status_lines=False)).supervise()
             rows.append({"policy": policy, "robots": n, "ticks_per_s": res["ticks_per_s"],
                          "startup_s": res["startup_s"], "rss_mb_per_robot": res["rss_mb_per_robot"],
+                         "pss_mb_per_robot": res.get("pss_mb_per_robot"),
                          "rss_mb_world": res["rss_mb_world"], "elratio_mean": res["elratio_mean"],
                          "timeouts": res["timeouts"], "ticks": res["ticks"]})
             if progress is not None:

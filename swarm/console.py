@@ -130,7 +130,8 @@ def swarm_bench_table(result: Mapping[str, Any]) -> Table:
     table = Table(title=f"Swarm benchmark ({result['episodes']} episodes per run)",
                   title_justify="left")
     table.add_column("policy", style="bold")
-    for col in ("robots", "ticks/s", "startup s", "RSS MB/robot", "RSS MB world", "elratio",
+    for col in ("robots", "ticks/s", "startup s", "RSS MB/robot", "PSS MB/robot", "RSS MB world",
+                "elratio",
                 "timeouts"):
         table.add_column(col, justify="right")
     for r in result["rows"]:
@@ -138,6 +139,7 @@ def swarm_bench_table(result: Mapping[str, Any]) -> Table:
         table.add_row(r["policy"], str(r["robots"]), f"{r['ticks_per_s']:.1f}",
                       "-" if r["startup_s"] is None else f"{r['startup_s']:.2f}",
                       "-" if rss is None else f"{rss:.0f}",
+                      "-" if r.get("pss_mb_per_robot") is None else f"{r['pss_mb_per_robot']:.0f}",
                       "-" if r["rss_mb_world"] is None else f"{r['rss_mb_world']:.0f}",
                       f"{r['elratio_mean']:.3f}", str(r["timeouts"]))
     return table

@@ -113,6 +113,7 @@ class Supervisor:
         self.crashes = 0
         self.restarts = 0
         self.rss_mb: dict[str, float] = {}  # peak resident memory per child, sampled
+        self.pss_mb: dict[str, float] = {}  # peak proportional set size per child
         self._last_rss = 0.0
 
     def _spawn(self, args: list[str], name: str) -> subprocess.Popen[bytes]:
@@ -263,6 +264,8 @@ class Supervisor:
         robots = [v for k, v in self.rss_mb.items() if k.startswith("robot")]
         res["rss_mb_per_robot"] = sum(robots) / len(robots) if robots else None
         res["rss_mb_world"] = self.rss_mb.get("world")
+        pss = [v for k, v in self.pss_mb.items() if k.startswith("robot")]
+        res["pss_mb_per_robot"] = sum(pss) / len(pss) if pss else None
         res["robot_status"] = {str(i): {"msgs_in": r.msgs_in, "msgs_out": r.msgs_out,
                                         "bad": r.bad, "missed": r.missed}
                                for i, r in self.view.robots.items()}
@@ -285,6 +288,12 @@ class Supervisor:
             except (OSError, StopIteration, ValueError):
                 continue
             self.rss_mb[name] = max(self.rss_mb.get(name, 0.0), kb / 1024)
+            try:  # PSS: shared library pages (torch) split among the processes mapping them
+                with open(f"/proc/{p.pid}/smaps_rollup") as fh:
+                    pss = next(int(line.split()[1]) for line in fh if line.startswith("Pss:"))
+                self.pss_mb[name] = max(self.pss_mb.get(name, 0.0), pss / 1024)
+            except (OSError, StopIteration, ValueError):
+                pass
 
     def _check_children(self) -> None:
         for i, p in list(self.robots.items()):
