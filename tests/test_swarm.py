@@ -118,25 +118,7 @@ def _hub_of(run_id: str) -> str:
 
 
 def test_killed_robot_is_noticed_and_mission_goes_on(tmp_path: Path) -> None:
-    out = tmp_path / "run.json"
-    run_id = "killone"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
-         "nearest-frontier", "--episodes", "6", "--run-id", run_id, "--json", str(out)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        proc.stdout.readline()
-        victim = [p for p in run_procs(run_id)
-                  if b"--id\x001\x00" in Path(f"/proc/{p}/cmdline").read_bytes()]
-        assert victim
-        os.kill(victim[0], signal.SIGKILL)
-        proc.communicate(timeout=90)
-        assert proc.returncode == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    res = json.loads(out.read_text())
+    res = _run_killing_robot("killone", 1, tmp_path / "run.json", "--episodes", "6", timeout=90)
     assert res["completed"] == 6
     assert res["robots_lost"] == 1
     assert res["robot_crashes"] == 1
@@ -218,25 +200,8 @@ def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
 
 
 def test_restart_crashed_brings_a_killed_robot_back(tmp_path: Path) -> None:
-    out = tmp_path / "run.json"
-    run_id = "restart1"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
-         "nearest-frontier", "--episodes", "12", "--run-id", run_id, "--json", str(out),
-         "--restart-crashed", "--pace", "50"],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        proc.stdout.readline()
-        victim = [p for p in run_procs(run_id)
-                  if b"--id\x002\x00" in Path(f"/proc/{p}/cmdline").read_bytes()]
-        os.kill(victim[0], signal.SIGKILL)
-        proc.communicate(timeout=120)
-        assert proc.returncode == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    res = json.loads(out.read_text())
+    res = _run_killing_robot("restart1", 2, tmp_path / "run.json", "--episodes", "12",
+                             "--restart-crashed", "--pace", "50")
     assert res["completed"] == 12
     assert res["robot_crashes"] == 1 and res["robot_restarts"] == 1
     assert res["robots_lost"] == 0  # it was back (alive) by the end
@@ -272,3 +237,25 @@ def test_commattn_swarm_matches_batched_eval_tick_by_tick(tmp_path: Path, sample
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
     assert res["messages"]["hidden_delivered"] > 0 and res["timeouts"] == 0
     assert res["elratio_mean"] == pytest.approx(ev.summary(cfg)["elratio_mean"])
+
+
+def _run_killing_robot(run_id: str, robot: int, out: Path, *extra: str,
+                       timeout: float = 120) -> dict:
+    """`swarm run` that SIGKILLs robot `robot` after the first tick; returns the result JSON."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
+         "nearest-frontier", "--run-id", run_id, "--json", str(out), *extra],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        proc.stdout.readline()
+        victim = [p for p in run_procs(run_id)
+                  if f"--id\x00{robot}\x00".encode() in Path(f"/proc/{p}/cmdline").read_bytes()]
+        assert victim
+        os.kill(victim[0], signal.SIGKILL)
+        proc.communicate(timeout=timeout)  # drain stdout: a full pipe would stall the supervisor
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return json.loads(out.read_text())
