@@ -19,6 +19,9 @@ class BicNetConfig:
 
     crop: int = 9
     """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
+    team_pool: int = 3
+    """Block size of the coarse team map added to the receiver's own token (0: no team map;
+    checkpoints older than this field load with 0). See policies.features."""
     embed: int = 32
     """Width of the per-member token embedding fed to the BiGRU."""
     hidden: int = 32
@@ -28,11 +31,12 @@ class BicNetConfig:
 class BicNet(nn.Module):
     chained = False
 
-    def __init__(self, cfg: BicNetConfig, member_dim: int, pair_dim: int) -> None:
+    def __init__(self, cfg: BicNetConfig, member_dim: int, pair_dim: int,
+                 own_dim: int = 0) -> None:
         super().__init__()
         e, h = cfg.embed, cfg.hidden
         self.cfg = cfg
-        self.embed = TokenEmbed(member_dim, pair_dim, e)
+        self.embed = TokenEmbed(member_dim, pair_dim, e, own_dim)
         self.gru = nn.GRU(e, h, batch_first=True, bidirectional=True)
         self.policy = nn.Sequential(nn.Linear(2 * h, 2 * h), nn.ReLU(), nn.Linear(2 * h, N_ACTIONS))
         self.value = nn.Sequential(nn.Linear(2 * h, 2 * h), nn.ReLU(), nn.Linear(2 * h, 1))

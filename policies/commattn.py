@@ -33,6 +33,9 @@ class CommAttnConfig:
 
     crop: int = 9
     """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
+    team_pool: int = 3
+    """Block size of the coarse team map added to the receiver's own token (0: no team map;
+    checkpoints older than this field load with 0). See policies.features."""
     embed: int = 32
     """Width of the per-member token embedding fed to the BiGRU."""
     hidden: int = 32
@@ -74,11 +77,12 @@ class CommAttn(nn.Module):
 
     chained = True
 
-    def __init__(self, cfg: CommAttnConfig, member_dim: int, pair_dim: int) -> None:
+    def __init__(self, cfg: CommAttnConfig, member_dim: int, pair_dim: int,
+                 own_dim: int = 0) -> None:
         super().__init__()
         e, h, s, k, a = cfg.embed, cfg.hidden, cfg.state, cfg.match, cfg.action_embed
         self.cfg = cfg
-        self.embed = TokenEmbed(member_dim, pair_dim, e)
+        self.embed = TokenEmbed(member_dim, pair_dim, e, own_dim)
         self.gru = nn.GRU(e, h, batch_first=True, bidirectional=True)
         self.s0 = nn.Parameter(torch.zeros(s))
         self.action = nn.Embedding(N_ACTIONS + 1, a)

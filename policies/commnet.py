@@ -24,6 +24,9 @@ class CommNetConfig:
 
     crop: int = 9
     """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
+    team_pool: int = 3
+    """Block size of the coarse team map added to the receiver's own token (0: no team map;
+    checkpoints older than this field load with 0). See policies.features."""
     hidden: int = 64
     """Hidden size of every agent's state h_j."""
     steps: int = 2
@@ -33,11 +36,12 @@ class CommNetConfig:
 class CommNet(nn.Module):
     chained = False
 
-    def __init__(self, cfg: CommNetConfig, member_dim: int, pair_dim: int) -> None:
+    def __init__(self, cfg: CommNetConfig, member_dim: int, pair_dim: int,
+                 own_dim: int = 0) -> None:
         super().__init__()
         h = cfg.hidden
         self.cfg = cfg
-        self.encoder = TokenEmbed(member_dim, pair_dim, h)
+        self.encoder = TokenEmbed(member_dim, pair_dim, h, own_dim)
         self.own = nn.ModuleList(nn.Linear(h, h) for _ in range(cfg.steps))
         self.comm = nn.ModuleList(nn.Linear(h, h, bias=False) for _ in range(cfg.steps))
         self.policy = nn.Sequential(nn.Linear(h, h), nn.ReLU(), nn.Linear(h, N_ACTIONS))

@@ -7,7 +7,14 @@ A token for (receiver i, member j in S_i) has two parts:
 - a *pair* part, relative to the receiver: an egocentric `crop x crop` window of j's visited
   bitmap centred on the *receiver's* cell (1 visited, 0 not, -1 off-grid), j's recent positions
   relative to i (dy / H, dx / W, valid flag), j's position relative to i, an is-self flag and
-  the tick fraction t / T.
+  the tick fraction t / T;
+- optionally (`team_pool > 0`) an *own* part per receiver, added to its own token only: the
+  team map it can assemble from the messages it heard this tick, i.e. the union U_i of its
+  members' visited bitmaps, as an egocentric `crop x crop` window (1 / 0 / -1 as above) and as a
+  coarse egocentric map of the whole grid, the fraction of cells not in U_i in each
+  `team_pool x team_pool` block of a window wide enough to cover the grid from any cell. Without
+  it a receiver can only see 4 cells of explored map around it and has no sense of where the
+  unexplored area lies beyond; frontier planners read the whole belief map.
 
 Only heard pairs exist: `Members` lists them receiver by receiver, members in id order (the
 canonical pair order), so an unheard robot never enters a computation. Receivers are id-major
@@ -41,6 +48,7 @@ class Members:
     group: np.ndarray  # [R] int64
     robot: np.ndarray  # [R] int64
     n: int  # robot slots N
+    own_feats: torch.Tensor | None = None  # [R, Fo] per-receiver team map (team_pool > 0)
 
     @property
     def receivers(self) -> int:
@@ -93,6 +101,8 @@ class Members:
                              for p, o in zip(parts, poff[:-1], strict=True)])[pick],
             self_pos=torch.cat([p.self_pos for p in parts])[pick],
             group=group[order], robot=robot[order], n=n,
+            own_feats=(None if parts[0].own_feats is None
+                       else torch.cat([p.own_feats for p in parts])[pick]),
         )
 
 
@@ -103,18 +113,24 @@ def rows(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
 
 
 class TokenEmbed(nn.Module):
-    """relu(W_m member + W_p pair + b) per heard pair; the member part is embedded once per
-    robot and gathered."""
+    """relu(W_m member + W_p pair [+ W_o own on the receiver's own pair] + b) per heard pair; the
+    member part is embedded once per robot and gathered."""
 
-    def __init__(self, member_dim: int, pair_dim: int, out: int) -> None:
+    def __init__(self, member_dim: int, pair_dim: int, out: int, own_dim: int = 0) -> None:
         super().__init__()
         self.member = nn.Linear(member_dim, out)
         self.pair = nn.Linear(pair_dim, out, bias=False)
+        self.own = nn.Linear(own_dim, out, bias=False) if own_dim else None
 
     def forward(self, m: Members) -> torch.Tensor:
         """[P, out] in canonical pair order."""
-        member = rows(self.member(m.member_feats), m.pair_member)
-        return torch.relu(member + self.pair(m.pair_feats))
+        x = rows(self.member(m.member_feats), m.pair_member) + self.pair(m.pair_feats)
+        if self.own is not None:
+            if m.own_feats is None:
+                raise ValueError("this network reads team-map features; build Members with a "
+                                 "Featurizer of team_pool > 0")
+            x = x.index_add(0, m.start + m.self_pos, self.own(m.own_feats))
+        return torch.relu(x)
 
 
 @dataclass
@@ -181,9 +197,11 @@ def _bigru_packed(gru: nn.GRU, x: torch.Tensor, m: Members) -> Sequences:
 class Featurizer:
     """Turns a View into `Members` for its receivers; member_dim + pair_dim is the token width."""
 
-    def __init__(self, cfg: WorldConfig, crop: int = 9) -> None:
+    def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0) -> None:
         if crop < 1 or crop % 2 == 0:
             raise ValueError(f"crop must be a positive odd number, got {crop}")
+        if team_pool < 0:
+            raise ValueError(f"team_pool must be >= 0, got {team_pool}")
         self.cfg = cfg
         self.crop = crop
         c = crop // 2
@@ -192,6 +210,18 @@ class Featurizer:
         self.window = torch.from_numpy((dy * self.wc + dx).ravel())  # from the window's corner
         self.member_dim = 3 * cfg.vision * cfg.vision + 2
         self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
+        self.team_pool = team_pool
+        self.own_dim = 0
+        if team_pool:
+            # the coarse window: k x k blocks of p x p cells, its corner `team_half` cells up and
+            # left of the receiver, wide enough to cover the grid from any cell
+            p = team_pool
+            k = -(-(2 * max(cfg.height, cfg.width) - 1) // p)
+            self.team_k, self.team_half = k, (k * p) // 2
+            self.edges = torch.arange(k + 1) * p - self.team_half  # block edges, from the cell
+            self.dy = torch.from_numpy(dy.ravel() - c)
+            self.dx = torch.from_numpy(dx.ravel() - c)
+            self.own_dim = crop * crop + k * k
 
     @property
     def dim(self) -> int:
@@ -232,6 +262,41 @@ class Featurizer:
                           torch.full((len(j), 1), view.tick / cfg.horizon)], dim=1)
         lens_t = torch.from_numpy(lens)
         self_pos = torch.from_numpy((heard & (np.arange(n)[None, :] < i_np[:, None])).sum(1))
+        own = None
+        if self.team_pool:
+            at = rows(pos, torch.from_numpy(g_np * n + i_np))
+            own = self._team(msgs.visited, heard, g_np, i_np, at)
         return Members(member_feats=member, pair_member=mrow, pair_feats=pair, lens=lens_t,
                        start=torch.cumsum(lens_t, 0) - lens_t, self_pos=self_pos,
-                       group=g_np, robot=i_np, n=n)
+                       group=g_np, robot=i_np, n=n, own_feats=own)
+
+    def _team(self, visited: np.ndarray, heard: np.ndarray, g: np.ndarray, i: np.ndarray,
+              where: torch.Tensor) -> torch.Tensor:
+        """Own features [R, Fo] of receivers (group g, robot i, cell `where` [R, 2]) hearing `heard`
+        [R, N]: the union of the heard visited bitmaps [G, N, H*W] as a crop and a coarse map.
+
+        Block sums of the not-yet-explored map come from its summed-area table at the block
+        edges clamped to the grid, so off-grid cells count as explored (nothing to find there).
+        """
+        cfg, p, k = self.cfg, self.team_pool, self.team_k
+        h, w = cfg.height, cfg.width
+        r = len(g)
+        groups, n = visited.shape[0], visited.shape[1]
+        hears = np.zeros((groups, n, n), dtype=np.float32)  # receiver rows of each group
+        hears[g, i] = heard
+        vis = torch.from_numpy(visited.reshape(groups, n, -1)).float()
+        union = torch.bmm(torch.from_numpy(hears), vis)  # [G, N, H*W] heard visits per cell
+        union = union.view(groups * n, -1)[torch.from_numpy(g * n + i)] > 0  # [R, H*W]
+        y, x = where[:, 0:1], where[:, 1:2]
+        cy, cx = y + self.dy[None, :], x + self.dx[None, :]
+        inside = (cy >= 0) & (cy < h) & (cx >= 0) & (cx < w)
+        cell = cy.clamp(0, h - 1) * w + cx.clamp(0, w - 1)
+        crop = torch.where(inside, union.gather(1, cell).float(), -1.0)
+        sat = torch.zeros(r, h + 1, w + 1)
+        sat[:, 1:, 1:] = (~union).view(r, h, w).float().cumsum(1).cumsum(2)
+        ey = (y + self.edges[None, :]).clamp(0, h)  # [R, k+1]
+        ex = (x + self.edges[None, :]).clamp(0, w)
+        at = (ey[:, :, None] * (w + 1) + ex[:, None, :]).view(r, -1)
+        s = sat.view(r, -1).gather(1, at).view(r, k + 1, k + 1)
+        blocks = s[:, 1:, 1:] - s[:, :-1, 1:] - s[:, 1:, :-1] + s[:, :-1, :-1]
+        return torch.cat([crop, blocks.reshape(r, k * k) / (p * p)], dim=1)

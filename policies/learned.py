@@ -59,6 +59,11 @@ class Evaluation:
     robot: np.ndarray  # [R]
 
 
+def featurizer(cfg: WorldConfig, model: Any) -> Featurizer:
+    """The features a network of config `model` reads."""
+    return Featurizer(cfg, crop=model.crop, team_pool=getattr(model, "team_pool", 0))
+
+
 def gumbel(view: View, group: np.ndarray, robot: np.ndarray) -> torch.Tensor:
     """Gumbel noise [R, 9] float64 of each receiver, from the counter-based generator (stream 0)."""
     u = uniform(view.seed, view.episodes[group], view.tick, robot, N_ACTIONS, stream=0)
@@ -90,8 +95,9 @@ class LearnedPolicy(Policy):
             model, state_dict = self._check(data, Path(checkpoint))
             self.meta = dict(data.get("meta", {}))
         self.model_cfg = model if model is not None else self.config_cls()
-        self.features = Featurizer(cfg, crop=self.model_cfg.crop)
-        self.net = self.net_cls(self.model_cfg, self.features.member_dim, self.features.pair_dim)
+        self.features = featurizer(cfg, self.model_cfg)
+        self.net = self.net_cls(self.model_cfg, self.features.member_dim, self.features.pair_dim,
+                                self.features.own_dim)
         if state_dict is not None:
             self.net.load_state_dict(state_dict)
 
@@ -100,8 +106,10 @@ class LearnedPolicy(Policy):
         if data["policy"] != self.name:
             raise CheckpointError(f"checkpoint {path} holds policy {data['policy']!r}, "
                                   f"not {self.name!r}")
+        fields = dict(data["model"])
+        fields.setdefault("team_pool", 0)  # checkpoints from before the team map had none
         try:
-            model = from_dict(self.config_cls, data["model"], where=f"checkpoint {path} model")
+            model = from_dict(self.config_cls, fields, where=f"checkpoint {path} model")
         except ConfigError as exc:
             raise CheckpointError(str(exc)) from None
         for key in WORLD_SHAPE_KEYS:
@@ -109,8 +117,9 @@ class LearnedPolicy(Policy):
             if theirs != ours:
                 raise CheckpointError(f"checkpoint {path} was trained with {key}={theirs}, "
                                       f"this world has {key}={ours}")
-        feats = Featurizer(self.cfg, crop=model.crop)
-        expected = self.net_cls(model, feats.member_dim, feats.pair_dim).state_dict()
+        feats = featurizer(self.cfg, model)
+        expected = self.net_cls(model, feats.member_dim, feats.pair_dim,
+                                feats.own_dim).state_dict()
         weights = data["state_dict"]
         for name, tensor in expected.items():
             got = weights.get(name)

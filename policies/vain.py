@@ -23,6 +23,9 @@ class VAINConfig:
 
     crop: int = 9
     """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
+    team_pool: int = 3
+    """Block size of the coarse team map added to the receiver's own token (0: no team map;
+    checkpoints older than this field load with 0). See policies.features."""
     hidden: int = 64
     """Width of the member embedding e_j and of the decoder."""
     attention: int = 16
@@ -32,12 +35,13 @@ class VAINConfig:
 class VAIN(nn.Module):
     chained = False
 
-    def __init__(self, cfg: VAINConfig, member_dim: int, pair_dim: int) -> None:
+    def __init__(self, cfg: VAINConfig, member_dim: int, pair_dim: int,
+                 own_dim: int = 0) -> None:
         super().__init__()
         h = cfg.hidden
         self.cfg = cfg
         self.encoder = nn.Sequential(nn.Linear(h, h), nn.ReLU())
-        self.embed = TokenEmbed(member_dim, pair_dim, h)
+        self.embed = TokenEmbed(member_dim, pair_dim, h, own_dim)
         self.attend = nn.Linear(h, cfg.attention)
         self.decoder = nn.Sequential(nn.Linear(2 * h, h), nn.ReLU())
         self.policy = nn.Linear(h, N_ACTIONS)

@@ -27,12 +27,14 @@ from rich.progress import (
 
 from swarm import atomic
 from swarm.console import (
+    curves_table,
     env_bench_table,
     eval_table,
     files_table,
     policy_bench_table,
     sweep_table,
     table1_table,
+    table2_table,
 )
 from world.config import ConfigError, WorldConfig, from_dict, load_toml
 
@@ -305,7 +307,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         cfg = argparse.Namespace(json=args.json)
         result = bench_train(args.policy or "commattn", batch=args.batch or 288,
                              updates=args.updates or 3, threads=args.threads or 2, world=world,
-                             seed=args.seed or 0)
+                             seed=args.seed or 0, workers=args.workers or 1)
         out.print(result)
     elif args.what == "swarm":
         from swarm.bench_swarm import SwarmBenchConfig, bench_swarm
@@ -334,14 +336,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _checkpoint_pairs(pairs: list[str] | None) -> dict[str, str] | None:
+def _checkpoint_pairs(pairs: list[str] | None, flag: str = "--checkpoint") -> dict[str, str] | None:
     if not pairs:
         return None
     out = {}
     for pair in pairs:
         name, sep, path = pair.partition("=")
         if not sep or not name or not path:
-            raise ConfigError(f"--checkpoint wants NAME=FILE, got {pair!r}")
+            raise ConfigError(f"{flag} wants NAME=FILE, got {pair!r}")
         out[name] = path
     return out
 
@@ -355,7 +357,9 @@ def cmd_repro(args: argparse.Namespace) -> int:
                  {"out": args.out, "episodes": args.episodes, "seed": args.seed,
                   "policies": args.policies, "checkpoints": _checkpoint_pairs(args.checkpoint),
                   "robots": args.robots, "add_every": args.add_every,
-                  "decisions": args.decisions, "batch": args.batch, "json": args.json},
+                  "decisions": args.decisions, "batch": args.batch, "json": args.json,
+                  "table2_episodes": args.table2_episodes,
+                  "curves": _checkpoint_pairs(args.curve, "--curve")},
                  "[repro]")
     items = repro.expand(args.item)
     out, err = _consoles()
@@ -364,6 +368,10 @@ def cmd_repro(args: argparse.Namespace) -> int:
     for item, res in results.items():
         if item == "table1":
             out.print(table1_table(res["rows"]))
+        elif item == "table2":
+            out.print(table2_table(res["rows"]))
+        elif item == "fig8":
+            out.print(curves_table(res["rows"]))
         else:
             x = "robots" if item == "fig4" else "add_every"
             title = "Fig. 4 (static map)" if item == "fig4" else "Fig. 5 (dynamic map)"
@@ -422,7 +430,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--policy", help="learned policy (default commattn)")
     b.add_argument("--batch", type=int, help="episodes per update (default 288)")
     b.add_argument("--updates", type=int, help="timed updates after one warm-up (default 3)")
-    b.add_argument("--threads", type=int, help="torch threads (default 2)")
+    b.add_argument("--threads", type=int, help="torch threads per process (default 2)")
+    b.add_argument("--workers", type=int, help="training processes (default 1; see swarm train)")
     add_common(b)
     add_world(b)
     b.set_defaults(func=cmd_bench)
@@ -438,15 +447,23 @@ def build_parser() -> argparse.ArgumentParser:
     add_world(b, robots=False)
     b.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("repro", help="reproduce a paper item: table1, fig4, fig5 or all",
-                       description="Reproduce Table 1, Fig. 4 or Fig. 5: writes ITEM.csv, .md, "
-                                   ".png and .json into --out.")
-    p.add_argument("item", metavar="ITEM", help="table1, fig4, fig5 or all")
+    p = sub.add_parser("repro", help="reproduce a paper item: table1, table2, fig4, fig5, fig8 "
+                                     "or all",
+                       description="Reproduce Table 1, Table 2, Fig. 4, Fig. 5 or Fig. 8: writes "
+                                   "ITEM.csv, .md, .png and .json into --out. Learned policies "
+                                   "use the shipped checkpoints/NAME.pt unless --checkpoint.")
+    p.add_argument("item", metavar="ITEM", help="table1, table2, fig4, fig5, fig8 or all")
     p.add_argument("--out", metavar="DIR", help="output directory (required)")
     p.add_argument("--episodes", type=int, metavar="K", help="episodes per point (default 200)")
-    p.add_argument("--policies", metavar="A,B,..", help="policies (default: the baselines)")
+    p.add_argument("--policies", metavar="A,B,..",
+                   help="policies (default: the four learned, three frontier and random)")
+    p.add_argument("--table2-episodes", type=int, metavar="K",
+                   help="Table 2 held-out episodes per policy (default 1000)")
     p.add_argument("--checkpoint", action="append", metavar="NAME=FILE",
                    help="checkpoint of a learned policy (repeatable)")
+    p.add_argument("--curve", action="append", metavar="NAME=FILE",
+                   help="Fig. 8 training-curve CSV of a learned policy (repeatable; default "
+                        "checkpoints/NAME_curve.csv)")
     p.add_argument("--robots", metavar="N,N,..", help="Fig. 4 team sizes (default 2,4,6,8,10,12)")
     p.add_argument("--add-every", metavar="M,M,..", help="Fig. 5 periods (default 1,2,3,4,5,6,9)")
     p.add_argument("--decisions", type=int, metavar="K", help="Table 1 decisions (default 150)")

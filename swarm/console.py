@@ -99,6 +99,39 @@ def table1_table(rows: Sequence[Mapping[str, Any]]) -> Table:
     return table
 
 
+def table2_table(rows: Sequence[Mapping[str, Any]]) -> Table:
+    """Table 2: every policy on the same held-out episodes, next to the paper's figures."""
+    n = rows[0]["episodes"] if rows else 0
+    table = Table(title=f"Table 2: dynamic map, {n} held-out episodes per policy",
+                  title_justify="left")
+    table.add_column("policy", style="bold")
+    for col in ("reward / robot", "collisions (block)", "elratio", "success", "paper"):
+        table.add_column(col, justify="right")
+    for r in rows:
+        paper = ("-" if r["paper_reward"] is None else
+                 f"{r['paper_reward']:g} / {r['paper_collisions']:g} / "
+                 f"{r['paper_elratio_pct']:g}%")
+        table.add_row(r["policy"], f"{r['reward_mean']:.1f}",
+                      f"{r['collisions_mean']:.2f} ({r['block_collisions_mean']:.2f})",
+                      _pm(r["elratio_mean"], r["elratio_std"]),
+                      f"{100 * r['success_rate']:.1f}%", paper)
+    return table
+
+
+def curves_table(rows: Sequence[Mapping[str, Any]]) -> Table:
+    """Fig. 8: the last smoothed point of each policy's training curve."""
+    last: dict[str, Mapping[str, Any]] = {}
+    for r in rows:
+        last[r["policy"]] = r
+    table = Table(title="Fig. 8: end of the training curves (smoothed)", title_justify="left")
+    table.add_column("policy", style="bold")
+    for col in ("episodes", "elratio", "reward / robot"):
+        table.add_column(col, justify="right")
+    for name, r in last.items():
+        table.add_row(name, f"{r['episodes']:,}", f"{r['elratio']:.3f}", f"{r['reward']:.1f}")
+    return table
+
+
 def sweep_table(title: str, x_name: str, rows: Sequence[Mapping[str, Any]]) -> Table:
     """A sweep (Fig. 4/5): one row per x value, one column per policy, elratio mean ± std."""
     policies = list(dict.fromkeys(r["policy"] for r in rows))

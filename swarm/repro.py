@@ -1,9 +1,10 @@
-"""`swarm repro ITEM`: the paper's Table 1, Fig. 4 and Fig. 5 on the batched evaluator.
+"""`swarm repro ITEM`: the paper's Table 1, Table 2, Fig. 4, Fig. 5 and Fig. 8 on the batched
+evaluator (Fig. 8 from the training curves shipped beside the checkpoints).
 
 Each item writes `ITEM.csv` (long format), `ITEM.md` (a Markdown table headed by the command and
 seed that made it), `ITEM.png` (matplotlib, Agg) and `ITEM.json` into the output directory,
 every file atomically. Policies are registry names, so a learned policy joins by name (with
-`checkpoints[name]` when it needs one).
+`checkpoints[name]` when it needs one; by default the one shipped in `checkpoints/NAME.pt`).
 """
 
 from __future__ import annotations
@@ -30,7 +31,15 @@ from swarm.evaluate import evaluate
 from swarm.policy_spec import build_policy
 from world.config import ConfigError, WorldConfig, replace, to_dict
 
-ITEMS = ("table1", "fig4", "fig5")
+ITEMS = ("table1", "table2", "fig4", "fig5", "fig8")
+LEARNED = ("commattn", "commnet", "vain", "bicnet")
+ALL_POLICIES = (*LEARNED, "nearest-frontier", "coordinated-frontier", "cost-utility", "random")
+CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
+# Paper's Table 2 (10 robots, 30 s, 1000 episodes): mean reward, collisions, elratio %, std %.
+PAPER_TABLE2: dict[str, tuple[float, float, float, float | None]] = {
+    "commattn": (37, 9, 95.2, 3.1), "vain": (21, 15, 90.2, None),
+    "bicnet": (25, 22, 89.8, None), "commnet": (24, 13, 89.2, None),
+}
 # Paper's Table 1 (ms per decision, 10 robots): mean, std.
 PAPER_TABLE1: dict[str, tuple[float, float]] = {
     "commattn": (37.0, 5.0), "coordinated-frontier": (230.0, 20.0),
@@ -50,10 +59,16 @@ class ReproConfig:
     """Episodes per point of Fig. 4 and Fig. 5."""
     seed: int = 0
     """Seed of every map; every policy and point sees the same episodes."""
-    policies: tuple[str, ...] = BASELINES
+    policies: tuple[str, ...] = ALL_POLICIES
     """Policies compared (registry names; learned ones take `checkpoints`)."""
     checkpoints: dict[str, str] = field(default_factory=dict)
-    """Checkpoint file per learned policy name."""
+    """Checkpoint file per learned policy name (default: the shipped checkpoints/NAME.pt)."""
+    table2_episodes: int = 1000
+    """Table 2: held-out episodes per policy (the paper: 1000)."""
+    curves: dict[str, str] = field(default_factory=dict)
+    """Fig. 8: training-curve CSV per learned policy (default: checkpoints/NAME_curve.csv)."""
+    smooth: int = 25
+    """Fig. 8: moving-average window, in updates."""
     robots: tuple[int, ...] = (2, 4, 6, 8, 10, 12)
     """Fig. 4: team sizes on the static map."""
     add_every: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 9)
@@ -69,12 +84,28 @@ class ReproConfig:
         object.__setattr__(self, "policies", name_list(self.policies))
         object.__setattr__(self, "robots", int_list(self.robots, "robots"))
         object.__setattr__(self, "add_every", int_list(self.add_every, "add_every"))
-        for key in ("episodes", "decisions", "batch"):
+        for key in ("episodes", "decisions", "batch", "table2_episodes", "smooth"):
             if getattr(self, key) < 1:
                 raise ConfigError(f"{key} must be >= 1, got {getattr(self, key)}")
         if not isinstance(self.checkpoints, dict) or not all(
                 isinstance(k, str) and isinstance(v, str) for k, v in self.checkpoints.items()):
             raise ConfigError("checkpoints must map policy names to file names")
+        if not isinstance(self.curves, dict):
+            raise ConfigError("curves must map policy names to CSV file names")
+
+    def checkpoint(self, name: str) -> str | None:
+        """The checkpoint of policy `name`: given, else shipped (learned policies), else None."""
+        if name in self.checkpoints:
+            return self.checkpoints[name]
+        shipped = CHECKPOINT_DIR / f"{name}.pt"
+        if name in LEARNED:
+            if not shipped.is_file():
+                raise ConfigError(f"no checkpoint for {name}: pass --checkpoint {name}=FILE")
+            return str(shipped)
+        return None
+
+    def curve(self, name: str) -> Path:
+        return Path(self.curves.get(name, CHECKPOINT_DIR / f"{name}_curve.csv"))
 
 
 def header(title: str, command: str, seed: int, note: str) -> str:
@@ -99,14 +130,14 @@ def csv_text(rows: Sequence[dict[str, Any]]) -> str:
     return buf.getvalue()
 
 
-def save_png(path: Path, draw: Callable[[Any], None]) -> None:
-    """Draw on a fresh Agg figure and write it atomically as PNG."""
+def save_png(path: Path, draw: Callable[[Any], None], ncols: int = 1) -> None:
+    """Draw on a fresh Agg figure (one axes, or a row of `ncols`) and write it atomically."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = plt.subplots(1, ncols, figsize=(6.4 * ncols ** 0.8, 4.2))
     try:
         draw(ax)
         fig.tight_layout()
@@ -118,12 +149,12 @@ def save_png(path: Path, draw: Callable[[Any], None]) -> None:
 
 
 def write_item(out: Path, item: str, rows: list[dict[str, Any]], md: str,
-               draw: Callable[[Any], None], meta: dict[str, Any]) -> list[str]:
+               draw: Callable[[Any], None], meta: dict[str, Any], ncols: int = 1) -> list[str]:
     """Write ITEM.csv/.md/.png/.json; returns the paths written."""
     paths = [out / f"{item}.{ext}" for ext in ("csv", "md", "png", "json")]
     atomic.write_text(paths[0], csv_text(rows))
     atomic.write_text(paths[1], md)
-    save_png(paths[2], draw)
+    save_png(paths[2], draw, ncols)
     atomic.write_json(paths[3], {**meta, "rows": rows})
     return [str(p) for p in paths]
 
@@ -134,7 +165,7 @@ def table1(world: WorldConfig, cfg: ReproConfig, command: str,
     rows: list[dict[str, Any]] = []
     for name in cfg.policies:
         progress.start(f"table1 {name}", cfg.decisions)
-        ms = time_decisions(world, name, cfg.decisions, cfg.seed, 1, cfg.checkpoints.get(name),
+        ms = time_decisions(world, name, cfg.decisions, cfg.seed, 1, cfg.checkpoint(name),
                             progress)
         paper = PAPER_TABLE1.get(name, (None, None))
         rows.append({"policy": name, "robots": world.n_robots, **timing_stats(ms),
@@ -184,7 +215,7 @@ def sweep(world: WorldConfig, item: str, cfg: ReproConfig, command: str,
     rows: list[dict[str, Any]] = []
     for name in cfg.policies:
         for x, wc in points:
-            policy = build_policy(name, wc, cfg.checkpoints.get(name))
+            policy = build_policy(name, wc, cfg.checkpoint(name))
             res = evaluate(wc, policy, cfg.seed, cfg.episodes, batch=cfg.batch,
                            on_progress=progress.advance)
             s = res.summary(wc)
@@ -228,6 +259,168 @@ def sweep(world: WorldConfig, item: str, cfg: ReproConfig, command: str,
             "files": write_item(Path(cfg.out or "."), item, rows, md, draw, meta)}
 
 
+def learned_of(cfg: ReproConfig) -> list[str]:
+    return [p for p in cfg.policies if p in LEARNED]
+
+
+def table2(world: WorldConfig, cfg: ReproConfig, command: str,
+           progress: ProgressSink) -> dict[str, Any]:
+    """Table 2: every policy on the same held-out dynamic-map episodes, next to the paper's."""
+    wc = replace(world, dynamic=True)
+    progress.start("table2", len(cfg.policies) * cfg.table2_episodes)
+    rows: list[dict[str, Any]] = []
+    for name in cfg.policies:
+        policy = build_policy(name, wc, cfg.checkpoint(name))
+        res = evaluate(wc, policy, cfg.seed, cfg.table2_episodes, batch=cfg.batch,
+                       on_progress=progress.advance)
+        s = res.summary(wc)
+        paper = PAPER_TABLE2.get(name)
+        rows.append({"policy": name, "robots": wc.n_robots, "episodes": cfg.table2_episodes,
+                     **{k: s[k] for k in SWEEP_KEYS}, "robot_collisions_mean":
+                     float(res.robot_collisions.mean()),
+                     "paper_reward": paper[0] if paper else None,
+                     "paper_collisions": paper[1] if paper else None,
+                     "paper_elratio_pct": paper[2] if paper else None,
+                     "paper_elratio_std_pct": paper[3] if paper else None})
+    md = header(f"Table 2: {wc.n_robots} robots, {wc.horizon} steps, dynamic map", command,
+                cfg.seed,
+                f"{cfg.table2_episodes} held-out episodes per policy (evaluation seed {cfg.seed}; "
+                "training used seeds from 1,000,000 up), greedy actions. Our rewards are the "
+                "SPEC's (negative for good policies); the paper's are from its own reward "
+                "scale. Collisions = block + robot collisions per episode.")
+
+    def paper_cell(r: dict[str, Any]) -> str:
+        if r["paper_reward"] is None:
+            return "-"
+        std = f" ± {r['paper_elratio_std_pct']:g}" if r["paper_elratio_std_pct"] else ""
+        return (f"{r['paper_reward']:g} / {r['paper_collisions']:g} / "
+                f"{r['paper_elratio_pct']:g}{std} %")
+
+    md += md_table(
+        ["policy", "reward / robot", "collisions (block)", "elratio", "success",
+         "paper: reward / collisions / elratio"],
+        [[r["policy"], f"{r['reward_mean']:.1f}",
+          f"{r['collisions_mean']:.2f} ({r['block_collisions_mean']:.2f})",
+          f"{r['elratio_mean']:.3f} ± {r['elratio_std']:.3f}", f"{100 * r['success_rate']:.1f}%",
+          paper_cell(r)] for r in rows])
+
+    def draw(ax: Any) -> None:
+        xs = range(len(rows))
+        ax.bar(list(xs), [r["elratio_mean"] for r in rows], 0.6,
+               yerr=[r["elratio_std"] for r in rows], capsize=3, label="ours")
+        paper = [(x, r) for x, r in zip(xs, rows, strict=True) if r["paper_elratio_pct"]]
+        ax.scatter([x for x, _ in paper], [r["paper_elratio_pct"] / 100 for _, r in paper],
+                   color="k", marker="_", s=400, zorder=3, label="paper")
+        ax.set_xticks(list(xs), [r["policy"] for r in rows], rotation=25, ha="right")
+        ax.set_ylim(0.5, 1.0)
+        ax.set_ylabel("elratio at the last step")
+        ax.set_title(f"Table 2: {wc.n_robots} robots, dynamic map, {cfg.table2_episodes} "
+                     "episodes")
+        ax.grid(alpha=0.3, axis="y")
+        ax.legend()
+
+    meta = {"item": "table2", "command": command, "seed": cfg.seed, "world": to_dict(wc)}
+    return {"item": "table2", "rows": rows,
+            "files": write_item(Path(cfg.out or "."), "table2", rows, md, draw, meta)}
+
+
+def read_curve(path: Path) -> dict[str, list[float]]:
+    """Columns of a trainer curve CSV (swarm.train.CURVE_FIELDS) as floats."""
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        cols: dict[str, list[float]] = {k: [] for k in reader.fieldnames or []}
+        for row in reader:
+            for k, v in row.items():
+                cols[k].append(float(v))
+    for key in ("update", "episodes", "elratio", "reward"):
+        if not cols.get(key):
+            raise ConfigError(f"{path} is not a training curve (no {key!r} column or no rows)")
+    return cols
+
+
+def moving_mean(xs: Sequence[float], window: int) -> list[float]:
+    out, acc = [], 0.0
+    for k, x in enumerate(xs):
+        acc += x
+        if k >= window:
+            acc -= xs[k - window]
+        out.append(acc / min(k + 1, window))
+    return out
+
+
+def plot_curve(csv_path: Path, png_path: Path, title: str, smooth: int = 25) -> None:
+    """One run's training curve (`swarm train` writes OUT/curve.png with it every epoch):
+    smoothed elratio and reward per robot, and the curriculum's dynamic blocks."""
+    c = read_curve(Path(csv_path))
+    ep = [e / 1000 for e in c["episodes"]]
+
+    def draw(axes: Any) -> None:
+        axes[0].plot(ep, moving_mean(c["elratio"], smooth), label="elratio (sampled)")
+        if c.get("block_collisions"):
+            twin = axes[0].twinx()
+            twin.plot(ep, moving_mean(c["block_collisions"], smooth), color="C3", alpha=0.6,
+                      label="block collisions")
+            twin.set_ylabel("block collisions per episode", color="C3")
+        axes[0].set_ylabel(f"training elratio (moving mean of {smooth} updates)")
+        axes[1].plot(ep, moving_mean(c["reward"], smooth), color="C2")
+        axes[1].set_ylabel("training reward per robot")
+        if c.get("n_dynamic"):
+            twin = axes[1].twinx()
+            twin.plot(ep, c["n_dynamic"], color="C1", alpha=0.6)
+            twin.set_ylabel("dynamic blocks (curriculum)", color="C1")
+        for ax in axes:
+            ax.set_xlabel("training episodes (thousands)")
+            ax.grid(alpha=0.3)
+        axes[0].set_title(title, fontsize=9, loc="left")
+
+    save_png(Path(png_path), draw, ncols=2)
+
+
+def fig8(cfg: ReproConfig, command: str) -> dict[str, Any]:
+    """Fig. 8: training curves (score = mean reward per robot, and elratio) of the learned
+    policies against training episodes, smoothed over `smooth` updates."""
+    names = learned_of(cfg)
+    if not names:
+        raise ConfigError("fig8 needs at least one learned policy in --policies")
+    curves = {n: read_curve(cfg.curve(n)) for n in names}
+    rows: list[dict[str, Any]] = []
+    smooth = {}
+    for n, c in curves.items():
+        el, rw = moving_mean(c["elratio"], cfg.smooth), moving_mean(c["reward"], cfg.smooth)
+        smooth[n] = (el, rw)
+        for k in range(len(el)):
+            if (k + 1) % 10 == 0 or k == len(el) - 1:
+                rows.append({"policy": n, "update": int(c["update"][k]),
+                             "episodes": int(c["episodes"][k]), "elratio": round(el[k], 5),
+                             "reward": round(rw[k], 3)})
+    last = {n: (smooth[n][0][-1], smooth[n][1][-1], int(curves[n]["episodes"][-1]))
+            for n in names}
+    md = header("Fig. 8: training curves of the learned policies", command, cfg.seed,
+                f"Training elratio and reward per robot (sampled actions, curriculum on), "
+                f"moving mean over {cfg.smooth} updates. Paper: CommAttn's score ~150% of the "
+                "others'.")
+    md += md_table(["policy", "training episodes", "final elratio", "final reward / robot"],
+                   [[n, f"{e:,}", f"{el:.3f}", f"{rw:.1f}"] for n, (el, rw, e) in last.items()])
+
+    def draw(axes: Any) -> None:
+        for n in names:
+            ep = [e / 1000 for e in curves[n]["episodes"]]
+            axes[0].plot(ep, smooth[n][0], label=n)
+            axes[1].plot(ep, smooth[n][1], label=n)
+        axes[0].set_ylabel("training elratio (sampled)")
+        axes[1].set_ylabel("training reward per robot (score)")
+        for ax in axes:
+            ax.set_xlabel("training episodes (thousands)")
+            ax.grid(alpha=0.3)
+            ax.legend()
+        axes[0].set_title("Fig. 8: training curves")
+
+    meta = {"item": "fig8", "command": command, "seed": cfg.seed, "smooth": cfg.smooth,
+            "curves": {n: str(cfg.curve(n)) for n in names}}
+    return {"item": "fig8", "rows": rows,
+            "files": write_item(Path(cfg.out or "."), "fig8", rows, md, draw, meta, ncols=2)}
+
+
 def expand(item: str) -> list[str]:
     """`all` -> every item; otherwise the one item (ConfigError if unknown)."""
     if item == "all":
@@ -243,15 +436,25 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
     if not cfg.out:
         raise ConfigError("repro needs an output directory (--out DIR)")
     progress = progress or NullProgress()
+    if len(items) > 1 and "fig8" in items and not learned_of(cfg):
+        items = [i for i in items if i != "fig8"]  # `all` without learned policies: no curves
     for item in items:
         if item != "table1":
             sweep_worlds(world, item, cfg)  # raises ConfigError on an impossible point
-    for name in cfg.policies:  # fail on an unloadable policy before hours of work
-        build_policy(name, world, cfg.checkpoints.get(name))
+    for name in cfg.policies if set(items) - {"fig8"} else ():  # fail before hours of work
+        build_policy(name, world, cfg.checkpoint(name))
+    if "fig8" in items:
+        for name in learned_of(cfg):
+            if not cfg.curve(name).is_file():
+                raise ConfigError(f"no training curve for {name}: {cfg.curve(name)} not found")
     results: dict[str, Any] = {}
     for item in items:
         if item == "table1":
             results[item] = table1(world, cfg, command, progress)
+        elif item == "table2":
+            results[item] = table2(world, cfg, command, progress)
+        elif item == "fig8":
+            results[item] = fig8(cfg, command)
         else:
             results[item] = sweep(world, item, cfg, command, progress)
     if cfg.json:

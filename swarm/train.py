@@ -17,6 +17,7 @@ function of its config, and `--resume` continues exactly.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import dataclasses
 import io
@@ -37,8 +38,10 @@ from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoin
 from policies.features import Members
 from policies.learned import LearnedPolicy
 from swarm.evaluate import apply_faults, evaluate
+from swarm.repro import plot_curve
 from swarm.faults import FaultPlan, plan_from_table
 from swarm.train_config import TrainConfig, add_arguments, from_args  # noqa: F401
+from swarm.train_parallel import ParallelUpdater
 from world import core
 from world.config import ConfigError, WorldConfig, from_dict, replace
 from world.decentral import TrajMessages, View, batch_view
@@ -103,27 +106,50 @@ def returns(reward: np.ndarray, gamma: float) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------- loss
-def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout,
-           cfg: TrainConfig) -> dict[str, float]:
-    """One REINFORCE step on a rollout; returns the loss parts per decision.
+@dataclass
+class Advantages:
+    """Returns and raw advantages of a rollout, arrays [T, B, N], and the live decisions."""
 
-    The loss is the paper's sum over robots and ticks divided by the number of decisions in the
-    batch (a constant scale, so that gradient clipping means the same for any batch size).
-    """
+    ret: np.ndarray
+    adv: np.ndarray
+    live: np.ndarray
+
+    def moments(self) -> tuple[float, float, int]:
+        """(sum, sum of squares, count) of the live advantages: what batch normalisation needs
+        from each part of a batch split across processes."""
+        a = self.adv[self.live]
+        return float(a.sum()), float((a * a).sum()), int(a.size)
+
+
+def advantages(roll: Rollout, cfg: TrainConfig) -> Advantages:
     ret = returns(roll.reward * cfg.reward_scale, cfg.gamma)
-    adv = ret - roll.value
-    live = np.stack([v.receivers for v in roll.views])
-    if cfg.adv_norm:
-        adv = (adv - adv[live].mean()) / (adv[live].std() + 1e-8)
-    decisions = int(live.sum())
-    opt.zero_grad(set_to_none=True)
+    return Advantages(ret, ret - roll.value, np.stack([v.receivers for v in roll.views]))
+
+
+def normaliser(moments: list[tuple[float, float, int]]) -> tuple[float, float, int]:
+    """(mean, std, count) of the advantages of a whole batch from its parts' moments."""
+    s1 = sum(m[0] for m in moments)
+    s2 = sum(m[1] for m in moments)
+    n = sum(m[2] for m in moments)
+    mean = s1 / max(n, 1)
+    return mean, math.sqrt(max(s2 / max(n, 1) - mean * mean, 0.0)), n
+
+
+def backward(policy: LearnedPolicy, roll: Rollout, adv: Advantages, cfg: TrainConfig,
+             mean: float, std: float, decisions: int) -> dict[str, float]:
+    """Accumulate the gradient of this rollout's share of the loss into the parameters' .grad.
+
+    `decisions` counts the whole batch's decisions and (mean, std) are its advantages' moments,
+    so the parts of a batch split across processes add up to the gradient of the whole.
+    """
+    a_all = (adv.adv - mean) / (std + 1e-8) if cfg.adv_norm else adv.adv
     totals = {"loss": 0.0, "pg": 0.0, "baseline": 0.0, "entropy": 0.0}
     for t0 in range(0, len(roll.views), cfg.chunk_ticks):
         span = slice(t0, t0 + cfg.chunk_ticks)
         ev = policy.evaluate(roll.views[span], roll.actions[span], roll.inputs[span])
         at = (t0 + ev.tick, ev.group, ev.robot)
-        a = torch.from_numpy(adv[at].astype(np.float32))
-        g = torch.from_numpy(ret[at].astype(np.float32))
+        a = torch.from_numpy(a_all[at].astype(np.float32))
+        g = torch.from_numpy(adv.ret[at].astype(np.float32))
         pg = -(ev.logp * a).sum() / decisions
         base = cfg.alpha * ((g - ev.value) ** 2).sum() / decisions
         ent = ev.entropy.sum() / decisions
@@ -131,11 +157,30 @@ def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout,
         loss.backward()
         for key, val in (("loss", loss), ("pg", pg), ("baseline", base), ("entropy", ent)):
             totals[key] += val.item()
+    return totals
+
+
+def step(policy: LearnedPolicy, opt: torch.optim.Optimizer, cfg: TrainConfig) -> float:
+    """Clip the accumulated gradient, take the optimizer step; returns the gradient norm."""
     params = [p for p in policy.net.parameters() if p.grad is not None]
     clip = cfg.max_grad_norm if cfg.max_grad_norm > 0 else math.inf
     norm = torch.nn.utils.clip_grad_norm_(params, clip)
-    totals["grad_norm"] = float(norm)
     opt.step()
+    return float(norm)
+
+
+def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout,
+           cfg: TrainConfig) -> dict[str, float]:
+    """One REINFORCE step on a rollout; returns the loss parts per decision.
+
+    The loss is the paper's sum over robots and ticks divided by the number of decisions in the
+    batch (a constant scale, so that gradient clipping means the same for any batch size).
+    """
+    adv = advantages(roll, cfg)
+    mean, std, decisions = normaliser([adv.moments()])
+    opt.zero_grad(set_to_none=True)
+    totals = backward(policy, roll, adv, cfg, mean, std, decisions)
+    totals["grad_norm"] = step(policy, opt, cfg)
     return totals
 
 
@@ -270,17 +315,22 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
     start = time.perf_counter()
     columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn(), TextColumn("{task.fields[stats]}")]
-    with Progress(*columns, console=console, disable=not console.is_terminal) as bar:
+    pool = ParallelUpdater(policy, world, cfg.workers, cfg.threads) if cfg.workers > 1 else None
+    with Progress(*columns, console=console, disable=not console.is_terminal) as bar, \
+            pool or contextlib.nullcontext():
         task = bar.add_task(f"train {cfg.policy}", total=total, completed=upd, stats="")
         for epoch in range(epoch0, cfg.epochs):
             for _ in range(cfg.updates):
                 t0 = time.perf_counter()
                 level_world = cur.world(world, cfg)
                 episodes = upd * cfg.batch + np.arange(cfg.batch)
-                roll = collect(policy, level_world, train_seed, episodes, train_faults(cfg))
-                parts = update(policy, opt, roll, cfg)
+                if pool is None:
+                    roll = collect(policy, level_world, train_seed, episodes, train_faults(cfg))
+                    m, parts = roll.metrics, update(policy, opt, roll, cfg)
+                else:
+                    m, parts = pool.update(policy, opt, level_world, train_seed, episodes, cfg,
+                                           train_faults(cfg))
                 upd += 1
-                m = roll.metrics
                 dt = time.perf_counter() - t0
                 row = {"update": upd, "epoch": epoch + 1, "episodes": upd * cfg.batch,
                        "n_dynamic": level_world.n_active_dynamic,
@@ -315,6 +365,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                                 "rng": torch.get_rng_state(), "epoch": epoch + 1, "update": upd,
                                 "curriculum": dataclasses.asdict(cur)}
             save_checkpoint(ckpt_path, payload)
+            plot_curve(curve_path, out / "curve.png", f"{cfg.policy}: {command}")
             with log_path.open("a") as fh:
                 fh.write(json.dumps({"kind": "epoch", "update": upd, "epoch": epoch + 1,
                                      "curriculum_level": cur.level, **val}) + "\n")
@@ -332,31 +383,47 @@ def _fmt(v: Any) -> Any:
 # --------------------------------------------------------------------------------------- CLI
 # --------------------------------------------------------------------------------- benchmark
 def bench_train(policy: str = "commattn", batch: int = 288, updates: int = 3, threads: int = 2,
-                world: WorldConfig | None = None, seed: int = 0) -> dict[str, Any]:
+                world: WorldConfig | None = None, seed: int = 0,
+                workers: int = 1) -> dict[str, Any]:
     """Seconds per update (rollout of `batch` episodes + REINFORCE step) on the full world;
-    the first update is a warm-up and not counted. Median figures."""
+    the first update is a warm-up and not counted. Median figures. With one process the
+    rollout and learning parts are timed apart; with several they overlap."""
     world = world or WorldConfig()
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
-    cfg = TrainConfig(policy=policy, batch=batch, threads=threads)
+    torch.set_flush_denormal(True)
+    cfg = TrainConfig(policy=policy, batch=batch, threads=threads, workers=workers)
     pol = make_policy(policy, world)
     opt = torch.optim.Adam(pol.net.parameters(), lr=cfg.lr)
-    roll_s, learn_s = [], []
-    for u in range(updates + 1):
-        t0 = time.perf_counter()
-        roll = collect(pol, world, cfg.train_seed_offset + seed, u * batch + np.arange(batch))
-        t1 = time.perf_counter()
-        update(pol, opt, roll, cfg)
-        t2 = time.perf_counter()
-        if u > 0:
-            roll_s.append(t1 - t0)
-            learn_s.append(t2 - t1)
-    per = [a + b for a, b in zip(roll_s, learn_s, strict=True)]
-    return {"policy": policy, "batch": batch, "robots": world.n_robots, "horizon": world.horizon,
-            "threads": threads, "updates": updates,
-            "seconds_per_update": statistics.median(per),
-            "rollout_s": statistics.median(roll_s), "learn_s": statistics.median(learn_s),
-            "episodes_per_s": batch / statistics.median(per)}
+    roll_s, learn_s, per = [], [], []
+    pool = ParallelUpdater(pol, world, workers, threads) if workers > 1 else None
+    try:
+        for u in range(updates + 1):
+            episodes = u * batch + np.arange(batch)
+            t0 = time.perf_counter()
+            if pool is None:
+                roll = collect(pol, world, cfg.train_seed_offset + seed, episodes)
+                t1 = time.perf_counter()
+                update(pol, opt, roll, cfg)
+            else:
+                pool.update(pol, opt, world, cfg.train_seed_offset + seed, episodes, cfg)
+                t1 = time.perf_counter()
+            t2 = time.perf_counter()
+            if u > 0:
+                roll_s.append(t1 - t0)
+                learn_s.append(t2 - t1)
+                per.append(t2 - t0)
+    finally:
+        torch.set_flush_denormal(False)
+        if pool is not None:
+            pool.close()
+    out = {"policy": policy, "batch": batch, "robots": world.n_robots, "horizon": world.horizon,
+           "threads": threads, "workers": workers, "updates": updates,
+           "seconds_per_update": statistics.median(per),
+           "episodes_per_s": batch / statistics.median(per)}
+    if pool is None:
+        out |= {"rollout_s": statistics.median(roll_s), "learn_s": statistics.median(learn_s)}
+    return out
 
 
 def cli(argv: list[str] | None = None) -> int:

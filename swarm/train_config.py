@@ -61,7 +61,11 @@ class TrainConfig:
     """Validation episodes (greedy, then sampled) on the full world after every epoch, on a
     seed of their own (0 disables)."""
     threads: int = 2
-    """torch.set_num_threads for the run."""
+    """torch.set_num_threads of each training process."""
+    workers: int = 1
+    """Processes that collect and backpropagate the episodes of each update in parallel (this
+    one plus workers - 1 spawned ones, see swarm.train_parallel); the update is the same for
+    any count up to float rounding. On 2 cores, --workers 2 --threads 1 is fastest."""
     chunk_ticks: int = 3
     """Ticks per backward pass: bounds memory and keeps tensors cache-sized (3 is fastest here);
     the gradient is the same for any value."""

@@ -212,3 +212,28 @@ def test_renderers_show_the_figures() -> None:
             for p in ("random", "nearest-frontier") for n in (2, 4)]
     text = _render(sweep_table("Fig. 4", "robots", rows))
     assert "0.540 ± 0.010" in text and "nearest-frontier" in text
+
+
+def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
+    """A real (tiny) training run's checkpoint and curve feed Table 2 and Fig. 8."""
+    run = tmp_path / "run"
+    r = swarm("train", "--policy", "vain", "--out", str(run), "--epochs", "1", "--updates", "3",
+              "--batch", "4", "--val-episodes", "0", "--threads", "1", "--seed", "3")
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "repro"
+    r = swarm("repro", "all", "--out", str(out), "--policies", "vain,random",
+              "--checkpoint", f"vain={run / 'checkpoint.pt'}", "--curve",
+              f"vain={run / 'curve.csv'}", "--table2-episodes", "6", "--episodes", "2",
+              "--robots", "3", "--add-every", "3", "--decisions", "3", "--seed", "5")
+    assert r.returncode == 0, r.stderr
+    rows = json.loads((out / "table2.json").read_text())["rows"]
+    assert [row["policy"] for row in rows] == ["vain", "random"]
+    assert all(row["episodes"] == 6 and 0 < row["elratio_mean"] <= 1 for row in rows)
+    assert rows[0]["paper_elratio_pct"] == 90.2 and rows[1]["paper_reward"] is None
+    assert "90.2" in (out / "table2.md").read_text()
+    fig8 = list(csv.DictReader((out / "fig8.csv").open()))
+    assert [int(row["update"]) for row in fig8] == [3] and fig8[0]["policy"] == "vain"
+    assert (out / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    bad = swarm("repro", "fig8", "--out", str(out), "--policies", "vain", "--curve",
+                f"vain={tmp_path / 'missing.csv'}")
+    assert bad.returncode == 2 and "no training curve" in bad.stderr

@@ -149,6 +149,43 @@ def test_commattn_decoder_uses_exactly_the_predecessor() -> None:
         pol.act(rv)  # the predecessor is not a receiver of a one-robot view
 
 
+def test_team_map_is_the_union_of_heard_trajectories() -> None:
+    """The own (team-map) features against a plain loop over cells: the union of the visited
+    bitmaps a receiver heard, as a crop (1 / 0 / -1 off-grid) and as the fraction of cells not
+    in it per coarse block of the egocentric window; in the batch and in a one-robot view."""
+    from policies.features import Featurizer
+
+    feats = Featurizer(SMALL, crop=5, team_pool=3)
+    view = batch_view(SMALL, midgame(ticks=4))
+    members = feats(view)
+    k, half, n = feats.team_k, feats.team_half, SMALL.n_robots
+    assert k * 3 >= 2 * SMALL.height - 1 and feats.own_dim == 25 + k * k
+    h, w = SMALL.height, SMALL.width
+    for r in range(members.receivers):
+        g, i = members.group[r], members.robot[r]
+        union = np.zeros(h * w, dtype=bool)
+        for j in range(n):
+            if view.hears[g, i, j]:
+                union |= view.msgs.visited[g, j]
+        union = union.reshape(h, w)
+        y, x = view.msgs.pos[g, i]
+        crop = [[-1.0 if not (0 <= y + dy < h and 0 <= x + dx < w) else float(union[y + dy, x + dx])
+                 for dx in range(-2, 3)] for dy in range(-2, 3)]
+        coarse = np.zeros((k, k))
+        for a in range(k):
+            for b in range(k):
+                for yy in range(y - half + 3 * a, y - half + 3 * a + 3):
+                    for xx in range(x - half + 3 * b, x - half + 3 * b + 3):
+                        if 0 <= yy < h and 0 <= xx < w and not union[yy, xx]:
+                            coarse[a, b] += 1 / 9
+        want = np.concatenate([np.ravel(crop), coarse.ravel()])
+        np.testing.assert_allclose(members.own_feats[r].numpy(), want, atol=1e-6)
+        rv = robot_view(SMALL, view.seed, int(view.episodes[g]), view.tick, int(i),
+                        heard_by(SMALL, view, g, i), 0.0)
+        np.testing.assert_allclose(feats(rv).own_feats[0].numpy(), want, atol=1e-6)
+    assert not view.hears.all()  # some pairs out of range: the unions differ by receiver
+
+
 @pytest.mark.parametrize("name", LEARNED)
 def test_gradients_reach_every_parameter(name: str) -> None:
     pol = policy(name)
@@ -177,6 +214,30 @@ def test_update_is_deterministic(name: str) -> None:
         assert torch.equal(weights[0][key], weights[1][key]), key
     start = policy(name, SMALL).net.state_dict()
     assert any(not torch.equal(v, start[k]) for k, v in weights[0].items())
+
+
+def test_parallel_update_equals_single_process_update() -> None:
+    """Two processes (this one and a spawned worker) splitting a batch take the same step as
+    one process on the whole batch, to float tolerance; metrics cover every episode in order."""
+    from swarm.train_parallel import ParallelUpdater
+
+    cfg = TrainConfig(policy="commattn", batch=9)
+    episodes = np.arange(9)
+    single = policy("commattn", SMALL)
+    opt1 = torch.optim.Adam(single.net.parameters(), lr=1e-3)
+    roll = collect(single, SMALL, 5, episodes)
+    parts1 = update(single, opt1, roll, cfg)
+    split_pol = policy("commattn", SMALL)
+    opt2 = torch.optim.Adam(split_pol.net.parameters(), lr=1e-3)
+    with ParallelUpdater(split_pol, SMALL, workers=2, threads=1) as pool:
+        metrics, parts2 = pool.update(split_pol, opt2, SMALL, 5, episodes, cfg)
+    np.testing.assert_array_equal(metrics.elratio, roll.metrics.elratio)
+    np.testing.assert_array_equal(metrics.reward, roll.metrics.reward)
+    for key in ("loss", "pg", "baseline", "entropy", "grad_norm"):
+        assert parts2[key] == pytest.approx(parts1[key], rel=1e-4, abs=1e-6), key
+    one, two = single.net.state_dict(), split_pol.net.state_dict()
+    for key in one:
+        torch.testing.assert_close(two[key], one[key], rtol=1e-4, atol=1e-6)
 
 
 @pytest.mark.parametrize("name", LEARNED)
