@@ -94,6 +94,7 @@ class LearnedPolicy(Policy):
             data = load_checkpoint(checkpoint)
             model, state_dict = self._check(data, Path(checkpoint))
             self.meta = dict(data.get("meta", {}))
+        self.last_probs: np.ndarray | None = None  # [G, N, 9] of the last decision
         self.model_cfg = model if model is not None else self.config_cls()
         self.features = featurizer(cfg, self.model_cfg)
         self.net = self.net_cls(self.model_cfg, self.features.member_dim, self.features.pair_dim,
@@ -165,6 +166,7 @@ class LearnedPolicy(Policy):
                 actions[g, i] = choose(slice(None), logits).numpy()
                 probs[g, i] = torch.softmax(logits, -1).numpy()
                 value[g, i] = v.numpy()
+                self.last_probs = probs
                 return Decision(actions, probs, value, None, None, kept)
             pred = self._pred_rows([view], members)
             if bool((pred == -2).any()):
@@ -174,6 +176,7 @@ class LearnedPolicy(Policy):
             actions[g, i] = a.numpy()
             probs[g, i] = torch.softmax(out.logits, -1).numpy()
             value[g, i] = out.value.numpy()
+            self.last_probs = probs
             state = np.zeros(shape + (self.state_size,), dtype=np.float32)
             state[g, i] = out.state.numpy()
             context = np.zeros(shape + (out.context.shape[1],), dtype=np.float32)
@@ -220,6 +223,8 @@ class LearnedPolicy(Policy):
             a = chooser(noise)(slice(None), out.logits)
             actions = np.zeros(view.receivers.shape, dtype=np.int64)
             actions[members.group, members.robot] = a.numpy()
+            self.last_probs = np.zeros(view.receivers.shape + (N_ACTIONS,), dtype=np.float32)
+            self.last_probs[members.group, members.robot] = torch.softmax(out.logits, -1).numpy()
             return actions, out.state.numpy()[order].copy()
 
     # --------------------------------------------------------------- training

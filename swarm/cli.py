@@ -39,7 +39,7 @@ from swarm.console import (
 from world.config import ConfigError, WorldConfig, from_dict, load_toml
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
-SECTIONS = ("world", "eval", "bench", "repro", "run", "faults", "train")
+SECTIONS = ("world", "eval", "bench", "repro", "run", "faults", "train", "learner")
 BENCH_TABLES = ("env", "policy", "swarm", "train")
 
 

@@ -30,6 +30,8 @@ class RobotRow:
     bytes_out: int = 0
     alive: bool = False
     restarts: int = 0
+    version: int = 0  # weights version in use (swarm run --train)
+    weights_bad: int = 0
 
 
 @dataclass
@@ -64,6 +66,7 @@ class SwarmView:
     events: list[str] = field(default_factory=list)  # process faults applied (supervisor)
     links: dict[str, list[int]] = field(default_factory=dict)  # "a-b": delivered, dropped, late, queued
     radio: dict[str, int] = field(default_factory=dict)
+    learner: dict[str, Any] | None = None  # the learner's last status (swarm run --train)
 
     def __post_init__(self) -> None:
         for i in range(self.n_robots):
@@ -107,6 +110,8 @@ class SwarmView:
         row.bad = int(rec.get("bad", 0))
         row.missed = int(rec.get("missed", 0))
         row.bytes_out = int(rec.get("bytes_out", 0))
+        row.version = int(rec.get("version", 0))
+        row.weights_bad = int(rec.get("weights_bad", 0))
 
     def set_alive(self, robot: int, alive: bool) -> None:
         row = self.robots.setdefault(robot, RobotRow())
@@ -211,12 +216,51 @@ def render_links(v: SwarmView, top: int = 8) -> Table:
     return table
 
 
+SPARK = "▁▂▃▄▅▆▇█"
+
+
+def sparkline(values: list[float]) -> str:
+    """A one-line curve of `values` (the learner's elratio per update)."""
+    if not values:
+        return "-"
+    lo, hi = min(values), max(values)
+    span = hi - lo or 1.0
+    return "".join(SPARK[min(int((x - lo) / span * (len(SPARK) - 1) + 0.5), len(SPARK) - 1)]
+                   for x in values)
+
+
+def render_learner(v: SwarmView) -> Table:
+    """The learner's figures: weights version, episodes gathered, its curve, rollout traffic."""
+    rec = v.learner or {}
+    table = Table.grid(padding=(0, 2))
+    table.add_column(style="bold")
+    table.add_column()
+    last = rec.get("last") or {}
+    curve = [float(x) for x in rec.get("curve", [])]
+    rows = [
+        ("weights version", str(rec.get("version", "-"))),
+        ("episodes gathered", f"{rec.get('episodes', 0)} (waiting {rec.get('ready', 0)}, "
+                              f"joining {rec.get('pending', 0)})"),
+        ("updates", str(rec.get("updates", 0))),
+        ("elratio per update", sparkline(curve) + (f"  {curve[-1]:.3f}" if curve else "")),
+        ("last loss", "-" if last.get("loss") is None else f"{last['loss']:.4f}"),
+        ("rollout bytes/s", f"{rec.get('rollout_bytes_per_s', 0.0):.0f}"),
+        ("stale used / dropped", f"{rec.get('stale_used', 0)} / {rec.get('stale_dropped', 0)}"),
+        ("incomplete / bad", f"{rec.get('incomplete', 0)} / {rec.get('bad', 0)}"),
+    ]
+    for k, val in rows:
+        table.add_row(k, val)
+    return table
+
+
 def render(v: SwarmView) -> Table:
     """The whole screen: the map beside the figures, the robot table and the faulted links.
 
     A grid table (not a Layout) so that it takes the height of its content on any console.
     """
     side = [Panel(render_figures(v), title="swarm"), render_robots(v)]
+    if v.learner is not None:
+        side.insert(1, Panel(render_learner(v), title="learner"))
     if v.links:
         side.append(render_links(v))
     screen = Table.grid(padding=(0, 1))

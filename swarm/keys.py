@@ -67,6 +67,39 @@ class Keys:
     def robot_status(self, robot: int | str) -> str:
         return f"{self.base}/robot/{robot}/status"
 
+    # learning: robots / world / workers -> learner -> robots / workers
+    def rollout(self, robot: int | str) -> str:
+        """Robot -> learner: its record of an episode (at the episode's end)."""
+        return f"{self.base}/robot/{robot}/rollout"
+
+    @property
+    def episode(self) -> str:
+        """World -> learner: rewards and metrics of an episode (at its end)."""
+        return f"{self.base}/world/episode"
+
+    @property
+    def worker_episodes(self) -> str:
+        """Rollout workers -> learner: whole episodes in the trainer's terms."""
+        return f"{self.base}/rollout/episode"
+
+    @property
+    def weights(self) -> str:
+        """Learner -> robots and workers: versioned weights (also a queryable: the current)."""
+        return f"{self.base}/learner/weights"
+
+    @property
+    def learner_config(self) -> str:
+        """Queryable served by the learner: world config, policy, model and train settings."""
+        return f"{self.base}/learner/config"
+
+    @property
+    def learner_status(self) -> str:
+        return f"{self.base}/learner/status"
+
+    @property
+    def alive_learner(self) -> str:
+        return f"{self.base}/alive/learner"
+
     # liveliness and control
     def alive_robot(self, robot: int | str) -> str:
         return f"{self.base}/alive/robot/{robot}"

@@ -37,6 +37,17 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
                    help="sample actions (counter-based noise) instead of greedy")
 
 
+def _add_train_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("learning in the field (override [learner] / [train] of --config)")
+    g.add_argument("--train", action="store_true", default=None,
+                   help="run a learner too: robots sample, record their episodes and adopt "
+                        "its weights at episode boundaries")
+    g.add_argument("--train-batch", type=int, metavar="B",
+                   help="episodes per learner update (default 10 with --train)")
+    g.add_argument("--learner-out", metavar="DIR",
+                   help="the learner's checkpoint and curve (default: LOG_DIR/learner)")
+
+
 def _add_fault_flags(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)")
     g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms")
@@ -73,7 +84,8 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
     flags = {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
              "first_episode": args.first_episode, "run_id": args.run_id,
              "tick_timeout": args.tick_timeout, "seed": args.seed, "pace": args.pace,
-             "greedy": False if args.sample else None}
+             "greedy": False if args.sample or getattr(args, "train", None) else None,
+             "train": getattr(args, "train", None)}
     table = dict(tables.get("run", {}))
     given = {k: v for k, v in flags.items() if v is not None}
     data = {**table, **given}
@@ -119,8 +131,18 @@ def cmd_run(args: argparse.Namespace) -> int:
         run = dataclasses.replace(run, pace=8.0)  # watchable by default on a terminal
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             restart_crashed=args.restart_crashed, log_dir=args.log_dir)
+    learning = None
+    if run.train:
+        from policies import policy_class
+
+        if not policy_class(run.policy).learned:
+            raise ConfigError(f"--train needs a learned policy, not {run.policy!r}")
+        tables = {**tables, "train": {"batch": 10, **tables.get("train", {})}}
+        lc, tc = learner_configs(argparse.Namespace(train_batch=args.train_batch), tables)
+        learning = {"learner": {**dataclasses.asdict(lc), "out": args.learner_out},
+                    "train": dataclasses.asdict(tc)}
     try:
-        res = supervise(world, run, opts, console=out, faults=faults)
+        res = supervise(world, run, opts, console=out, faults=faults, learning=learning)
     except KeyboardInterrupt:
         print("swarm: interrupted; every process of the run was stopped", file=sys.stderr)
         return 130
@@ -215,6 +237,78 @@ def cmd_fault(args: argparse.Namespace) -> int:
     return 0
 
 
+LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_norm", "ent_coef",
+                        "max_grad_norm", "threads", "chunk_ticks")
+
+
+def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[Any, Any]:
+    """LearnerConfig and TrainConfig from `[learner]` / `[train]` of the file and the flags."""
+    from swarm.learner import LearnerConfig
+    from swarm.train_config import TrainConfig
+
+    lflags = {"run_id": getattr(args, "run_id", None), "policy": getattr(args, "policy", None),
+              "checkpoint": getattr(args, "checkpoint", None), "out": getattr(args, "out", None),
+              "resume": True if getattr(args, "resume", False) else None,
+              "max_staleness": getattr(args, "max_staleness", None),
+              "join_timeout": getattr(args, "join_timeout", None),
+              "gather_only": True if getattr(args, "gather_only", False) else None,
+              "seed": getattr(args, "seed", None)}
+    ldata = {**tables.get("learner", {}), **{k: v for k, v in lflags.items() if v is not None}}
+    tflags = {k: getattr(args, f"train_{k}", None) for k in LEARNER_TRAIN_FIELDS}
+    tdata = {**tables.get("train", {}), **{k: v for k, v in tflags.items() if v is not None}}
+    try:
+        return (from_dict(LearnerConfig, ldata, "[learner]"),
+                from_dict(TrainConfig, tdata, "[train]"))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def cmd_learner(args: argparse.Namespace) -> int:
+    from swarm import cli
+    from swarm.learner import main as learner_main
+
+    _logging(args.verbose)
+    if args.spec:
+        world, run, _ = _spec(args.spec)
+        with open(args.spec) as fh:
+            data = json.load(fh)
+        tables = {"learner": data.get("learner", {}), "train": data.get("train", {})}
+        seed = run.seed
+    else:
+        tables = cli.file_tables(args.config)
+        world = cli.world_config(args, tables)
+        seed = args.seed or 0
+    lc, tc = learner_configs(args, tables)
+    if not lc.out:
+        raise ConfigError("swarm learner needs --out DIR")
+    try:
+        status = learner_main(world, lc, tc, zconfig.from_args(args), seed)
+    except KeyboardInterrupt:
+        return 130
+    if args.json:
+        from swarm.atomic import write_json
+
+        write_json(args.json, status)
+    return 0
+
+
+def cmd_rollout_worker(args: argparse.Namespace) -> int:
+    from swarm.rollout_worker import main as worker_main
+
+    _logging(args.verbose)
+    if args.batch < 1 or args.threads < 1:
+        raise ConfigError("--batch and --threads must be >= 1")
+    try:
+        res = worker_main(args.run_id, zconfig.from_args(args), args.worker_id, args.batch,
+                          args.threads, args.max_batches, args.wait)
+    except KeyboardInterrupt:
+        return 130
+    except TimeoutError as exc:
+        raise ConfigError(str(exc)) from None
+    print(json.dumps(res), flush=True)
+    return 0
+
+
 def cmd_experiment(args: argparse.Namespace) -> int:
     from swarm.experiment import main as experiment_main
 
@@ -240,6 +334,7 @@ def add_parsers(sub: Any, add_common: Any, add_world: Any) -> None:
     add_world(p)
     _add_run_flags(p)
     _add_fault_flags(p)
+    _add_train_flags(p)
     p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
     p.add_argument("--restart-crashed", action="store_true", help="restart robots that die")
     p.add_argument("--log-dir", metavar="DIR", help="children's logs (default: a temp dir)")
@@ -266,6 +361,49 @@ def add_parsers(sub: Any, add_common: Any, add_world: Any) -> None:
     _add_fault_flags(p)
     zconfig.add_arguments(p)
     p.set_defaults(func=cmd_fault)
+
+    p = sub.add_parser("learner", help="the learner process: trains from the swarm's rollouts",
+                       description="Gather robots' and rollout workers' episodes of run RUN_ID, "
+                                   "update the policy with the batched trainer's REINFORCE step, "
+                                   "publish versioned weights; checkpoint every update.")
+    add_common(p)
+    add_world(p)
+    p.add_argument("--run-id", help="the run to learn from")
+    p.add_argument("--policy", help="learned policy (default commattn)")
+    p.add_argument("--checkpoint", metavar="FILE", help="initial weights")
+    p.add_argument("--out", metavar="DIR", help="checkpoint.pt, curve.csv, log.jsonl go here")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument("--max-staleness", type=int, metavar="K",
+                   help="drop episodes more than K versions old (default 1)")
+    p.add_argument("--join-timeout", type=float, metavar="S",
+                   help="seconds to wait for an episode's robot records (default 5)")
+    p.add_argument("--gather-only", action="store_true", help="count episodes, never update")
+    g = p.add_argument_group("loss (override [train] of --config)")
+    g.add_argument("--batch", dest="train_batch", type=int, metavar="B",
+                   help="episodes per update (default 288)")
+    g.add_argument("--lr", dest="train_lr", type=float, help="Adam learning rate")
+    g.add_argument("--alpha", dest="train_alpha", type=float, help="baseline weight alpha")
+    g.add_argument("--gamma", dest="train_gamma", type=float, help="discount")
+    g.add_argument("--ent-coef", dest="train_ent_coef", type=float, help="entropy bonus")
+    g.add_argument("--threads", dest="train_threads", type=int, help="torch threads")
+    p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_learner)
+
+    p = sub.add_parser("rollout-worker", help="batched episodes for a learner, over Zenoh",
+                       description="Run batched episodes with the learner's current weights and "
+                                   "publish them to it (scale training out across cores and "
+                                   "hosts).")
+    p.add_argument("--run-id", required=True, help="the learner's run id")
+    p.add_argument("--worker-id", type=int, default=0, help="distinct per worker (its seed)")
+    p.add_argument("--batch", type=int, default=16, help="episodes per batch (default 16)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--max-batches", type=int, default=0, help="stop after this many (0: never)")
+    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the learner")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_rollout_worker)
 
     p = sub.add_parser("robot", help="one robot process, by hand",
                        description="Join run RUN_ID as robot ID; the config comes from the world.")

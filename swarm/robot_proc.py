@@ -43,6 +43,7 @@ class RobotCounters:
     missed: int = 0  # ticks it could not act on (no bundle in time)
     missed_hidden: int = 0  # predecessor's hidden-state message lost or late: decoded without
     last_latency_ms: float = 0.0
+    weights_bad: int = 0  # weights messages rejected (wrong policy, shape or version)
     bad_by_key: dict[str, int] = field(default_factory=dict)
 
 
@@ -85,12 +86,19 @@ class RobotProcess:
         self.act_pub = session.declare_publisher(self.keys.action(robot))
         self.hid_pub = session.declare_publisher(self.keys.hidden(robot))
         self.status_pub = session.declare_publisher(self.keys.robot_status(robot))
+        # learning in the field (run.train): weights version in use, the next one, the record
+        self.train = run.train and getattr(policy, "learned", False)
+        self.version = 0
+        self.next_weights: Any = None
+        self.record: list[tuple[bytes, int, bool, int, float, float, int]] = []
+        self.roll_pub = session.declare_publisher(self.keys.rollout(robot)) if self.train else None
 
     def _declare(self) -> list[Any]:
         k, q, r = self.keys, self.q, self.robot
         sub = lambda key, kind: self.session.declare_subscriber(  # noqa: E731
             key, lambda s: q.put((kind, str(s.key_expr), s.payload.to_bytes())))
-        return [
+        extra = [sub(k.weights, "weights")] if self.train else []
+        return extra + [
             sub(k.obs(r), "obs"), sub(k.inbox(r), "bundle"), sub(k.inbox_hidden(r), "hidden"),
             self.session.liveliness().declare_subscriber(
                 k.alive_world, lambda s: q.put(
@@ -117,6 +125,9 @@ class RobotProcess:
                 return (kind, None)
             self.c.msgs_in += 1
             self.c.bytes_in += len(payload or b"")
+            if kind == "weights":
+                self.offer_weights(payload or b"", key)
+                continue
             try:
                 if kind == "obs":
                     msg: Any = Obs.unpack(payload or b"", self.cfg)
@@ -155,6 +166,42 @@ class RobotProcess:
                 else:
                     self.c.stale += 1
 
+    def offer_weights(self, payload: bytes, key: str) -> None:
+        """Keep a newer weights version for the next episode boundary; reject bad ones."""
+        from swarm.learner import check_weights
+        from swarm.messages import Weights
+
+        try:
+            w = Weights.unpack(payload)
+            check_weights(self.policy, w)  # type: ignore[arg-type]
+        except BadMessage as exc:
+            self.c.weights_bad += 1
+            log.warning("robot %d rejected weights on %s: %s", self.robot, key, exc)
+            return
+        newest = self.next_weights.version if self.next_weights is not None else self.version
+        if w.version > newest:
+            self.next_weights = w
+
+    def adopt_weights(self) -> None:
+        """At an episode boundary: switch to the newest weights received, if they fit."""
+        from swarm.learner import adopt
+
+        w, self.next_weights = self.next_weights, None
+        if w is None:
+            return
+        try:
+            adopt(self.policy, w)  # type: ignore[arg-type]
+            self.version = w.version
+        except BadMessage as exc:
+            self.c.weights_bad += 1
+            log.warning("robot %d rejected weights: %s", self.robot, exc)
+
+    def fetch_weights(self, timeout: float = 1.0) -> None:
+        """A late joiner asks the learner for the current weights (none: keep its own)."""
+        for reply in self.session.get(self.keys.weights, timeout=timeout):
+            if reply.ok is not None:
+                self.offer_weights(reply.ok.payload.to_bytes(), self.keys.weights)
+
     def heard(self, bundle: Bundle) -> TrajMessages:
         m = TrajMessages.empty(self.cfg)
         for payload in bundle.trajs:
@@ -179,10 +226,21 @@ class RobotProcess:
             self.policy.reset(1)
             self.visited[:] = False
             self.recent = []
+            self.record = []
+            if self.train:
+                self.adopt_weights()  # never mid-episode
         cell = obs.y * cfg.width + obs.x
         self.visited[cell] = True
         self.recent = (self.recent + [cell])[-cfg.recent_len:]
         if obs.done:
+            if self.train and self.record and self.roll_pub is not None:
+                from swarm.messages import RobotRollout
+
+                payload = RobotRollout(obs.ep, r, self.record).pack()
+                self.roll_pub.put(payload)
+                self.c.msgs_out += 1
+                self.c.bytes_out += len(payload)
+            self.record = []
             return
         t_recv = time.monotonic()
         traj = Traj(obs.ep, obs.t, r, obs.y, obs.x, np.packbits(self.visited).tobytes(),
@@ -197,7 +255,9 @@ class RobotProcess:
             self.c.missed += 1
             return
         self.c.last_latency_ms = 1e3 * (time.monotonic() - t_recv)
-        view = robot_view(cfg, self.run_cfg.seed, obs.ep, obs.t, r, self.heard(bundle), obs.reward)
+        heard = self.heard(bundle)
+        view = robot_view(cfg, self.run_cfg.seed, obs.ep, obs.t, r, heard, obs.reward)
+        chain_ok = True
         t0 = time.perf_counter()
         if self.policy.chained:
             pred = int(view.predecessor()[0, r])
@@ -209,6 +269,7 @@ class RobotProcess:
                     self.c.missed_hidden += 1
                     view.chain_ok = np.zeros((1, cfg.n_robots), dtype=bool)
                     hidden = None
+                    chain_ok = False
             actions, state = self.policy.act_with_chain(  # type: ignore[attr-defined]
                 view, None if hidden is None else hidden.vector()[None],
                 None if hidden is None else np.array([hidden.action]),
@@ -221,6 +282,12 @@ class RobotProcess:
         else:
             action = int(self.policy.act(view, greedy=self.run_cfg.greedy)[0, r])
         ms = 1e3 * (time.perf_counter() - t0)
+        if self.train:
+            probs = self.policy.last_probs  # type: ignore[attr-defined]
+            logp = float(np.log(max(float(probs[0, r, action]), 1e-30)))
+            mask = int(sum(1 << int(j) for j in np.flatnonzero(heard.present[0])))
+            self.record.append((traj, mask, chain_ok, action, logp, float(obs.reward),
+                                self.version))
         a = Action(obs.ep, obs.t, r, int(action), ms).pack()
         self.act_pub.put(a)
         self.c.msgs_out += 1
@@ -232,12 +299,16 @@ class RobotProcess:
         rec = {"robot": self.robot, "ep": self.ep, "msgs_in": self.c.msgs_in,
                "msgs_out": self.c.msgs_out, "bytes_in": self.c.bytes_in,
                "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
-               "missed": self.c.missed, "missed_hidden": self.c.missed_hidden, "latency_ms": self.c.last_latency_ms}
+               "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
+               "latency_ms": self.c.last_latency_ms, "version": self.version,
+               "weights_bad": self.c.weights_bad}
         self.status_pub.put(pack_record(K_RSTATUS, rec))
 
     def run(self, wait_world: float = 30.0) -> RobotCounters:
         ents = self._declare()
         try:
+            if self.train:
+                self.fetch_weights()
             deadline = time.monotonic() + wait_world
             while True:
                 self._pending_obs: Obs | None = None

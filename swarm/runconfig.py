@@ -31,6 +31,9 @@ class RunConfig:
     """Cap on ticks per second so a person can watch (0: as fast as the swarm goes)."""
     robot_threads: int = 1
     """torch threads per robot process (many processes share 2 cores)."""
+    train: bool = False
+    """Learning in the field: robots record their episodes for the learner and adopt its
+    weights at episode boundaries; the world publishes each episode's rewards."""
 
     def __post_init__(self) -> None:
         from swarm.keys import check_run_id

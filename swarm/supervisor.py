@@ -31,6 +31,7 @@ from swarm.faults import ProcessFault, parse_process, plan_from_table
 from swarm.keys import Keys
 from swarm.messages import (
     K_CONTROL,
+    K_LSTATUS,
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
@@ -90,8 +91,13 @@ def _wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: flo
 
 class Supervisor:
     def __init__(self, cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
-                 console: Console | None = None, faults: dict[str, Any] | None = None) -> None:
+                 console: Console | None = None, faults: dict[str, Any] | None = None,
+                 learning: dict[str, Any] | None = None) -> None:
         self.cfg, self.run_cfg, self.opts = cfg, run, opts
+        self.learning = learning  # {"learner": LearnerConfig fields, "train": ...} or None
+        self.learner: subprocess.Popen[bytes] | None = None
+        self.learner_status: dict[str, Any] | None = None
+        self.learner_alive = False
         self.faults = dict(faults or {})
         plan = plan_from_table(self.faults, run.seed)
         self.process_faults = sorted(plan.process, key=lambda p: p.tick)
@@ -127,20 +133,49 @@ class Supervisor:
                                       "--connect", self.hub, "--zenoh-mode", "client"],
                                      f"robot{i}")
 
+    def _initial_weights(self) -> None:
+        """--train without --checkpoint: one fresh network (torch seed = run seed) saved for the
+        robots and the learner alike, so every process starts from the same version 0."""
+        if self.run_cfg.checkpoint:
+            return
+        import dataclasses
+
+        import torch
+
+        from policies import make_policy
+        from policies.checkpoint import save_checkpoint
+
+        torch.manual_seed(self.run_cfg.seed)
+        pol = make_policy(self.run_cfg.policy, self.cfg)
+        path = self.tmp / "initial.pt"
+        save_checkpoint(path, pol.payload({"command": "swarm run --train (initial weights)",
+                                           "seed": self.run_cfg.seed}))
+        self.run_cfg = dataclasses.replace(self.run_cfg, checkpoint=str(path))
+
     def start(self) -> float:
         """Write the spec and start the world; robots follow once the supervisor listens."""
         spec = self.tmp / "spec.json"
+        if self.learning is not None:
+            self._initial_weights()
         write_json(spec, {"world": to_dict(self.cfg), "run": asdict(self.run_cfg),
-                          "faults": self.faults})
+                          "faults": self.faults, **(self.learning or {})})
         write_json(_registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
         self.world = self._spawn(["world", "--spec", str(spec), "--listen", self.hub,
                                   "--zenoh-mode", "router"], "world")
         _wait_port("127.0.0.1", self.port, self.world, 30.0)
+        if self.learning is not None:
+            out = self.learning["learner"].get("out") or str(self.log_dir / "learner")
+            self.learner_out = out
+            self.learner = self._spawn(["learner", "--spec", str(spec), "--run-id",
+                                        self.run_cfg.run_id, "--policy", self.run_cfg.policy,
+                                        "--checkpoint", str(self.run_cfg.checkpoint),
+                                        "--out", out, "--connect", self.hub,
+                                        "--zenoh-mode", "client"], "learner")
         return t0
 
     def stop_all(self, grace: float = 2.0) -> None:
-        procs = [p for p in [self.world, *self.robots.values()] if p is not None]
+        procs = [p for p in [self.world, *self.robots.values(), self.learner] if p is not None]
         for i in self.hung:  # a stopped process cannot take SIGINT
             p = self.robots.get(i)
             if p is not None and p.poll() is None:
@@ -177,6 +212,9 @@ class Supervisor:
                 v.apply_robot(unpack_record(payload or b"", K_RSTATUS))
             elif kind == "result":
                 self.result = unpack_record(payload or b"", K_RESULT)
+            elif kind == "lstatus":
+                self.learner_status = unpack_record(payload or b"", K_LSTATUS)
+                v.learner = self.learner_status
             elif kind == "control":
                 rec = unpack_record(payload or b"", K_CONTROL)
                 for text in rec.get("process", []):
@@ -186,6 +224,8 @@ class Supervisor:
                 parts = key.split("/")
                 if parts[-2] == "robot" and parts[-1].isdigit():
                     v.set_alive(int(parts[-1]), kind == "live")
+                elif parts[-1] == "learner":
+                    self.learner_alive = kind == "live"
                 elif parts[-1] == "world":
                     v.world_alive = kind == "live"
         except (BadMessage, ConfigError):
@@ -219,10 +259,21 @@ class Supervisor:
                 key, lambda s: q.put((kind, str(s.key_expr), s.payload.to_bytes())))
             ents = [sub(k.status, "status"), sub(k.robot_status("*"), "rstatus"),
                     sub(k.result, "result"), sub(k.control, "control"),
+                    sub(k.learner_status, "lstatus"),
                     session.liveliness().declare_subscriber(
                         f"{k.base}/alive/**", lambda s: q.put(
                             ("live" if s.kind == zenoh.SampleKind.PUT else "dead",
                              str(s.key_expr), None)), history=True)]
+            if self.learner is not None:  # its subscriptions before the first episode ends
+                deadline = time.monotonic() + 60.0
+                while not self.learner_alive:
+                    try:
+                        self._handle(*q.get(timeout=0.1))
+                    except queue.Empty:
+                        pass
+                    if self.learner.poll() is not None or time.monotonic() > deadline:
+                        self.stop_all()
+                        raise RuntimeError(f"the learner did not start (logs in {self.log_dir})")
             # Robots only after our subscriptions reached the world: the first tick is not missed.
             for i in range(self.cfg.n_robots):
                 self.spawn_robot(i)
@@ -244,6 +295,9 @@ class Supervisor:
                     self._sample_rss()
                     if self.world is not None and self.world.poll() is not None and q.empty():
                         break
+                self._drain_learner()
+                if self.learner is not None:
+                    session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
             except KeyboardInterrupt:
                 session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
                 raise
@@ -266,12 +320,33 @@ class Supervisor:
         res["rss_mb_world"] = self.rss_mb.get("world")
         pss = [v for k, v in self.pss_mb.items() if k.startswith("robot")]
         res["pss_mb_per_robot"] = sum(pss) / len(pss) if pss else None
+        if self.learning is not None:
+            res["learner"] = {**(self.learner_status or {}), "out": self.learner_out}
         res["robot_status"] = {str(i): {"msgs_in": r.msgs_in, "msgs_out": r.msgs_out,
-                                        "bad": r.bad, "missed": r.missed}
+                                        "bad": r.bad, "missed": r.missed,
+                                        "version": r.version, "weights_bad": r.weights_bad}
                                for i, r in self.view.robots.items()}
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res
+
+    def _drain_learner(self, grace: float = 10.0) -> None:
+        """After the last episode: let the learner take in (or drop) every episode of the run
+        before it is stopped; a partial batch is never trained on (its episodes are counted)."""
+        if self.learner is None or self.result is None:
+            return
+        done = int(self.result.get("completed", 0))
+        deadline = time.monotonic() + grace
+        while time.monotonic() < deadline and self.learner.poll() is None:
+            st = self.learner_status or {}
+            if (st.get("episodes", 0) + st.get("incomplete", 0) + st.get("stale_dropped", 0)
+                    >= done and st.get("pending", 1) == 0
+                    and st.get("ready", 0) < int(self.learning["train"]["batch"])):
+                return
+            try:
+                self._handle(*self.q.get(timeout=0.1))
+            except queue.Empty:
+                pass
 
     def _sample_rss(self, every: float = 0.5) -> None:
         now = time.monotonic()
@@ -308,5 +383,6 @@ class Supervisor:
 
 
 def main(cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
-         console: Console | None = None, faults: dict[str, Any] | None = None) -> dict[str, Any]:
-    return Supervisor(cfg, run, opts, console, faults).supervise()
+         console: Console | None = None, faults: dict[str, Any] | None = None,
+         learning: dict[str, Any] | None = None) -> dict[str, Any]:
+    return Supervisor(cfg, run, opts, console, faults, learning).supervise()

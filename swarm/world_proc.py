@@ -33,7 +33,9 @@ from swarm.messages import (
     K_STATUS,
     Action,
     BadMessage,
+    METRIC_NAMES,
     Bundle,
+    EpisodeRecord,
     Hidden,
     Obs,
     Traj,
@@ -220,6 +222,8 @@ class WorldProcess:
         state = core.reset(cfg, self.run_cfg.seed, [ep])
         lay = core.Layout.of(cfg)
         actions_log: list[np.ndarray] = []
+        rewards: list[np.ndarray] = []  # per tick, for the learner (run.train)
+        acted: list[np.ndarray] = []
         ticks = 0
         next_tick = time.monotonic()
         while True:
@@ -247,6 +251,11 @@ class WorldProcess:
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
                                                  patch[i].tobytes(), float(state.last_reward[0, i]),
                                                  bool(done), budget_ms).pack())
+            if done and self.run_cfg.train and rewards:
+                m = core.metrics(cfg, state)
+                rec = EpisodeRecord(ep, np.stack(rewards).astype(np.float32), np.stack(acted),
+                                    {k: float(getattr(m, k)[0]) for k in METRIC_NAMES})
+                self._put(keys.episode, rec.pack())
             if done or self.stop:
                 return state, actions_log, ticks
             traj_deadline = start + timeout / 2  # the radio stops waiting for senders
@@ -272,7 +281,12 @@ class WorldProcess:
             missing = [int(i) for i in np.flatnonzero(self.alive) if i not in inbox["action"]]
             self.timeouts += len(missing)
             state.alive[0] = self.alive
-            core.step(cfg, state, acts)
+            reward = core.step(cfg, state, acts)
+            if self.run_cfg.train:
+                rewards.append(np.asarray(reward)[0].copy())
+                did = np.zeros(cfg.n_robots, dtype=bool)
+                did[list(inbox["action"])] = True
+                acted.append(did & self.alive)
             actions_log.append(acts[0].copy())
             ticks += 1
             self.run_tick += 1
@@ -317,6 +331,11 @@ class WorldProcess:
             result = self._result(parts, curves, actions, ticks, wall)
             self._put(self.keys.result, pack_record(K_RESULT, result))
             time.sleep(0.05)  # let the result leave before the session closes
+            if rc.train:  # robots' and learner's traffic is routed through this session:
+                # stay up until the supervisor has let the learner take the last episodes
+                deadline = time.monotonic() + 15.0
+                while not self.stop and self._pump(deadline):
+                    pass
             return result
         finally:
             for e in ents:

@@ -1,0 +1,285 @@
+"""The learner process, field training and rollout workers: real processes, real Zenoh on
+loopback (scouting off), real torch models."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import zenoh
+
+from policies import make_policy
+from policies.checkpoint import load_checkpoint, save_checkpoint
+from swarm.keys import Keys
+from swarm.learner import adopt, episodes_of, rollout_of, weights_of
+from swarm.messages import BadMessage, EpisodeRollout, RobotRollout, Weights
+from swarm.train import TrainConfig, collect, update
+from swarm.zconfig import ZenohOptions, free_port
+from world.config import WorldConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=3, horizon=8,
+                    add_every=2, vision=3, comm_range=4.0, recent_len=4)
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def swarm(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
+                          capture_output=True, timeout=timeout)
+
+
+def spawn(*args: str, log: Path | None = None) -> subprocess.Popen[bytes]:
+    err = open(log, "ab") if log else subprocess.DEVNULL  # noqa: SIM115
+    return subprocess.Popen([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=err, stdin=subprocess.DEVNULL)
+
+
+def initial(tmp: Path, cfg: WorldConfig, seed: int = 0, name: str = "commattn") -> Path:
+    torch.manual_seed(seed)
+    path = tmp / "init.pt"
+    save_checkpoint(path, make_policy(name, cfg).payload({"seed": seed}))
+    return path
+
+
+def world_toml(tmp: Path, cfg: WorldConfig, train: str = "") -> Path:
+    path = tmp / "exp.toml"
+    fields = {k: getattr(cfg, k) for k in ("height", "width", "n_static", "n_dynamic",
+                                           "n_robots", "horizon", "add_every", "vision",
+                                           "comm_range", "recent_len")}
+    path.write_text("[world]\n" + "".join(f"{k} = {v}\n" for k, v in fields.items())
+                    + (f"[train]\n{train}\n" if train else ""))
+    return path
+
+
+def test_wire_records_round_trip_into_the_trainers_rollout() -> None:
+    """Trainer rollout -> EpisodeRollout payloads -> Rollout: same views, actions and rewards,
+    and the same REINFORCE step; bad payloads are one-line BadMessages."""
+    pol = make_policy("commattn", SMALL)
+    roll = collect(pol, SMALL, 4, np.arange(3))
+    wire = [EpisodeRollout.unpack(e.pack(), SMALL) for e in episodes_of(roll, version=2)]
+    assert [e.ep for e in wire] == [0, 1, 2] and all(e.version == 2 for e in wire)
+    back = rollout_of(wire, pol)
+    for a, b in zip(roll.views, back.views, strict=True):
+        assert np.array_equal(a.msgs.visited, b.msgs.visited) and np.array_equal(a.hears, b.hears)
+        assert np.array_equal(a.receivers, b.receivers) and np.array_equal(a.msgs.pos, b.msgs.pos)
+    assert np.array_equal(np.stack(roll.actions), np.stack(back.actions))
+    np.testing.assert_allclose(back.reward, roll.reward)
+    np.testing.assert_allclose(back.value, roll.value, atol=1e-5)
+    cfg = TrainConfig(batch=3)
+    p1, p2 = (make_policy("commattn", SMALL) for _ in range(2))
+    p2.net.load_state_dict(p1.net.state_dict())
+    update(p1, torch.optim.Adam(p1.net.parameters(), lr=cfg.lr), roll, cfg)
+    update(p2, torch.optim.Adam(p2.net.parameters(), lr=cfg.lr), back, cfg)
+    for k, v in p1.net.state_dict().items():
+        torch.testing.assert_close(p2.net.state_dict()[k], v, rtol=1e-4, atol=1e-6)
+    good = wire[0].pack()
+    for bad in (b"\x00junk", good[:-9], RobotRollout(0, 7, []).pack()):
+        with pytest.raises(BadMessage) as err:
+            EpisodeRollout.unpack(bad, SMALL)
+        assert "\n" not in str(err.value)
+
+
+def test_bad_weights_are_rejected_and_leave_the_policy_unchanged() -> None:
+    pol = make_policy("commattn", SMALL)
+    before = {k: v.clone() for k, v in pol.net.state_dict().items()}
+    good = weights_of(pol, 3)
+    wrong_policy = weights_of(make_policy("vain", SMALL), 4)
+    wrong_shape = Weights(good.policy, 5, good.model, dict(good.tensors))
+    first = next(iter(wrong_shape.tensors))
+    wrong_shape.tensors[first] = np.zeros((2, 2), np.float32)
+    wrong_model = Weights(good.policy, 6, {**good.model, "state": 7}, good.tensors)
+    nan = Weights(good.policy, 7, good.model, {k: v * np.nan for k, v in good.tensors.items()})
+    for w, why in ((wrong_policy, "for 'vain'"), (wrong_shape, "shape"),
+                   (wrong_model, "another commattn network"), (nan, "not finite")):
+        with pytest.raises(BadMessage, match=why) as err:
+            adopt(pol, Weights.unpack(w.pack()))
+        assert "\n" not in str(err.value)
+    for k, v in pol.net.state_dict().items():
+        assert torch.equal(v, before[k])
+    with pytest.raises(BadMessage):
+        Weights.unpack(b"\x93\x01\x09\x00")
+
+
+def _listening(hub: str, timeout: float = 60.0) -> None:
+    import socket
+
+    host, port = hub.removeprefix("tcp/").rsplit(":", 1)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            with socket.create_connection((host, int(port)), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)
+    raise TimeoutError(f"nothing listens on {hub}")
+
+
+def _hub(run_id: str, timeout: float = 60.0) -> str:
+    from swarm.supervisor import _registry
+
+    import socket
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            hub = json.loads(_registry(run_id).read_text())["hub"]
+            host, port = hub.removeprefix("tcp/").rsplit(":", 1)
+            with socket.create_connection((host, int(port)), timeout=0.2):
+                return hub  # the world listens
+        except (OSError, ValueError, KeyError):
+            time.sleep(0.05)
+    raise TimeoutError("no registry entry or the run's hub does not listen")
+
+
+def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path) -> None:
+    """`swarm run --train`: the learner's first update from the robots' records equals the
+    batched trainer's update on the same episodes (same seed, initial weights, no faults)."""
+    cfg = WorldConfig(n_robots=3)
+    init = initial(tmp_path, cfg, seed=1)
+    out = tmp_path / "learner"
+    r = swarm("run", "--train", "--headless", "--robots", "3", "--policy", "commattn",
+              "--checkpoint", str(init), "--episodes", "4", "--train-batch", "4", "--seed", "6",
+              "--learner-out", str(out), "--run-id", "geq", "--json", str(tmp_path / "r.json"))
+    assert r.returncode == 0, r.stderr
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["learner"]["version"] == 1 and res["learner"]["episodes"] == 4
+    assert res["learner"]["incomplete"] == 0 and res["learner"]["bad"] == 0
+    field = load_checkpoint(out / "checkpoint.pt")
+    assert field["learner"]["version"] == 1
+    pol = make_policy("commattn", cfg, checkpoint=init)
+    roll = collect(pol, cfg, 6, np.arange(4))
+    assert np.array_equal(np.array(res["actions"]), np.stack(roll.actions, 1))
+    tc = TrainConfig(batch=4)
+    update(pol, torch.optim.Adam(pol.net.parameters(), lr=tc.lr), roll, tc)
+    for k, v in pol.net.state_dict().items():
+        torch.testing.assert_close(field["state_dict"][k], v, rtol=1e-4, atol=1e-6)
+    row = next(csv.DictReader((out / "curve.csv").open()))
+    assert float(row["elratio"]) == pytest.approx(float(roll.metrics.elratio.mean()))
+
+
+def test_weights_hot_swap_only_at_episode_boundaries(tmp_path: Path) -> None:
+    """Robots tag every tick with the weights version they acted with: within an episode it
+    never changes, across episodes it follows the learner; bad weights put on the learner's key
+    mid-run are rejected by every robot and counted, and the run completes."""
+    run_id = "hswap"
+    cfg = world_toml(tmp_path, SMALL, "lr = 0.01")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--train", "--headless", "--config", str(cfg),
+         "--policy", "commattn", "--episodes", "24", "--train-batch", "2", "--seed", "2",
+         "--run-id", run_id, "--learner-out", str(tmp_path / "l"), "--json",
+         str(tmp_path / "r.json"), "--tick-timeout", "5"],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    raw: list[bytes] = []
+    try:
+        opts = ZenohOptions(mode="client", connect=[_hub(run_id)])
+        keys = Keys(run_id)
+        with zenoh.open(opts.to_config()) as session:
+            sub = session.declare_subscriber(keys.rollout("*"),
+                                             lambda s: raw.append(s.payload.to_bytes()))
+            pol = make_policy("vain", SMALL)
+            time.sleep(8.0)
+            session.put(keys.weights, weights_of(pol, 1000).pack())  # another policy's weights
+            proc.wait(timeout=240)
+            sub.undeclare()
+        assert proc.returncode == 0, proc.stderr.read().decode()[-2000:] if proc.stderr else ""
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["completed"] == 24
+    rollouts = [RobotRollout.unpack(b, SMALL) for b in raw]
+    by_ep: dict[int, set[int]] = {}
+    for rr in rollouts:
+        versions = {t[6] for t in rr.ticks}
+        assert len(versions) == 1, (rr.ep, rr.robot, versions)  # never mid-episode
+        by_ep.setdefault(rr.ep, set()).update(versions)
+    eps = sorted(by_ep)
+    assert len(eps) >= 20
+    firsts = [min(by_ep[e]) for e in eps]
+    assert firsts == sorted(firsts) and firsts[0] == 0 and max(firsts) >= 2
+    assert max(max(v) for v in by_ep.values()) <= res["learner"]["version"]
+    assert all(r["weights_bad"] >= 1 for r in res["robot_status"].values())
+    st = res["learner"]
+    assert st["version"] >= 3, st
+    # every episode is accounted for: used, or dropped as too stale (robots race ahead of a
+    # learner that takes longer per update than the swarm per episode)
+    assert st["episodes"] + st["stale_dropped"] + st["incomplete"] == 24, st
+    assert st["incomplete"] == 0 and st["bad"] == 0, st
+
+
+def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> None:
+    """A learner fed by a rollout worker is SIGKILLed mid-training: every version it had
+    published is in its checkpoint; `--resume` continues from it (curve and versions carry on),
+    the worker keeps going meanwhile and the resumed learner keeps learning."""
+    port = free_port()
+    hub = f"tcp/127.0.0.1:{port}"
+    out = tmp_path / "l"
+    cfg = world_toml(tmp_path, SMALL)
+    learner_args = ["learner", "--run-id", "dur", "--config", str(cfg), "--out", str(out),
+                    "--batch", "4", "--zenoh-mode", "router", "--listen", hub, "--policy", "vain"]
+    seen: list[int] = []
+    learner = spawn(*learner_args, log=tmp_path / "l1.log")
+    worker = None
+    try:
+        _listening(hub)
+        worker = spawn("rollout-worker", "--run-id", "dur", "--connect", hub, "--zenoh-mode",
+                       "client", "--batch", "4", log=tmp_path / "w.log")
+        opts = ZenohOptions(mode="client", connect=[hub])
+        lock = threading.Lock()
+
+        def on_weights(s: zenoh.Sample) -> None:
+            with lock:
+                seen.append(Weights.unpack(s.payload.to_bytes()).version)
+
+        with zenoh.open(opts.to_config()) as session:
+            sub = session.declare_subscriber(Keys("dur").weights, on_weights)
+            deadline = time.monotonic() + 90
+            while time.monotonic() < deadline and max(seen, default=0) < 3:
+                time.sleep(0.05)
+            os.kill(learner.pid, signal.SIGKILL)
+            learner.wait(timeout=10)
+            with lock:
+                published = max(seen)
+            sub.undeclare()
+        ck = load_checkpoint(out / "checkpoint.pt")
+        assert ck["learner"]["version"] >= published >= 3  # nothing acknowledged was lost
+        time.sleep(1.0)
+        assert worker.poll() is None  # the worker goes on without its learner
+        learner = spawn(*learner_args, "--resume", log=tmp_path / "l2.log")
+        seen.clear()
+        _listening(hub)
+        with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
+            sub = session.declare_subscriber(Keys("dur").weights, on_weights)
+            deadline = time.monotonic() + 90
+            while time.monotonic() < deadline and max(seen, default=0) < ck["learner"]["version"] + 2:
+                time.sleep(0.05)
+            sub.undeclare()
+        assert max(seen) >= ck["learner"]["version"] + 2, (seen, (tmp_path / "l2.log").read_text()[-800:])
+    finally:
+        for p in (learner, worker):
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                try:
+                    p.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+    rows = list(csv.DictReader((out / "curve.csv").open()))
+    updates = [int(r["update"]) for r in rows]
+    assert updates == sorted(set(updates)) and updates[0] == 1  # no row repeated after resume
