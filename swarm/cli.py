@@ -29,9 +29,11 @@ from swarm import atomic
 from swarm.console import (
     curves_table,
     env_bench_table,
+    kv_table,
     eval_table,
     files_table,
     policy_bench_table,
+    rollout_bench_table,
     sweep_table,
     table1_table,
     table2_table,
@@ -40,7 +42,7 @@ from world.config import ConfigError, WorldConfig, from_dict, load_toml
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
 SECTIONS = ("world", "eval", "bench", "repro", "run", "faults", "train", "learner")
-BENCH_TABLES = ("env", "policy", "swarm", "train")
+BENCH_TABLES = ("env", "policy", "swarm", "train", "rollout")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -121,8 +123,8 @@ def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfi
     sense = getattr(args, "sense", None)
     flags = {
         "n_robots": getattr(args, "world_robots", None), "dynamic": dynamic,
-        "add_every": getattr(args, "world_add_every", None), "vision": args.vision,
-        "comm_range": args.comm_range, "horizon": args.horizon,
+        "add_every": getattr(args, "world_add_every", None), "vision": getattr(args, "vision", None),
+        "comm_range": getattr(args, "comm_range", None), "horizon": getattr(args, "horizon", None),
         "explore_mode": "sense" if sense else None,
     }
     return merged(WorldConfig, tables.get("world", {}), flags, "[world]")
@@ -308,7 +310,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
         result = bench_train(args.policy or "commattn", batch=args.batch or 288,
                              updates=args.updates or 3, threads=args.threads or 2, world=world,
                              seed=args.seed or 0, workers=args.workers or 1)
-        out.print(result)
+        out.print(kv_table("Training speed (median)", result))
+    elif args.what == "rollout":
+        from swarm.bench_rollout import RolloutBenchConfig, bench_rollout
+
+        cfg = merged(RolloutBenchConfig, table,
+                     {"workers": _ints(args.workers_list), "policy": args.policy,
+                      "batch": args.batch, "seconds": args.seconds, "repeats": args.repeats,
+                      "json": args.json}, where)
+        result = bench_rollout(cfg, lambda row: err.print(f"  {row}"))
+        out.print(rollout_bench_table(result))
     elif args.what == "swarm":
         from swarm.bench_swarm import SwarmBenchConfig, bench_swarm
         from swarm.console import swarm_bench_table
@@ -434,6 +445,17 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=int, help="training processes (default 1; see swarm train)")
     add_common(b)
     add_world(b)
+    b.set_defaults(func=cmd_bench)
+    b = bsub.add_parser("rollout", help="episodes/s a learner gathers from K rollout workers",
+                        description="A gather-only learner (router) and K rollout-worker "
+                                    "processes over Zenoh on loopback, per K in --workers.")
+    b.add_argument("--workers", dest="workers_list", metavar="K,K,..",
+                   help="worker counts (default 1,2)")
+    b.add_argument("--policy", help="learned policy (default commattn)")
+    b.add_argument("--batch", type=int, help="episodes per worker batch (default 16)")
+    b.add_argument("--seconds", type=float, help="measuring window (default 10)")
+    b.add_argument("--repeats", type=int, help="windows per count (default 3)")
+    add_common(b)
     b.set_defaults(func=cmd_bench)
     b = bsub.add_parser("swarm", help="ticks/s, startup s and RSS per robot of real swarm runs",
                         description="Runs the distributed swarm (real processes, Zenoh on "

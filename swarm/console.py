@@ -176,3 +176,25 @@ def swarm_bench_table(result: Mapping[str, Any]) -> Table:
                       "-" if r["rss_mb_world"] is None else f"{r['rss_mb_world']:.0f}",
                       f"{r['elratio_mean']:.3f}", str(r["timeouts"]))
     return table
+
+
+def kv_table(title: str, record: Mapping[str, Any]) -> Table:
+    """A record as a two-column table (numbers to 3 decimals)."""
+    table = Table(title=title, title_justify="left")
+    table.add_column("figure", style="bold")
+    table.add_column("value", justify="right")
+    for k, v in record.items():
+        table.add_row(k, f"{v:.3f}" if isinstance(v, float) else str(v))
+    return table
+
+
+def rollout_bench_table(result: Mapping[str, Any]) -> Table:
+    """Rows of `bench_rollout`: episodes/s the learner gathered per worker count."""
+    table = Table(title="Rollout workers -> learner (median episodes/s)", title_justify="left")
+    for col in ("workers", "episodes/s", "speedup", "rollout kB/s", "windows"):
+        table.add_column(col, justify="right")
+    for r in result["rows"]:
+        table.add_row(str(r["workers"]), f"{r['episodes_per_s']:.1f}", f"{r['speedup']:.2f}x",
+                      f"{r['rollout_bytes_per_s'] / 1e3:.0f}",
+                      " ".join(f"{x:.1f}" for x in r["episodes_per_s_windows"]))
+    return table
