@@ -42,7 +42,8 @@ class ExperimentConfig:
     values: tuple[Any, ...] = (0.0, 0.1, 0.2, 0.3)
     """Its values, in the file's units ("50ms", "2kB/s", "0-4/5-9", 0.1, ...)."""
     policies: tuple[str, ...] = ("nearest-frontier",)
-    """Policies compared (one line each)."""
+    """Policies compared (one line each); `NAME:LABEL` is a variant of NAME with a checkpoint
+    of its own (`checkpoints = {"commattn:fault-trained" = "FILE"}`)."""
     seeds: tuple[int, ...] = (0, 1)
     """Seeds per point (error bars)."""
     checkpoints: dict[str, str] = field(default_factory=dict)
@@ -111,8 +112,10 @@ def run_experiment(path: str, resume: bool = False, out: str | None = None,
                     continue
                 faults = {**base_faults, exp.parameter: value}
                 rid = f"exp-{exp.name}-{len(rows)}"[:60]
-                rc = dataclasses.replace(run, run_id=rid, policy=policy, seed=int(seed),
-                                         checkpoint=exp.checkpoints.get(policy))
+                base = policy.split(":")[0]  # "commattn:fault-trained": a labelled variant
+                rc = dataclasses.replace(run, run_id=rid, policy=base, seed=int(seed),
+                                         checkpoint=exp.checkpoints.get(
+                                             policy, exp.checkpoints.get(base)))
                 res = Supervisor(world, rc, SuperviseOptions(headless=True, status_lines=False),
                                  faults=faults).supervise()
                 m = res["messages"]

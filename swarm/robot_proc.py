@@ -177,6 +177,7 @@ class RobotProcess:
         except BadMessage as exc:
             self.c.weights_bad += 1
             log.warning("robot %d rejected weights on %s: %s", self.robot, key, exc)
+            self.status()  # visible at once on the dashboard
             return
         newest = self.next_weights.version if self.next_weights is not None else self.version
         if w.version > newest:

@@ -17,6 +17,9 @@ class TrainConfig:
 
     policy: str = "commattn"
     """Registry name of a learned policy: commattn, commnet, vain, bicnet."""
+    init: str = ""
+    """Start from the weights of this checkpoint (same policy and network) instead of fresh
+    ones, e.g. to fine-tune a trained policy under faults; "" starts fresh."""
     train_loss: float = 0.0
     """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
     with this probability, with the swarm radio's seeded loss model (0: no faults)."""
