@@ -206,7 +206,7 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
     """Evaluate each policy of `cfg.policy` on the same episodes; summaries in order."""
     from swarm.bench import NullProgress
     from swarm.evaluate import evaluate
-    from swarm.policy_spec import build_policy, resolve_policies
+    from swarm.policy_spec import build_policy, effective_checkpoint, resolve_policies
 
     names = resolve_policies(cfg.policy)
     if cfg.checkpoint is not None and len(names) > 1:
@@ -218,7 +218,8 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
         progress.start(f"eval {name}", cfg.episodes)
         res = evaluate(world, policy, cfg.seed, cfg.episodes, batch=cfg.batch, greedy=cfg.greedy,
                        on_progress=progress.advance, faults=faults)
-        out.append({**res.summary(world), "policy": name, "checkpoint": cfg.checkpoint,
+        out.append({**res.summary(world), "policy": name,
+                    "checkpoint": effective_checkpoint(name, cfg.checkpoint),
                     **({"faults": faults.describe()} if faults is not None else {})})
     return out
 

@@ -42,12 +42,29 @@ def load_class(name: str) -> type[Policy]:
         raise ConfigError(f"policy {name!r} is registered but cannot be imported: {exc}") from None
 
 
+SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"
+
+
+def effective_checkpoint(name: str, checkpoint: str | None) -> str | None:
+    """The checkpoint a policy runs with: the one given, else for a learned policy the one
+    shipped as checkpoints/NAME.pt (a learned policy never runs on untrained weights by
+    accident; `swarm train` makes fresh ones)."""
+    if checkpoint is not None or not load_class(name).learned:
+        return checkpoint
+    shipped = SHIPPED / f"{name}.pt"
+    if not shipped.is_file():
+        raise ConfigError(f"policy {name!r} needs --checkpoint FILE (no {shipped} shipped)")
+    return str(shipped)
+
+
 def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> Policy:
-    """Instantiate policy `name` for `cfg`; learned policies load `checkpoint` when one is given.
+    """Instantiate policy `name` for `cfg`; learned policies load `checkpoint` (by default the
+    shipped one, see `effective_checkpoint`).
 
     A learned policy class loads a checkpoint through its constructor: `cls(cfg, checkpoint=path)`.
     """
     cls = load_class(name)
+    checkpoint = effective_checkpoint(name, checkpoint)
     if checkpoint is None:
         return cls(cfg)
     if not cls.learned:

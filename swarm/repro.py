@@ -95,14 +95,12 @@ class ReproConfig:
 
     def checkpoint(self, name: str) -> str | None:
         """The checkpoint of policy `name`: given, else shipped (learned policies), else None."""
-        if name in self.checkpoints:
-            return self.checkpoints[name]
-        shipped = CHECKPOINT_DIR / f"{name}.pt"
-        if name in LEARNED:
-            if not shipped.is_file():
-                raise ConfigError(f"no checkpoint for {name}: pass --checkpoint {name}=FILE")
-            return str(shipped)
-        return None
+        from swarm.policy_spec import effective_checkpoint
+
+        try:
+            return effective_checkpoint(name, self.checkpoints.get(name))
+        except ConfigError:
+            raise ConfigError(f"no checkpoint for {name}: pass --checkpoint {name}=FILE") from None
 
     def curve(self, name: str) -> Path:
         return Path(self.curves.get(name, CHECKPOINT_DIR / f"{name}_curve.csv"))

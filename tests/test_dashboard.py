@@ -51,3 +51,16 @@ def test_robot_table_counts_and_lost_robot() -> None:
     assert cells[2:10] == ["acting", "2,3", "12", "9", "1.5", "0", "3", "0"]
     assert "lost" in rows["2"]
     assert v.timeouts == 1
+
+
+def test_learner_panel_shows_version_episodes_curve_and_traffic() -> None:
+    v = _view()
+    assert "learner" not in _text(render(v))
+    v.learner = {"version": 7, "episodes": 70, "updates": 7, "ready": 3, "pending": 1,
+                 "curve": [0.5, 0.6, 0.7], "last": {"loss": 0.0123}, "rollout_bytes_per_s": 4200.0,
+                 "stale_used": 2, "stale_dropped": 1, "incomplete": 0, "bad": 0}
+    text = _text(render(v))
+    assert "weights version" in text and " 7" in text
+    assert "70 (waiting 3, joining 1)" in text
+    assert "▁▅█  0.700" in text  # the learning curve as a sparkline, last value
+    assert "4200" in text and "2 / 1" in text and "0.0123" in text
