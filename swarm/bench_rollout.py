@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import statistics
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -24,6 +23,7 @@ import zenoh
 from swarm.bench import int_list
 from swarm.keys import Keys
 from swarm.messages import K_LSTATUS, BadMessage, unpack_record
+from swarm.supervisor import _cli, _wait_port
 from swarm.zconfig import ZenohOptions, free_port
 from world.config import ConfigError
 
@@ -54,10 +54,6 @@ class RolloutBenchConfig:
             raise ConfigError("batch, threads, repeats must be >= 1 and seconds > 0")
 
 
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "swarm.cli", *args]
-
-
 def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
     port = free_port()
     hub = f"tcp/127.0.0.1:{port}"
@@ -80,7 +76,7 @@ def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
             _cli("learner", "--run-id", run_id, "--policy", cfg.policy, "--gather-only",
                  "--out", str(tmp / f"learner{k}"), "--zenoh-mode", "router", "--listen", hub),
             stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL))
-        _wait_listen(port, procs[0])
+        _wait_port("127.0.0.1", port, procs[0], 60.0, "learner")
         with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
             sub = session.declare_subscriber(Keys(run_id).learner_status, on_status)
             for w in range(k):
@@ -122,21 +118,6 @@ def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
         log.close()
     return {"workers": k, "episodes_per_s": statistics.median(rates),
             "episodes_per_s_windows": rates, "rollout_bytes_per_s": statistics.median(byte_rates)}
-
-
-def _wait_listen(port: int, proc: subprocess.Popen[bytes], timeout: float = 60.0) -> None:
-    import socket
-
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"the learner exited with code {proc.returncode}")
-        with socket.socket() as s:
-            s.settimeout(0.2)
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.05)
-    raise TimeoutError("the learner did not listen")
 
 
 def bench_rollout(cfg: RolloutBenchConfig, on_row: Any = None) -> dict[str, Any]:

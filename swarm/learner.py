@@ -193,8 +193,8 @@ def check_weights(policy: LearnedPolicy, w: Weights) -> None:
                          f"({w.model})")
     state = policy.net.state_dict()
     if set(w.tensors) != set(state):
-        raise BadMessage(f"weights v{w.version} have tensors {sorted(set(w.tensors) ^ set(state))[:3]}"
-                         " that do not fit")
+        odd = sorted(set(w.tensors) ^ set(state))[:3]
+        raise BadMessage(f"weights v{w.version} have tensors {odd} that do not fit")
     for k, v in state.items():
         if tuple(w.tensors[k].shape) != tuple(v.shape):
             raise BadMessage(f"weights v{w.version}: {k} has shape {tuple(w.tensors[k].shape)}, "

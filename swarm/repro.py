@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from policies import BASELINES
 from swarm import atomic
 from swarm.bench import (
     NullProgress,

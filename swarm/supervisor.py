@@ -76,17 +76,20 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "swarm.cli", *args]
 
 
-def _wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: float) -> None:
+def _wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: float,
+               name: str = "world") -> None:
+    """Wait until `proc` (the hub: world or learner) accepts connections on host:port."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if proc.poll() is not None:
-            raise RuntimeError(f"world process exited with code {proc.returncode} before listening")
+            raise RuntimeError(f"{name} process exited with code {proc.returncode} before "
+                               "listening")
         with socket.socket() as s:
             s.settimeout(0.2)
             if s.connect_ex((host, port)) == 0:
                 return
         time.sleep(0.05)
-    raise TimeoutError(f"world did not listen on {host}:{port} within {timeout:g} s")
+    raise TimeoutError(f"{name} did not listen on {host}:{port} within {timeout:g} s")
 
 
 class Supervisor:

@@ -27,14 +27,6 @@ TINY = WorldConfig(height=6, width=6, n_static=4, n_dynamic=3, n_robots=3, horiz
                    vision=3, comm_range=float("inf"))
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def quiet() -> Console:
     return Console(file=io.StringIO())
 

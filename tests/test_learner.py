@@ -32,14 +32,6 @@ SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=3, hori
                     add_every=2, vision=3, comm_range=4.0, recent_len=4)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def swarm(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
                           capture_output=True, timeout=timeout)
@@ -132,9 +124,9 @@ def _listening(hub: str, timeout: float = 60.0) -> None:
 
 
 def _hub(run_id: str, timeout: float = 60.0) -> str:
-    from swarm.supervisor import _registry
-
     import socket
+
+    from swarm.supervisor import _registry
 
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -270,10 +262,11 @@ def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> Non
         with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
             sub = session.declare_subscriber(Keys("dur").weights, on_weights)
             deadline = time.monotonic() + 90
-            while time.monotonic() < deadline and max(seen, default=0) < ck["learner"]["version"] + 2:
+            target = ck["learner"]["version"] + 2
+            while time.monotonic() < deadline and max(seen, default=0) < target:
                 time.sleep(0.05)
             sub.undeclare()
-        assert max(seen) >= ck["learner"]["version"] + 2, (seen, (tmp_path / "l2.log").read_text()[-800:])
+        assert max(seen) >= target, (seen, (tmp_path / "l2.log").read_text()[-800:])
     finally:
         for p in (learner, worker):
             if p is not None and p.poll() is None:
