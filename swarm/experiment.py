@@ -5,8 +5,8 @@ The file is a TOML experiment: `[world]`, `[run]`, a base `[faults]` table, and 
 `policies`, `seeds`, optional `checkpoints = {name = "file"}` and `out`. Every (policy, value,
 seed) is one `swarm run` (world + robot processes over Zenoh). After each run the CSV is
 rewritten atomically, so a killed sweep keeps every finished point and `--resume` skips them.
-Outputs: `<name>.csv` (one row per run), `<name>.md` and `<name>.png` (elratio, collisions and
-success against the fault level, one line per policy, error bars = std over seeds).
+Outputs: `<name>.csv` (one row per run), `<name>.md` and `<name>.png` (elratio, collisions,
+success and ticks/s against the fault level, one line per policy, error bars = std over seeds).
 """
 
 from __future__ import annotations
@@ -153,8 +153,8 @@ def write_summary(rows: list[dict[str, Any]], exp: ExperimentConfig, out_dir: Pa
     lines = [f"Made by `{command}` (seeds {', '.join(map(str, exp.seeds))}).", "",
              f"| policy | {exp.parameter} | elratio | collisions | success | ticks/s |",
              "|---|---|---|---|---|---|"]
-    keys = ("elratio_mean", "collisions_mean", "success_rate")
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    keys = ("elratio_mean", "collisions_mean", "success_rate", "ticks_per_s")
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
     xs = list(range(len(exp.values)))
     for policy in exp.policies:
         for key, ax in zip(keys, axes):
@@ -162,8 +162,7 @@ def write_summary(rows: list[dict[str, Any]], exp: ExperimentConfig, out_dir: Pa
             ax.errorbar(xs, [s[0] for s in stats], yerr=[s[1] for s in stats], marker="o",
                         capsize=3, label=policy)
         for v in exp.values:
-            e, c, s = (_stats(rows, policy, v, k) for k in keys)
-            tps = _stats(rows, policy, v, "ticks_per_s")
+            e, c, s, tps = (_stats(rows, policy, v, k) for k in keys)
             lines.append(f"| {policy} | {v} | {e[0]:.3f} ± {e[1]:.3f} | {c[0]:.1f} | "
                          f"{s[0]:.2f} | {tps[0]:.1f} |")
     for key, ax in zip(keys, axes):

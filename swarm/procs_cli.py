@@ -46,6 +46,8 @@ def _add_train_flags(p: argparse.ArgumentParser) -> None:
                    help="episodes per learner update (default 10 with --train)")
     g.add_argument("--learner-out", metavar="DIR",
                    help="the learner's checkpoint and curve (default: LOG_DIR/learner)")
+    g.add_argument("--rollout-loss", type=float, metavar="P",
+                   help="drop each robot's episode record to the learner with probability P")
 
 
 def _add_fault_flags(p: argparse.ArgumentParser) -> None:
@@ -85,7 +87,8 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
              "first_episode": args.first_episode, "run_id": args.run_id,
              "tick_timeout": args.tick_timeout, "seed": args.seed, "pace": args.pace,
              "greedy": False if args.sample or getattr(args, "train", None) else None,
-             "train": getattr(args, "train", None)}
+             "train": getattr(args, "train", None),
+             "rollout_loss": getattr(args, "rollout_loss", None)}
     table = dict(tables.get("run", {}))
     given = {k: v for k, v in flags.items() if v is not None}
     data = {**table, **given}

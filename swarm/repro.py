@@ -368,7 +368,10 @@ def plot_curve(csv_path: Path, png_path: Path, title: str, smooth: int = 25) -> 
         for ax in axes:
             ax.set_xlabel("training episodes (thousands)")
             ax.grid(alpha=0.3)
-        axes[0].set_title(title, fontsize=9, loc="left")
+        import textwrap
+
+        axes[0].figure.suptitle("\n".join(textwrap.wrap(title, 170)), fontsize=8, x=0.01,
+                                ha="left")
 
     save_png(Path(png_path), draw, ncols=2)
 

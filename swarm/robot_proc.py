@@ -30,6 +30,7 @@ from world.config import WorldConfig, from_dict
 from world.decentral import TrajMessages, robot_view
 
 log = logging.getLogger("swarm.robot")
+ROLLOUT_STREAM = 7  # counter-based noise stream of the rollout-loss fault
 
 
 @dataclass
@@ -44,6 +45,7 @@ class RobotCounters:
     missed_hidden: int = 0  # predecessor's hidden-state message lost or late: decoded without
     last_latency_ms: float = 0.0
     weights_bad: int = 0  # weights messages rejected (wrong policy, shape or version)
+    rollouts_lost: int = 0  # episode records dropped by the injected rollout loss
     bad_by_key: dict[str, int] = field(default_factory=dict)
 
 
@@ -236,11 +238,18 @@ class RobotProcess:
         if obs.done:
             if self.train and self.record and self.roll_pub is not None:
                 from swarm.messages import RobotRollout
+                from world.noise import uniform
 
-                payload = RobotRollout(obs.ep, r, self.record).pack()
-                self.roll_pub.put(payload)
-                self.c.msgs_out += 1
-                self.c.bytes_out += len(payload)
+                lost = self.run_cfg.rollout_loss > 0 and float(uniform(
+                    self.run_cfg.seed, obs.ep, 0, r, 1, stream=ROLLOUT_STREAM)[0]) < \
+                    self.run_cfg.rollout_loss
+                if lost:  # the injected rollout-traffic fault: the learner never hears it
+                    self.c.rollouts_lost += 1
+                else:
+                    payload = RobotRollout(obs.ep, r, self.record).pack()
+                    self.roll_pub.put(payload)
+                    self.c.msgs_out += 1
+                    self.c.bytes_out += len(payload)
             self.record = []
             return
         t_recv = time.monotonic()
@@ -302,7 +311,7 @@ class RobotProcess:
                "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
                "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
                "latency_ms": self.c.last_latency_ms, "version": self.version,
-               "weights_bad": self.c.weights_bad}
+               "weights_bad": self.c.weights_bad, "rollouts_lost": self.c.rollouts_lost}
         self.status_pub.put(pack_record(K_RSTATUS, rec))
 
     def run(self, wait_world: float = 30.0) -> RobotCounters:

@@ -34,6 +34,9 @@ class RunConfig:
     train: bool = False
     """Learning in the field: robots record their episodes for the learner and adopt its
     weights at episode boundaries; the world publishes each episode's rewards."""
+    rollout_loss: float = 0.0
+    """With `train`: each robot drops its episode record with this probability (seeded, like
+    the radio's loss), a fault on the rollout traffic to the learner."""
 
     def __post_init__(self) -> None:
         from swarm.keys import check_run_id
@@ -45,3 +48,5 @@ class RunConfig:
             raise ValueError(f"pace must be >= 0, got {self.pace}")
         if self.tick_timeout <= 0 or self.start_timeout <= 0:
             raise ValueError("timeouts must be > 0")
+        if not 0.0 <= self.rollout_loss <= 1.0:
+            raise ValueError(f"rollout_loss must lie in [0, 1], got {self.rollout_loss}")

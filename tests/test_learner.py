@@ -300,3 +300,23 @@ def test_short_field_training_improves_mean_reward(tmp_path: Path) -> None:
     reward = [float(row["reward"]) for row in rows]
     first, last = np.mean(reward[:8]), np.mean(reward[-8:])
     assert last > first + 2, (first, last, reward)
+
+
+def test_rollout_loss_drops_records_and_the_learner_counts_incomplete_episodes(
+        tmp_path: Path) -> None:
+    """A fault on the rollout traffic: robots drop their episode records with the seeded
+    probability; the learner drops those episodes as incomplete (counted), never trains on them."""
+    toml = world_toml(tmp_path, SMALL)
+    r = swarm("run", "--train", "--headless", "--config", str(toml), "--policy", "vain",
+              "--episodes", "12", "--train-batch", "2", "--rollout-loss", "0.5", "--seed", "4",
+              "--run-id", "rloss", "--learner-out", str(tmp_path / "l"),
+              "--json", str(tmp_path / "r.json"))
+    assert r.returncode == 0, r.stderr[-2000:]
+    st = json.loads((tmp_path / "r.json").read_text())["learner"]
+    from world.noise import uniform
+
+    lost = {(ep, i) for ep in range(12) for i in range(SMALL.n_robots)
+            if uniform(4, ep, 0, i, 1, stream=7)[0] < 0.5}
+    hit = {ep for ep, _ in lost}
+    assert st["incomplete"] == len(hit) and st["episodes"] + st["stale_dropped"] == 12 - len(hit)
+    assert 0 < len(hit) < 12
