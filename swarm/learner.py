@@ -337,11 +337,12 @@ class Learner:
                 if Keys.robot_of(key) != rr.robot:
                     raise BadMessage(f"robot id {rr.robot} does not match key")
                 self.c.robot_records += 1
-                self.pending.setdefault(rr.ep, {"robots": {}})["robots"][rr.robot] = rr
+                slot = self.pending.setdefault(rr.ep, {"robots": {}, "first": time.monotonic()})
+                slot["robots"][rr.robot] = rr
             elif kind == "world":
                 wr = EpisodeRecord.unpack(payload, self.cfg)
                 self.c.world_records += 1
-                slot = self.pending.setdefault(wr.ep, {"robots": {}})
+                slot = self.pending.setdefault(wr.ep, {"robots": {}, "first": time.monotonic()})
                 slot["world"], slot["t"] = wr, time.monotonic()
             else:
                 er = EpisodeRollout.unpack(payload, self.cfg)
@@ -366,7 +367,11 @@ class Learner:
         for ep in sorted(self.pending):
             slot = self.pending[ep]
             wr = slot.get("world")
-            if wr is None:
+            if wr is None:  # robots' records whose world record never came: give up on them
+                if now - slot["first"] > 4 * self.lc.join_timeout:
+                    del self.pending[ep]
+                    self.c.incomplete += 1
+                    log.warning("learner dropped episode %d: no world record", ep)
                 continue
             acted = set(np.flatnonzero(wr.acted.any(0)).tolist())
             complete = acted <= set(slot["robots"])
