@@ -168,14 +168,19 @@ def links_in_range(v: SwarmView) -> int:
 
 def render_robots(v: SwarmView) -> Table:
     table = Table(title="robots", expand=True, pad_edge=False)
-    for col in ("id", "state", "pos", "in", "out", "lat ms", "missed", "bad", "restarts"):
+    cols = ["id", "state", "pos", "in", "out", "lat ms", "missed", "bad", "restarts"]
+    if v.learner is not None:  # field training: the weights version each robot acts with
+        cols += ["weights"]
+    for col in cols:
         table.add_column(col, justify="right" if col not in ("state",) else "left")
     for i in sorted(v.robots):
         r = v.robots[i]
         state = Text(r.state, style="green" if r.alive else "red")
+        extra = [f"v{r.version}" + (f" ({r.weights_bad} bad)" if r.weights_bad else "")] \
+            if v.learner is not None else []
         table.add_row(str(i), state, "-" if r.pos is None else f"{r.pos[0]},{r.pos[1]}",
                       str(r.msgs_in), str(r.msgs_out), f"{r.latency_ms:.1f}", str(r.missed),
-                      str(r.bad), str(r.restarts))
+                      str(r.bad), str(r.restarts), *extra)
     return table
 
 

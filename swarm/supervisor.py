@@ -29,6 +29,7 @@ from swarm.atomic import write_json
 from swarm.dashboard import SwarmView, render
 from swarm.faults import ProcessFault, parse_process, plan_from_table
 from swarm.keys import Keys
+from swarm.netns import KernelFaults, Topology
 from swarm.messages import (
     K_CONTROL,
     K_LSTATUS,
@@ -56,6 +57,9 @@ class SuperviseOptions:
     """Start a robot process again when it dies."""
     log_dir: str | None = None
     """Children's stderr goes to files here (default: a temporary directory)."""
+    netns: KernelFaults | None = None
+    """Kernel-level realism (swarm/netns.py): world and robots in network namespaces joined by
+    veth pairs, with these kernel faults on the robot links; None: everything on loopback."""
 
 
 def _registry(run_id: str) -> Path:
@@ -110,6 +114,7 @@ class Supervisor:
         self.keys = Keys(run.run_id)
         self.port = free_port()
         self.hub = f"tcp/127.0.0.1:{self.port}"
+        self.topo = None if opts.netns is None else Topology(run.run_id, cfg.n_robots, opts.netns)
         self.tmp = Path(tempfile.mkdtemp(prefix=f"swarm-{run.run_id}-"))
         self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -125,16 +130,20 @@ class Supervisor:
         self.pss_mb: dict[str, float] = {}  # peak proportional set size per child
         self._last_rss = 0.0
 
-    def _spawn(self, args: list[str], name: str) -> subprocess.Popen[bytes]:
+    def _spawn(self, args: list[str], name: str, ns: str | None = None) -> subprocess.Popen[bytes]:
         err = open(self.log_dir / f"{name}.log", "ab")
         env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-        return subprocess.Popen(_cli(*args), stdout=subprocess.DEVNULL, stderr=err,
+        prefix = self.topo.exec_prefix(ns) if self.topo is not None and ns else []
+        return subprocess.Popen([*prefix, *_cli(*args)], stdout=subprocess.DEVNULL, stderr=err,
                                 stdin=subprocess.DEVNULL, env=env)
 
     def spawn_robot(self, i: int) -> None:
+        hub, ns = self.hub, None
+        if self.topo is not None:  # its own namespace, through its link to the world
+            hub, ns = f"tcp/{self.topo.world_addr(i)}:{self.port}", self.topo.robot_ns[i]
         self.robots[i] = self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
-                                      "--connect", self.hub, "--zenoh-mode", "client"],
-                                     f"robot{i}")
+                                      "--connect", hub, "--zenoh-mode", "client"],
+                                     f"robot{i}", ns)
 
     def _initial_weights(self) -> None:
         """--train without --checkpoint: one fresh network (torch seed = run seed) saved for the
@@ -162,11 +171,18 @@ class Supervisor:
             self._initial_weights()
         write_json(spec, {"world": to_dict(self.cfg), "run": asdict(self.run_cfg),
                           "faults": self.faults, **(self.learning or {})})
+        listen, host, ns = [self.hub], "127.0.0.1", None
+        if self.topo is not None:  # the world listens on each of its veths, in its namespace
+            self.topo.up()
+            host, ns = self.topo.hub_addr, self.topo.world_ns
+            self.hub = f"tcp/{host}:{self.port}"
+            listen = [f"tcp/{a}:{self.port}" for a in self.topo.world_listen()]
         write_json(_registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
-        self.world = self._spawn(["world", "--spec", str(spec), "--listen", self.hub,
-                                  "--zenoh-mode", "router"], "world")
-        _wait_port("127.0.0.1", self.port, self.world, 30.0)
+        self.world = self._spawn(["world", "--spec", str(spec),
+                                  *(x for e in listen for x in ("--listen", e)),
+                                  "--zenoh-mode", "router"], "world", ns)
+        _wait_port(host, self.port, self.world, 30.0)
         if self.learning is not None:
             out = self.learning["learner"].get("out") or str(self.log_dir / "learner")
             self.learner_out = out
@@ -253,8 +269,17 @@ class Supervisor:
                 self.spawn_robot(f.robot)
 
     def supervise(self) -> dict[str, Any]:
-        conf = ZenohOptions(mode="client", connect=[self.hub]).to_config()
+        if self.topo is None:
+            return self._supervise()
+        try:  # whatever happens, no process and no namespace of the run is left behind
+            return self._supervise()
+        finally:
+            self.stop_all()
+            self.topo.down()
+
+    def _supervise(self) -> dict[str, Any]:
         t_start = self.start()
+        conf = ZenohOptions(mode="client", connect=[self.hub]).to_config()
         first_tick: float | None = None
         with zenoh.open(conf) as session:
             q, k = self.q, self.keys
@@ -329,6 +354,8 @@ class Supervisor:
                                         "bad": r.bad, "missed": r.missed,
                                         "version": r.version, "weights_bad": r.weights_bad}
                                for i, r in self.view.robots.items()}
+        if self.topo is not None:
+            res["netns"] = self.topo.describe()
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res
