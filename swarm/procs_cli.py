@@ -66,6 +66,37 @@ def _add_fault_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
 
 
+def _add_netns_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("kernel-level realism (root; see swarm/netns.py)")
+    g.add_argument("--netns", action="store_true",
+                   help="world and robots in network namespaces joined by veth pairs")
+    g.add_argument("--kernel-loss", metavar="P",
+                   help="with --netns: packet drop probability per direction of each robot link "
+                        "(iptables statistic; TCP retransmits, so messages arrive late)")
+    g.add_argument("--kernel-bandwidth", metavar="RATE",
+                   help="with --netns: tc tbf cap per direction of each robot link, e.g. 8kB/s")
+    g.add_argument("--netns-lease", metavar="DUR",
+                   help="with --netns: Zenoh lease of every session (default 1s); TCP's "
+                        "retransmission backoff under loss can outlast a short one")
+    g.add_argument("--netns-transport", choices=["tcp", "udp"],
+                   help="with --netns: the robots' Zenoh link (default tcp; udp is best effort)")
+
+
+def netns_faults(args: argparse.Namespace) -> Any:
+    """The NetnsConfig of `--netns` (None without it); kernel flags need --netns."""
+    from swarm.netns import NetnsConfig, check_tools
+
+    given = [getattr(args, k, None) for k in ("kernel_loss", "kernel_bandwidth", "netns_lease",
+                                              "netns_transport")]
+    if not getattr(args, "netns", False):
+        if any(v is not None for v in given):
+            raise ConfigError("--kernel-loss, --kernel-bandwidth and --netns-* flags need --netns")
+        return None
+    faults = NetnsConfig.parse(*given)
+    check_tools(faults)  # not root, or a tool missing: one line before any spawn
+    return faults
+
+
 def fault_table(args: argparse.Namespace, tables: dict[str, Any]) -> dict[str, Any]:
     """The `[faults]` table of the file overridden by the fault flags given."""
     table = dict(tables.get("faults", {}))
@@ -133,7 +164,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             and out.is_terminal:
         run = dataclasses.replace(run, pace=8.0)  # watchable by default on a terminal
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
-                            restart_crashed=args.restart_crashed, log_dir=args.log_dir)
+                            restart_crashed=args.restart_crashed, log_dir=args.log_dir,
+                            netns=netns_faults(args))
     learning = None
     if run.train:
         from policies import policy_class
@@ -337,6 +369,7 @@ def add_parsers(sub: Any, add_common: Any, add_world: Any) -> None:
     add_world(p)
     _add_run_flags(p)
     _add_fault_flags(p)
+    _add_netns_flags(p)
     _add_train_flags(p)
     p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
     p.add_argument("--restart-crashed", action="store_true", help="restart robots that die")

@@ -3,7 +3,8 @@
 Every child is a fresh interpreter (subprocess, never fork: a forked Zenoh session hangs). The
 world listens on a free loopback port; robots and the supervisor's own session connect to it.
 Ctrl-C (or any exit) sends SIGINT to every child, then SIGKILL to whatever is left after 2 s,
-so no process of the run outlives it.
+so no process of the run outlives it. With `--netns` (swarm/netns.py) the world and each robot run
+in network namespaces of their own, joined by veth pairs, and the kernel applies the link faults.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ from swarm.atomic import write_json
 from swarm.dashboard import SwarmView, render
 from swarm.faults import ProcessFault, parse_process, plan_from_table
 from swarm.keys import Keys
-from swarm.netns import KernelFaults, Topology
 from swarm.messages import (
     K_CONTROL,
     K_LSTATUS,
@@ -40,6 +40,7 @@ from swarm.messages import (
     pack_record,
     unpack_record,
 )
+from swarm.netns import NetnsConfig, Topology
 from swarm.runconfig import RunConfig
 from swarm.zconfig import ZenohOptions, free_port
 from world.config import ConfigError, WorldConfig, to_dict
@@ -57,7 +58,7 @@ class SuperviseOptions:
     """Start a robot process again when it dies."""
     log_dir: str | None = None
     """Children's stderr goes to files here (default: a temporary directory)."""
-    netns: KernelFaults | None = None
+    netns: NetnsConfig | None = None
     """Kernel-level realism (swarm/netns.py): world and robots in network namespaces joined by
     veth pairs, with these kernel faults on the robot links; None: everything on loopback."""
 
@@ -115,6 +116,7 @@ class Supervisor:
         self.port = free_port()
         self.hub = f"tcp/127.0.0.1:{self.port}"
         self.topo = None if opts.netns is None else Topology(run.run_id, cfg.n_robots, opts.netns)
+        self.zcfg = [] if opts.netns is None else opts.netns.zenoh_cfg()  # --cfg of every session
         self.tmp = Path(tempfile.mkdtemp(prefix=f"swarm-{run.run_id}-"))
         self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -134,13 +136,14 @@ class Supervisor:
         err = open(self.log_dir / f"{name}.log", "ab")
         env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
         prefix = self.topo.exec_prefix(ns) if self.topo is not None and ns else []
+        args = [*args, *(x for c in self.zcfg for x in ("--cfg", c))]
         return subprocess.Popen([*prefix, *_cli(*args)], stdout=subprocess.DEVNULL, stderr=err,
                                 stdin=subprocess.DEVNULL, env=env)
 
     def spawn_robot(self, i: int) -> None:
         hub, ns = self.hub, None
         if self.topo is not None:  # its own namespace, through its link to the world
-            hub, ns = f"tcp/{self.topo.world_addr(i)}:{self.port}", self.topo.robot_ns[i]
+            hub, ns = self.topo.robot_endpoint(i, self.port), self.topo.robot_ns[i]
         self.robots[i] = self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
                                       "--connect", hub, "--zenoh-mode", "client"],
                                      f"robot{i}", ns)
@@ -176,7 +179,7 @@ class Supervisor:
             self.topo.up()
             host, ns = self.topo.hub_addr, self.topo.world_ns
             self.hub = f"tcp/{host}:{self.port}"
-            listen = [f"tcp/{a}:{self.port}" for a in self.topo.world_listen()]
+            listen = self.topo.world_listen(self.port)
         write_json(_registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
         self.world = self._spawn(["world", "--spec", str(spec),
@@ -279,7 +282,7 @@ class Supervisor:
 
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()
-        conf = ZenohOptions(mode="client", connect=[self.hub]).to_config()
+        conf = ZenohOptions(mode="client", connect=[self.hub], cfg=self.zcfg).to_config()
         first_tick: float | None = None
         with zenoh.open(conf) as session:
             q, k = self.q, self.keys
@@ -354,8 +357,9 @@ class Supervisor:
                                         "bad": r.bad, "missed": r.missed,
                                         "version": r.version, "weights_bad": r.weights_bad}
                                for i, r in self.view.robots.items()}
-        if self.topo is not None:
-            res["netns"] = self.topo.describe()
+        if self.topo is not None:  # a robot whose session never opened is in no other count
+            res["netns"] = {**self.topo.describe(), "never_joined": sum(
+                r.state == "starting" for r in self.view.robots.values())}
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res

@@ -1,0 +1,118 @@
+"""Kernel-level realism (`swarm run --netns`): real namespaces, veths, tc and iptables."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from swarm.netns import NetnsConfig, Topology, namespaces
+from world.config import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _netns_reason() -> str | None:
+    if os.geteuid() != 0:
+        return "needs root (network namespaces)"
+    if shutil.which("ip") is None:
+        return "`ip` (iproute2) is not installed"
+    p = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True)
+    return None if p.returncode == 0 else f"`ip netns` unavailable: {p.stderr.strip()}"
+
+
+REASON = _netns_reason()
+pytestmark = pytest.mark.skipif(REASON is not None, reason=REASON or "")
+
+
+def swarm(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
+                          capture_output=True, timeout=timeout)
+
+
+def ours(run_id: str) -> list[str]:
+    return [ns for ns in namespaces() if ns.startswith(f"swarm-{run_id}-")]
+
+
+def link_exists(name: str) -> bool:
+    return subprocess.run(["ip", "link", "show", name], capture_output=True).returncode == 0
+
+
+def test_topology_up_down_leaves_no_namespace_behind() -> None:
+    topo = Topology("nsupdown", 2, NetnsConfig(bandwidth=8000.0))
+    with topo:
+        assert sorted(ours("nsupdown")) == ["swarm-nsupdown-r0", "swarm-nsupdown-r1",
+                                            "swarm-nsupdown-w"]
+        assert link_exists(topo.host_if) and len(topo.host_if) <= 15
+        qdisc = subprocess.run(["tc", "-n", topo.robot_ns[0], "qdisc", "show"],
+                               capture_output=True, text=True).stdout
+        assert "tbf" in qdisc and "64Kbit" in qdisc  # 8000 B/s
+    assert ours("nsupdown") == [] and not link_exists(topo.host_if)
+    with pytest.raises(RuntimeError, match="boom"), Topology("nsboom", 1):
+        assert ours("nsboom")
+        raise RuntimeError("boom")
+    assert ours("nsboom") == []  # teardown ran on the failure too
+
+
+def test_a_namespace_that_exists_already_is_refused_and_left_alone() -> None:
+    subprocess.run(["ip", "netns", "add", "swarm-nsclash-w"], check=True)
+    try:
+        with pytest.raises(ConfigError, match="exists already"):
+            Topology("nsclash", 1).up()
+        assert ours("nsclash") == ["swarm-nsclash-w"]
+    finally:
+        subprocess.run(["ip", "netns", "del", "swarm-nsclash-w"], check=True)
+
+
+def test_bad_use_is_a_one_line_error() -> None:
+    r = swarm("run", "--headless", "--robots", "2", "--kernel-loss", "0.1")
+    assert r.returncode != 0 and "need --netns" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    with pytest.raises(ConfigError, match="kernel loss"):
+        NetnsConfig.parse(loss="lots")
+
+
+def test_netns_run_takes_the_same_actions_as_loopback(tmp_path: Path) -> None:
+    common = ["run", "--headless", "--robots", "2", "--episodes", "1", "--policy",
+              "nearest-frontier", "--seed", "5"]
+    plain = swarm(*common, "--run-id", "nsplain", "--json", str(tmp_path / "a.json"))
+    kern = swarm(*common, "--netns", "--run-id", "nskern", "--json", str(tmp_path / "b.json"))
+    assert plain.returncode == 0, plain.stderr
+    assert kern.returncode == 0, kern.stderr
+    a, b = (json.loads((tmp_path / f).read_text()) for f in ("a.json", "b.json"))
+    assert b["netns"]["world_ns"] == "swarm-nskern-w"
+    assert a["actions"] == b["actions"]
+    assert b["timeouts"] == 0 and b["robots_lost"] == 0 and b["messages"]["late"] == 0
+    assert ours("nskern") == []
+
+
+@pytest.mark.skipif(shutil.which("iptables") is None, reason="iptables is not installed")
+def test_kernel_loss_makes_messages_late_or_robots_lost(tmp_path: Path) -> None:
+    """TCP turns dropped packets into retransmission delay: late messages and missed ticks,
+    and past the 1 s Zenoh lease, closed sessions (robots lost, or none joining at all). The
+    radio itself loses nothing."""
+    conf = tmp_path / "run.toml"
+    conf.write_text("[run]\nstart_timeout = 15.0\n")
+    damage = {}
+    for loss in ("0", "0.3"):
+        out = tmp_path / f"{loss}.json"
+        r = swarm("run", "--config", str(conf), "--headless", "--robots", "2", "--episodes", "1",
+                  "--policy", "nearest-frontier", "--tick-timeout", "0.5", "--netns",
+                  "--kernel-loss", loss, "--run-id", f"nsloss{loss.replace('.', '')}",
+                  "--json", str(out))
+        if loss != "0" and r.returncode != 0:  # no session survived long enough to join
+            assert "no robot came alive" in r.stderr, r.stderr
+            damage[loss] = 2
+            continue
+        assert r.returncode == 0, r.stderr
+        res = json.loads(out.read_text())
+        assert res["messages"]["lost"] == 0  # the radio drops nothing
+        damage[loss] = (res["messages"]["late"] + res["timeouts"] + res["robots_lost"]
+                        + res["netns"]["never_joined"])
+    assert damage["0"] == 0 and damage["0.3"] > 0, damage
+    assert ours("nsloss0") == [] and ours("nsloss03") == []
