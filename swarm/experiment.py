@@ -219,10 +219,7 @@ def write_summary(rows: list[dict[str, Any]], exp: ExperimentConfig, out_dir: Pa
     fig.suptitle(f"{exp.name}: real swarm under {exp.parameter} faults")
     fig.tight_layout()
     png = out_dir / f"{exp.name}.png"
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    atomic.write_bytes(png, buf.getvalue())
+    _save(fig, png)
     md = out_dir / f"{exp.name}.md"
     atomic.write_text(md, "\n".join(lines) + "\n")
     return [str(md), str(png)]
@@ -263,11 +260,18 @@ def write_comparison(rows: list[dict[str, Any]], other: list[dict[str, Any]],
                  fontsize=9)
     fig.tight_layout()
     png = out_dir / f"{exp.name}_compare.png"
+    _save(fig, png)
+    return str(png)
+
+
+def _save(fig: Any, png: Path) -> None:
+    """Write a matplotlib figure as PNG atomically and close it."""
+    import matplotlib.pyplot as plt
+
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
     atomic.write_bytes(png, buf.getvalue())
-    return str(png)
 
 
 def main(argv_path: str, resume: bool, out: str | None) -> int:
