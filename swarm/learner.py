@@ -352,6 +352,11 @@ class Learner:
             self._bad(key, str(exc))
 
     def _accept(self, er: EpisodeRollout) -> None:
+        if er.actions.shape[0] != self.cfg.horizon:  # a batch stacks whole episodes only
+            self.c.incomplete += 1
+            log.warning("learner dropped episode %d: %d of %d ticks", er.ep,
+                        er.actions.shape[0], self.cfg.horizon)
+            return
         if self.version - er.version > self.lc.max_staleness:
             self.c.stale_dropped += 1
             return
@@ -389,8 +394,6 @@ class Learner:
         if self.lc.gather_only or len(self.ready) < self.tc.batch:
             return False
         batch, self.ready = self.ready[:self.tc.batch], self.ready[self.tc.batch:]
-        ticks = batch[0].actions.shape[0]
-        batch = [e for e in batch if e.actions.shape[0] == ticks]
         t0 = time.perf_counter()
         roll = rollout_of(batch, self.policy)
         torch.set_flush_denormal(True)
@@ -434,8 +437,12 @@ class Learner:
                               "counters": dataclasses.asdict(self.c)}
         save_checkpoint(self.ckpt, payload)
 
-    def status(self, force: bool = False) -> dict[str, Any]:
+    def status(self, force: bool = False) -> dict[str, Any] | None:
+        """Publish the status record when it is due (or `force`d); returns it, None if not due."""
         now = time.monotonic()
+        if not force and now - self._last_status < self.lc.status_every:
+            return None
+        self._last_status = now
         rec = {"version": self.version, "episodes": self.c.episodes, "updates": self.c.updates,
                "pending": len(self.pending), "ready": len(self.ready),
                "stale_used": self.c.stale_used, "stale_dropped": self.c.stale_dropped,
@@ -446,9 +453,7 @@ class Learner:
                "curve": self.curve[-40:], "last": {k: self.last_row.get(k) for k in
                                                    ("elratio", "reward", "loss")},
                "wall": time.time()}
-        if force or now - self._last_status >= self.lc.status_every:
-            self._last_status = now
-            self.status_pub.put(pack_record(K_LSTATUS, rec))
+        self.status_pub.put(pack_record(K_LSTATUS, rec))
         return rec
 
     def run(self, seed: int, stop: Any = lambda: False) -> dict[str, Any]:
