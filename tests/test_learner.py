@@ -23,6 +23,7 @@ from policies.checkpoint import load_checkpoint, save_checkpoint
 from swarm.keys import Keys
 from swarm.learner import adopt, episodes_of, rollout_of, weights_of
 from swarm.messages import BadMessage, EpisodeRollout, RobotRollout, Weights
+from swarm.evaluate import evaluate
 from swarm.train import TrainConfig, collect, update
 from swarm.zconfig import ZenohOptions, free_port
 from world.config import WorldConfig
@@ -280,10 +281,15 @@ def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> Non
 
 
 def test_short_field_training_improves_mean_reward(tmp_path: Path) -> None:
-    """`swarm run --train` from fresh weights on a tiny static map: the learner's last updates
-    see a higher mean reward than its first ones (batched pilots of this setting: +9 to +17
-    over 6 seeds, 320 episodes; this run measured +6 and +14 over 5 updates)."""
+    """`swarm run --train` from fresh weights on a tiny static map: the learner's final weights
+    earn a higher mean reward than the initial ones on 400 held-out sampled episodes.
+
+    Judged by a batched evaluation of both weight sets on the same episodes, not by the noisy
+    per-update curve of the run itself (8 episodes an update; its first-vs-last gap ranged
+    from +1 to +14 over runs, since which episodes land in which update depends on timing)."""
     toml = tmp_path / "tiny.toml"
+    world = dict(height=6, width=6, n_static=3, n_dynamic=0, dynamic=False, n_robots=2,
+                 horizon=8, vision=3, comm_range=float("inf"), recent_len=4)
     toml.write_text("[world]\nheight = 6\nwidth = 6\nn_static = 3\nn_dynamic = 0\n"
                     "dynamic = false\nn_robots = 2\nhorizon = 8\nvision = 3\n"
                     "comm_range = inf\nrecent_len = 4\n"
@@ -296,9 +302,14 @@ def test_short_field_training_improves_mean_reward(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr[-2000:]
     rows = list(csv.DictReader((out / "curve.csv").open()))
     assert len(rows) >= 25, len(rows)
-    reward = [float(row["reward"]) for row in rows]
-    first, last = np.mean(reward[:8]), np.mean(reward[-8:])
-    assert last > first + 2, (first, last, reward)
+    cfg = WorldConfig(**world)  # type: ignore[arg-type]
+    torch.manual_seed(1)  # the run's initial weights: torch seed = run seed
+    before = make_policy("commattn", cfg)
+    after = make_policy("commattn", cfg, checkpoint=out / "checkpoint.pt")
+    assert load_checkpoint(out / "checkpoint.pt")["learner"]["version"] == len(rows)
+    reward = [evaluate(cfg, p, seed=12345, n_episodes=400, greedy=False).reward.mean()
+              for p in (before, after)]
+    assert reward[1] > reward[0] + 3, reward
 
 
 def test_rollout_loss_drops_records_and_the_learner_counts_incomplete_episodes(
