@@ -20,10 +20,10 @@ import zenoh
 
 from policies import make_policy
 from policies.checkpoint import load_checkpoint, save_checkpoint
+from swarm.evaluate import evaluate
 from swarm.keys import Keys
 from swarm.learner import adopt, episodes_of, rollout_of, weights_of
 from swarm.messages import BadMessage, EpisodeRollout, RobotRollout, Weights
-from swarm.evaluate import evaluate
 from swarm.train import TrainConfig, collect, update
 from swarm.zconfig import ZenohOptions, free_port
 from world.config import WorldConfig
