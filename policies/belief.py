@@ -22,7 +22,7 @@ import numpy as np
 from policies.base import receiver_index
 from policies.grid_search import pack
 from world.config import WorldConfig
-from world.decentral import View
+from world.decentral import TeamMemory, View
 
 UNKNOWN, FREE, BLOCK = 0, 1, 2  # codes of `Belief.known`
 
@@ -57,12 +57,17 @@ class Belief:
         dy, dx = np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1), indexing="ij")
         self.window = (dy * self.wp + dx).ravel()  # flat offsets of a patch, row-major
         self.known = np.zeros((0, cfg.n_robots, self.hp, self.wp), dtype=np.uint8)
-        self.visited = np.zeros((0, cfg.n_robots, cfg.cells), dtype=bool)
+        self.team = TeamMemory(cfg)
+
+    @property
+    def visited(self) -> np.ndarray:
+        """[G, N, H*W] the team-visited map of each slot (world.decentral.TeamMemory)."""
+        return self.team.visited
 
     def reset(self, groups: int) -> None:
         n = self.cfg.n_robots
         self.known = np.zeros((groups, n, self.hp, self.wp), dtype=np.uint8)  # padded grid
-        self.visited = np.zeros((groups, n, self.cfg.cells), dtype=bool)
+        self.team.reset(groups)
 
     def update(self, view: View) -> None:
         """Fold the messages each receiver heard this tick into its own row (tick 0 clears it)."""
@@ -70,7 +75,6 @@ class Belief:
             self.reset(view.groups)
         if view.tick == 0:  # a new episode, even if nobody called reset
             self.known[view.receivers] = UNKNOWN
-            self.visited[view.receivers] = False
         n = self.cfg.n_robots
         heard = view.hears & view.receivers[:, :, None]  # [G, N(receiver), N(sender)]
         g, i, j = np.nonzero(heard)
@@ -79,8 +83,7 @@ class Belief:
         code = view.msgs.patch[g, j].reshape(len(g), -1) & 3
         # Off-grid cells (code 2) land in the padding, which no search reads.
         self.known.reshape(-1)[centre[:, None] + self.window] = np.where(code == 0, FREE, BLOCK)
-        team = np.matmul(heard.astype(np.float32), view.msgs.visited.astype(np.float32))
-        self.visited |= team > 0
+        self.team.update(view)
 
     def snapshot(self, view: View) -> Snapshot:
         """Update with `view`, then the receivers' beliefs in receiver order (group-major)."""

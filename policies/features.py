@@ -197,7 +197,8 @@ def _bigru_packed(gru: nn.GRU, x: torch.Tensor, m: Members) -> Sequences:
 class Featurizer:
     """Turns a View into `Members` for its receivers; member_dim + pair_dim is the token width."""
 
-    def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0) -> None:
+    def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0,
+                 memory: bool = False) -> None:
         if crop < 1 or crop % 2 == 0:
             raise ValueError(f"crop must be a positive odd number, got {crop}")
         if team_pool < 0:
@@ -211,6 +212,9 @@ class Featurizer:
         self.member_dim = 3 * cfg.vision * cfg.vision + 2
         self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
         self.team_pool = team_pool
+        self.memory = memory  # the team map from view.team_visited (a TeamMemory), not this tick
+        if memory and not team_pool:
+            raise ValueError("a team memory needs the team map (team_pool > 0)")
         self.own_dim = 0
         if team_pool:
             # the coarse window: k x k blocks of p x p cells, its corner `team_half` cells up and
@@ -265,28 +269,40 @@ class Featurizer:
         own = None
         if self.team_pool:
             at = rows(pos, torch.from_numpy(g_np * n + i_np))
-            own = self._team(msgs.visited, heard, g_np, i_np, at)
+            if self.memory:
+                if view.team_visited is None:
+                    raise ValueError("this network reads the team memory, but the view has none "
+                                     "(LearnedPolicy.remember sets it)")
+                union = torch.from_numpy(view.team_visited[g_np, i_np])
+            else:
+                union = self._heard_union(msgs.visited, heard, g_np, i_np)
+            own = self._team(union, at)
         return Members(member_feats=member, pair_member=mrow, pair_feats=pair, lens=lens_t,
                        start=torch.cumsum(lens_t, 0) - lens_t, self_pos=self_pos,
                        group=g_np, robot=i_np, n=n, own_feats=own)
 
-    def _team(self, visited: np.ndarray, heard: np.ndarray, g: np.ndarray, i: np.ndarray,
-              where: torch.Tensor) -> torch.Tensor:
-        """Own features [R, Fo] of receivers (group g, robot i, cell `where` [R, 2]) hearing `heard`
-        [R, N]: the union of the heard visited bitmaps [G, N, H*W] as a crop and a coarse map.
+    @staticmethod
+    def _heard_union(visited: np.ndarray, heard: np.ndarray, g: np.ndarray,
+                     i: np.ndarray) -> torch.Tensor:
+        """[R, H*W] bool: the union of the visited bitmaps [G, N, H*W] each receiver (group g,
+        robot i) heard this tick (`heard` [R, N])."""
+        groups, n = visited.shape[0], visited.shape[1]
+        hears = np.zeros((groups, n, n), dtype=np.float32)  # receiver rows of each group
+        hears[g, i] = heard
+        vis = torch.from_numpy(visited.reshape(groups, n, -1)).float()
+        union = torch.bmm(torch.from_numpy(hears), vis)  # [G, N, H*W] heard visits per cell
+        return union.view(groups * n, -1)[torch.from_numpy(g * n + i)] > 0
+
+    def _team(self, union: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
+        """Own features [R, Fo] of receivers at cell `where` [R, 2] whose team-visited map is
+        `union` [R, H*W] bool, as a crop and a coarse map.
 
         Block sums of the not-yet-explored map come from its summed-area table at the block
         edges clamped to the grid, so off-grid cells count as explored (nothing to find there).
         """
         cfg, p, k = self.cfg, self.team_pool, self.team_k
         h, w = cfg.height, cfg.width
-        r = len(g)
-        groups, n = visited.shape[0], visited.shape[1]
-        hears = np.zeros((groups, n, n), dtype=np.float32)  # receiver rows of each group
-        hears[g, i] = heard
-        vis = torch.from_numpy(visited.reshape(groups, n, -1)).float()
-        union = torch.bmm(torch.from_numpy(hears), vis)  # [G, N, H*W] heard visits per cell
-        union = union.view(groups * n, -1)[torch.from_numpy(g * n + i)] > 0  # [R, H*W]
+        r = len(union)
         y, x = where[:, 0:1], where[:, 1:2]
         cy, cx = y + self.dy[None, :], x + self.dx[None, :]
         inside = (cy >= 0) & (cy < h) & (cx >= 0) & (cx < w)

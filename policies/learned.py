@@ -27,7 +27,7 @@ from policies.checkpoint import CheckpointError, load_checkpoint
 from policies.features import Featurizer, Members
 from world.config import ConfigError, WorldConfig, from_dict, to_dict
 from world.core import N_ACTIONS
-from world.decentral import View
+from world.decentral import TeamMemory, View
 from world.noise import uniform
 
 NO_ACTION = N_ACTIONS
@@ -61,7 +61,8 @@ class Evaluation:
 
 def featurizer(cfg: WorldConfig, model: Any) -> Featurizer:
     """The features a network of config `model` reads."""
-    return Featurizer(cfg, crop=model.crop, team_pool=getattr(model, "team_pool", 0))
+    return Featurizer(cfg, crop=model.crop, team_pool=getattr(model, "team_pool", 0),
+                      memory=getattr(model, "team_memory", False))
 
 
 def gumbel(view: View, group: np.ndarray, robot: np.ndarray) -> torch.Tensor:
@@ -101,6 +102,26 @@ class LearnedPolicy(Policy):
                                 self.features.own_dim)
         if state_dict is not None:
             self.net.load_state_dict(state_dict)
+        self.team = TeamMemory(cfg)
+
+    def set_model(self, **changes: Any) -> None:
+        """Change model-config fields that leave every weight shape alone (e.g. team_memory),
+        keeping the weights: how a checkpoint is fine-tuned with a memory it was not trained
+        with."""
+        model = dataclasses.replace(self.model_cfg, **changes)
+        feats = featurizer(self.cfg, model)
+        if (feats.member_dim, feats.pair_dim, feats.own_dim) != (
+                self.features.member_dim, self.features.pair_dim, self.features.own_dim):
+            raise ConfigError(f"{', '.join(changes)} would change the network's input width")
+        self.model_cfg, self.features = model, feats
+
+    def reset(self, groups: int) -> None:
+        self.team.reset(groups)
+
+    def remember(self, view: View) -> None:
+        """Fold the view into the receivers' team memory and attach it (networks that read it)."""
+        if self.features.memory and view.team_visited is None:
+            view.team_visited = self.team.update(view).copy()
 
     def _check(self, data: dict[str, Any], path: Path) -> tuple[Any, dict[str, torch.Tensor]]:
         """The model config and weights of a checkpoint, if they fit this policy and world."""
@@ -109,6 +130,7 @@ class LearnedPolicy(Policy):
                                   f"not {self.name!r}")
         fields = dict(data["model"])
         fields.setdefault("team_pool", 0)  # checkpoints from before the team map had none
+        fields.setdefault("team_memory", False)  # ... and from before the team memory
         try:
             model = from_dict(self.config_cls, fields, where=f"checkpoint {path} model")
         except ConfigError as exc:
@@ -152,6 +174,7 @@ class LearnedPolicy(Policy):
     def decide(self, view: View, greedy: bool = True, keep_inputs: bool = False) -> Decision:
         """Actions, values and (chained) decoder states of every receiver of the view;
         `keep_inputs` keeps the features for a later `evaluate` (the trainer)."""
+        self.remember(view)
         with torch.inference_mode():
             members = self.features(view)
             g, i = members.group, members.robot
@@ -196,6 +219,7 @@ class LearnedPolicy(Policy):
             raise TypeError(f"{self.name} is not a chained policy")
         if (view.receivers.sum(1) != 1).any():
             raise ValueError("act_with_chain needs exactly one receiver per group")
+        self.remember(view)
         with torch.inference_mode():
             members = self.features(view)
             order = np.argsort(members.group)  # group g's receiver is row order[g]

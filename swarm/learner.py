@@ -62,7 +62,7 @@ from swarm.train_config import TrainConfig
 from swarm.zconfig import ZenohOptions
 from world import core
 from world.config import ConfigError, WorldConfig, from_dict, to_dict
-from world.decentral import TrajMessages, View
+from world.decentral import TrajMessages, View, remember
 
 log = logging.getLogger("swarm.learner")
 
@@ -99,20 +99,22 @@ def rollout_of(eps: list[EpisodeRollout], policy: LearnedPolicy) -> Rollout:
     if any(e.actions.shape[0] != ticks for e in eps):
         raise ValueError("episodes of different lengths")
     st = lambda name, t: np.stack([getattr(e, name)[t] for e in eps])  # noqa: E731
-    views, actions, inputs, values = [], [], [], []
-    for t in range(ticks):
-        msgs = TrajMessages(st("pos", t), st("visited", t), st("recent", t), st("patch", t),
-                            st("present", t))
-        view = View(seed=eps[0].seed, episodes=np.array([e.ep for e in eps], dtype=np.int64),
-                    tick=t, msgs=msgs, hears=st("hears", t), receivers=st("receivers", t),
-                    last_reward=st("last_reward", t), chain_ok=st("chain_ok", t))
+    views = [View(seed=eps[0].seed, episodes=np.array([e.ep for e in eps], dtype=np.int64),
+                  tick=t, msgs=TrajMessages(st("pos", t), st("visited", t), st("recent", t),
+                                            st("patch", t), st("present", t)),
+                  hears=st("hears", t), receivers=st("receivers", t),
+                  last_reward=st("last_reward", t), chain_ok=st("chain_ok", t))
+             for t in range(ticks)]
+    if policy.features.memory:  # the team memory each robot folded tick by tick
+        remember(views, policy.cfg)
+    actions, inputs, values = [], [], []
+    for t, view in enumerate(views):
         act = st("actions", t)
         feats = policy.features(view)
         with torch.no_grad():
             ev = policy.evaluate([view], [act], [feats])
         value = np.zeros(act.shape, dtype=np.float32)
         value[ev.group, ev.robot] = ev.value.numpy()
-        views.append(view)
         actions.append(act)
         inputs.append(feats)
         values.append(value)

@@ -33,6 +33,18 @@ log = logging.getLogger("swarm.robot")
 ROLLOUT_STREAM = 7  # counter-based noise stream of the rollout-loss fault
 
 
+def hop_deadline(t_recv: float, deadline: float, robot: int, n: int) -> float:
+    """How long robot `robot` waits for its predecessor's hidden-state message: until its slot,
+    (robot + 1) / n of the way to the tick deadline.
+
+    Ids along a chain strictly decrease, so a predecessor j < robot gives up on its own
+    predecessor at its earlier slot and its message (late only by its decode and one hop) still
+    reaches `robot` before this one. A lost message therefore costs one slot of waiting and
+    breaks one link, never the whole budget of every robot downstream (the deadline cascade of
+    waiting until the tick deadline, see docs/DECISIONS.md)."""
+    return t_recv + (deadline - t_recv) * (robot + 1) / max(n, 1)
+
+
 @dataclass
 class RobotCounters:
     msgs_in: int = 0
@@ -273,7 +285,8 @@ class RobotProcess:
             pred = int(view.predecessor()[0, r])
             hidden = None
             if pred >= 0:
-                hidden = self._wait("hidden", obs.ep, obs.t, pred, deadline)
+                hidden = self._wait("hidden", obs.ep, obs.t, pred,
+                                    hop_deadline(t_recv, deadline, r, cfg.n_robots))
                 if hidden is None or len(hidden.state) != 4 * self.policy.state_size:
                     # lost, late or malformed: decode as if there were no predecessor
                     self.c.missed_hidden += 1

@@ -307,6 +307,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
             raise ValueError(f"policy {cfg.policy!r} is not a learned policy")
         if cfg.init:
             policy = make_policy(cfg.policy, world, checkpoint=cfg.init)
+        if cfg.team_memory:
+            policy.set_model(team_memory=True)
         opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
         log_path.write_text("")
         curve_path.write_text(",".join(CURVE_FIELDS) + "\n")

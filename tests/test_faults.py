@@ -231,3 +231,33 @@ def test_batched_eval_applies_the_radios_exact_loss_draws(tmp_path: Path) -> Non
     clean = evaluate(cfg, make_policy("nearest-frontier", cfg), 9, 2, record_actions=True)
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
     assert not np.array_equal(np.stack(ev.actions, 1), np.stack(clean.actions, 1))
+
+
+def test_chained_memory_policy_under_loss_acts_as_the_batched_eval(tmp_path: Path) -> None:
+    """CommAttn with the team memory under 40% loss: each robot process folds what it heard
+    into its own memory and, when its predecessor's hidden-state message is lost, gives up at its
+    per-hop slot and decodes without it, exactly the batched evaluator's `chain_ok` rule. No
+    downstream robot misses the tick, so every action equals the batched one."""
+    import torch
+
+    from policies.checkpoint import save_checkpoint
+
+    cfg = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=4, horizon=8,
+                      add_every=2, vision=5, comm_range=6.0)
+    toml = tmp_path / "w.toml"
+    toml.write_text("[world]\n" + "".join(f"{k} = {getattr(cfg, k)}\n" for k in (
+        "height", "width", "n_static", "n_dynamic", "n_robots", "horizon", "add_every",
+        "vision", "comm_range")))
+    torch.manual_seed(2)
+    pol = make_policy("commattn", cfg)
+    pol.set_model(team_memory=True)
+    ckpt = tmp_path / "mem.pt"
+    save_checkpoint(ckpt, pol.payload())
+    res = _run(tmp_path, "memloss", "--config", str(toml), "--policy", "commattn",
+               "--checkpoint", str(ckpt), "--episodes", "2", "--seed", "3", "--loss", "0.4",
+               "--fault-seed", "8", "--tick-timeout", "1.2")
+    plan = plan_from_table({"loss": 0.4, "seed": 8})
+    ev = evaluate(cfg, make_policy("commattn", cfg, checkpoint=ckpt), 3, 2, record_actions=True,
+                  faults=plan)
+    assert res["messages"]["lost"] > 0 and res["timeouts"] == 0
+    assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))

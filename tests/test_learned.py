@@ -17,8 +17,8 @@ from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoin
 from swarm.evaluate import evaluate
 from swarm.train import TrainConfig, collect, main, update
 from world import core
-from world.config import WorldConfig
-from world.decentral import batch_view, heard_by, robot_view
+from world.config import ConfigError, WorldConfig
+from world.decentral import TeamMemory, batch_view, heard_by, robot_view
 
 LEARNED = ["commattn", "commnet", "vain", "bicnet"]
 SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=4, horizon=8, add_every=2,
@@ -327,3 +327,57 @@ def test_cli_flags_and_overwrite_guard(tmp_path: Path) -> None:
     main(tiny, SMALL, tmp_path, console=quiet())
     with pytest.raises(ConfigError, match="--resume"):
         main(tiny, SMALL, tmp_path, console=quiet())
+
+
+def test_team_memory_equals_this_ticks_union_when_everyone_always_hears_everyone() -> None:
+    """Visited bitmaps only grow, so with unlimited range and no loss remembering every heard
+    bitmap changes nothing: a network with and without the memory takes the same actions."""
+    cfg = dataclasses.replace(SMALL, comm_range=float("inf"))
+    plain = policy("commattn", cfg)
+    mem = policy("commattn", cfg)
+    mem.set_model(team_memory=True)
+    assert mem.features.memory and not plain.features.memory
+    a, b = (evaluate(cfg, p, 3, 6, greedy=False, record_actions=True) for p in (plain, mem))
+    assert np.array_equal(np.stack(a.actions), np.stack(b.actions))
+
+
+def test_team_memory_keeps_a_lost_teammates_map() -> None:
+    """Robot 0 hears robot 1 at ticks 0-2, then loses it: its memory keeps robot 1's bitmap of
+    tick 2 and changes the decision, this tick's union drops it; a robot process holding only
+    robot 0's row computes the same memory; tick 0 of a new episode clears it."""
+    cfg = dataclasses.replace(SMALL, comm_range=float("inf"))
+    state = core.reset(cfg, 5, np.arange(1))
+    memory, solo = TeamMemory(cfg), TeamMemory(cfg)
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        view = batch_view(cfg, state)
+        memory.update(view)
+        solo.update(robot_view(cfg, view.seed, 0, view.tick, 0, heard_by(cfg, view, 0, 0), 0.0))
+        before = view.msgs.visited[0, 1].copy()  # robot 1's bitmap as last heard
+        core.step(cfg, state, rng.integers(1, 9, (1, cfg.n_robots)))
+    view = batch_view(cfg, state)
+    view.hears[0, 0, 1] = False  # robot 1's message to robot 0 is lost at tick 3
+    rows = memory.update(view)
+    solo_rows = solo.update(robot_view(cfg, view.seed, 0, view.tick, 0,
+                                       heard_by(cfg, view, 0, 0), 0.0))
+    np.testing.assert_array_equal(solo_rows[0, 0], rows[0, 0])
+    assert (rows[0, 0] >= before).all() and before.any()
+    now = view.msgs.visited[0, np.flatnonzero(view.hears[0, 0])].any(0)
+    assert (before & ~now).any()  # the plain union forgot cells robot 1 covered
+    plain = policy("commattn", cfg)
+    mem = policy("commattn", cfg)
+    mem.set_model(team_memory=True)
+    view.team_visited = rows.copy()
+    assert not np.array_equal(plain.decide(view).probs[0, 0], mem.decide(view).probs[0, 0])
+    fresh = batch_view(cfg, core.reset(cfg, 5, np.arange(1)))
+    assert np.array_equal(memory.update(fresh)[0, 0], fresh.msgs.visited[0].any(0))
+
+
+def test_team_memory_changes_no_weight_shape_and_survives_a_checkpoint(tmp_path: Path) -> None:
+    pol = policy("vain")
+    pol.set_model(team_memory=True)
+    save_checkpoint(tmp_path / "m.pt", pol.payload())
+    back = make_policy("vain", SMALL, checkpoint=tmp_path / "m.pt")
+    assert back.model_cfg.team_memory and back.features.memory
+    with pytest.raises(ConfigError, match="input width"):
+        policy("vain").set_model(team_pool=0)

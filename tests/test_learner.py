@@ -61,10 +61,14 @@ def world_toml(tmp: Path, cfg: WorldConfig, train: str = "") -> Path:
     return path
 
 
-def test_wire_records_round_trip_into_the_trainers_rollout() -> None:
+@pytest.mark.parametrize("memory", [False, True])
+def test_wire_records_round_trip_into_the_trainers_rollout(memory: bool) -> None:
     """Trainer rollout -> EpisodeRollout payloads -> Rollout: same views, actions and rewards,
-    and the same REINFORCE step; bad payloads are one-line BadMessages."""
+    and the same REINFORCE step (with the team memory: the learner refolds each robot's memory
+    from the records); bad payloads are one-line BadMessages."""
     pol = make_policy("commattn", SMALL)
+    if memory:
+        pol.set_model(team_memory=True)
     roll = collect(pol, SMALL, 4, np.arange(3))
     wire = [EpisodeRollout.unpack(e.pack(), SMALL) for e in episodes_of(roll, version=2)]
     assert [e.ep for e in wire] == [0, 1, 2] and all(e.version == 2 for e in wire)
@@ -78,6 +82,9 @@ def test_wire_records_round_trip_into_the_trainers_rollout() -> None:
     cfg = TrainConfig(batch=3)
     p1, p2 = (make_policy("commattn", SMALL) for _ in range(2))
     p2.net.load_state_dict(p1.net.state_dict())
+    for p in (p1, p2):
+        if memory:
+            p.set_model(team_memory=True)
     update(p1, torch.optim.Adam(p1.net.parameters(), lr=cfg.lr), roll, cfg)
     update(p2, torch.optim.Adam(p2.net.parameters(), lr=cfg.lr), back, cfg)
     for k, v in p1.net.state_dict().items():

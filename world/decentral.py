@@ -109,6 +109,8 @@ class View:
     chain_ok: np.ndarray | None = None  # [G, N]: receiver got p(i)'s hidden-state message
     # (None: every receiver with a predecessor got it; where False a chained policy decodes as
     # if it had no predecessor, which is what a robot does when that message is lost or late)
+    team_visited: np.ndarray | None = None  # [G, N, H*W] bool: each receiver's TeamMemory row
+    # after this tick (set by policies that remember; None: not computed)
 
     @property
     def groups(self) -> int:
@@ -120,6 +122,43 @@ class View:
 
     def predecessor(self) -> np.ndarray:
         return predecessor(self.hears)
+
+
+class TeamMemory:
+    """Each receiver's memory of the team's visited cells: the OR of every visited bitmap it has
+    heard this episode, its own included, [G, N, H*W].
+
+    A sender's bitmap only grows during an episode, so the OR of what was heard is exactly the
+    latest bitmap of each teammate heard at least once: a lost or out-of-range message leaves the
+    receiver with that teammate's older bitmap, never with nothing. Rows of robots that are not
+    receivers this tick are never touched, and a receiver's row is cleared at tick 0, so a robot
+    process holding only its own row computes what the batched evaluator computes for that row.
+    """
+
+    def __init__(self, cfg: WorldConfig) -> None:
+        self.cfg = cfg
+        self.visited = np.zeros((0, cfg.n_robots, cfg.cells), dtype=bool)
+
+    def reset(self, groups: int) -> None:
+        self.visited = np.zeros((groups, self.cfg.n_robots, self.cfg.cells), dtype=bool)
+
+    def update(self, view: View) -> np.ndarray:
+        """Fold in the messages each receiver heard this tick; returns the rows [G, N, H*W]."""
+        if self.visited.shape[0] != view.groups:
+            self.reset(view.groups)
+        if view.tick == 0:  # a new episode, even if nobody called reset
+            self.visited[view.receivers] = False
+        heard = (view.hears & view.receivers[:, :, None]).astype(np.float32)  # [G, N, N]
+        self.visited |= np.matmul(heard, view.msgs.visited.astype(np.float32)) > 0
+        return self.visited
+
+
+def remember(views: list[View], cfg: WorldConfig) -> None:
+    """Set `team_visited` of a recorded episode batch's views (tick order, the same groups in
+    each) by folding them through a fresh TeamMemory: what the acting robots computed."""
+    memory = TeamMemory(cfg)
+    for view in views:
+        view.team_visited = memory.update(view).copy()
 
 
 def batch_view(cfg: WorldConfig, state: WorldState) -> View:
