@@ -86,13 +86,17 @@ def episodes_of(roll: Rollout, version: int) -> list[EpisodeRollout]:
             hears=hears[:, g], receivers=recv[:, g], chain_ok=ok[:, g],
             last_reward=last[:, g].astype(np.float32), actions=acts[:, g],
             reward=roll.reward[:, g].astype(np.float32),
-            metrics={k: float(getattr(m, k)[g]) for k in METRIC_NAMES}))
+            metrics={k: float(getattr(m, k)[g]) for k in METRIC_NAMES},
+            logp=None if roll.logp is None else roll.logp[:, g].astype(np.float32)))
     return out
 
 
-def rollout_of(eps: list[EpisodeRollout], policy: LearnedPolicy) -> Rollout:
+def rollout_of(eps: list[EpisodeRollout], policy: LearnedPolicy,
+               version: int | None = None) -> Rollout:
     """Stack episodes (all of the same length) into the batched trainer's `Rollout`; features and
-    the baseline values b(s) are computed here with the learner's current weights."""
+    the baseline values b(s) are computed here with the learner's current weights. Episodes that
+    carry their acting log-probabilities and were acted by a version older than `version` are
+    marked stale (the update weighs them by truncated importance ratios)."""
     if not eps:
         raise ValueError("no episodes")
     ticks = eps[0].actions.shape[0]
@@ -121,7 +125,11 @@ def rollout_of(eps: list[EpisodeRollout], policy: LearnedPolicy) -> Rollout:
     reward = np.stack([e.reward for e in eps], axis=1)  # [T, B, N]
     metrics = core.EpisodeMetrics(**{k: np.array([e.metrics[k] for e in eps])
                                      for k in METRIC_NAMES})
-    return Rollout(views, actions, inputs, np.stack(values), reward, metrics)
+    logp = stale = None
+    if all(e.logp is not None for e in eps):
+        logp = np.stack([e.logp for e in eps], axis=1)  # type: ignore[misc]
+        stale = np.array([version is not None and e.version < version for e in eps])
+    return Rollout(views, actions, inputs, np.stack(values), reward, metrics, logp, stale)
 
 
 def join(cfg: WorldConfig, seed: int, world: EpisodeRecord,
@@ -137,13 +145,14 @@ def join(cfg: WorldConfig, seed: int, world: EpisodeRecord,
         present=np.zeros((ticks, n), bool), hears=np.zeros((ticks, n, n), bool),
         receivers=np.zeros((ticks, n), bool), chain_ok=np.ones((ticks, n), bool),
         last_reward=np.zeros((ticks, n), np.float32), actions=np.zeros((ticks, n), np.int64),
-        reward=world.reward.astype(np.float32), metrics=dict(world.metrics))
+        reward=world.reward.astype(np.float32), metrics=dict(world.metrics),
+        logp=np.zeros((ticks, n), np.float32))
     versions = []
     bit = 1 << np.arange(n)
     for i, rr in robots.items():
         if rr.ep != world.ep or len(rr.ticks) > ticks:
             raise BadMessage(f"robot {i}'s record does not fit episode {world.ep}")
-        for traj_bytes, heard, chain_ok, action, _logp, last_reward, version in rr.ticks:
+        for traj_bytes, heard, chain_ok, action, logp, last_reward, version in rr.ticks:
             tr = Traj.unpack(traj_bytes, cfg)
             t = tr.t
             if tr.robot != i or tr.ep != world.ep or t >= ticks:
@@ -157,6 +166,7 @@ def join(cfg: WorldConfig, seed: int, world: EpisodeRecord,
             out.hears[t, i] = (heard & bit) != 0
             out.chain_ok[t, i] = chain_ok
             out.actions[t, i] = action
+            out.logp[t, i] = min(logp, 0.0)  # type: ignore[index]
             out.last_reward[t, i] = last_reward
             out.receivers[t, i] = bool(world.acted[t, i])
             versions.append(version)
@@ -397,7 +407,7 @@ class Learner:
             return False
         batch, self.ready = self.ready[:self.tc.batch], self.ready[self.tc.batch:]
         t0 = time.perf_counter()
-        roll = rollout_of(batch, self.policy)
+        roll = rollout_of(batch, self.policy, self.version)
         torch.set_flush_denormal(True)
         try:
             parts = update(self.policy, self.opt, roll, self.tc)

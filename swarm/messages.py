@@ -343,6 +343,8 @@ class EpisodeRollout:
     actions: np.ndarray  # [T, N] int64
     reward: np.ndarray  # [T, N] float32
     metrics: dict[str, float]
+    logp: np.ndarray | None = None  # [T, N] float32 log pi(a) of the acting weights (0 off
+    # receivers); None from senders that did not record it (no importance correction then)
 
     def pack(self) -> bytes:
         a = {
@@ -358,6 +360,8 @@ class EpisodeRollout:
             "actions": np.ascontiguousarray(self.actions, "u1").tobytes(),
             "reward": np.ascontiguousarray(self.reward, "<f4").tobytes(),
         }
+        if self.logp is not None:
+            a["logp"] = np.ascontiguousarray(self.logp, "<f4").tobytes()
         return _pack(K_EROLLOUT, self.ep, self.seed, self.version, int(self.pos.shape[0]), a,
                      self.metrics)
 
@@ -383,6 +387,7 @@ class EpisodeRollout:
             actions=_array(get("actions"), "actions", "u1", (t, n)).astype(np.int64),
             reward=_array(get("reward"), "reward", "<f4", (t, n)),
             metrics=_metrics(metrics),
+            logp=None if get("logp") is None else _array(get("logp"), "logp", "<f4", (t, n)),
         )
         lim = np.array([cfg.height, cfg.width])
         if (out.pos < 0).any() or (out.pos >= lim).any():
@@ -395,4 +400,6 @@ class EpisodeRollout:
             raise BadMessage("a receiver or a heard member has no message")
         if not (np.isfinite(out.reward).all() and np.isfinite(out.last_reward).all()):
             raise BadMessage("rewards must be finite")
+        if out.logp is not None and not (np.isfinite(out.logp).all() and (out.logp <= 0).all()):
+            raise BadMessage("log-probabilities must be finite and <= 0")
         return out

@@ -57,6 +57,8 @@ class Rollout:
     value: np.ndarray  # b(s) at acting time (for the advantage)
     reward: np.ndarray
     metrics: core.EpisodeMetrics
+    logp: np.ndarray | None = None  # log pi(a) under the weights that acted (0 off receivers)
+    stale: np.ndarray | None = None  # [B] bool: acted by older weights than the learner's now
 
 
 def frozen(view: View) -> View:
@@ -80,7 +82,7 @@ def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.n
     """Run `episodes` of `seed` to the horizon with sampled actions."""
     state = core.reset(world, seed, episodes)
     policy.reset(len(episodes))
-    views, actions, inputs, values, rewards = [], [], [], [], []
+    views, actions, inputs, values, rewards, logp = [], [], [], [], [], []
     while not state.done:
         view = frozen(batch_view(world, state))
         if faults is not None and not faults.zero:
@@ -91,8 +93,10 @@ def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.n
         actions.append(d.actions)
         inputs.append(d.inputs)
         values.append(d.value)
+        p = np.take_along_axis(d.probs, d.actions[..., None], -1)[..., 0]
+        logp.append(np.log(np.maximum(p, 1e-30), dtype=np.float32) * view.receivers)
     return Rollout(views, actions, inputs, np.stack(values), np.stack(rewards),
-                   core.metrics(world, state))
+                   core.metrics(world, state), np.stack(logp))
 
 
 def returns(reward: np.ndarray, gamma: float) -> np.ndarray:
@@ -150,6 +154,16 @@ def backward(policy: LearnedPolicy, roll: Rollout, adv: Advantages, cfg: TrainCo
         at = (t0 + ev.tick, ev.group, ev.robot)
         a = torch.from_numpy(a_all[at].astype(np.float32))
         g = torch.from_numpy(adv.ret[at].astype(np.float32))
+        if roll.stale is not None and roll.logp is not None and cfg.is_clip > 0:
+            stale = torch.from_numpy(roll.stale[ev.group])  # their decisions: truncated IS weight
+            if bool(stale.any()):
+                acted = torch.from_numpy(roll.logp[at].astype(np.float32))
+                rho = torch.exp(ev.logp.detach() - acted)
+                w = torch.where(stale, rho.clamp(max=cfg.is_clip), 1.0)
+                a = a * w
+                totals["is_weight"] = totals.get("is_weight", 0.0) + float(w[stale].sum())
+                totals["stale_decisions"] = totals.get("stale_decisions", 0.0) + float(
+                    stale.sum())
         pg = -(ev.logp * a).sum() / decisions
         base = cfg.alpha * ((g - ev.value) ** 2).sum() / decisions
         ent = ev.entropy.sum() / decisions
@@ -180,6 +194,8 @@ def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout,
     mean, std, decisions = normaliser([adv.moments()])
     opt.zero_grad(set_to_none=True)
     totals = backward(policy, roll, adv, cfg, mean, std, decisions)
+    if totals.get("stale_decisions"):  # the mean importance weight of the stale decisions
+        totals["is_weight"] /= totals["stale_decisions"]
     totals["grad_norm"] = step(policy, opt, cfg)
     return totals
 

@@ -50,6 +50,10 @@ class TrainConfig:
     """Entropy bonus per decision (0 disables)."""
     max_grad_norm: float = 1.0
     """Clip the global gradient norm to this (0 disables)."""
+    is_clip: float = 1.0
+    """Learner only: a stale episode (acted by an older weights version) weights each decision's
+    policy-gradient term by the truncated importance ratio min(is_clip, pi_now(a) / pi_acted(a))
+    (V-trace's rho-bar); 0 turns the correction off. Fresh episodes always weigh 1."""
     curriculum_step: int = 10
     """Dynamic blocks added per curriculum level (levels 0, step, 2 step, .. up to the world's
     n_dynamic); 0 trains on the full world from the start."""

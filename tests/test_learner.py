@@ -24,7 +24,7 @@ from swarm.evaluate import evaluate
 from swarm.keys import Keys
 from swarm.learner import adopt, episodes_of, rollout_of, weights_of
 from swarm.messages import BadMessage, EpisodeRollout, RobotRollout, Weights
-from swarm.train import TrainConfig, collect, update
+from swarm.train import TrainConfig, advantages, backward, collect, normaliser, update
 from swarm.zconfig import ZenohOptions, free_port
 from world.config import WorldConfig
 
@@ -77,6 +77,8 @@ def test_wire_records_round_trip_into_the_trainers_rollout(memory: bool) -> None
         assert np.array_equal(a.msgs.visited, b.msgs.visited) and np.array_equal(a.hears, b.hears)
         assert np.array_equal(a.receivers, b.receivers) and np.array_equal(a.msgs.pos, b.msgs.pos)
     assert np.array_equal(np.stack(roll.actions), np.stack(back.actions))
+    np.testing.assert_allclose(back.logp, roll.logp)
+    assert back.stale is not None and not back.stale.any()
     np.testing.assert_allclose(back.reward, roll.reward)
     np.testing.assert_allclose(back.value, roll.value, atol=1e-5)
     cfg = TrainConfig(batch=3)
@@ -94,6 +96,34 @@ def test_wire_records_round_trip_into_the_trainers_rollout(memory: bool) -> None
         with pytest.raises(BadMessage) as err:
             EpisodeRollout.unpack(bad, SMALL)
         assert "\n" not in str(err.value)
+
+
+def test_stale_episodes_are_weighted_by_truncated_importance_ratios() -> None:
+    """An episode acted by older weights: each decision's policy-gradient term is weighted by
+    min(is_clip, pi_now / pi_acted). Same weights: ratio 1, the plain gradient; acting
+    probability twice today's: ratio 1/2, half the gradient; half today's: ratio 2, truncated
+    to 1; fresh episodes are never weighted."""
+    torch.manual_seed(3)
+    pol = make_policy("commnet", SMALL)
+    wire = episodes_of(collect(pol, SMALL, 4, np.arange(3)), version=2)
+    cfg = TrainConfig(batch=3, alpha=0.0, ent_coef=0.0)
+
+    def grads(shift: float | None, version: int) -> list[torch.Tensor]:
+        roll = rollout_of(wire, pol, version=version)
+        if shift is not None:
+            roll.logp = roll.logp + shift  # type: ignore[operator]
+        adv = advantages(roll, cfg)
+        mean, std, n = normaliser([adv.moments()])
+        pol.net.zero_grad(set_to_none=True)
+        parts = backward(pol, roll, adv, cfg, mean, std, n)
+        assert ("is_weight" in parts) == (version > 2)
+        return [p.grad.clone() for p in pol.net.parameters() if p.grad is not None]
+
+    plain = grads(None, 2)
+    for shift, version, scale in ((None, 3, 1.0), (np.log(2), 3, 0.5), (-np.log(2), 3, 1.0),
+                                  (np.log(2), 2, 1.0)):
+        for a, b in zip(grads(shift, version), plain, strict=True):
+            torch.testing.assert_close(a, scale * b, rtol=1e-3, atol=1e-7)
 
 
 def test_bad_weights_are_rejected_and_leave_the_policy_unchanged() -> None:
