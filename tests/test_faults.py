@@ -255,7 +255,7 @@ def test_chained_memory_policy_under_loss_acts_as_the_batched_eval(tmp_path: Pat
     save_checkpoint(ckpt, pol.payload())
     res = _run(tmp_path, "memloss", "--config", str(toml), "--policy", "commattn",
                "--checkpoint", str(ckpt), "--episodes", "2", "--seed", "3", "--loss", "0.4",
-               "--fault-seed", "8", "--tick-timeout", "1.2")
+               "--fault-seed", "8", "--tick-timeout", "2.0")
     plan = plan_from_table({"loss": 0.4, "seed": 8})
     ev = evaluate(cfg, make_policy("commattn", cfg, checkpoint=ckpt), 3, 2, record_actions=True,
                   faults=plan)

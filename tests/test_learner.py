@@ -185,7 +185,8 @@ def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path)
     out = tmp_path / "learner"
     r = swarm("run", "--train", "--headless", "--robots", "3", "--policy", "commattn",
               "--checkpoint", str(init), "--episodes", "4", "--train-batch", "4", "--seed", "6",
-              "--learner-out", str(out), "--run-id", "geq", "--json", str(tmp_path / "r.json"))
+              "--learner-out", str(out), "--run-id", "geq", "--json", str(tmp_path / "r.json"),
+              "--tick-timeout", "10")  # no faults: a long deadline changes nothing but load
     assert r.returncode == 0, r.stderr
     res = json.loads((tmp_path / "r.json").read_text())
     assert res["learner"]["version"] == 1 and res["learner"]["episodes"] == 4
