@@ -212,9 +212,9 @@ class Featurizer:
         self.member_dim = 3 * cfg.vision * cfg.vision + 2
         self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
         self.team_pool = team_pool
-        self.memory = memory  # the team map from view.team_visited (a TeamMemory), not this tick
-        if memory and not team_pool:
-            raise ValueError("a team memory needs the team map (team_pool > 0)")
+        # the team map from view.team_visited (a TeamMemory), not this tick; nothing to
+        # remember without a team map
+        self.memory = memory and team_pool > 0
         self.own_dim = 0
         if team_pool:
             # the coarse window: k x k blocks of p x p cells, its corner `team_half` cells up and

@@ -21,8 +21,9 @@ class TrainConfig:
     """Start from the weights of this checkpoint (same policy and network) instead of fresh
     ones, e.g. to fine-tune a trained policy under faults; "" starts fresh."""
     team_memory: bool = False
-    """Turn on the network's team memory (the team map from every bitmap heard this episode, see
-    policies.features) for fresh weights or on top of --init; a checkpoint keeps its own setting."""
+    """Turn the team memory (the team map from every bitmap heard this episode, see
+    policies.features) on for an --init checkpoint trained without it; fresh networks have it
+    (the model default), and false keeps a checkpoint's own setting."""
     train_loss: float = 0.0
     """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
     with this probability, with the swarm radio's seeded loss model (0: no faults)."""

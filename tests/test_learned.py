@@ -18,7 +18,7 @@ from swarm.evaluate import evaluate
 from swarm.train import TrainConfig, collect, main, update
 from world import core
 from world.config import ConfigError, WorldConfig
-from world.decentral import TeamMemory, batch_view, heard_by, robot_view
+from world.decentral import TeamMemory, batch_view, heard_by, remember, robot_view
 
 LEARNED = ["commattn", "commnet", "vain", "bicnet"]
 SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=4, horizon=8, add_every=2,
@@ -59,6 +59,7 @@ def test_shapes_and_masks(name: str) -> None:
     state = midgame()
     state.alive[0, 2] = False  # a crashed robot is neither receiver nor member
     view = batch_view(SMALL, state)
+    pol.remember(view)  # the team memory the features read (decide does this itself)
     members = pol.features(view)
     tokens, mask = members.dense()
     r = int(view.receivers.sum())
@@ -101,6 +102,7 @@ def test_batched_equals_single_robot(name: str, greedy: bool) -> None:
         for i in range(SMALL.n_robots):
             rv = robot_view(SMALL, view.seed, int(view.episodes[g]), view.tick, i,
                             heard_by(SMALL, view, g, i), 0.0)
+            pol.reset(1)  # robot i's own memory, like the batch's fresh one: this tick only
             if pol.chained:
                 p = pred[g, i]
                 state = d.state[g, p][None] if p >= 0 else None
@@ -182,6 +184,8 @@ def test_team_map_is_the_union_of_heard_trajectories() -> None:
 def test_gradients_reach_every_parameter(name: str) -> None:
     pol = policy(name)
     views = [batch_view(SMALL, midgame(ticks=t)) for t in (2, 4)]
+    for v in views:
+        remember([v], SMALL)  # the team memory the features read
     acts = [np.random.default_rng(t).integers(0, 9, v.receivers.shape) for t, v in enumerate(views)]
     ev = pol.evaluate(views, acts)
     assert ev.logp.shape == ev.value.shape == ev.entropy.shape == (len(ev.tick),)
@@ -334,9 +338,9 @@ def test_team_memory_equals_this_ticks_union_when_everyone_always_hears_everyone
     bitmap changes nothing: a network with and without the memory takes the same actions."""
     cfg = dataclasses.replace(SMALL, comm_range=float("inf"))
     plain = policy("commattn", cfg)
+    plain.set_model(team_memory=False)
     mem = policy("commattn", cfg)
-    mem.set_model(team_memory=True)
-    assert mem.features.memory and not plain.features.memory
+    assert mem.features.memory and not plain.features.memory  # on by default
     a, b = (evaluate(cfg, p, 3, 6, greedy=False, record_actions=True) for p in (plain, mem))
     assert np.array_equal(np.stack(a.actions), np.stack(b.actions))
 
@@ -365,8 +369,8 @@ def test_team_memory_keeps_a_lost_teammates_map() -> None:
     now = view.msgs.visited[0, np.flatnonzero(view.hears[0, 0])].any(0)
     assert (before & ~now).any()  # the plain union forgot cells robot 1 covered
     plain = policy("commattn", cfg)
+    plain.set_model(team_memory=False)
     mem = policy("commattn", cfg)
-    mem.set_model(team_memory=True)
     view.team_visited = rows.copy()
     assert not np.array_equal(plain.decide(view).probs[0, 0], mem.decide(view).probs[0, 0])
     fresh = batch_view(cfg, core.reset(cfg, 5, np.arange(1)))
@@ -375,9 +379,13 @@ def test_team_memory_keeps_a_lost_teammates_map() -> None:
 
 def test_team_memory_changes_no_weight_shape_and_survives_a_checkpoint(tmp_path: Path) -> None:
     pol = policy("vain")
-    pol.set_model(team_memory=True)
+    pol.set_model(team_memory=False)
     save_checkpoint(tmp_path / "m.pt", pol.payload())
     back = make_policy("vain", SMALL, checkpoint=tmp_path / "m.pt")
-    assert back.model_cfg.team_memory and back.features.memory
+    assert not back.model_cfg.team_memory and not back.features.memory
+    old = pol.payload()
+    del old["model"]["team_memory"]  # a checkpoint from before the field: memory off
+    save_checkpoint(tmp_path / "old.pt", old)
+    assert not make_policy("vain", SMALL, checkpoint=tmp_path / "old.pt").features.memory
     with pytest.raises(ConfigError, match="input width"):
         policy("vain").set_model(team_pool=0)

@@ -67,8 +67,7 @@ def test_wire_records_round_trip_into_the_trainers_rollout(memory: bool) -> None
     and the same REINFORCE step (with the team memory: the learner refolds each robot's memory
     from the records); bad payloads are one-line BadMessages."""
     pol = make_policy("commattn", SMALL)
-    if memory:
-        pol.set_model(team_memory=True)
+    pol.set_model(team_memory=memory)  # on by default
     roll = collect(pol, SMALL, 4, np.arange(3))
     wire = [EpisodeRollout.unpack(e.pack(), SMALL) for e in episodes_of(roll, version=2)]
     assert [e.ep for e in wire] == [0, 1, 2] and all(e.version == 2 for e in wire)
@@ -85,8 +84,7 @@ def test_wire_records_round_trip_into_the_trainers_rollout(memory: bool) -> None
     p1, p2 = (make_policy("commattn", SMALL) for _ in range(2))
     p2.net.load_state_dict(p1.net.state_dict())
     for p in (p1, p2):
-        if memory:
-            p.set_model(team_memory=True)
+        p.set_model(team_memory=memory)
     update(p1, torch.optim.Adam(p1.net.parameters(), lr=cfg.lr), roll, cfg)
     update(p2, torch.optim.Adam(p2.net.parameters(), lr=cfg.lr), back, cfg)
     for k, v in p1.net.state_dict().items():
