@@ -8,8 +8,6 @@ construction with an O(1) test per placement; `is_connected` double-checks it on
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 
 # Ring of the 8 neighbours in clockwise order starting at north-west: (dy, dx).
@@ -85,21 +83,25 @@ def generate_static(height: int, width: int, n_blocks: int, rng: np.random.Gener
 
 def is_connected(free: np.ndarray) -> bool:
     """True when every free cell of the bool [H, W] map reaches every other with 8-connected moves."""
-    cells = np.argwhere(free)
-    if len(cells) == 0:
-        return True
     h, w = free.shape
-    seen = np.zeros_like(free)
-    y0, x0 = cells[0]
-    seen[y0, x0] = True
-    queue = deque([(int(y0), int(x0))])
+    total = int(free.sum())
+    if total == 0:
+        return True
+    # BFS over plain Python lists: scalar numpy indexing is ~5x slower, and this runs per map
+    edge = [False] * (w + 2)
+    pad = [edge] + [[False, *row, False] for row in free.tolist()] + [list(edge)]
+    start = int(np.flatnonzero(free.ravel())[0])
+    y0, x0 = divmod(start, w)
+    pad[y0 + 1][x0 + 1] = False  # visited cells are cleared
+    stack = [(y0 + 1, x0 + 1)]
     count = 1
-    while queue:
-        y, x = queue.popleft()
-        for dy, dx in RING:
-            yy, xx = y + dy, x + dx
-            if 0 <= yy < h and 0 <= xx < w and free[yy, xx] and not seen[yy, xx]:
-                seen[yy, xx] = True
+    ring = [(int(dy), int(dx)) for dy, dx in RING]
+    while stack:
+        y, x = stack.pop()
+        for dy, dx in ring:
+            row = pad[y + dy]
+            if row[x + dx]:
+                row[x + dx] = False
                 count += 1
-                queue.append((yy, xx))
-    return count == len(cells)
+                stack.append((y + dy, x + dx))
+    return count == total
