@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from swarm import atomic
 from swarm.bench import (
     NullProgress,
@@ -266,15 +268,21 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
     wc = replace(world, dynamic=True)
     progress.start("table2", len(cfg.policies) * cfg.table2_episodes)
     rows: list[dict[str, Any]] = []
+    first: np.ndarray | None = None  # the first policy's per-episode elratio (paired reference)
     for name in cfg.policies:
         policy = build_policy(name, wc, cfg.checkpoint(name))
         res = evaluate(wc, policy, cfg.seed, cfg.table2_episodes, batch=cfg.batch,
                        on_progress=progress.advance)
         s = res.summary(wc)
         paper = PAPER_TABLE2.get(name)
+        if first is None:
+            first = res.elratio
+        diff = first - res.elratio  # same episodes: a paired difference
+        se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else float("nan")
         rows.append({"policy": name, "robots": wc.n_robots, "episodes": cfg.table2_episodes,
                      **{k: s[k] for k in SWEEP_KEYS}, "robot_collisions_mean":
                      float(res.robot_collisions.mean()),
+                     "first_minus_elratio": float(diff.mean()), "first_minus_elratio_se": se,
                      "paper_reward": paper[0] if paper else None,
                      "paper_collisions": paper[1] if paper else None,
                      "paper_elratio_pct": paper[2] if paper else None,
@@ -284,7 +292,9 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
                 f"{cfg.table2_episodes} held-out episodes per policy (evaluation seed {cfg.seed}; "
                 "training used seeds from 1,000,000 up), greedy actions. Our rewards are the "
                 "SPEC's (negative for good policies); the paper's are from its own reward "
-                "scale. Collisions = block + robot collisions per episode.")
+                "scale. Collisions = block + robot collisions per episode. The last column is "
+                f"{cfg.policies[0]}'s elratio minus the row's, episode by episode, with the "
+                "standard error of that paired mean.")
 
     def paper_cell(r: dict[str, Any]) -> str:
         if r["paper_reward"] is None:
@@ -293,13 +303,18 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
         return (f"{r['paper_reward']:g} / {r['paper_collisions']:g} / "
                 f"{r['paper_elratio_pct']:g}{std} %")
 
+    def paired(r: dict[str, Any]) -> str:
+        if r is rows[0]:
+            return "-"
+        return f"{r['first_minus_elratio']:+.4f} ± {r['first_minus_elratio_se']:.4f}"
+
     md += md_table(
         ["policy", "reward / robot", "collisions (block)", "elratio", "success",
-         "paper: reward / collisions / elratio"],
+         "paper: reward / collisions / elratio", f"{cfg.policies[0]} - this (paired)"],
         [[r["policy"], f"{r['reward_mean']:.1f}",
           f"{r['collisions_mean']:.2f} ({r['block_collisions_mean']:.2f})",
           f"{r['elratio_mean']:.3f} ± {r['elratio_std']:.3f}", f"{100 * r['success_rate']:.1f}%",
-          paper_cell(r)] for r in rows])
+          paper_cell(r), paired(r)] for r in rows])
 
     def draw(ax: Any) -> None:
         xs = range(len(rows))

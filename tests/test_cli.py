@@ -231,6 +231,8 @@ def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
     assert all(row["episodes"] == 6 and 0 < row["elratio_mean"] <= 1 for row in rows)
     assert rows[0]["paper_elratio_pct"] == 90.2 and rows[1]["paper_reward"] is None
     assert "90.2" in (out / "table2.md").read_text()
+    assert rows[0]["first_minus_elratio"] == 0 and rows[1]["first_minus_elratio_se"] > 0
+    assert "vain - this (paired)" in (out / "table2.md").read_text()
     fig8 = list(csv.DictReader((out / "fig8.csv").open()))
     assert [int(row["update"]) for row in fig8] == [3] and fig8[0]["policy"] == "vain"
     assert (out / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
