@@ -206,15 +206,9 @@ class LearnedPolicy(Policy):
             context[g, i] = out.context.numpy()
             return Decision(actions, probs, value, state, context, kept)
 
-    def act_with_chain(self, view: View, pred_state: np.ndarray | None,
-                       pred_action: np.ndarray | None,
-                       greedy: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """One receiver per group given its predecessor's hidden-state message.
-
-        pred_state [G, S] float32 and pred_action [G] int (rows of receivers without a
-        predecessor are ignored; pass None when no receiver has one). Returns actions [G, N]
-        and the receivers' new states [G, S] (their own hidden-state messages).
-        """
+    def prepare_chain(self, view: View) -> tuple[View, Members, Any]:
+        """The part of `act_with_chain` that needs no predecessor (features and the encoder),
+        so a robot process computes it while it waits for its predecessor's message."""
         if not self.chained:
             raise TypeError(f"{self.name} is not a chained policy")
         if (view.receivers.sum(1) != 1).any():
@@ -222,6 +216,25 @@ class LearnedPolicy(Policy):
         self.remember(view)
         with torch.inference_mode():
             members = self.features(view)
+            return view, members, self.net.encode(members)
+
+    def act_with_chain(self, view: View, pred_state: np.ndarray | None,
+                       pred_action: np.ndarray | None, greedy: bool = True,
+                       prepared: tuple[View, Members, Any] | None = None,
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """One receiver per group given its predecessor's hidden-state message.
+
+        pred_state [G, S] float32 and pred_action [G] int (rows of receivers without a
+        predecessor are ignored; pass None when no receiver has one). Returns actions [G, N]
+        and the receivers' new states [G, S] (their own hidden-state messages). `prepared` is
+        `prepare_chain(view)` computed earlier (the same view; its chain_ok may be set since).
+        """
+        if prepared is None:
+            prepared = self.prepare_chain(view)
+        elif prepared[0] is not view:
+            raise ValueError("prepared for another view")
+        _, members, encoded = prepared
+        with torch.inference_mode():
             order = np.argsort(members.group)  # group g's receiver is row order[g]
             p = view.predecessor()[members.group, members.robot]
             if view.chain_ok is not None:  # lost or late hidden-state message: no predecessor
@@ -243,7 +256,7 @@ class LearnedPolicy(Policy):
                 s_prev = torch.where(has[:, None], ps, s_prev)
                 a_prev = torch.where(has, pa, a_prev)
             noise = None if greedy else gumbel(view, members.group, members.robot)
-            out = self.net.decode(self.net.encode(members), s_prev, a_prev)
+            out = self.net.decode(encoded, s_prev, a_prev)
             a = chooser(noise)(slice(None), out.logits)
             actions = np.zeros(view.receivers.shape, dtype=np.int64)
             actions[members.group, members.robot] = a.numpy()

@@ -283,7 +283,8 @@ class RobotProcess:
         t0 = time.perf_counter()
         if self.policy.chained:
             pred = int(view.predecessor()[0, r])
-            hidden = None
+            prepared = self.policy.prepare_chain(view)  # type: ignore[attr-defined]
+            hidden = None  # ... computed before waiting: only decoding waits for the predecessor
             if pred >= 0:
                 hidden = self._wait("hidden", obs.ep, obs.t, pred,
                                     hop_deadline(t_recv, deadline, r, cfg.n_robots))
@@ -296,7 +297,7 @@ class RobotProcess:
             actions, state = self.policy.act_with_chain(  # type: ignore[attr-defined]
                 view, None if hidden is None else hidden.vector()[None],
                 None if hidden is None else np.array([hidden.action]),
-                greedy=self.run_cfg.greedy)
+                greedy=self.run_cfg.greedy, prepared=prepared)
             action = int(actions[0, r])
             h = Hidden(obs.ep, obs.t, r, action, np.asarray(state[0], "<f4").tobytes()).pack()
             self.hid_pub.put(h)

@@ -18,7 +18,7 @@ from swarm.evaluate import evaluate
 from swarm.train import TrainConfig, collect, main, update
 from world import core
 from world.config import ConfigError, WorldConfig
-from world.decentral import TeamMemory, batch_view, heard_by, remember, robot_view
+from world.decentral import TeamMemory, View, batch_view, heard_by, remember, robot_view
 
 LEARNED = ["commattn", "commnet", "vain", "bicnet"]
 SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=4, horizon=8, add_every=2,
@@ -389,3 +389,30 @@ def test_team_memory_changes_no_weight_shape_and_survives_a_checkpoint(tmp_path:
     assert not make_policy("vain", SMALL, checkpoint=tmp_path / "old.pt").features.memory
     with pytest.raises(ConfigError, match="input width"):
         policy("vain").set_model(team_pool=0)
+
+
+def test_prepared_chain_decides_like_the_one_call() -> None:
+    """A robot process encodes before its predecessor's message arrives (prepare_chain) and
+    decodes after it: the same action and state as act_with_chain in one call; a prepared
+    encoding is refused for another view."""
+    pol = policy("commattn")
+    view = batch_view(SMALL, midgame())
+    d = pol.decide(view)
+    g, i = 0, int(np.flatnonzero(view.predecessor()[0] >= 0)[0])
+    p = view.predecessor()[g, i]
+
+    def robot() -> View:
+        return robot_view(SMALL, view.seed, int(view.episodes[g]), view.tick, i,
+                          heard_by(SMALL, view, g, i), 0.0)
+
+    rv = robot()
+    pol.reset(1)
+    one = pol.act_with_chain(rv, d.state[g, p][None], d.actions[g, p][None])
+    rv = robot()
+    pol.reset(1)
+    prepared = pol.prepare_chain(rv)
+    two = pol.act_with_chain(rv, d.state[g, p][None], d.actions[g, p][None], prepared=prepared)
+    assert np.array_equal(one[0], two[0]) and np.allclose(one[1], two[1], atol=1e-6)
+    assert two[0][0, i] == d.actions[g, i]
+    with pytest.raises(ValueError, match="another view"):
+        pol.act_with_chain(robot(), None, None, prepared=prepared)
