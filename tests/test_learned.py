@@ -416,3 +416,19 @@ def test_prepared_chain_decides_like_the_one_call() -> None:
     assert two[0][0, i] == d.actions[g, i]
     with pytest.raises(ValueError, match="another view"):
         pol.act_with_chain(robot(), None, None, prepared=prepared)
+
+
+def test_fine_tuning_an_old_checkpoint_with_the_team_memory(tmp_path: Path) -> None:
+    """`swarm train --init OLD --team-memory true`: a checkpoint trained without the memory is
+    fine-tuned with it, starting from its weights, and the result records the memory."""
+    old = policy("vain")
+    old.set_model(team_memory=False)
+    save_checkpoint(tmp_path / "old.pt", old.payload())
+    cfg = TrainConfig(policy="vain", epochs=1, updates=1, batch=4, threads=1, val_episodes=0,
+                      curriculum_step=0, init=str(tmp_path / "old.pt"), team_memory=True,
+                      lr=1e-9)
+    main(cfg, SMALL, tmp_path / "run", console=quiet())
+    new = make_policy("vain", SMALL, checkpoint=tmp_path / "run" / "checkpoint.pt")
+    assert new.model_cfg.team_memory and new.features.memory
+    for key, value in old.net.state_dict().items():
+        torch.testing.assert_close(new.net.state_dict()[key], value, atol=1e-6, rtol=0)
