@@ -32,7 +32,7 @@ from torch import nn
 from torch.nn.utils.rnn import PackedSequence
 
 from world.config import WorldConfig
-from world.decentral import View
+from world.decentral import View, heard_union
 
 
 @dataclass
@@ -275,23 +275,11 @@ class Featurizer:
                                      "(LearnedPolicy.remember sets it)")
                 union = torch.from_numpy(view.team_visited[g_np, i_np])
             else:
-                union = self._heard_union(msgs.visited, heard, g_np, i_np)
+                union = torch.from_numpy(heard_union(view)[g_np, i_np])
             own = self._team(union, at)
         return Members(member_feats=member, pair_member=mrow, pair_feats=pair, lens=lens_t,
                        start=torch.cumsum(lens_t, 0) - lens_t, self_pos=self_pos,
                        group=g_np, robot=i_np, n=n, own_feats=own)
-
-    @staticmethod
-    def _heard_union(visited: np.ndarray, heard: np.ndarray, g: np.ndarray,
-                     i: np.ndarray) -> torch.Tensor:
-        """[R, H*W] bool: the union of the visited bitmaps [G, N, H*W] each receiver (group g,
-        robot i) heard this tick (`heard` [R, N])."""
-        groups, n = visited.shape[0], visited.shape[1]
-        hears = np.zeros((groups, n, n), dtype=np.float32)  # receiver rows of each group
-        hears[g, i] = heard
-        vis = torch.from_numpy(visited.reshape(groups, n, -1)).float()
-        union = torch.bmm(torch.from_numpy(hears), vis)  # [G, N, H*W] heard visits per cell
-        return union.view(groups * n, -1)[torch.from_numpy(g * n + i)] > 0
 
     def _team(self, union: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
         """Own features [R, Fo] of receivers at cell `where` [R, 2] whose team-visited map is

@@ -121,7 +121,7 @@ class LearnedPolicy(Policy):
     def remember(self, view: View) -> None:
         """Fold the view into the receivers' team memory and attach it (networks that read it)."""
         if self.features.memory and view.team_visited is None:
-            view.team_visited = self.team.update(view).copy()
+            view.team_visited = self.team.update(view)
 
     def _check(self, data: dict[str, Any], path: Path) -> tuple[Any, dict[str, torch.Tensor]]:
         """The model config and weights of a checkpoint, if they fit this policy and world."""

@@ -143,14 +143,22 @@ class TeamMemory:
         self.visited = np.zeros((groups, self.cfg.n_robots, self.cfg.cells), dtype=bool)
 
     def update(self, view: View) -> np.ndarray:
-        """Fold in the messages each receiver heard this tick; returns the rows [G, N, H*W]."""
+        """Fold in the messages each receiver heard this tick; returns the rows [G, N, H*W], a
+        new array each tick (never changed afterwards, so a view may keep it)."""
         if self.visited.shape[0] != view.groups:
             self.reset(view.groups)
+        old = self.visited
         if view.tick == 0:  # a new episode, even if nobody called reset
-            self.visited[view.receivers] = False
-        heard = (view.hears & view.receivers[:, :, None]).astype(np.float32)  # [G, N, N]
-        self.visited |= np.matmul(heard, view.msgs.visited.astype(np.float32)) > 0
+            old = old & ~view.receivers[:, :, None]
+        self.visited = old | heard_union(view)
         return self.visited
+
+
+def heard_union(view: View) -> np.ndarray:
+    """[G, N, H*W] bool: the union of the visited bitmaps each receiver heard this tick (its
+    own included); rows of non-receivers are empty."""
+    heard = (view.hears & view.receivers[:, :, None]).astype(np.float32)  # [G, N, N]
+    return np.matmul(heard, view.msgs.visited.astype(np.float32)) > 0
 
 
 def remember(views: list[View], cfg: WorldConfig) -> None:
@@ -158,7 +166,7 @@ def remember(views: list[View], cfg: WorldConfig) -> None:
     each) by folding them through a fresh TeamMemory: what the acting robots computed."""
     memory = TeamMemory(cfg)
     for view in views:
-        view.team_visited = memory.update(view).copy()
+        view.team_visited = memory.update(view)
 
 
 def batch_view(cfg: WorldConfig, state: WorldState) -> View:
