@@ -97,6 +97,21 @@ def _wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: flo
     raise TimeoutError(f"{name} did not listen on {host}:{port} within {timeout:g} s")
 
 
+def last_error(log: Path, tail: int = 4096) -> str:
+    """The last exception line (`SomeError: message`) of a child's log, or "" if none."""
+    try:
+        with log.open("rb") as fh:
+            fh.seek(max(fh.seek(0, os.SEEK_END) - tail, 0))
+            lines = fh.read().decode("utf-8", "replace").splitlines()
+    except OSError:
+        return ""
+    for line in reversed(lines):
+        head = line.split(":", 1)[0]
+        if line and not line[0].isspace() and head.endswith(("Error", "Exception")):
+            return line.strip()
+    return ""
+
+
 class Supervisor:
     def __init__(self, cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
                  console: Console | None = None, faults: dict[str, Any] | None = None,
@@ -339,8 +354,10 @@ class Supervisor:
                     e.undeclare()
                 self.stop_all()
         if self.result is None:
-            raise RuntimeError(f"world ended without a result (exit code "
-                               f"{self.world.returncode if self.world else '?'}); logs in {self.log_dir}")
+            code = self.world.returncode if self.world else "?"
+            why = last_error(self.log_dir / "world.log")
+            raise RuntimeError(f"world ended without a result (exit code {code}"
+                               f"{': ' + why if why else ''}); logs in {self.log_dir}")
         res = dict(self.result)
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["robot_crashes"] = self.crashes

@@ -259,3 +259,16 @@ def _run_killing_robot(run_id: str, robot: int, out: Path, *extra: str,
         if proc.poll() is None:
             proc.kill()
     return json.loads(out.read_text())
+
+
+def test_a_world_that_fails_is_reported_with_its_own_error(tmp_path: Path) -> None:
+    """When the world ends without a result, the supervisor's one error names the world's own
+    last exception (from its log), not only the exit code."""
+    from swarm.supervisor import last_error
+
+    log = tmp_path / "world.log"
+    log.write_text("Traceback (most recent call last):\n  File \"x.py\", line 1, in <module>\n"
+                   "    raise RuntimeError(...)\nRuntimeError: no robot came alive within 15 s\n")
+    assert last_error(log) == "RuntimeError: no robot came alive within 15 s"
+    log.write_text("a warning\n")
+    assert last_error(log) == "" and last_error(tmp_path / "missing.log") == ""
