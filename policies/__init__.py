@@ -36,5 +36,10 @@ def policy_class(name: str) -> type[Policy]:
     return getattr(importlib.import_module(module), cls)
 
 
+def learned_names() -> tuple[str, ...]:
+    """Registry names of the learned (torch) policies, in registry order (imports them)."""
+    return tuple(name for name in REGISTRY if policy_class(name).learned)
+
+
 def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
     return policy_class(name)(cfg, **kwargs)  # type: ignore[call-arg]

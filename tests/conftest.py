@@ -1,10 +1,26 @@
-"""Shared test setup."""
+"""Shared test setup: the repository root, the `swarm` CLI as a subprocess, the `procs` marker
+(tests that spawn processes or open Zenoh sessions: `pytest -m "not procs"` is the fast inner
+loop), one torch thread in-process."""
 
 from __future__ import annotations
 
+import subprocess
 import sys
+from pathlib import Path
 
 import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def swarm(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
+    """Run `python -m swarm.cli ARGS` from the repository root; output captured as text."""
+    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], check=False, cwd=ROOT,
+                          text=True, capture_output=True, timeout=timeout)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "procs: spawns processes or opens Zenoh sessions (slow)")
 
 
 @pytest.fixture(autouse=True)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from swarm import atomic
+from swarm.common import atomic
 
 
 def test_write_json_roundtrip_numpy_and_inf(tmp_path: Path) -> None:

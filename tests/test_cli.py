@@ -4,27 +4,28 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 from io import StringIO
 from pathlib import Path
 
 import pytest
+from conftest import swarm
 from rich.console import Console
 
-from swarm.cli import EvalConfig, file_tables, merged, world_config
-from swarm.console import env_bench_table, eval_table, policy_bench_table, sweep_table, table1_table
+from swarm.cli.batch import EvalConfig
+from swarm.cli.common import file_tables, merged, world_config
+from swarm.cli.console import (
+    env_bench_table,
+    eval_table,
+    policy_bench_table,
+    sweep_table,
+    table1_table,
+)
 from world.config import ConfigError
 
-ROOT = Path(__file__).resolve().parents[1]
 EVAL_KEYS = {"policy", "robots", "episodes", "seed", "elratio_mean", "elratio_std", "reward_mean",
              "collisions_mean", "block_collisions_mean", "success_rate", "planning_ms_per_decision"}
 
 
-def swarm(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    """Run `python -m swarm.cli ARGS` from the repository root."""
-    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], check=False, cwd=ROOT,
-                          text=True, capture_output=True, timeout=timeout)
 
 
 def has_policy(name: str) -> bool:
@@ -37,6 +38,7 @@ def has_policy(name: str) -> bool:
     return True
 
 
+@pytest.mark.procs
 def test_eval_writes_contract_json(tmp_path: Path) -> None:
     out = tmp_path / "eval.json"
     r = swarm("eval", "--policy", "random", "--robots", "4", "--episodes", "12", "--seed", "3",
@@ -54,6 +56,7 @@ def test_eval_writes_contract_json(tmp_path: Path) -> None:
     assert not list(tmp_path.glob(".*.tmp"))  # the atomic writer cleaned up
 
 
+@pytest.mark.procs
 def test_eval_is_deterministic_and_frontier_beats_random(tmp_path: Path) -> None:
     names = ["random"] + (["nearest-frontier"] if has_policy("nearest-frontier") else [])
     runs = []
@@ -86,6 +89,7 @@ def test_eval_is_deterministic_and_frontier_beats_random(tmp_path: Path) -> None
     ["repro", "fig5", "--out", "{tmp}/o", "--add-every", "40", "--policies", "random"],
     ["frobnicate"],
 ])
+@pytest.mark.procs
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str]) -> None:
     (tmp_path / "malformed.toml").write_text("[world\nn_robots = = 3\n")
     r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args))
@@ -95,6 +99,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str]) -> No
     assert "Traceback" not in r.stderr + r.stdout
 
 
+@pytest.mark.procs
 def test_config_file_unknown_key_and_table_rejected(tmp_path: Path) -> None:
     for body, word in [("[world]\nn_robotz = 3\n", "n_robotz"),
                        ("[eval]\nepisodez = 3\n", "episodez"),
@@ -106,6 +111,7 @@ def test_config_file_unknown_key_and_table_rejected(tmp_path: Path) -> None:
         assert len(r.stderr.strip().splitlines()) == 1 and word in r.stderr
 
 
+@pytest.mark.procs
 def test_config_file_applies_and_flags_override(tmp_path: Path) -> None:
     cfg = tmp_path / "exp.toml"
     cfg.write_text('[world]\nn_robots = 3\ndynamic = false\n\n'
@@ -133,6 +139,7 @@ def test_merge_precedence_in_process(tmp_path: Path) -> None:
         merged(EvalConfig, {}, {"episodes": 0}, "[eval]")
 
 
+@pytest.mark.procs
 def test_bench_env_tiny(tmp_path: Path) -> None:
     out = tmp_path / "env.json"
     r = swarm("bench", "env", "--batch", "1,4", "--repeats", "2", "--episodes", "1",
@@ -144,6 +151,7 @@ def test_bench_env_tiny(tmp_path: Path) -> None:
     assert data["robots"] == 3 and "agent-steps/s" in r.stdout
 
 
+@pytest.mark.procs
 def test_bench_policy_tiny(tmp_path: Path) -> None:
     out = tmp_path / "pol.json"
     r = swarm("bench", "policy", "--policies", "random", "--decisions", "8", "--warmup", "0",
@@ -154,6 +162,7 @@ def test_bench_policy_tiny(tmp_path: Path) -> None:
     assert 0 <= row["min_ms"] <= row["median_ms"] <= row["p90_ms"] <= row["max_ms"]
 
 
+@pytest.mark.procs
 def test_repro_all_tiny_writes_every_file(tmp_path: Path) -> None:
     out = tmp_path / "repro"
     r = swarm("repro", "all", "--out", str(out), "--policies", "random", "--episodes", "3",
@@ -214,6 +223,7 @@ def test_renderers_show_the_figures() -> None:
     assert "0.540 ± 0.010" in text and "nearest-frontier" in text
 
 
+@pytest.mark.procs
 def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
     """A real (tiny) training run's checkpoint and curve feed Table 2 and Fig. 8."""
     run = tmp_path / "run"

@@ -6,7 +6,7 @@ import io
 
 from rich.console import Console
 
-from swarm.dashboard import SwarmView, render, render_robots
+from swarm.procs.dashboard import SwarmView, render, render_robots
 
 
 def _view() -> SwarmView:

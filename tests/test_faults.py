@@ -11,10 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import ROOT, swarm
 
 from policies import make_policy
-from swarm.evaluate import evaluate
-from swarm.faults import (
+from swarm.learn.evaluate import evaluate
+from swarm.net.faults import (
     FaultPlan,
     LinkFault,
     delivery_mask,
@@ -24,16 +25,8 @@ from swarm.faults import (
     parse_rate,
     plan_from_table,
 )
-from swarm.radio import Radio, TokenBucket
+from swarm.net.radio import Radio, TokenBucket
 from world.config import ConfigError, WorldConfig
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def swarm(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
-                          capture_output=True, timeout=timeout)
-
 
 # ------------------------------------------------------------------------------- parsing
 
@@ -52,6 +45,7 @@ def test_parsing_of_human_units() -> None:
             bad()
 
 
+@pytest.mark.procs
 def test_bad_fault_flag_is_one_line_error() -> None:
     r = swarm("run", "--headless", "--robots", "2", "--loss", "2.0")
     assert r.returncode == 2
@@ -175,6 +169,7 @@ def test_heavy_loss_and_latency_never_deadlock(tmp_path: Path) -> None:
     assert res["messages"]["lost"] > 0
 
 
+@pytest.mark.procs
 def test_live_fault_change_takes_effect_within_one_tick(tmp_path: Path) -> None:
     run_id = "livef"
     proc = subprocess.Popen(
@@ -204,6 +199,7 @@ def test_live_fault_change_takes_effect_within_one_tick(tmp_path: Path) -> None:
         proc.communicate(timeout=10)
 
 
+@pytest.mark.procs
 def test_experiment_sweep_writes_csv_png_and_resumes(tmp_path: Path) -> None:
     r = swarm("experiment", "deploy/experiments/tiny.toml", "--out", str(tmp_path), timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -14,8 +14,11 @@ from rich.console import Console
 
 from policies import make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from swarm.evaluate import evaluate
-from swarm.train import TrainConfig, collect, main, update
+from swarm.learn.config import TrainConfig
+from swarm.learn.evaluate import evaluate
+from swarm.learn.rollout import collect
+from swarm.learn.trainer import main
+from swarm.learn.update import update
 from world import core
 from world.config import ConfigError, WorldConfig
 from world.decentral import TeamMemory, View, batch_view, heard_by, remember, robot_view
@@ -212,10 +215,11 @@ def test_update_is_deterministic(name: str) -> None:
     assert any(not torch.equal(v, start[k]) for k, v in weights[0].items())
 
 
+@pytest.mark.procs
 def test_parallel_update_equals_single_process_update() -> None:
     """Two processes (this one and a spawned worker) splitting a batch take the same step as
     one process on the whole batch, to float tolerance; metrics cover every episode in order."""
-    from swarm.train_parallel import ParallelUpdater
+    from swarm.learn.parallel import ParallelUpdater
 
     cfg = TrainConfig(policy="commattn", batch=9)
     episodes = np.arange(9)
@@ -316,7 +320,7 @@ def test_training_recomputes_what_acting_computed(name: str) -> None:
 def test_cli_flags_and_overwrite_guard(tmp_path: Path) -> None:
     import argparse
 
-    from swarm.train import add_arguments, from_args
+    from swarm.learn.config import add_arguments, from_args
     from world.config import ConfigError
 
     parser = argparse.ArgumentParser()

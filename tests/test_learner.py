@@ -17,25 +17,25 @@ import numpy as np
 import pytest
 import torch
 import zenoh
+from conftest import ROOT, swarm
 
 from policies import make_policy
 from policies.checkpoint import load_checkpoint, save_checkpoint
-from swarm.evaluate import evaluate
-from swarm.keys import Keys
-from swarm.learner import adopt, episodes_of, rollout_of, weights_of
-from swarm.messages import BadMessage, EpisodeRollout, RobotRollout, Weights
-from swarm.train import TrainConfig, advantages, backward, collect, normaliser, update
-from swarm.zconfig import ZenohOptions, free_port
+from swarm.learn.config import TrainConfig
+from swarm.learn.evaluate import evaluate
+from swarm.learn.join import episodes_of, rollout_of
+from swarm.learn.rollout import collect
+from swarm.learn.update import advantages, backward, normaliser, update
+from swarm.learn.weights import adopt, weights_of
+from swarm.net.keys import Keys
+from swarm.net.messages import BadMessage, EpisodeRollout, RobotRollout, Weights
+from swarm.net.zconfig import ZenohOptions, free_port
 from world.config import WorldConfig
 
-ROOT = Path(__file__).resolve().parents[1]
 SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=3, horizon=8,
                     add_every=2, vision=3, comm_range=4.0, recent_len=4)
 
 
-def swarm(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
-                          capture_output=True, timeout=timeout)
 
 
 def spawn(*args: str, log: Path | None = None) -> subprocess.Popen[bytes]:
@@ -161,7 +161,7 @@ def _listening(hub: str, timeout: float = 60.0) -> None:
 
 def _hub(run_id: str, timeout: float = 60.0) -> str:
     """The hub endpoint a `swarm run` notes in its registry, once it listens."""
-    from swarm.supervisor import _registry
+    from swarm.procs.supervisor import _registry
 
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -175,6 +175,7 @@ def _hub(run_id: str, timeout: float = 60.0) -> str:
     raise TimeoutError("no registry entry")
 
 
+@pytest.mark.procs
 def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path) -> None:
     """`swarm run --train`: the learner's first update from the robots' records equals the
     batched trainer's update on the same episodes (same seed, initial weights, no faults)."""
@@ -202,6 +203,7 @@ def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path)
     assert float(row["elratio"]) == pytest.approx(float(roll.metrics.elratio.mean()))
 
 
+@pytest.mark.procs
 def test_weights_hot_swap_only_at_episode_boundaries(tmp_path: Path) -> None:
     """Robots tag every tick with the weights version they acted with: within an episode it
     never changes, across episodes it follows the learner; bad weights put on the learner's key
@@ -254,6 +256,7 @@ def test_weights_hot_swap_only_at_episode_boundaries(tmp_path: Path) -> None:
     assert st["incomplete"] == 0 and st["bad"] == 0, st
 
 
+@pytest.mark.procs
 def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> None:
     """A learner fed by a rollout worker is SIGKILLed mid-training: every version it had
     published is in its checkpoint; `--resume` continues from it (curve and versions carry on),
@@ -316,6 +319,7 @@ def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> Non
     assert updates == sorted(set(updates)) and updates[0] == 1  # no row repeated after resume
 
 
+@pytest.mark.procs
 def test_short_field_training_improves_mean_reward(tmp_path: Path) -> None:
     """`swarm run --train` from fresh weights on a tiny static map: the learner's final weights
     earn a higher mean reward than the initial ones on 400 held-out sampled episodes.
@@ -350,6 +354,7 @@ def test_short_field_training_improves_mean_reward(tmp_path: Path) -> None:
     assert reward[1] > reward[0] + 3, reward
 
 
+@pytest.mark.procs
 def test_rollout_loss_drops_records_and_the_learner_counts_incomplete_episodes(
         tmp_path: Path) -> None:
     """A fault on the rollout traffic: robots drop their episode records with the seeded

@@ -6,15 +6,13 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from conftest import swarm
 
-from swarm.netns import NetnsConfig, Topology, namespaces
+from swarm.net.netns import NetnsConfig, Topology, namespaces
 from world.config import ConfigError
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _netns_reason() -> str | None:
@@ -30,9 +28,6 @@ REASON = _netns_reason()
 pytestmark = pytest.mark.skipif(REASON is not None, reason=REASON or "")
 
 
-def swarm(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
-                          capture_output=True, timeout=timeout)
 
 
 def ours(run_id: str) -> list[str]:
@@ -43,6 +38,7 @@ def link_exists(name: str) -> bool:
     return subprocess.run(["ip", "link", "show", name], capture_output=True).returncode == 0
 
 
+@pytest.mark.procs
 def test_topology_up_down_leaves_no_namespace_behind() -> None:
     topo = Topology("nsupdown", 2, NetnsConfig(bandwidth=8000.0))
     with topo:
@@ -59,6 +55,7 @@ def test_topology_up_down_leaves_no_namespace_behind() -> None:
     assert ours("nsboom") == []  # teardown ran on the failure too
 
 
+@pytest.mark.procs
 def test_a_namespace_that_exists_already_is_refused_and_left_alone() -> None:
     subprocess.run(["ip", "netns", "add", "swarm-nsclash-w"], check=True)
     try:
@@ -69,6 +66,7 @@ def test_a_namespace_that_exists_already_is_refused_and_left_alone() -> None:
         subprocess.run(["ip", "netns", "del", "swarm-nsclash-w"], check=True)
 
 
+@pytest.mark.procs
 def test_bad_use_is_a_one_line_error() -> None:
     r = swarm("run", "--headless", "--robots", "2", "--kernel-loss", "0.1")
     assert r.returncode != 0 and "need --netns" in r.stderr
@@ -77,6 +75,7 @@ def test_bad_use_is_a_one_line_error() -> None:
         NetnsConfig.parse(loss="lots")
 
 
+@pytest.mark.procs
 def test_netns_run_takes_the_same_actions_as_loopback(tmp_path: Path) -> None:
     common = ["run", "--headless", "--robots", "2", "--episodes", "1", "--policy",
               "nearest-frontier", "--seed", "5"]
@@ -91,6 +90,7 @@ def test_netns_run_takes_the_same_actions_as_loopback(tmp_path: Path) -> None:
     assert ours("nskern") == []
 
 
+@pytest.mark.procs
 @pytest.mark.skipif(shutil.which("iptables") is None, reason="iptables is not installed")
 def test_kernel_loss_makes_messages_late_or_robots_lost(tmp_path: Path) -> None:
     """TCP turns dropped packets into retransmission delay: late messages and missed ticks,

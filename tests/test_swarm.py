@@ -13,19 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from conftest import ROOT, swarm
 
 from policies import make_policy
-from swarm.evaluate import evaluate
-from swarm.keys import Keys
-from swarm.zconfig import ZenohOptions
+from swarm.learn.evaluate import evaluate
+from swarm.net.keys import Keys
+from swarm.net.zconfig import ZenohOptions
 from world.config import WorldConfig
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def swarm(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, text=True,
-                          capture_output=True, timeout=timeout)
 
 
 def run_procs(run_id: str) -> list[int]:
@@ -44,6 +38,7 @@ def run_procs(run_id: str) -> list[int]:
     return pids
 
 
+@pytest.mark.procs
 def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path) -> None:
     out = tmp_path / "run.json"
     r = swarm("run", "--headless", "--robots", "4", "--policy", "nearest-frontier",
@@ -63,6 +58,7 @@ def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path) -> None:
     assert "result" in lines[-1]
 
 
+@pytest.mark.procs
 def test_range_limited_delivery_out_of_range_hears_nothing(tmp_path: Path) -> None:
     """comm_range 0: every bundle holds exactly the receiver's own message."""
     out = tmp_path / "run.json"
@@ -75,6 +71,7 @@ def test_range_limited_delivery_out_of_range_hears_nothing(tmp_path: Path) -> No
     assert m["out_of_range"] > 0
 
 
+@pytest.mark.procs
 def test_malformed_payloads_are_dropped_and_counted(tmp_path: Path) -> None:
     out = tmp_path / "run.json"
     run_id = "badmsg"
@@ -124,6 +121,7 @@ def test_killed_robot_is_noticed_and_mission_goes_on(tmp_path: Path) -> None:
     assert res["robot_crashes"] == 1
 
 
+@pytest.mark.procs
 def test_ctrl_c_leaves_no_process_behind() -> None:
     run_id = "ctrlc"
     proc = subprocess.Popen(
@@ -142,6 +140,7 @@ def test_ctrl_c_leaves_no_process_behind() -> None:
     assert time.monotonic() - t0 < 3.5
 
 
+@pytest.mark.procs
 def test_two_runs_side_by_side_do_not_cross_talk(tmp_path: Path) -> None:
     procs = []
     for run_id, seed in (("sideA", 3), ("sideB", 4)):
@@ -159,9 +158,10 @@ def test_two_runs_side_by_side_do_not_cross_talk(tmp_path: Path) -> None:
         assert res["messages"]["bad"] == 0 and res["messages"]["late"] == 0
 
 
+@pytest.mark.procs
 def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
     """`swarm world` + `swarm robot` by hand (the README's two-terminal start); kill the world."""
-    from swarm.zconfig import free_port
+    from swarm.net.zconfig import free_port
 
     hub = f"tcp/127.0.0.1:{free_port()}"
     out = tmp_path / "world.json"
@@ -209,6 +209,7 @@ def test_restart_crashed_brings_a_killed_robot_back(tmp_path: Path) -> None:
     assert (last_ep[:, 2] != 0).any()  # and acting again
 
 
+@pytest.mark.procs
 def test_bench_swarm_prints_and_writes_figures(tmp_path: Path) -> None:
     out = tmp_path / "bench.json"
     r = swarm("bench", "swarm", "--robots", "2,3", "--episodes", "1", "--json", str(out))
@@ -221,6 +222,7 @@ def test_bench_swarm_prints_and_writes_figures(tmp_path: Path) -> None:
         assert 5 < row["rss_mb_per_robot"] < 250  # a frontier robot never imports torch
 
 
+@pytest.mark.procs
 @pytest.mark.parametrize("sample", [False, True])
 def test_commattn_swarm_matches_batched_eval_tick_by_tick(tmp_path: Path, sample: bool) -> None:
     """The shipped CommAttn checkpoint over the predecessor chain of hidden-state messages."""
@@ -264,7 +266,7 @@ def _run_killing_robot(run_id: str, robot: int, out: Path, *extra: str,
 def test_a_world_that_fails_is_reported_with_its_own_error(tmp_path: Path) -> None:
     """When the world ends without a result, the supervisor's one error names the world's own
     last exception (from its log), not only the exit code."""
-    from swarm.supervisor import last_error
+    from swarm.procs.supervisor import last_error
 
     log = tmp_path / "world.log"
     log.write_text("Traceback (most recent call last):\n  File \"x.py\", line 1, in <module>\n"

@@ -12,7 +12,7 @@ pending dynamic blocks activated on unoccupied cells, elratio taken.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -310,6 +310,23 @@ class EpisodeMetrics:
     elratio: np.ndarray  # at the last step
     success: np.ndarray
     repeat_ratio: np.ndarray  # steps paying r_back / robot-steps
+
+    @classmethod
+    def concat(cls, parts: list[EpisodeMetrics]) -> EpisodeMetrics:
+        """The metrics of several batches, episode order kept."""
+        return cls(**{k: np.concatenate([getattr(m, k) for m in parts]) for k in METRIC_NAMES})
+
+    @classmethod
+    def from_rows(cls, rows: list[dict[str, float]]) -> EpisodeMetrics:
+        """From one `row` per episode (e.g. episodes received over the network)."""
+        return cls(**{k: np.array([r[k] for r in rows]) for k in METRIC_NAMES})
+
+    def row(self, g: int) -> dict[str, float]:
+        """Episode `g`'s metrics as plain floats (a wire record or a JSON row)."""
+        return {k: float(getattr(self, k)[g]) for k in METRIC_NAMES}
+
+
+METRIC_NAMES: tuple[str, ...] = tuple(f.name for f in fields(EpisodeMetrics))
 
 
 def metrics(cfg: WorldConfig, state: WorldState) -> EpisodeMetrics:

@@ -1,0 +1,233 @@
+"""Benchmarks that print figures (`swarm bench env|policy`): world throughput and planning time.
+
+`bench_env` times the batched world step *with* the decentralized view (observation patches and
+trajectory messages, `world.decentral.batch_view`), as the evaluator and trainer pay it every
+tick. `bench_policy` times one team decision (G = 1, every robot a receiver) on states reached
+by the policy itself on seeded maps, the per-decision figure of the paper's Table 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import time
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from policies import REGISTRY
+from swarm.common.policy_spec import build_policy, resolve_policies
+from world import core
+from world.config import ConfigError, WorldConfig
+from world.decentral import batch_view
+
+# Project bars for `bench policy` (median ms per team decision, 10 robots).
+POLICY_BARS_MS: dict[str, float] = {
+    "nearest-frontier": 1.0, "coordinated-frontier": 3.0, "cost-utility": 3.0,
+}
+ENV_BAR = (1024, 4_000_000.0)  # agent-steps/s wanted at this batch size (N = 10)
+
+
+class ProgressSink(Protocol):
+    """Where long runs report progress; the CLI passes a rich progress bar, tests pass nothing."""
+
+    def start(self, label: str, total: int) -> None: ...
+
+    def advance(self, n: int = 1) -> None: ...
+
+
+class NullProgress:
+    """A progress sink that shows nothing."""
+
+    def start(self, label: str, total: int) -> None:
+        pass
+
+    def advance(self, n: int = 1) -> None:
+        pass
+
+
+def int_list(value: Any, name: str) -> tuple[int, ...]:
+    """'1,64,1024', [1, 64] or 5 -> a non-empty tuple of positive ints (ConfigError otherwise)."""
+    items = value.split(",") if isinstance(value, str) else value
+    items = items if isinstance(items, (list, tuple)) else [items]
+    try:
+        out = tuple(int(v) for v in items if str(v).strip() != "")
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} must be comma-separated integers, got {value!r}") from None
+    if not out or min(out) < 1:
+        raise ConfigError(f"{name} must hold positive integers, got {value!r}")
+    return out
+
+
+def name_list(value: Any) -> tuple[str, ...]:
+    """Policy names from 'a,b', ['a', 'b'] or 'all', checked against the registry."""
+    return tuple(resolve_policies(value if isinstance(value, str) else list(value)))
+
+
+def _positive(name: str, value: int) -> None:
+    if value < 1:
+        raise ConfigError(f"{name} must be >= 1, got {value}")
+
+
+@dataclass(frozen=True)
+class EnvBenchConfig:
+    """Options of `swarm bench env` (TOML table `[bench.env]`)."""
+
+    batches: tuple[int, ...] = (1, 64, 1024)
+    """Batch sizes B to time."""
+    repeats: int = 5
+    """Timed repeats per batch size; the figure is their median."""
+    episodes: int = 2
+    """Full episodes (T steps each) per repeat."""
+    seed: int = 0
+    """Seed of the maps and of the random actions."""
+    json: str | None = None
+    """Write the figures to this JSON file."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "batches", int_list(self.batches, "batches"))
+        _positive("repeats", self.repeats)
+        _positive("episodes", self.episodes)
+
+
+@dataclass(frozen=True)
+class PolicyBenchConfig:
+    """Options of `swarm bench policy` (TOML table `[bench.policy]`)."""
+
+    policies: tuple[str, ...] = tuple(REGISTRY)
+    """Policies to time (default: every registered one)."""
+    decisions: int = 150
+    """Timed team decisions per policy (whole episodes are run; surplus ticks are dropped)."""
+    warmup: int = 1
+    """Untimed warm-up episodes per policy."""
+    seed: int = 0
+    """Seed of the maps."""
+    json: str | None = None
+    """Write the figures to this JSON file."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "policies", name_list(self.policies))
+        _positive("decisions", self.decisions)
+        if self.warmup < 0:
+            raise ConfigError(f"warmup must be >= 0, got {self.warmup}")
+
+
+def copy_state(state: core.WorldState) -> core.WorldState:
+    """A deep copy of a batched world state (every array copied)."""
+    changes = {f.name: getattr(state, f.name).copy() for f in dataclasses.fields(state)
+               if isinstance(getattr(state, f.name), np.ndarray)}
+    return dataclasses.replace(state, **changes)
+
+
+def bench_env(world: WorldConfig, cfg: EnvBenchConfig,
+              progress: ProgressSink | None = None) -> dict[str, Any]:
+    """Agent-steps/s of `batch_view` + `core.step` for each batch size (median over repeats).
+
+    Maps are generated once per batch size (untimed, reported as `reset_ms_per_episode`); each
+    episode restarts from a copy of them with fresh uniformly random actions.
+    """
+    progress = progress or NullProgress()
+    rows: list[dict[str, Any]] = []
+    _episode_loop(world, copy_state(core.reset(world, cfg.seed, [0])), np.zeros(  # warm-up
+        (world.horizon, 1, world.n_robots), dtype=np.int64))
+    for b in cfg.batches:
+        progress.start(f"env B={b}", cfg.repeats)
+        t0 = time.perf_counter()
+        start = core.reset(world, cfg.seed, np.arange(b))
+        reset_s = time.perf_counter() - t0
+        rng = np.random.default_rng([cfg.seed, b])
+        rates: list[float] = []
+        cpu_rates: list[float] = []
+        for _ in range(cfg.repeats):
+            wall = cpu = 0.0
+            for _ in range(cfg.episodes):
+                state = copy_state(start)
+                actions = rng.integers(0, core.N_ACTIONS, size=(world.horizon, b, world.n_robots))
+                w, c = _episode_loop(world, state, actions)
+                wall += w
+                cpu += c
+            agent_steps = cfg.episodes * world.horizon * b * world.n_robots
+            rates.append(agent_steps / wall)
+            cpu_rates.append(agent_steps / max(cpu, 1e-9))
+            progress.advance(1)
+        med = statistics.median(rates)
+        rows.append({
+            "batch": b, "agent_steps_per_s": med, "min": min(rates), "max": max(rates),
+            "agent_steps_per_cpu_s": statistics.median(cpu_rates),
+            "step_ms": 1e3 * b * world.n_robots / med,
+            "reset_ms_per_episode": 1e3 * reset_s / b,
+        })
+    return {
+        "robots": world.n_robots, "horizon": world.horizon, "seed": cfg.seed,
+        "repeats": cfg.repeats, "episodes_per_repeat": cfg.episodes,
+        "agent_steps_per_s": {str(r["batch"]): r["agent_steps_per_s"] for r in rows},
+        "bar": {"batch": ENV_BAR[0], "agent_steps_per_s": ENV_BAR[1]},
+        "rows": rows,
+    }
+
+
+def _episode_loop(world: WorldConfig, state: core.WorldState,
+                  actions: np.ndarray) -> tuple[float, float]:
+    """Run one batched episode (view, then step, every tick); (wall s, process CPU s)."""
+    w0, c0 = time.perf_counter(), time.process_time()
+    for t in range(world.horizon):
+        batch_view(world, state)
+        core.step(world, state, actions[t])
+    return time.perf_counter() - w0, time.process_time() - c0
+
+
+def time_decisions(world: WorldConfig, name: str, decisions: int, seed: int, warmup: int = 1,
+                   checkpoint: str | None = None,
+                   progress: ProgressSink | None = None) -> np.ndarray:
+    """Wall ms of `decisions` team decisions of policy `name`, one episode (G = 1) at a time.
+
+    The policy plays seeded episodes from tick 0 so its memory (maps built from what it heard)
+    is what it would be mid-mission; every tick's `act` is timed, warm-up episodes are not.
+    """
+    policy = build_policy(name, world, checkpoint)
+    progress = progress or NullProgress()
+    samples: list[float] = []
+    episode = 0
+    while len(samples) < decisions:
+        state = core.reset(world, seed, [episode])
+        policy.reset(1)
+        timed = episode >= warmup
+        while not state.done:
+            view = batch_view(world, state)
+            t0 = time.perf_counter()
+            actions = policy.act(view)
+            dt = time.perf_counter() - t0
+            if timed and len(samples) < decisions:
+                samples.append(1e3 * dt)
+                progress.advance(1)
+            core.step(world, state, actions)
+        episode += 1
+    return np.asarray(samples)
+
+
+def timing_stats(ms: np.ndarray) -> dict[str, float]:
+    """Median, p90, mean, std, min, max and count of a sample of milliseconds."""
+    return {
+        "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
+        "mean_ms": float(ms.mean()), "std_ms": float(ms.std()),
+        "min_ms": float(ms.min()), "max_ms": float(ms.max()), "decisions": int(ms.size),
+    }
+
+
+def bench_policy(world: WorldConfig, cfg: PolicyBenchConfig, progress: ProgressSink | None = None,
+                 checkpoints: dict[str, str] | None = None) -> dict[str, Any]:
+    """Planning ms per team decision for each policy of `cfg.policies`."""
+    progress = progress or NullProgress()
+    checkpoints = checkpoints or {}
+    rows: list[dict[str, Any]] = []
+    for name in cfg.policies:
+        progress.start(f"plan {name}", cfg.decisions)
+        ms = time_decisions(world, name, cfg.decisions, cfg.seed, cfg.warmup,
+                            checkpoints.get(name), progress)
+        row: dict[str, Any] = {"policy": name, **timing_stats(ms)}
+        bar = POLICY_BARS_MS.get(name)
+        row["bar_ms"] = bar
+        row["meets_bar"] = None if bar is None else row["median_ms"] <= bar
+        rows.append(row)
+    return {"robots": world.n_robots, "seed": cfg.seed, "decisions": cfg.decisions, "rows": rows}

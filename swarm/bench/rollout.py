@@ -1,0 +1,135 @@
+"""`swarm bench rollout --workers 1,2`: episodes/s a gather-only learner receives from K rollout
+workers over Zenoh on loopback (real processes: one learner as the router, K worker clients).
+
+For each K the learner starts, then K workers; once the first episode has arrived the bench
+waits `warmup` seconds and then counts the episodes the learner reports over `seconds`. Every
+process is stopped before the next K. Figures are medians of `repeats` windows of that length.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import subprocess
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from swarm.bench.micro import int_list
+from swarm.net.keys import Keys
+from swarm.net.messages import K_LSTATUS, BadMessage, unpack_record
+from swarm.net.zconfig import ZenohOptions, free_port
+from swarm.procs.supervisor import _cli, _wait_port
+from world.config import ConfigError
+
+
+@dataclass(frozen=True)
+class RolloutBenchConfig:
+    """Options of `swarm bench rollout` (TOML table `[bench.rollout]`)."""
+
+    workers: tuple[int, ...] = (1, 2)
+    """Worker counts to measure."""
+    policy: str = "commattn"
+    """Learned policy the workers run."""
+    batch: int = 16
+    """Episodes per worker batch."""
+    threads: int = 1
+    """torch threads per worker."""
+    seconds: float = 10.0
+    """Length of one measuring window."""
+    repeats: int = 3
+    """Windows per worker count (the median is reported)."""
+    warmup: float = 3.0
+    """Seconds after the first episode before measuring."""
+    json: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "workers", int_list(self.workers, "workers"))
+        if self.batch < 1 or self.threads < 1 or self.seconds <= 0 or self.repeats < 1:
+            raise ConfigError("batch, threads, repeats must be >= 1 and seconds > 0")
+
+
+def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
+    port = free_port()
+    hub = f"tcp/127.0.0.1:{port}"
+    run_id = f"benchroll{k}"
+    procs: list[subprocess.Popen[bytes]] = []
+    status: list[tuple[float, int, int]] = []  # (monotonic, episodes, bytes)
+    lock = threading.Lock()
+
+    def on_status(s: zenoh.Sample) -> None:
+        try:
+            rec = unpack_record(s.payload.to_bytes(), K_LSTATUS)
+        except BadMessage:
+            return
+        with lock:
+            status.append((time.monotonic(), int(rec["episodes"]), int(rec["rollout_bytes"])))
+
+    log = open(tmp / f"bench-{k}.log", "ab")  # noqa: SIM115
+    try:
+        procs.append(subprocess.Popen(
+            _cli("learner", "--run-id", run_id, "--policy", cfg.policy, "--gather-only",
+                 "--out", str(tmp / f"learner{k}"), "--zenoh-mode", "router", "--listen", hub),
+            stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL))
+        _wait_port("127.0.0.1", port, procs[0], 60.0, "learner")
+        with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
+            sub = session.declare_subscriber(Keys(run_id).learner_status, on_status)
+            for w in range(k):
+                procs.append(subprocess.Popen(
+                    _cli("rollout-worker", "--run-id", run_id, "--worker-id", str(w),
+                         "--batch", str(cfg.batch), "--threads", str(cfg.threads),
+                         "--connect", hub, "--zenoh-mode", "client"),
+                    stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL))
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline:
+                with lock:
+                    if status and status[-1][1] > 0:
+                        break
+                if any(p.poll() is not None for p in procs):
+                    raise RuntimeError(f"a bench process exited early; see {log.name}")
+                time.sleep(0.1)
+            else:
+                raise RuntimeError("no episode reached the learner within 120 s")
+            time.sleep(cfg.warmup)
+            rates, byte_rates = [], []
+            for _ in range(cfg.repeats):
+                with lock:
+                    t0, e0, b0 = status[-1]
+                time.sleep(cfg.seconds)
+                with lock:
+                    t1, e1, b1 = status[-1]
+                rates.append((e1 - e0) / max(t1 - t0, 1e-9))
+                byte_rates.append((b1 - b0) / max(t1 - t0, 1e-9))
+            sub.undeclare()
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        log.close()
+    return {"workers": k, "episodes_per_s": statistics.median(rates),
+            "episodes_per_s_windows": rates, "rollout_bytes_per_s": statistics.median(byte_rates)}
+
+
+def bench_rollout(cfg: RolloutBenchConfig, on_row: Any = None) -> dict[str, Any]:
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="swarm-bench-rollout-") as tmp:
+        for k in cfg.workers:
+            row = measure(k, cfg, Path(tmp))
+            if rows:
+                row["speedup"] = row["episodes_per_s"] / max(rows[0]["episodes_per_s"], 1e-9)
+            else:
+                row["speedup"] = 1.0
+            rows.append(row)
+            if on_row:
+                on_row(row)
+    return {"config": dataclasses.asdict(cfg), "rows": rows}

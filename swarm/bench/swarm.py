@@ -1,0 +1,51 @@
+"""`swarm bench swarm`: ticks/s, startup seconds and RSS per robot of real swarm runs."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from swarm.procs.runconfig import RunConfig
+from swarm.procs.supervisor import SuperviseOptions, Supervisor
+from world.config import ConfigError, WorldConfig
+
+
+@dataclass(frozen=True)
+class SwarmBenchConfig:
+    """Options of `swarm bench swarm` (TOML table `[bench.swarm]`)."""
+
+    robots: tuple[int, ...] = (10, 25, 50)
+    """Team sizes to run."""
+    policies: tuple[str, ...] = ("nearest-frontier",)
+    """Policies to run (each robot process runs the policy)."""
+    episodes: int = 5
+    """Episodes per run (ticks/s is measured over all of them)."""
+    seed: int = 0
+    """Episode seed."""
+    checkpoint: str | None = None
+    """Checkpoint for a learned policy."""
+    json: str | None = None
+    """Write the figures here."""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1 or not self.robots or min(self.robots) < 1:
+            raise ConfigError("bench swarm needs episodes >= 1 and robot counts >= 1")
+
+
+def bench_swarm(world: WorldConfig, cfg: SwarmBenchConfig, progress: Any = None) -> dict[str, Any]:
+    rows = []
+    for policy in cfg.policies:
+        for n in cfg.robots:
+            wcfg = dataclasses.replace(world, n_robots=n)
+            run = RunConfig(run_id=f"bench-{policy}-{n}"[:60], policy=policy, episodes=cfg.episodes,
+                            seed=cfg.seed, checkpoint=cfg.checkpoint)
+            res = Supervisor(wcfg, run, SuperviseOptions(headless=True, status_lines=False)).supervise()
+            rows.append({"policy": policy, "robots": n, "ticks_per_s": res["ticks_per_s"],
+                         "startup_s": res["startup_s"], "rss_mb_per_robot": res["rss_mb_per_robot"],
+                         "pss_mb_per_robot": res.get("pss_mb_per_robot"),
+                         "rss_mb_world": res["rss_mb_world"], "elratio_mean": res["elratio_mean"],
+                         "timeouts": res["timeouts"], "ticks": res["ticks"]})
+            if progress is not None:
+                progress(rows[-1])
+    return {"rows": rows, "episodes": cfg.episodes, "seed": cfg.seed}

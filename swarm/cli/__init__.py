@@ -1,0 +1,46 @@
+"""The `swarm` console script: one parser, one module per command family (all thin).
+
+`swarm.cli.batch`: eval, bench, repro, train (in-process); `swarm.cli.run`: run, world, robot,
+fault, experiment (the distributed swarm); `swarm.cli.learn`: learner, rollout-worker.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from swarm.cli import batch, learn, run
+from swarm.cli.common import _Parser
+from world.config import ConfigError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="swarm", description="CommAttn swarm emulator: evaluate, benchmark "
+                     "and reproduce the paper's experiments.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    batch.add_parsers(sub)
+    run.add_parsers(sub)
+    learn.add_parsers(sub)
+    run.add_robot_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `swarm` console script; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except ConfigError as exc:
+        print(f"swarm: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"swarm: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("swarm: interrupted", file=sys.stderr)
+        return 130

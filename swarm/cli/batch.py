@@ -1,0 +1,347 @@
+"""The batched, in-process commands: `swarm eval`, `swarm train`, `swarm bench`, `swarm repro`."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from typing import Any
+
+from swarm.cli.common import (
+    RichProgress,
+    _checkpoint_pairs,
+    _command,
+    _consoles,
+    _ints,
+    _names,
+    _Parser,
+    add_common,
+    add_world,
+    file_tables,
+    merged,
+    world_config,
+)
+from swarm.cli.console import (
+    curves_table,
+    env_bench_table,
+    eval_table,
+    files_table,
+    kv_table,
+    policy_bench_table,
+    rollout_bench_table,
+    sweep_table,
+    table1_table,
+    table2_table,
+)
+from swarm.common import atomic
+from world.config import ConfigError, WorldConfig, from_dict
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Options of `swarm eval` (TOML table `[eval]`)."""
+
+    policy: str = "nearest-frontier"
+    """Registry name, a comma-separated list, or `all` (every baseline)."""
+    checkpoint: str | None = None
+    """Checkpoint of a learned policy."""
+    episodes: int = 1000
+    """Episodes per policy (episode numbers 0 .. episodes-1 of the seed)."""
+    seed: int = 0
+    """Seed of maps, spawns, block schedules and policy noise."""
+    batch: int = 250
+    """Episodes stepped at once."""
+    greedy: bool = True
+    """Greedy actions (false: sample where the policy is stochastic)."""
+    json: str | None = None
+    """Write the results to this JSON file."""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise ConfigError(f"episodes must be >= 1, got {self.episodes}")
+        if self.batch < 1:
+            raise ConfigError(f"batch must be >= 1, got {self.batch}")
+
+
+
+
+# ---------------------------------------------------------------------------- subcommands
+
+
+def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
+             faults: Any = None) -> list[dict[str, Any]]:
+    """Evaluate each policy of `cfg.policy` on the same episodes; summaries in order."""
+    from swarm.bench.micro import NullProgress
+    from swarm.common.policy_spec import build_policy, effective_checkpoint, resolve_policies
+    from swarm.learn.evaluate import evaluate
+
+    names = resolve_policies(cfg.policy)
+    if cfg.checkpoint is not None and len(names) > 1:
+        raise ConfigError("--checkpoint needs a single --policy")
+    policies = [build_policy(n, world, cfg.checkpoint) for n in names]  # fail before running
+    progress = progress or NullProgress()
+    out = []
+    for name, policy in zip(names, policies, strict=True):
+        progress.start(f"eval {name}", cfg.episodes)
+        res = evaluate(world, policy, cfg.seed, cfg.episodes, batch=cfg.batch, greedy=cfg.greedy,
+                       on_progress=progress.advance, faults=faults)
+        out.append({**res.summary(world), "policy": name,
+                    "checkpoint": effective_checkpoint(name, cfg.checkpoint),
+                    **({"faults": faults.describe()} if faults is not None else {})})
+    return out
+
+
+def _eval_faults(args: argparse.Namespace, tables: dict[str, Any]) -> Any:
+    """Message faults for the batched evaluator: `[faults]` loss/partition/seed and the flags."""
+    from swarm.net.faults import plan_from_table
+
+    table = {k: v for k, v in tables.get("faults", {}).items()
+             if k in ("loss", "partition", "seed")}
+    for key, flag in (("loss", args.loss), ("partition", args.partition),
+                      ("seed", args.fault_seed)):
+        if flag is not None:
+            table[key] = flag
+    return plan_from_table(table) if table else None
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    tables = file_tables(args.config)
+    world = world_config(args, tables)
+    greedy = False if args.sample else None
+    cfg = merged(EvalConfig, tables.get("eval", {}),
+                 {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
+                  "seed": args.seed, "batch": args.batch, "greedy": greedy, "json": args.json},
+                 "[eval]")
+    faults = _eval_faults(args, tables)
+    out, err = _consoles()
+    with RichProgress(err) as progress:
+        summaries = run_eval(world, cfg, progress, faults)
+    map_kind = f"dynamic (m={world.add_every})" if world.dynamic else "static"
+    out.print(eval_table(summaries, f"eval: {world.n_robots} robots, {map_kind} map, "
+                                    f"{cfg.episodes} episodes, seed {cfg.seed}"))
+    if cfg.json:
+        if len(summaries) == 1:
+            obj: dict[str, Any] = summaries[0]
+        else:
+            obj = {"policy": ",".join(s["policy"] for s in summaries), "robots": world.n_robots,
+                   "episodes": cfg.episodes, "seed": cfg.seed, "results": summaries}
+        atomic.write_json(cfg.json, {**obj, "command": _command()})
+        out.print(f"wrote {cfg.json}")
+    return 0
+
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from swarm.learn import config as train_config
+    from swarm.learn import trainer as train
+
+    tables = file_tables(args.config)
+    world = world_config(args, tables)
+    base = from_dict(train_config.TrainConfig, tables.get("train", {}), "[train]")
+    cfg = train_config.from_args(args, base)
+    out, _ = _consoles()
+    train.main(cfg, world, args.out, resume=args.resume, console=out)
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from swarm.bench import micro as bench
+    from swarm.common.policy_spec import build_policy
+
+    tables = file_tables(args.config)
+    world = world_config(args, tables)
+    table = tables.get("bench", {}).get(args.what, {})
+    where = f"[bench.{args.what}]"
+    out, err = _consoles()
+    if args.what == "env":
+        cfg = merged(bench.EnvBenchConfig, table,
+                     {"batches": args.batch, "repeats": args.repeats, "episodes": args.episodes,
+                      "seed": args.seed, "json": args.json}, where)
+        with RichProgress(err) as progress:
+            result = bench.bench_env(world, cfg, progress)
+        out.print(env_bench_table(result))
+    elif args.what == "train":
+        from swarm.bench.train import bench_train
+
+        cfg = argparse.Namespace(json=args.json)
+        result = bench_train(args.policy or "commattn", batch=args.batch or 288,
+                             updates=args.updates or 3, threads=args.threads or 2, world=world,
+                             seed=args.seed or 0, workers=args.workers or 1)
+        out.print(kv_table("Training speed (median)", result))
+    elif args.what == "rollout":
+        from swarm.bench.rollout import RolloutBenchConfig, bench_rollout
+
+        cfg = merged(RolloutBenchConfig, table,
+                     {"workers": _ints(args.workers_list), "policy": args.policy,
+                      "batch": args.batch, "seconds": args.seconds, "repeats": args.repeats,
+                      "json": args.json}, where)
+        result = bench_rollout(cfg, lambda row: err.print(f"  {row}"))
+        out.print(rollout_bench_table(result))
+    elif args.what == "swarm":
+        from swarm.bench.swarm import SwarmBenchConfig, bench_swarm
+        from swarm.cli.console import swarm_bench_table
+
+        cfg = merged(SwarmBenchConfig, table,
+                     {"robots": _ints(args.robots_list), "policies": _names(args.policy),
+                      "episodes": args.episodes, "seed": args.seed,
+                      "checkpoint": args.checkpoint, "json": args.json}, where)
+        for name in cfg.policies:
+            build_policy(name, world, cfg.checkpoint)
+        result = bench_swarm(world, cfg, lambda row: err.print(f"  {row}"))
+        out.print(swarm_bench_table(result))
+    else:
+        cfg = merged(bench.PolicyBenchConfig, table,
+                     {"policies": args.policies, "decisions": args.decisions,
+                      "warmup": args.warmup, "seed": args.seed, "json": args.json}, where)
+        for name in cfg.policies:  # fail on an unloadable policy before timing anything
+            build_policy(name, world)
+        with RichProgress(err) as progress:
+            result = bench.bench_policy(world, cfg, progress)
+        out.print(policy_bench_table(result))
+    if cfg.json:
+        atomic.write_json(cfg.json, {**result, "command": _command()})
+        out.print(f"wrote {cfg.json}")
+    return 0
+
+
+
+
+def cmd_repro(args: argparse.Namespace) -> int:
+    from swarm.studies import repro
+
+    tables = file_tables(args.config)
+    world = world_config(args, tables)
+    cfg = merged(repro.ReproConfig, tables.get("repro", {}),
+                 {"out": args.out, "episodes": args.episodes, "seed": args.seed,
+                  "policies": args.policies, "checkpoints": _checkpoint_pairs(args.checkpoint),
+                  "robots": args.robots, "add_every": args.add_every,
+                  "decisions": args.decisions, "batch": args.batch, "json": args.json,
+                  "table2_episodes": args.table2_episodes,
+                  "curves": _checkpoint_pairs(args.curve, "--curve")},
+                 "[repro]")
+    items = repro.expand(args.item)
+    out, err = _consoles()
+    with RichProgress(err) as progress:
+        results = repro.run(items, world, cfg, _command(), progress)
+    for item, res in results.items():
+        if item == "table1":
+            out.print(table1_table(res["rows"]))
+        elif item == "table2":
+            out.print(table2_table(res["rows"]))
+        elif item == "fig8":
+            out.print(curves_table(res["rows"]))
+        else:
+            x = "robots" if item == "fig4" else "add_every"
+            title = "Fig. 4 (static map)" if item == "fig4" else "Fig. 5 (dynamic map)"
+            out.print(sweep_table(f"{title}: elratio mean ± std", x, res["rows"]))
+    out.print(files_table({k: v["files"] for k, v in results.items()}))
+    return 0
+
+
+
+
+def add_parsers(sub: Any) -> None:
+    """Register `eval`, `bench`, `repro` and `train` on the `swarm` subparsers."""
+    p = sub.add_parser("eval", help="batched in-process evaluation of one or more policies",
+                       description="Batched, in-process evaluation; prints a results table.")
+    p.add_argument("--policy", help="policy name, comma list or 'all' (default nearest-frontier)")
+    p.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
+    p.add_argument("--episodes", type=int, metavar="K", help="episodes (default 1000)")
+    p.add_argument("--batch", type=int, metavar="B", help="episodes stepped at once (default 250)")
+    p.add_argument("--sample", action="store_true", help="sample actions instead of greedy")
+    f = p.add_argument_group("message faults (the swarm radio's seeded draws)")
+    f.add_argument("--loss", metavar="P", help="message loss probability")
+    f.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other")
+    f.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
+    add_common(p)
+    add_world(p)
+    p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("bench", help="print throughput / planning-time figures",
+                       description="Benchmarks: `env` (world step + view), `policy` (planning).")
+    bsub = p.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser, required=True)
+    b = bsub.add_parser("env", help="agent-steps/s of the batched world step + view",
+                        description="Agent-steps/s of world.core.step + "
+                                    "world.decentral.batch_view.")
+    b.add_argument("--batch", metavar="B,B,..", help="batch sizes (default 1,64,1024)")
+    b.add_argument("--repeats", type=int, help="timed repeats per batch size (default 5)")
+    b.add_argument("--episodes", type=int, help="episodes per repeat (default 2)")
+    add_common(b)
+    add_world(b)
+    b.set_defaults(func=cmd_bench)
+    b = bsub.add_parser("policy", help="planning ms per decision of all N robots",
+                        description="Planning ms per team decision (G=1, every robot deciding).")
+    b.add_argument("--policies", metavar="A,B,..", help="policies (default: every registered one)")
+    b.add_argument("--decisions", type=int, metavar="K",
+                   help="timed decisions per policy (default 150)")
+    b.add_argument("--warmup", type=int, metavar="E", help="untimed warm-up episodes (default 1)")
+    add_common(b)
+    add_world(b)
+    b.set_defaults(func=cmd_bench)
+    b = bsub.add_parser("train", help="seconds per REINFORCE update of a learned policy",
+                        description="One update = rollout of --batch episodes (30 steps, N "
+                                    "robots) + the REINFORCE step; median over --updates.")
+    b.add_argument("--policy", help="learned policy (default commattn)")
+    b.add_argument("--batch", type=int, help="episodes per update (default 288)")
+    b.add_argument("--updates", type=int, help="timed updates after one warm-up (default 3)")
+    b.add_argument("--threads", type=int, help="torch threads per process (default 2)")
+    b.add_argument("--workers", type=int, help="training processes (default 1; see swarm train)")
+    add_common(b)
+    add_world(b)
+    b.set_defaults(func=cmd_bench)
+    b = bsub.add_parser("rollout", help="episodes/s a learner gathers from K rollout workers",
+                        description="A gather-only learner (router) and K rollout-worker "
+                                    "processes over Zenoh on loopback, per K in --workers.")
+    b.add_argument("--workers", dest="workers_list", metavar="K,K,..",
+                   help="worker counts (default 1,2)")
+    b.add_argument("--policy", help="learned policy (default commattn)")
+    b.add_argument("--batch", type=int, help="episodes per worker batch (default 16)")
+    b.add_argument("--seconds", type=float, help="measuring window (default 10)")
+    b.add_argument("--repeats", type=int, help="windows per count (default 3)")
+    add_common(b)
+    b.set_defaults(func=cmd_bench)
+    b = bsub.add_parser("swarm", help="ticks/s, startup s and RSS per robot of real swarm runs",
+                        description="Runs the distributed swarm (real processes, Zenoh on "
+                                    "loopback) per team size and policy; prints the figures.")
+    b.add_argument("--robots", dest="robots_list", metavar="N,N,..",
+                   help="team sizes (default 10,25,50)")
+    b.add_argument("--policy", metavar="A,B,..", help="policies (default nearest-frontier)")
+    b.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
+    b.add_argument("--episodes", type=int, help="episodes per run (default 5)")
+    add_common(b)
+    add_world(b, robots=False)
+    b.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("repro", help="reproduce a paper item: table1, table2, fig4, fig5, fig8 "
+                                     "or all",
+                       description="Reproduce Table 1, Table 2, Fig. 4, Fig. 5 or Fig. 8: writes "
+                                   "ITEM.csv, .md, .png and .json into --out. Learned policies "
+                                   "use the shipped checkpoints/NAME.pt unless --checkpoint.")
+    p.add_argument("item", metavar="ITEM", help="table1, table2, fig4, fig5, fig8 or all")
+    p.add_argument("--out", metavar="DIR", help="output directory (required)")
+    p.add_argument("--episodes", type=int, metavar="K", help="episodes per point (default 200)")
+    p.add_argument("--policies", metavar="A,B,..",
+                   help="policies (default: the four learned, three frontier and random)")
+    p.add_argument("--table2-episodes", type=int, metavar="K",
+                   help="Table 2 held-out episodes per policy (default 1000)")
+    p.add_argument("--checkpoint", action="append", metavar="NAME=FILE",
+                   help="checkpoint of a learned policy (repeatable)")
+    p.add_argument("--curve", action="append", metavar="NAME=FILE",
+                   help="Fig. 8 training-curve CSV of a learned policy (repeatable; default "
+                        "checkpoints/NAME_curve.csv)")
+    p.add_argument("--robots", metavar="N,N,..", help="Fig. 4 team sizes (default 2,4,6,8,10,12)")
+    p.add_argument("--add-every", metavar="M,M,..", help="Fig. 5 periods (default 1,2,3,4,5,6,9)")
+    p.add_argument("--decisions", type=int, metavar="K", help="Table 1 decisions (default 150)")
+    p.add_argument("--batch", type=int, metavar="B", help="episodes stepped at once (default 250)")
+    add_common(p)
+    add_world(p, robots=False, schedule=False)
+    p.set_defaults(func=cmd_repro)
+
+    p = sub.add_parser("train", help="train a learned policy with REINFORCE (batched)",
+                       description="REINFORCE with the state-specific baseline; checkpoint "
+                                   "every epoch; --resume continues exactly.")
+    add_common(p, results=False)
+    add_world(p)
+    from swarm.learn.config import add_arguments as add_train_arguments
+
+    add_train_arguments(p)
+    p.set_defaults(func=cmd_train)

@@ -1,0 +1,187 @@
+"""What every `swarm` command shares: the one-line-error parser, the experiment file's tables,
+world flags, consoles and progress bars.
+
+Settings come, in increasing precedence, from the dataclass defaults, the TOML experiment file
+(`--config FILE`: `[world]` plus one table per subcommand) and the command-line flags. Any bad
+value is one line on stderr (`swarm: error: ...`) and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shlex
+import sys
+from typing import Any, NoReturn, Self
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from world.config import ConfigError, WorldConfig, from_dict, load_toml
+
+# Top-level tables an experiment file may hold; other subcommands add theirs here.
+SECTIONS = ("world", "eval", "bench", "repro", "run", "faults", "train", "learner")
+BENCH_TABLES = ("env", "policy", "swarm", "train", "rollout")
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose usage errors are one line: `swarm: error: ...`, exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"swarm: error: {message} (see {self.prog} --help)\n")
+
+
+# ---------------------------------------------------------------------------- configuration
+
+
+def _range(text: str) -> float:
+    """`--comm-range` value: a non-negative number or `inf`."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or 'inf', got {text!r}") from None
+    if math.isnan(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 or 'inf', got {text!r}")
+    return value
+
+
+def file_tables(path: str | None) -> dict[str, Any]:
+    """The experiment file's tables (empty without a file); unknown tables are errors."""
+    if path is None:
+        return {}
+    data = load_toml(path)
+    for key, value in data.items():
+        if key not in SECTIONS:
+            raise ConfigError(f"config file {path}: unknown table [{key}]; known: "
+                              f"{', '.join(SECTIONS)}")
+        if not isinstance(value, dict):
+            raise ConfigError(f"config file {path}: '{key}' must be a table ([{key}])")
+    bench = data.get("bench", {})
+    for key, value in bench.items():
+        if key not in BENCH_TABLES or not isinstance(value, dict):
+            raise ConfigError(f"config file {path}: unknown key bench.{key}; the [bench] table "
+                              f"holds only [bench.env] and [bench.policy]")
+    return data
+
+
+def merged(cls: type, table: dict[str, Any], flags: dict[str, Any], where: str) -> Any:
+    """Dataclass `cls` from the file's `table` overridden by the flags that were given."""
+    given = {k: v for k, v in flags.items() if v is not None}
+    return from_dict(cls, {**table, **given}, where=where)
+
+
+def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfig:
+    """`[world]` of the file overridden by the world flags of this subcommand."""
+    dynamic = getattr(args, "dynamic", None)
+    sense = getattr(args, "sense", None)
+    flags = {
+        "n_robots": getattr(args, "world_robots", None), "dynamic": dynamic,
+        "add_every": getattr(args, "world_add_every", None), "vision": getattr(args, "vision", None),
+        "comm_range": getattr(args, "comm_range", None), "horizon": getattr(args, "horizon", None),
+        "explore_mode": "sense" if sense else None,
+    }
+    return merged(WorldConfig, tables.get("world", {}), flags, "[world]")
+
+
+def add_common(p: argparse.ArgumentParser, results: bool = True) -> None:
+    p.add_argument("--seed", type=int, help="seed of maps, spawns, schedules and noise")
+    p.add_argument("--config", metavar="FILE",
+                   help="TOML experiment file ([world] + this command's table)")
+    if results:
+        p.add_argument("--json", metavar="FILE", help="write the results as one JSON object")
+
+
+def add_world(p: argparse.ArgumentParser, robots: bool = True, schedule: bool = True) -> None:
+    g = p.add_argument_group("world (override [world] of --config)")
+    if robots:
+        g.add_argument("--robots", dest="world_robots", type=int, metavar="N",
+                       help="robots N (default 10)")
+    if schedule:
+        m = g.add_mutually_exclusive_group()
+        m.add_argument("--static", dest="dynamic", action="store_false", default=None,
+                       help="no dynamic blocks")
+        m.add_argument("--dynamic", dest="dynamic", action="store_true", default=None,
+                       help="dynamic blocks appear (default)")
+        g.add_argument("--add-every", dest="world_add_every", type=int, metavar="M",
+                       help="steps between dynamic-block batches (default 3)")
+    g.add_argument("--vision", type=int, metavar="V",
+                   help="side of the v x v view (odd, default 5)")
+    g.add_argument("--comm-range", type=_range, metavar="R|inf",
+                   help="communication range in cells (default 10)")
+    g.add_argument("--horizon", type=int, metavar="T", help="mission steps (default 30)")
+    g.add_argument("--sense", action="store_true", default=None,
+                   help="sense mode: every cell seen is explored (default: visit)")
+
+
+# ---------------------------------------------------------------------------- progress
+
+
+class RichProgress:
+    """A `ProgressSink` drawing rich progress bars on a (stderr) console."""
+
+    def __init__(self, console: Console) -> None:
+        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                            TimeElapsedColumn(), TimeRemainingColumn(), console=console)
+        self.task: Any = None
+
+    def __enter__(self) -> Self:
+        self.bar.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.bar.stop()
+
+    def start(self, label: str, total: int) -> None:
+        self.task = self.bar.add_task(label, total=total)
+
+    def advance(self, n: int = 1) -> None:
+        self.bar.advance(self.task, n)
+
+
+def _consoles() -> tuple[Console, Console]:
+    """Stdout console for results (120 columns when piped, so tables do not wrap) and stderr
+    console for progress."""
+    out = Console()
+    if not out.is_terminal:
+        out = Console(width=max(out.width, 120))
+    return out, Console(stderr=True)
+
+
+def _command() -> str:
+    return shlex.join(["swarm", *sys.argv[1:]])
+
+
+
+def _ints(text: str | None) -> tuple[int, ...] | None:
+    if text is None:
+        return None
+    try:
+        return tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise ConfigError(f"expected comma-separated integers, got {text!r}") from None
+
+
+def _names(text: str | None) -> tuple[str, ...] | None:
+    return None if text is None else tuple(x.strip() for x in text.split(",") if x.strip())
+
+
+
+def _checkpoint_pairs(pairs: list[str] | None, flag: str = "--checkpoint") -> dict[str, str] | None:
+    if not pairs:
+        return None
+    out = {}
+    for pair in pairs:
+        name, sep, path = pair.partition("=")
+        if not sep or not name or not path:
+            raise ConfigError(f"{flag} wants NAME=FILE, got {pair!r}")
+        out[name] = path
+    return out
+
+

@@ -1,0 +1,351 @@
+"""Command-line front ends of the distributed swarm: `swarm run`, `world`, `robot`, `fault`,
+`experiment`; each a thin wrapper around an importable `main(...)` in `swarm.procs`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import os
+import secrets
+import sys
+from typing import Any
+
+from swarm.cli.common import _consoles, add_common, add_world, file_tables, world_config
+from swarm.net import zconfig
+from swarm.net.faults import plan_from_table
+from swarm.procs.runconfig import RunConfig, RunRecord
+from world.config import ConfigError, from_dict
+
+
+def _add_run_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("run (override [run] of --config)")
+    g.add_argument("--policy", help="policy every robot runs (default nearest-frontier)")
+    g.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
+    g.add_argument("--episodes", type=int, metavar="K", help="episodes to run (default 1)")
+    g.add_argument("--first-episode", type=int, metavar="E", help="number of the first episode")
+    g.add_argument("--run-id", metavar="ID", help="namespace of every key (default: random)")
+    g.add_argument("--tick-timeout", type=float, metavar="S",
+                   help="seconds the world waits for a tick's actions (default 2)")
+    g.add_argument("--pace", type=float, metavar="HZ",
+                   help="cap ticks/s so the run can be watched (default: 8 with the live "
+                        "dashboard, unlimited with --headless or --json-only use)")
+    g.add_argument("--sample", action="store_true", default=None,
+                   help="sample actions (counter-based noise) instead of greedy")
+
+
+def _add_train_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("learning in the field (override [learner] / [train] of --config)")
+    g.add_argument("--train", action="store_true", default=None,
+                   help="run a learner too: robots sample, record their episodes and adopt "
+                        "its weights at episode boundaries")
+    g.add_argument("--train-batch", type=int, metavar="B",
+                   help="episodes per learner update (default 10 with --train)")
+    g.add_argument("--learner-out", metavar="DIR",
+                   help="the learner's checkpoint and curve (default: LOG_DIR/learner)")
+    g.add_argument("--rollout-loss", type=float, metavar="P",
+                   help="drop each robot's episode record to the learner with probability P")
+
+
+def _add_fault_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)")
+    g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms")
+    g.add_argument("--jitter", metavar="DUR", help="extra uniform delay in [0, DUR), e.g. 10ms")
+    g.add_argument("--loss", metavar="P", help="message loss probability, e.g. 0.1")
+    g.add_argument("--bandwidth", metavar="RATE", help="per-robot radio cap, e.g. 2kB/s")
+    g.add_argument("--overflow", choices=["queue", "drop"],
+                   help="what the bandwidth cap does with excess messages (default queue)")
+    g.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other, "
+                   "e.g. 0-4/5-9")
+    for kind, what in (("crash", "SIGKILL"), ("hang", "SIGSTOP"), ("restart", "restart/SIGCONT")):
+        g.add_argument(f"--{kind}", action="append", metavar="ROBOT@TICK",
+                       help=f"{what} robot ROBOT at run tick TICK (repeatable)")
+    g.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
+
+
+def _add_netns_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("kernel-level realism (root; see swarm/netns.py)")
+    g.add_argument("--netns", action="store_true",
+                   help="world and robots in network namespaces joined by veth pairs")
+    g.add_argument("--kernel-loss", metavar="P",
+                   help="with --netns: packet drop probability per direction of each robot link "
+                        "(iptables statistic; TCP retransmits, so messages arrive late)")
+    g.add_argument("--kernel-bandwidth", metavar="RATE",
+                   help="with --netns: tc tbf cap per direction of each robot link, e.g. 8kB/s")
+    g.add_argument("--netns-lease", metavar="DUR",
+                   help="with --netns: Zenoh lease of every session (default 1s); TCP's "
+                        "retransmission backoff under loss can outlast a short one")
+    g.add_argument("--netns-transport", choices=["tcp", "udp"],
+                   help="with --netns: the robots' Zenoh link (default tcp; udp is best effort)")
+
+
+def netns_faults(args: argparse.Namespace) -> Any:
+    """The NetnsConfig of `--netns` (None without it); kernel flags need --netns."""
+    from swarm.net.netns import NetnsConfig, check_tools
+
+    given = [getattr(args, k, None) for k in ("kernel_loss", "kernel_bandwidth", "netns_lease",
+                                              "netns_transport")]
+    if not getattr(args, "netns", False):
+        if any(v is not None for v in given):
+            raise ConfigError("--kernel-loss, --kernel-bandwidth and --netns-* flags need --netns")
+        return None
+    faults = NetnsConfig.parse(*given)
+    check_tools(faults)  # not root, or a tool missing: one line before any spawn
+    return faults
+
+
+def fault_table(args: argparse.Namespace, tables: dict[str, Any]) -> dict[str, Any]:
+    """The `[faults]` table of the file overridden by the fault flags given."""
+    table = dict(tables.get("faults", {}))
+    for key in ("latency", "jitter", "loss", "bandwidth", "overflow", "partition"):
+        value = getattr(args, key, None)
+        if value is not None:
+            table[key] = value
+    for kind in ("crash", "hang", "restart"):
+        if getattr(args, kind, None):
+            table[kind] = list(getattr(args, kind))
+    if getattr(args, "fault_seed", None) is not None:
+        table["seed"] = args.fault_seed
+    plan_from_table(table)  # validate now: a bad value is a one-line error before any spawn
+    return table
+
+
+def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
+    flags = {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
+             "first_episode": args.first_episode, "run_id": args.run_id,
+             "tick_timeout": args.tick_timeout, "seed": args.seed, "pace": args.pace,
+             "greedy": False if args.sample or getattr(args, "train", None) else None,
+             "train": getattr(args, "train", None),
+             "rollout_loss": getattr(args, "rollout_loss", None)}
+    table = dict(tables.get("run", {}))
+    given = {k: v for k, v in flags.items() if v is not None}
+    data = {**table, **given}
+    data.setdefault("run_id", f"r{secrets.token_hex(4)}")
+    try:
+        return from_dict(RunConfig, data, "[run]")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _logging(verbose: bool) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_norm", "ent_coef",
+                        "max_grad_norm", "threads", "chunk_ticks")
+
+
+def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[Any, Any]:
+    """LearnerConfig and TrainConfig from `[learner]` / `[train]` of the file and the flags."""
+    from swarm.learn.config import TrainConfig
+    from swarm.procs.learner import LearnerConfig
+
+    lflags = {"run_id": getattr(args, "run_id", None), "policy": getattr(args, "policy", None),
+              "checkpoint": getattr(args, "checkpoint", None), "out": getattr(args, "out", None),
+              "resume": True if getattr(args, "resume", False) else None,
+              "max_staleness": getattr(args, "max_staleness", None),
+              "join_timeout": getattr(args, "join_timeout", None),
+              "gather_only": True if getattr(args, "gather_only", False) else None,
+              "seed": getattr(args, "seed", None)}
+    ldata = {**tables.get("learner", {}), **{k: v for k, v in lflags.items() if v is not None}}
+    tflags = {k: getattr(args, f"train_{k}", None) for k in LEARNER_TRAIN_FIELDS}
+    tdata = {**tables.get("train", {}), **{k: v for k, v in tflags.items() if v is not None}}
+    # A learner shares the machine with the world and every robot: on two cores a second torch
+    # thread only fights them (updates 50-100x slower under contention), so one by default.
+    tdata.setdefault("threads", 1 if (os.cpu_count() or 1) <= 2 else 2)
+    try:
+        return (from_dict(LearnerConfig, ldata, "[learner]"),
+                from_dict(TrainConfig, tdata, "[train]"))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from swarm.procs.supervisor import SuperviseOptions
+    from swarm.procs.supervisor import main as supervise
+
+    tables = file_tables(args.config)
+    world = world_config(args, tables)
+    run = run_config(args, tables)
+    faults = fault_table(args, tables)
+    out, _ = _consoles()
+    if args.pace is None and "pace" not in tables.get("run", {}) and not args.headless \
+            and out.is_terminal:
+        run = dataclasses.replace(run, pace=8.0)  # watchable by default on a terminal
+    opts = SuperviseOptions(headless=args.headless, json_path=args.json,
+                            restart_crashed=args.restart_crashed, log_dir=args.log_dir,
+                            netns=netns_faults(args))
+    learning = None
+    if run.train:
+        from policies import policy_class
+
+        if not policy_class(run.policy).learned:
+            raise ConfigError(f"--train needs a learned policy, not {run.policy!r}")
+        tables = {**tables, "train": {"batch": 10, **tables.get("train", {})}}
+        lc, tc = learner_configs(argparse.Namespace(train_batch=args.train_batch), tables)
+        learning = {"learner": {**dataclasses.asdict(lc), "out": args.learner_out},
+                    "train": dataclasses.asdict(tc)}
+    try:
+        res = supervise(world, run, opts, console=out, faults=faults, learning=learning)
+    except KeyboardInterrupt:
+        print("swarm: interrupted; every process of the run was stopped", file=sys.stderr)
+        return 130
+    if args.headless:
+        print(json.dumps({"result": {k: v for k, v in res.items() if k != "actions"}}), flush=True)
+    else:
+        from swarm.cli.console import eval_table
+
+        m = res.get("messages", {})
+        out.print()
+        out.print(eval_table([res], title=f"swarm run {run.run_id}"))
+        out.print(f"ticks/s {res.get('ticks_per_s', 0):.1f}   startup {res.get('startup_s') or 0:.1f} s"
+                  f"   messages delivered {m.get('traj_delivered')} lost {m.get('lost')} "
+                  f"late {m.get('late')} bad {m.get('bad')}   timeouts {res.get('timeouts')}   "
+                  f"robots lost {res.get('robots_lost')}")
+        if args.json:
+            out.print(f"wrote {args.json}")
+    return 0
+
+
+def cmd_world(args: argparse.Namespace) -> int:
+    from swarm.common.atomic import write_json
+    from swarm.procs.world import main as world_main
+
+    _logging(args.verbose)
+    if args.spec:
+        rec = RunRecord.read(args.spec)
+        world, run, faults = rec.world, rec.run, rec.faults
+    else:
+        tables = file_tables(args.config)
+        world, run = world_config(args, tables), run_config(args, tables)
+        faults = fault_table(args, tables)
+        print(f"swarm world: run id {run.run_id}", file=sys.stderr, flush=True)
+    try:
+        res = world_main(world, run, zconfig.from_args(args), faults=faults,
+                         watch_parent=bool(args.spec))
+    except KeyboardInterrupt:
+        return 130
+    if args.json:
+        write_json(args.json, res)
+    return 0
+
+
+def cmd_robot(args: argparse.Namespace) -> int:
+    from swarm.procs.robot import main as robot_main
+
+    _logging(args.verbose)
+    try:
+        robot_main(args.id, args.run_id, zconfig.from_args(args), wait_world=args.wait)
+    except KeyboardInterrupt:
+        return 130
+    except TimeoutError as exc:
+        raise ConfigError(str(exc)) from None
+    return 0
+
+
+def cmd_fault(args: argparse.Namespace) -> int:
+    """Change the faults of a running swarm: link faults go to the world (applied from the next
+    tick), process faults to the supervisor (applied at once)."""
+    import zenoh
+
+    from swarm.net.keys import Keys
+    from swarm.net.messages import K_CONTROL, pack_record
+    from swarm.procs.supervisor import lookup_run
+
+    table = fault_table(args, {})
+    process = [f"{kind}:{text}" for kind in ("crash", "hang", "restart")
+               for text in (getattr(args, kind) or [])]
+    link = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
+    if args.clear:
+        link = {}
+    if not link and not process and not args.clear:
+        raise ConfigError("no fault given (see swarm fault --help)")
+    opts = zconfig.from_args(args)
+    if not opts.connect:
+        opts.connect = [lookup_run(args.run)]
+    keys = Keys(args.run)
+    rec: dict[str, Any] = {}
+    if link or args.clear:
+        rec["faults_table"] = link
+        rec["replace"] = bool(args.clear or args.replace)
+    if process:
+        rec["process"] = process
+    with zenoh.open(opts.to_config()) as session:
+        import time
+
+        time.sleep(0.3)  # let the session join the run's network before the one put
+        sent_at = time.time()
+        session.put(keys.control, pack_record(K_CONTROL, rec))
+        time.sleep(0.1)
+    print(json.dumps({"run": args.run, "sent_at": sent_at, "control": rec}))
+    return 0
+
+
+def cmd_experiment(args: argparse.Namespace) -> int:
+    from swarm.studies.experiment import main as experiment_main
+
+    return experiment_main(args.file, args.resume, args.out)
+
+
+def add_parsers(sub: Any) -> None:
+    """Register `experiment`, `run`, `world` and `fault` on the `swarm` subparsers."""
+    p = sub.add_parser("experiment", help="sweep a fault parameter over policies on the swarm",
+                       description="Run the TOML experiment FILE (see deploy/experiments/): "
+                                   "one real swarm run per (policy, value, seed); writes CSV, "
+                                   "Markdown and PNG.")
+    p.add_argument("file", metavar="FILE", help="TOML experiment file")
+    p.add_argument("--out", metavar="DIR", help="output directory (default: [experiment] out)")
+    p.add_argument("--resume", action="store_true", help="skip runs already in the CSV")
+    p.add_argument("--seed", type=int, help=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_experiment)
+
+    p = sub.add_parser("run", help="spawn world + N robot processes over Zenoh, live dashboard",
+                       description="The distributed swarm: one world process and N robot "
+                                   "processes, each with its own Zenoh session, on loopback.")
+    add_common(p)
+    add_world(p)
+    _add_run_flags(p)
+    _add_fault_flags(p)
+    _add_netns_flags(p)
+    _add_train_flags(p)
+    p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
+    p.add_argument("--restart-crashed", action="store_true", help="restart robots that die")
+    p.add_argument("--log-dir", metavar="DIR", help="children's logs (default: a temp dir)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("world", help="the world process (grid, clock, radio), by hand",
+                       description="Run the world process; robots join with `swarm robot`.")
+    add_common(p)
+    add_world(p)
+    _add_run_flags(p)
+    _add_fault_flags(p)
+    p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_world)
+
+    p = sub.add_parser("fault", help="change the faults of a running swarm",
+                       description="Live fault injection into run RUN: link faults apply from "
+                                   "the world's next tick; crash/hang/restart at once.")
+    p.add_argument("--run", required=True, help="run id (see the dashboard)")
+    p.add_argument("--replace", action="store_true",
+                   help="replace the link faults in force instead of changing the given ones")
+    p.add_argument("--clear", action="store_true", help="remove every link fault")
+    _add_fault_flags(p)
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_fault)
+
+
+def add_robot_parser(sub: Any) -> None:
+    """Register `robot` on the `swarm` subparsers."""
+    p = sub.add_parser("robot", help="one robot process, by hand",
+                       description="Join run RUN_ID as robot ID; the config comes from the world.")
+    p.add_argument("--id", type=int, required=True, help="robot id 0..N-1")
+    p.add_argument("--run-id", required=True, help="the run to join (printed by `swarm world`)")
+    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the world")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_robot)

@@ -1,0 +1,79 @@
+"""Policy names as the command line gives them, resolved against the registry and built.
+
+Every subcommand that takes `--policy`/`--policies` goes through here, so a learned policy
+registered in `policies.REGISTRY` becomes usable everywhere by its name alone.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from policies import BASELINES, REGISTRY, policy_class
+from policies.base import Policy
+from world.config import ConfigError, WorldConfig
+
+
+def resolve_policies(spec: str | list[str] | tuple[str, ...]) -> list[str]:
+    """`all`, one name or a comma-separated list -> registry names (order kept, no repeats)."""
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    names: list[str] = []
+    for item in (s.strip() for s in items):
+        if not item:
+            continue
+        expanded = list(BASELINES) if item == "all" else [item]
+        for name in expanded:
+            if name not in REGISTRY:
+                known = ", ".join(REGISTRY)
+                raise ConfigError(f"unknown policy {name!r}; choose from all, {known}")
+            if name not in names:
+                names.append(name)
+    if not names:
+        raise ConfigError("no policy given")
+    return names
+
+
+def load_class(name: str) -> type[Policy]:
+    """The registered class; a module that cannot be imported is a one-line ConfigError."""
+    try:
+        return policy_class(name)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    except ImportError as exc:
+        raise ConfigError(f"policy {name!r} is registered but cannot be imported: {exc}") from None
+
+
+SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints"
+
+
+def effective_checkpoint(name: str, checkpoint: str | None) -> str | None:
+    """The checkpoint a policy runs with: the one given, else for a learned policy the one
+    shipped as checkpoints/NAME.pt (a learned policy never runs on untrained weights by
+    accident; `swarm train` makes fresh ones)."""
+    if checkpoint is not None or not load_class(name).learned:
+        return checkpoint
+    shipped = SHIPPED / f"{name}.pt"
+    if not shipped.is_file():
+        raise ConfigError(f"policy {name!r} needs --checkpoint FILE (no {shipped} shipped)")
+    return str(shipped)
+
+
+def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> Policy:
+    """Instantiate policy `name` for `cfg`; learned policies load `checkpoint` (by default the
+    shipped one, see `effective_checkpoint`).
+
+    A learned policy class loads a checkpoint through its constructor: `cls(cfg, checkpoint=path)`.
+    """
+    cls = load_class(name)
+    checkpoint = effective_checkpoint(name, checkpoint)
+    if checkpoint is None:
+        return cls(cfg)
+    if not cls.learned:
+        raise ConfigError(f"--checkpoint applies to learned policies only, not {name!r}")
+    if not Path(checkpoint).is_file():
+        raise ConfigError(f"checkpoint not found: {checkpoint}")
+    from policies.checkpoint import CheckpointError
+
+    try:
+        return cls(cfg, checkpoint=checkpoint)  # type: ignore[call-arg]
+    except CheckpointError as exc:
+        raise ConfigError(str(exc)) from None

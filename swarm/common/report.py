@@ -1,0 +1,64 @@
+"""Writing results a person reads: Markdown tables with provenance, CSV, PNG figures (matplotlib,
+Agg), every file atomically. Shared by `swarm repro`, `swarm experiment` and training curves."""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import io
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from swarm.common import atomic
+
+
+def header(title: str, command: str, seed: int, note: str) -> str:
+    """The Markdown heading plus the provenance line every item file starts with."""
+    today = dt.date.today().isoformat()
+    return f"# {title}\n\nMade by `{command}` (seed {seed}, {today}). {note}\n\n"
+
+
+def md_table(columns: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A GitHub Markdown table, first column left-aligned and the rest right-aligned."""
+    lines = ["| " + " | ".join(columns) + " |",
+             "|" + "|".join([":---"] + ["---:"] * (len(columns) - 1)) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def csv_text(rows: Sequence[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
+def save_png(path: Path, draw: Callable[[Any], None], ncols: int = 1) -> None:
+    """Draw on a fresh Agg figure (one axes, or a row of `ncols`) and write it atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, ncols, figsize=(6.4 * ncols ** 0.8, 4.2))
+    try:
+        draw(ax)
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=120)
+    finally:
+        plt.close(fig)
+    atomic.write_bytes(path, buf.getvalue())
+
+
+def write_item(out: Path, item: str, rows: list[dict[str, Any]], md: str,
+               draw: Callable[[Any], None], meta: dict[str, Any], ncols: int = 1) -> list[str]:
+    """Write ITEM.csv/.md/.png/.json; returns the paths written."""
+    paths = [out / f"{item}.{ext}" for ext in ("csv", "md", "png", "json")]
+    atomic.write_text(paths[0], csv_text(rows))
+    atomic.write_text(paths[1], md)
+    save_png(paths[2], draw, ncols)
+    atomic.write_json(paths[3], {**meta, "rows": rows})
+    return [str(p) for p in paths]

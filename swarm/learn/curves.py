@@ -1,0 +1,114 @@
+"""Training curves: the one writer of `curve.csv` + `log.jsonl` used by the batched trainer and the
+learner process (truncated to the checkpoint on resume), and the curve's reader and figure."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from swarm.common.report import save_png
+from world.config import ConfigError
+
+CURVE_FIELDS = ["update", "epoch", "episodes", "n_dynamic", "elratio", "success", "reward",
+                "collisions", "block_collisions", "entropy", "loss", "pg", "baseline", "grad_norm",
+                "episodes_per_s", "elapsed_s"]
+
+
+class CurveLog:
+    """`DIR/curve.csv` (one row of CURVE_FIELDS per update) and `DIR/log.jsonl` (every row)."""
+
+    def __init__(self, out: Path) -> None:
+        self.csv, self.jsonl = Path(out) / "curve.csv", Path(out) / "log.jsonl"
+
+    def start(self) -> None:
+        """A fresh run: the header only."""
+        self.csv.write_text(",".join(CURVE_FIELDS) + "\n")
+        self.jsonl.write_text("")
+
+    def resume(self, update: int) -> None:
+        """Drop rows past update `update` (written after the checkpoint a run resumes from)."""
+        for path, is_csv in ((self.csv, True), (self.jsonl, False)):
+            if not path.exists():
+                continue
+            lines = path.read_text().splitlines(keepends=True)
+            out = lines[:1] if is_csv else []
+            for line in lines[1:] if is_csv else lines:
+                upd = int(next(csv.reader([line]))[0]) if is_csv else json.loads(line).get(
+                    "update", 0)
+                if upd <= update:
+                    out.append(line)
+            path.write_text("".join(out))
+
+    def append(self, row: dict[str, Any], **extra: Any) -> None:
+        """One update's row: CURVE_FIELDS to the CSV, everything (plus `extra`) to the log."""
+        with self.jsonl.open("a") as fh:
+            fh.write(json.dumps({"kind": "update", **extra, **row}) + "\n")
+        buf = io.StringIO()
+        csv.writer(buf).writerow([f"{row[k]:.6g}" if isinstance(row[k], float) else row[k]
+                                  for k in CURVE_FIELDS])
+        with self.csv.open("a") as fh:
+            fh.write(buf.getvalue())
+
+    def note(self, record: dict[str, Any]) -> None:
+        """A non-update line of the log (e.g. an epoch's validation)."""
+        with self.jsonl.open("a") as fh:
+            fh.write(json.dumps(record) + "\n")
+
+
+def read_curve(path: Path) -> dict[str, list[float]]:
+    """Columns of a trainer curve CSV (CURVE_FIELDS) as floats."""
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        cols: dict[str, list[float]] = {k: [] for k in reader.fieldnames or []}
+        for row in reader:
+            for k, v in row.items():
+                cols[k].append(float(v))
+    for key in ("update", "episodes", "elratio", "reward"):
+        if not cols.get(key):
+            raise ConfigError(f"{path} is not a training curve (no {key!r} column or no rows)")
+    return cols
+
+
+def moving_mean(xs: Sequence[float], window: int) -> list[float]:
+    out, acc = [], 0.0
+    for k, x in enumerate(xs):
+        acc += x
+        if k >= window:
+            acc -= xs[k - window]
+        out.append(acc / min(k + 1, window))
+    return out
+
+
+def plot_curve(csv_path: Path, png_path: Path, title: str, smooth: int = 25) -> None:
+    """One run's training curve (`swarm train` writes OUT/curve.png with it every epoch):
+    smoothed elratio and reward per robot, and the curriculum's dynamic blocks."""
+    c = read_curve(Path(csv_path))
+    ep = [e / 1000 for e in c["episodes"]]
+
+    def draw(axes: Any) -> None:
+        axes[0].plot(ep, moving_mean(c["elratio"], smooth), label="elratio (sampled)")
+        if c.get("block_collisions"):
+            twin = axes[0].twinx()
+            twin.plot(ep, moving_mean(c["block_collisions"], smooth), color="C3", alpha=0.6,
+                      label="block collisions")
+            twin.set_ylabel("block collisions per episode", color="C3")
+        axes[0].set_ylabel(f"training elratio (moving mean of {smooth} updates)")
+        axes[1].plot(ep, moving_mean(c["reward"], smooth), color="C2")
+        axes[1].set_ylabel("training reward per robot")
+        if c.get("n_dynamic"):
+            twin = axes[1].twinx()
+            twin.plot(ep, c["n_dynamic"], color="C1", alpha=0.6)
+            twin.set_ylabel("dynamic blocks (curriculum)", color="C1")
+        for ax in axes:
+            ax.set_xlabel("training episodes (thousands)")
+            ax.grid(alpha=0.3)
+        import textwrap
+
+        axes[0].figure.suptitle("\n".join(textwrap.wrap(title, 170)), fontsize=8, x=0.01,
+                                ha="left")
+
+    save_png(Path(png_path), draw, ncols=2)

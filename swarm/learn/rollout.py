@@ -1,0 +1,71 @@
+"""Batched rollouts: episodes run to the horizon on the world core with sampled actions (the
+counter-based noise the evaluator and the swarm use), recorded in the form the update needs."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from policies.features import Members
+from policies.learned import LearnedPolicy
+from swarm.learn.config import TrainConfig
+from swarm.learn.evaluate import apply_faults
+from swarm.net.faults import FaultPlan, plan_from_table
+from world import core
+from world.config import WorldConfig
+from world.decentral import TrajMessages, View, batch_view
+
+
+@dataclass
+class Rollout:
+    """One batch of finished episodes, arrays [T, B, N] unless noted."""
+
+    views: list[View]
+    actions: list[np.ndarray]  # T of [B, N]
+    inputs: list[Members]  # T features computed at acting time (reused by the update)
+    value: np.ndarray  # b(s) at acting time (for the advantage)
+    reward: np.ndarray
+    metrics: core.EpisodeMetrics
+    logp: np.ndarray | None = None  # log pi(a) under the weights that acted (0 off receivers)
+    stale: np.ndarray | None = None  # [B] bool: acted by older weights than the learner's now
+
+
+def frozen(view: View) -> View:
+    """A copy of a view that later world steps cannot change (the core mutates state in place)."""
+    m = view.msgs
+    msgs = TrajMessages(m.pos.copy(), m.visited.copy(), m.recent.copy(), m.patch.copy(),
+                        m.present.copy())
+    return dataclasses.replace(view, episodes=view.episodes.copy(), msgs=msgs,
+                               receivers=view.receivers.copy(), last_reward=view.last_reward.copy())
+
+
+def train_faults(cfg: TrainConfig) -> FaultPlan | None:
+    """The message-fault model applied during rollouts (`--train-loss`)."""
+    if cfg.train_loss <= 0:
+        return None
+    return plan_from_table({"loss": cfg.train_loss, "seed": cfg.seed + 3_000_000})
+
+
+def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.ndarray,
+            faults: FaultPlan | None = None) -> Rollout:
+    """Run `episodes` of `seed` to the horizon with sampled actions."""
+    state = core.reset(world, seed, episodes)
+    policy.reset(len(episodes))
+    views, actions, inputs, values, rewards, logp = [], [], [], [], [], []
+    while not state.done:
+        view = frozen(batch_view(world, state))
+        if faults is not None and not faults.zero:
+            apply_faults(view, faults)  # the swarm radio's message loss, during training
+        d = policy.decide(view, greedy=False, keep_inputs=True)
+        rewards.append(core.step(world, state, d.actions))
+        views.append(view)
+        actions.append(d.actions)
+        inputs.append(d.inputs)
+        values.append(d.value)
+        p = np.take_along_axis(d.probs, d.actions[..., None], -1)[..., 0]
+        logp.append(np.log(np.maximum(p, 1e-30), dtype=np.float32) * view.receivers)
+    return Rollout(views, actions, inputs, np.stack(values), np.stack(rewards),
+                   core.metrics(world, state), np.stack(logp))
+

@@ -1,0 +1,164 @@
+"""`swarm train`: the batched training loop (paper sections 3 and 4.3), top to bottom.
+
+Per update: `batch` episodes are collected (swarm.learn.rollout) at the curriculum's level and one
+REINFORCE step is taken (swarm.learn.update), in one process or split over `workers`
+(swarm.learn.parallel). Episodes of update u are episodes u*batch .. of the training seed
+`train_seed_offset + seed`, disjoint from the evaluation seeds (0, 1, ...): a run is a pure
+function of its config, and `--resume` continues exactly from the checkpoint of every epoch.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from policies import make_policy
+from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from policies.learned import LearnedPolicy
+from swarm.learn.config import TrainConfig
+from swarm.learn.curriculum import Curriculum
+from swarm.learn.curves import CurveLog, plot_curve
+from swarm.learn.evaluate import evaluate
+from swarm.learn.parallel import ParallelUpdater
+from swarm.learn.rollout import collect, train_faults
+from swarm.learn.update import update
+from world.config import ConfigError, WorldConfig, from_dict
+
+
+def _progress_line(row: dict[str, Any], total: int) -> str:
+    return (f"epoch {row['epoch']} update {row['update']}/{total}  "
+            f"{row['episodes_per_s']:.0f} ep/s  elratio {row['elratio']:.3f}  "
+            f"success {row['success']:.2f}  reward {row['reward']:.1f}  "
+            f"loss {row['loss']:.3f}  dyn {row['n_dynamic']}")
+
+
+# ---------------------------------------------------------------------------------- the loop
+def main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool = False,
+         console: Any | None = None) -> dict[str, Any]:
+    """Train (or resume) into `out`: checkpoint.pt, log.jsonl, curve.csv. Returns the last row."""
+    # Denormal floats slow CPU math ~10x in late training; flushing them is process-global
+    # state, so it is on for the run only (not in the policy: other code shares the process).
+    torch.set_flush_denormal(True)
+    try:
+        return _main(cfg, world, out, resume, console)
+    finally:
+        torch.set_flush_denormal(False)
+
+
+def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
+          console: Any | None) -> dict[str, Any]:
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
+
+    console = console or Console(stderr=True)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out / "checkpoint.pt"
+    curves = CurveLog(out)
+    cur = Curriculum()
+    epoch0, upd = 0, 0
+    if resume and ckpt_path.exists():
+        data = load_checkpoint(ckpt_path)
+        tr = data.get("train")
+        if tr is None:
+            raise CheckpointError(f"{ckpt_path} holds no trainer state; cannot resume")
+        epochs = cfg.epochs
+        cfg = from_dict(TrainConfig, tr["config"], where="checkpoint train config")
+        cfg = dataclasses.replace(cfg, epochs=max(epochs, cfg.epochs))
+        world = from_dict(WorldConfig, data["world"], where="checkpoint world")
+        torch.set_num_threads(cfg.threads)
+        policy = make_policy(cfg.policy, world, checkpoint=ckpt_path)
+        opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
+        opt.load_state_dict(tr["optimizer"])
+        torch.set_rng_state(tr["rng"])
+        epoch0, upd = tr["epoch"], tr["update"]
+        cur = Curriculum(**tr["curriculum"])
+        curves.resume(upd)
+        console.print(f"resuming {cfg.policy} from epoch {epoch0}, update {upd}")
+    else:
+        if ckpt_path.exists() and not resume:
+            raise ConfigError(f"{out} already holds a run; pass --resume or choose another --out")
+        torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        policy = make_policy(cfg.policy, world)
+        if not isinstance(policy, LearnedPolicy):
+            raise ValueError(f"policy {cfg.policy!r} is not a learned policy")
+        if cfg.init:
+            policy = make_policy(cfg.policy, world, checkpoint=cfg.init)
+        if cfg.team_memory:
+            policy.set_model(team_memory=True)
+        opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
+        curves.start()
+    train_seed = cfg.train_seed_offset + cfg.seed
+    total = cfg.epochs * cfg.updates
+    command = " ".join(sys.argv)
+    last: dict[str, Any] = {}
+    start = time.perf_counter()
+    columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+               TimeRemainingColumn(), TextColumn("{task.fields[stats]}")]
+    pool = ParallelUpdater(policy, world, cfg.workers, cfg.threads) if cfg.workers > 1 else None
+    with Progress(*columns, console=console, disable=not console.is_terminal) as bar, \
+            pool or contextlib.nullcontext():
+        task = bar.add_task(f"train {cfg.policy}", total=total, completed=upd, stats="")
+        for epoch in range(epoch0, cfg.epochs):
+            for _ in range(cfg.updates):
+                t0 = time.perf_counter()
+                level_world = cur.world(world, cfg)
+                episodes = upd * cfg.batch + np.arange(cfg.batch)
+                if pool is None:
+                    roll = collect(policy, level_world, train_seed, episodes, train_faults(cfg))
+                    m, parts = roll.metrics, update(policy, opt, roll, cfg)
+                else:
+                    m, parts = pool.update(policy, opt, level_world, train_seed, episodes, cfg,
+                                           train_faults(cfg))
+                upd += 1
+                dt = time.perf_counter() - t0
+                row = {"update": upd, "epoch": epoch + 1, "episodes": upd * cfg.batch,
+                       "n_dynamic": level_world.n_active_dynamic,
+                       "elratio": float(m.elratio.mean()), "success": float(m.success.mean()),
+                       "reward": float(m.reward.mean()), "collisions": float(m.collisions.mean()),
+                       "block_collisions": float(m.block_collisions.mean()), **parts,
+                       "episodes_per_s": cfg.batch / dt, "elapsed_s": time.perf_counter() - start}
+                cur.observe(row["elratio"], world, cfg)
+                curves.append(row)
+                bar.update(task, advance=1, stats=_progress_line(row, total))
+                if not console.is_terminal and upd % 10 == 0:
+                    console.print(_progress_line(row, total), highlight=False, soft_wrap=True)
+                last = row
+            val: dict[str, Any] = {}
+            for greedy, prefix in ((True, "val_"), (False, "val_sampled_")):
+                if cfg.val_episodes > 0:
+                    res = evaluate(world, policy, 2 * cfg.train_seed_offset + cfg.seed,
+                                   cfg.val_episodes, batch=min(cfg.val_episodes, 288),
+                                   greedy=greedy)
+                    val |= {prefix + k: v for k, v in res.summary(world).items()
+                            if k in ("elratio_mean", "success_rate", "reward_mean",
+                                     "collisions_mean", "block_collisions_mean")}
+            meta = {"command": command, "seed": cfg.seed, "epoch": epoch + 1, "update": upd,
+                    "episodes": upd * cfg.batch, **val}
+            payload = policy.payload(meta)
+            payload["train"] = {"config": dataclasses.asdict(cfg), "optimizer": opt.state_dict(),
+                                "rng": torch.get_rng_state(), "epoch": epoch + 1, "update": upd,
+                                "curriculum": dataclasses.asdict(cur)}
+            save_checkpoint(ckpt_path, payload)
+            plot_curve(curves.csv, out / "curve.png", f"{cfg.policy}: {command}")
+            curves.note({"kind": "epoch", "update": upd, "epoch": epoch + 1,
+                         "curriculum_level": cur.level, **val})
+            console.print(f"epoch {epoch + 1}/{cfg.epochs}  update {upd}  train elratio "
+                          f"{last.get('elratio', float('nan')):.3f}  "
+                          + "  ".join(f"{k} {v:.3f}" for k, v in val.items()), highlight=False,
+                          soft_wrap=True)
+    return last

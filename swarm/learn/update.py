@@ -1,0 +1,124 @@
+"""The REINFORCE update with the state-specific baseline (paper sections 3 and 4.3).
+
+Per robot j and tick t the return G_t = sum_{k >= t} gamma^(k - t) r_k; the loss is the paper's
+
+    loss_j = sum_t [ -log p(a_t | s_t) (G_t - b(s_t)) + alpha (G_t - b(s_t))^2 ]
+
+summed over robots and averaged over decisions, with b detached in the first term, plus an
+optional entropy bonus; stale episodes (acted by older weights) are weighted by truncated
+importance ratios. `backward` is split from `step` so data-parallel parts add up exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from policies.learned import LearnedPolicy
+from swarm.learn.config import TrainConfig
+from swarm.learn.rollout import Rollout
+
+
+def returns(reward: np.ndarray, gamma: float) -> np.ndarray:
+    """G_t = r_t + gamma G_{t+1} along axis 0."""
+    out = np.zeros_like(reward, dtype=np.float64)
+    acc = np.zeros(reward.shape[1:])
+    for t in range(reward.shape[0] - 1, -1, -1):
+        acc = reward[t] + gamma * acc
+        out[t] = acc
+    return out
+
+
+# --------------------------------------------------------------------------------------- loss
+@dataclass
+class Advantages:
+    """Returns and raw advantages of a rollout, arrays [T, B, N], and the live decisions."""
+
+    ret: np.ndarray
+    adv: np.ndarray
+    live: np.ndarray
+
+    def moments(self) -> tuple[float, float, int]:
+        """(sum, sum of squares, count) of the live advantages: what batch normalisation needs
+        from each part of a batch split across processes."""
+        a = self.adv[self.live]
+        return float(a.sum()), float((a * a).sum()), int(a.size)
+
+
+def advantages(roll: Rollout, cfg: TrainConfig) -> Advantages:
+    ret = returns(roll.reward * cfg.reward_scale, cfg.gamma)
+    return Advantages(ret, ret - roll.value, np.stack([v.receivers for v in roll.views]))
+
+
+def normaliser(moments: list[tuple[float, float, int]]) -> tuple[float, float, int]:
+    """(mean, std, count) of the advantages of a whole batch from its parts' moments."""
+    s1 = sum(m[0] for m in moments)
+    s2 = sum(m[1] for m in moments)
+    n = sum(m[2] for m in moments)
+    mean = s1 / max(n, 1)
+    return mean, math.sqrt(max(s2 / max(n, 1) - mean * mean, 0.0)), n
+
+
+def backward(policy: LearnedPolicy, roll: Rollout, adv: Advantages, cfg: TrainConfig,
+             mean: float, std: float, decisions: int) -> dict[str, float]:
+    """Accumulate the gradient of this rollout's share of the loss into the parameters' .grad.
+
+    `decisions` counts the whole batch's decisions and (mean, std) are its advantages' moments,
+    so the parts of a batch split across processes add up to the gradient of the whole.
+    """
+    a_all = (adv.adv - mean) / (std + 1e-8) if cfg.adv_norm else adv.adv
+    totals = {"loss": 0.0, "pg": 0.0, "baseline": 0.0, "entropy": 0.0}
+    for t0 in range(0, len(roll.views), cfg.chunk_ticks):
+        span = slice(t0, t0 + cfg.chunk_ticks)
+        ev = policy.evaluate(roll.views[span], roll.actions[span], roll.inputs[span])
+        at = (t0 + ev.tick, ev.group, ev.robot)
+        a = torch.from_numpy(a_all[at].astype(np.float32))
+        g = torch.from_numpy(adv.ret[at].astype(np.float32))
+        if roll.stale is not None and roll.logp is not None and cfg.is_clip > 0:
+            stale = torch.from_numpy(roll.stale[ev.group])  # their decisions: truncated IS weight
+            if bool(stale.any()):
+                acted = torch.from_numpy(roll.logp[at].astype(np.float32))
+                rho = torch.exp(ev.logp.detach() - acted)
+                w = torch.where(stale, rho.clamp(max=cfg.is_clip), 1.0)
+                a = a * w
+                totals["is_weight"] = totals.get("is_weight", 0.0) + float(w[stale].sum())
+                totals["stale_decisions"] = totals.get("stale_decisions", 0.0) + float(
+                    stale.sum())
+        pg = -(ev.logp * a).sum() / decisions
+        base = cfg.alpha * ((g - ev.value) ** 2).sum() / decisions
+        ent = ev.entropy.sum() / decisions
+        loss = pg + base - cfg.ent_coef * ent
+        loss.backward()
+        for key, val in (("loss", loss), ("pg", pg), ("baseline", base), ("entropy", ent)):
+            totals[key] += val.item()
+    return totals
+
+
+def step(policy: LearnedPolicy, opt: torch.optim.Optimizer, cfg: TrainConfig) -> float:
+    """Clip the accumulated gradient, take the optimizer step; returns the gradient norm."""
+    params = [p for p in policy.net.parameters() if p.grad is not None]
+    clip = cfg.max_grad_norm if cfg.max_grad_norm > 0 else math.inf
+    norm = torch.nn.utils.clip_grad_norm_(params, clip)
+    opt.step()
+    return float(norm)
+
+
+def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout,
+           cfg: TrainConfig) -> dict[str, float]:
+    """One REINFORCE step on a rollout; returns the loss parts per decision.
+
+    The loss is the paper's sum over robots and ticks divided by the number of decisions in the
+    batch (a constant scale, so that gradient clipping means the same for any batch size).
+    """
+    adv = advantages(roll, cfg)
+    mean, std, decisions = normaliser([adv.moments()])
+    opt.zero_grad(set_to_none=True)
+    totals = backward(policy, roll, adv, cfg, mean, std, decisions)
+    if totals.get("stale_decisions"):  # the mean importance weight of the stale decisions
+        totals["is_weight"] /= totals["stale_decisions"]
+    totals["grad_norm"] = step(policy, opt, cfg)
+    return totals
+

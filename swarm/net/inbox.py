@@ -1,0 +1,116 @@
+"""The one way a process listens: every subscription, liveliness change and query of a process
+lands as an `Event` in one queue, read by the process's own loop (never handled in Zenoh's
+callback threads), and every entity is undeclared when the inbox closes.
+
+Hostile input is cut here before it costs anything: a payload over `max_bytes` is dropped
+and counted without being copied out of Zenoh, and a full queue drops (and counts) the newest
+event instead of growing without bound under a flood.
+"""
+
+from __future__ import annotations
+
+import queue
+import time
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import zenoh
+
+DEFAULT_MAX_BYTES = 4 << 20  # far above any message of a run (weights of the largest net: ~1 MB)
+DEFAULT_MAX_EVENTS = 100_000
+
+
+class Event(NamedTuple):
+    """What arrived: `kind` names the subscription (or `<kind>` + ":live"/":dead" for liveliness)."""
+
+    kind: str
+    key: str
+    payload: bytes | None
+
+
+class Inbox:
+    """A process's subscriptions into one bounded queue; use as a context manager."""
+
+    def __init__(self, session: zenoh.Session, max_bytes: int = DEFAULT_MAX_BYTES,
+                 max_events: int = DEFAULT_MAX_EVENTS) -> None:
+        self.session = session
+        self.max_bytes = max_bytes
+        self.q: queue.Queue[Event] = queue.Queue(maxsize=max_events)
+        self.oversized = 0  # payloads over max_bytes, dropped uncopied
+        self.overflow = 0  # events dropped because the queue was full
+        self._ents: list[Any] = []
+
+    def _offer(self, event: Event) -> None:
+        try:
+            self.q.put_nowait(event)
+        except queue.Full:
+            self.overflow += 1
+
+    def subscribe(self, key: str, kind: str) -> Inbox:
+        """Samples on `key` arrive as Event(kind, sample key, payload bytes)."""
+        def on_sample(s: zenoh.Sample) -> None:
+            if len(s.payload) > self.max_bytes:
+                self.oversized += 1
+                return
+            self._offer(Event(kind, str(s.key_expr), s.payload.to_bytes()))
+
+        self._ents.append(self.session.declare_subscriber(key, on_sample))
+        return self
+
+    def liveliness(self, key: str, kind: str, history: bool = True) -> Inbox:
+        """Liveliness tokens matching `key` arrive as Event(kind + ':live' or ':dead', key)."""
+        def on_change(s: zenoh.Sample) -> None:
+            state = "live" if s.kind == zenoh.SampleKind.PUT else "dead"
+            self._offer(Event(f"{kind}:{state}", str(s.key_expr), None))
+
+        self._ents.append(self.session.liveliness().declare_subscriber(key, on_change,
+                                                                       history=history))
+        return self
+
+    def token(self, key: str) -> Inbox:
+        """Declare this process alive on `key` until the inbox closes."""
+        self._ents.append(self.session.liveliness().declare_token(key))
+        return self
+
+    def queryable(self, key: str, reply: Callable[[], bytes]) -> Inbox:
+        """Answer queries on `key` with `reply()` (called in Zenoh's thread: keep it a lookup)."""
+        self._ents.append(self.session.declare_queryable(
+            key, lambda query: query.reply(key, reply())))
+        return self
+
+    def next(self, timeout: float) -> Event | None:
+        """The next event within `timeout` seconds (any finite or infinite value), else None."""
+        if not timeout > 0:  # also NaN
+            timeout = 0.0
+        try:
+            return self.q.get(timeout=min(timeout, 3600.0))
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        for ent in reversed(self._ents):
+            try:
+                ent.undeclare()
+            except Exception:  # a session already closed has undeclared them
+                pass
+        self._ents.clear()
+
+    def __enter__(self) -> Inbox:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def query(session: zenoh.Session, key: str, timeout: float, what: str = "") -> bytes:
+    """The first reply's payload to a query on `key`, retried until `timeout` seconds; a
+    one-line TimeoutError naming `what` (default: the key) when nobody answers."""
+    deadline = time.monotonic() + timeout
+    while True:
+        left = deadline - time.monotonic()
+        for reply in session.get(key, timeout=max(0.05, min(1.0, left))):
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+        if time.monotonic() >= deadline:
+            raise TimeoutError(f"no {what or 'answer on ' + key} within {timeout:g} s")
+        time.sleep(0.1)

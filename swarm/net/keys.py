@@ -1,0 +1,130 @@
+"""Every Zenoh key expression of a run; nothing else formats a key.
+
+All keys live under `swarm/<run-id>/`, so two runs on one network never meet. Robot ids are
+decimal. See the README's "Keys and schemas" section for who publishes what.
+"""
+
+from __future__ import annotations
+
+import re
+
+ROOT = "swarm"
+_RUN_ID = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
+
+
+def check_run_id(run: str) -> str:
+    """A run id is 1-64 characters of letters, digits, '-' and '_' (no key-expression syntax)."""
+    if not _RUN_ID.match(run):
+        raise ValueError(f"bad run id {run!r}: use 1-64 letters, digits, '-' or '_'")
+    return run
+
+
+class Keys:
+    """Key expressions of run `run`."""
+
+    def __init__(self, run: str) -> None:
+        self.run = check_run_id(run)
+        self.base = f"{ROOT}/{run}"
+
+    # world -> robots
+    def obs(self, robot: int) -> str:
+        return f"{self.base}/world/obs/{robot}"
+
+    @property
+    def config(self) -> str:
+        """Queryable served by the world: the run's configuration."""
+        return f"{self.base}/world/config"
+
+    @property
+    def status(self) -> str:
+        """World -> supervisor: one status record per tick."""
+        return f"{self.base}/world/status"
+
+    @property
+    def end(self) -> str:
+        """World -> everyone: the run is over (robots exit at once instead of waiting to rejoin)."""
+        return f"{self.base}/world/end"
+
+    @property
+    def result(self) -> str:
+        """World -> supervisor: the run's result at the end."""
+        return f"{self.base}/world/result"
+
+    # robots -> radio -> robots
+    def traj(self, robot: int | str) -> str:
+        return f"{self.base}/robot/{robot}/traj"
+
+    def hidden(self, robot: int | str) -> str:
+        return f"{self.base}/robot/{robot}/hidden"
+
+    def inbox(self, robot: int) -> str:
+        """Radio -> robot: the bundle of trajectory messages it heard this tick."""
+        return f"{self.base}/radio/inbox/{robot}"
+
+    def inbox_hidden(self, robot: int) -> str:
+        """Radio -> robot: its predecessor's hidden-state message."""
+        return f"{self.base}/radio/hidden/{robot}"
+
+    # robots -> world
+    def action(self, robot: int | str) -> str:
+        return f"{self.base}/robot/{robot}/action"
+
+    def robot_status(self, robot: int | str) -> str:
+        return f"{self.base}/robot/{robot}/status"
+
+    # learning: robots / world / workers -> learner -> robots / workers
+    def rollout(self, robot: int | str) -> str:
+        """Robot -> learner: its record of an episode (at the episode's end)."""
+        return f"{self.base}/robot/{robot}/rollout"
+
+    @property
+    def episode(self) -> str:
+        """World -> learner: rewards and metrics of an episode (at its end)."""
+        return f"{self.base}/world/episode"
+
+    @property
+    def worker_episodes(self) -> str:
+        """Rollout workers -> learner: whole episodes in the trainer's terms."""
+        return f"{self.base}/rollout/episode"
+
+    @property
+    def weights(self) -> str:
+        """Learner -> robots and workers: versioned weights (also a queryable: the current)."""
+        return f"{self.base}/learner/weights"
+
+    @property
+    def learner_config(self) -> str:
+        """Queryable served by the learner: world config, policy, model and train settings."""
+        return f"{self.base}/learner/config"
+
+    @property
+    def learner_status(self) -> str:
+        return f"{self.base}/learner/status"
+
+    @property
+    def alive_learner(self) -> str:
+        return f"{self.base}/alive/learner"
+
+    # liveliness and control
+    def alive_robot(self, robot: int | str) -> str:
+        return f"{self.base}/alive/robot/{robot}"
+
+    @property
+    def alive_world(self) -> str:
+        return f"{self.base}/alive/world"
+
+    @property
+    def control(self) -> str:
+        """Supervisor -> world: stop requests (and, later, live fault changes)."""
+        return f"{self.base}/control"
+
+    @staticmethod
+    def robot_of(key: str) -> int:
+        """The robot id in `.../robot/<id>/...`, `.../obs/<id>`, `.../inbox/<id>` keys."""
+        parts = str(key).split("/")
+        for i, part in enumerate(parts[:-1]):
+            if part in ("robot", "obs", "inbox", "hidden") and parts[i + 1].isdigit():
+                return int(parts[i + 1])
+        if parts and parts[-1].isdigit():
+            return int(parts[-1])
+        raise ValueError(f"no robot id in key {key!r}")

@@ -1,0 +1,202 @@
+"""The radio layer: owns delivery of robot-to-robot messages and hosts the fault models (SPEC 5).
+
+It knows the true positions, as an emulator's channel model does. For each tick it decides, per
+copy (sender -> receiver), whether the copy is out of range, cut by a partition, lost, or
+delayed (latency + jitter + the sender's token-bucket queue), and when it arrives. Each
+receiver gets its tick's trajectory messages as one bundle at the arrival of its last on-time
+copy, so no robot waits on a timer when nothing is lost; a copy that would arrive after the
+tick's message deadline is late: counted, never delivered. Hidden-state messages are forwarded
+only to the robots whose predecessor (as computed from what they were delivered) sent them.
+Range, neighbourhood and predecessor come from world.decentral, like the batched evaluator's;
+loss, partition and the latency draw come from swarm.net.faults.delivery_mask/delay_ms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, delay_ms, delivery_mask, link_arrays
+from world.config import WorldConfig
+from world.decentral import neighbourhood, predecessor
+
+
+@dataclass
+class LinkStats:
+    delivered: int = 0
+    lost: int = 0
+    cut: int = 0  # partition
+    late: int = 0
+    queued: int = 0  # delayed by the bandwidth cap
+    dropped_bw: int = 0  # dropped by the bandwidth cap (overflow = drop)
+
+
+@dataclass
+class RadioCounters:
+    """Per-run message counters, reported in the run's result."""
+
+    traj_in: int = 0
+    traj_delivered: int = 0  # (sender, receiver) deliveries, own message included
+    hidden_in: int = 0
+    hidden_delivered: int = 0
+    out_of_range: int = 0  # (sender, receiver) pairs the range limit cut
+    lost: int = 0
+    cut: int = 0
+    late: int = 0
+    queued: int = 0
+    dropped_bw: int = 0
+    bytes_in: int = 0
+    bytes_out: int = 0
+    links: dict[tuple[int, int], LinkStats] = field(default_factory=dict)
+
+    def link(self, j: int, i: int) -> LinkStats:
+        s = self.links.get((j, i))
+        if s is None:
+            s = self.links[(j, i)] = LinkStats()
+        return s
+
+    def totals(self) -> dict[str, int]:
+        return {k: getattr(self, k) for k in (
+            "traj_in", "traj_delivered", "hidden_in", "hidden_delivered", "out_of_range", "lost",
+            "cut", "late", "queued", "dropped_bw", "bytes_in", "bytes_out")}
+
+
+class TokenBucket:
+    """Bytes/s cap of one sender's transmissions (a broadcast costs once)."""
+
+    def __init__(self, rate: float, depth: float) -> None:
+        self.rate, self.depth = rate, depth
+        self.tokens = depth
+        self.last: float | None = None
+
+    def send(self, size: int, now: float, queue: bool) -> float | None:
+        """Seconds the message waits for tokens (0 if none), or None if dropped."""
+        if self.last is not None:
+            self.tokens = min(self.depth, self.tokens + self.rate * (now - self.last))
+        self.last = now
+        if self.tokens >= size:
+            self.tokens -= size
+            return 0.0
+        if not queue:
+            return None
+        self.tokens -= size  # goes negative: the queue ahead of later messages
+        return -self.tokens / self.rate
+
+
+class Radio:
+    """Range-limited, faulted delivery, one tick at a time."""
+
+    def __init__(self, cfg: WorldConfig, plan: FaultPlan | None = None) -> None:
+        self.cfg = cfg
+        self.counters = RadioCounters()
+        self.delivered = np.zeros((cfg.n_robots, cfg.n_robots), dtype=bool)
+        self.pred = np.full(cfg.n_robots, -1, dtype=np.int64)
+        self.buckets: dict[int, TokenBucket] = {}
+        self.set_plan(plan or FaultPlan())
+
+    def set_plan(self, plan: FaultPlan) -> None:
+        self.plan = plan
+        self._loss, self._lat, self._jit = link_arrays(plan, self.cfg.n_robots)
+        self.buckets = {}
+
+    def _queue_delay(self, sender: int, size: int, now: float) -> float | None:
+        f = self.plan.per_robot.get(sender, self.plan.default)
+        if f.bandwidth <= 0:
+            return 0.0
+        b = self.buckets.get(sender)
+        if b is None or b.rate != f.bandwidth:
+            b = self.buckets[sender] = TokenBucket(f.bandwidth, f.burst or f.bandwidth)
+        return b.send(size, now, f.overflow == "queue")
+
+    def bundles(self, ep: int, t: int, positions: np.ndarray,
+                senders: dict[int, tuple[bytes, float]], deadline: float
+                ) -> dict[int, tuple[float, list[bytes]]]:
+        """Receiver -> (delivery time, payloads it hears in sender-id order).
+
+        `positions` [N, 2] are the true (y, x) at this tick; `senders` maps robot id -> (its
+        validated trajectory payload, the monotonic time the radio received it); `deadline` is
+        the monotonic time after which a copy is late.
+        """
+        n, c, plan = self.cfg.n_robots, self.counters, self.plan
+        present = np.zeros(n, dtype=bool)
+        present[list(senders)] = True
+        hears = neighbourhood(self.cfg.comm_range, positions[None], present[None])[0]
+        c.out_of_range += int(present.sum() ** 2 - hears.sum())
+        ok = hears.copy()
+        arrival = np.zeros((n, n))
+        if not plan.zero:
+            eps = np.array([ep])
+            fate = delivery_mask(plan, eps, t, n, KIND_TRAJ)[0]
+            grp = plan.group_of(n) if plan.partition else np.zeros(n, dtype=np.int64)
+            delay = delay_ms(plan, eps, t, n, KIND_TRAJ, self._lat, self._jit)[0] / 1e3
+            for j, (payload, t_recv) in senders.items():
+                q = self._queue_delay(j, len(payload), t_recv)
+                for i in np.flatnonzero(hears[:, j]):
+                    if i == j:
+                        continue
+                    s = c.link(j, int(i))
+                    if grp[i] != grp[j]:
+                        ok[i, j] = False
+                        s.cut += 1
+                        c.cut += 1
+                    elif not fate[i, j]:
+                        ok[i, j] = False
+                        s.lost += 1
+                        c.lost += 1
+                    elif q is None:
+                        ok[i, j] = False
+                        s.dropped_bw += 1
+                        c.dropped_bw += 1
+                    else:
+                        arrival[i, j] = t_recv + q + delay[i, j]
+                        if q > 0:
+                            s.queued += 1
+                            c.queued += 1
+                        if arrival[i, j] > deadline:
+                            ok[i, j] = False
+                            s.late += 1
+                            c.late += 1
+        self.delivered = ok
+        self.pred = predecessor(ok[None])[0]
+        out: dict[int, tuple[float, list[bytes]]] = {}
+        for i in senders:
+            js = np.flatnonzero(ok[i])
+            heard = [senders[int(j)][0] for j in js]
+            when = max([senders[i][1]] + [float(arrival[i, j]) for j in js if j != i])
+            out[i] = (when, heard)
+            c.traj_delivered += len(heard)
+            c.bytes_out += sum(len(p) for p in heard)
+            for j in js:
+                if j != i:
+                    c.link(int(j), i).delivered += 1
+        return out
+
+    def hidden_deliveries(self, ep: int, t: int, sender: int, size: int, now: float,
+                          deadline: float) -> list[tuple[int, float]]:
+        """(receiver, delivery time) for a hidden-state message of `sender` received at `now`."""
+        c, plan, n = self.counters, self.plan, self.cfg.n_robots
+        receivers = [int(i) for i in np.flatnonzero(self.pred == sender)]
+        if plan.zero or not receivers:
+            return [(i, now) for i in receivers]
+        eps = np.array([ep])
+        fate = delivery_mask(plan, eps, t, n, KIND_HIDDEN)[0]
+        delay = delay_ms(plan, eps, t, n, KIND_HIDDEN, self._lat, self._jit)[0] / 1e3
+        q = self._queue_delay(sender, size, now)
+        out = []
+        for i in receivers:
+            s = c.link(sender, i)
+            if not fate[i, sender]:
+                s.lost += 1
+                c.lost += 1
+            elif q is None:
+                s.dropped_bw += 1
+                c.dropped_bw += 1
+            else:
+                when = now + q + delay[i, sender]
+                if when > deadline:
+                    s.late += 1
+                    c.late += 1
+                else:
+                    out.append((i, when))
+        return out

@@ -1,0 +1,326 @@
+"""The learner process: trains a learned policy from the swarm's own rollouts over Zenoh.
+
+Reads top to bottom: config, counters, the learner loop, its entry point. Joining records into
+episodes is swarm.learn.join; weights (de)serialisation swarm.learn.weights; the update
+swarm.learn.update.
+
+Data flow of one episode (keys in swarm.keys):
+
+- each robot, at the episode's end, puts a `RobotRollout` on `robot/<i>/rollout`: per tick its
+  own trajectory payload, the ids it heard, whether its predecessor's hidden-state message
+  arrived, its action, log-probability, last reward and the weights version it acted with;
+- the world puts an `EpisodeRecord` on `world/episode`: every robot's reward per tick, which
+  robots acted in time, the episode's metrics;
+- a rollout worker instead puts whole `EpisodeRollout`s on `rollout/episode`.
+
+The learner joins the first two into an `EpisodeRollout` (the robots' own trajectory messages
+are exactly what their receivers heard, so the tick's `View` is rebuilt bit for bit), stacks
+`batch` of them into the batched trainer's `Rollout`, runs the very same `swarm.learn.trainer.update`,
+checkpoints atomically, and only then publishes the new version on `learner/weights` (a
+queryable there serves the current version to late joiners). An update is acknowledged when
+its version is published; a SIGKILLed learner resumes from the checkpoint of the last one.
+
+Stale rollouts: an episode's version is the oldest any of its robots acted with. Episodes more
+than `max_staleness` versions behind are dropped and counted (`stale_dropped`); others are used
+as if on-policy (`stale_used` counts them): REINFORCE has no correction for the lag, and with
+robots adopting weights at episode boundaries the lag is at most one version in practice.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import zenoh
+
+from policies import policy_class
+from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from swarm.learn.config import TrainConfig
+from swarm.learn.curves import CurveLog
+from swarm.learn.join import join, rollout_of
+from swarm.learn.update import update
+from swarm.learn.weights import weights_of
+from swarm.net.inbox import Inbox
+from swarm.net.keys import Keys
+from swarm.net.messages import (
+    K_LSTATUS,
+    BadMessage,
+    EpisodeRecord,
+    EpisodeRollout,
+    RobotRollout,
+    pack_record,
+)
+from swarm.net.zconfig import ZenohOptions
+from swarm.procs.runconfig import RunConfig, RunRecord
+from world.config import ConfigError, WorldConfig, from_dict
+
+log = logging.getLogger("swarm.learner")
+
+
+# ------------------------------------------------------------------------------ the learner
+@dataclass
+class LearnerConfig:
+    """What a learner does (TOML table `[learner]`; the loss settings come from `[train]`)."""
+
+    run_id: str = "run"
+    """The run whose rollouts it gathers."""
+    policy: str = "commattn"
+    """Learned policy trained."""
+    checkpoint: str | None = None
+    """Initial weights (a policy checkpoint); without one, fresh weights from `seed`."""
+    out: str | None = None
+    """Directory of the learner's checkpoint.pt, curve.csv and log.jsonl (required)."""
+    resume: bool = False
+    """Continue from OUT/checkpoint.pt (version, optimizer and counters)."""
+    max_staleness: int = 1
+    """Use episodes at most this many versions behind the current one; drop older ones."""
+    join_timeout: float = 5.0
+    """Seconds after the world's episode record to wait for the robots' records."""
+    gather_only: bool = False
+    """Gather and count episodes without updating (rollout benchmarks)."""
+    status_every: float = 0.5
+    """Seconds between status records on learner/status."""
+    seed: int = 0
+    """Seed of fresh initial weights."""
+
+
+@dataclass
+class LearnerCounters:
+    episodes: int = 0  # joined or received episodes accepted into a batch
+    robot_records: int = 0
+    world_records: int = 0
+    worker_episodes: int = 0
+    updates: int = 0
+    stale_used: int = 0
+    stale_dropped: int = 0
+    incomplete: int = 0
+    bad: int = 0
+    rollout_bytes: int = 0
+    bad_by_key: dict[str, int] = field(default_factory=dict)
+
+
+class Learner:
+    """One learner of one run; `run(stop)` loops until `stop()` is true or it is interrupted."""
+
+    def __init__(self, cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig,
+                 session: zenoh.Session) -> None:
+        if not lc.out:
+            raise ConfigError("the learner needs an output directory (--out DIR)")
+        self.cfg, self.lc, self.session = cfg, lc, session
+        self.keys = Keys(lc.run_id)
+        self.out = Path(lc.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.ckpt = self.out / "checkpoint.pt"
+        self.curves = CurveLog(self.out)
+        self.c = LearnerCounters()
+        self.version = 0
+        torch.set_num_threads(tc.threads)
+        cls = policy_class(lc.policy)
+        if not cls.learned:
+            raise ConfigError(f"policy {lc.policy!r} is not a learned policy")
+        if lc.resume and self.ckpt.exists():
+            data = load_checkpoint(self.ckpt)
+            state = data.get("learner")
+            if state is None:
+                raise CheckpointError(f"{self.ckpt} holds no learner state; cannot resume")
+            self.policy = cls(cfg, checkpoint=self.ckpt)
+            tc = from_dict(TrainConfig, state["train"], where="checkpoint train config")
+            self.opt = torch.optim.Adam(self.policy.net.parameters(), lr=tc.lr)
+            self.opt.load_state_dict(state["optimizer"])
+            self.version = int(state["version"])
+            known = {f.name for f in dataclasses.fields(LearnerCounters)}
+            self.c = LearnerCounters(**{k: v for k, v in state["counters"].items() if k in known})
+            self.curves.resume(self.version)
+            log.warning("learner resumed at version %d", self.version)
+        else:
+            if self.ckpt.exists() and not lc.gather_only:
+                raise ConfigError(f"{self.out} already holds a learner; pass --resume")
+            torch.manual_seed(lc.seed)
+            self.policy = cls(cfg, checkpoint=lc.checkpoint) if lc.checkpoint else cls(cfg)
+            self.opt = torch.optim.Adam(self.policy.net.parameters(), lr=tc.lr)
+            if not lc.gather_only:
+                self.curves.start()
+        self.tc = tc
+        self.pending: dict[int, dict[str, Any]] = {}  # ep -> {"world": rec, "robots": {}, "t": s}
+        self.ready: list[EpisodeRollout] = []
+        self.weights_payload = weights_of(self.policy, self.version).pack()
+        self.curve: list[float] = []
+        self.t0 = time.monotonic()
+        self._last_status = 0.0
+        self.last_row: dict[str, Any] = {}
+
+    # --- network ----------------------------------------------------------------------------
+    def _declare(self) -> Inbox:
+        k, s = self.keys, self.session
+        self.weights_pub = s.declare_publisher(k.weights)
+        self.status_pub = s.declare_publisher(k.learner_status)
+        return (Inbox(s).subscribe(k.rollout("*"), "robot").subscribe(k.episode, "world")
+                .subscribe(k.worker_episodes, "worker")
+                .queryable(k.weights, lambda: self.weights_payload)
+                .queryable(k.learner_config, self.record)
+                .token(k.alive_learner))
+
+    def record(self) -> bytes:
+        """The run record rollout workers fetch: world, policy, model and train settings."""
+        return RunRecord(self.cfg, RunConfig(run_id=self.lc.run_id, policy=self.lc.policy),
+                         learner=dataclasses.asdict(self.lc), train=dataclasses.asdict(self.tc),
+                         model=dataclasses.asdict(self.policy.model_cfg),
+                         version=self.version).pack()
+
+    def _bad(self, key: str, why: str) -> None:
+        self.c.bad += 1
+        self.c.bad_by_key[key] = self.c.bad_by_key.get(key, 0) + 1
+        log.warning("learner dropped bad payload on %s: %s", key, why)
+
+    # --- gathering --------------------------------------------------------------------------
+    def handle(self, kind: str, key: str, payload: bytes) -> None:
+        self.c.rollout_bytes += len(payload)
+        try:
+            if kind == "robot":
+                rr = RobotRollout.unpack(payload, self.cfg)
+                if Keys.robot_of(key) != rr.robot:
+                    raise BadMessage(f"robot id {rr.robot} does not match key")
+                self.c.robot_records += 1
+                slot = self.pending.setdefault(rr.ep, {"robots": {}, "first": time.monotonic()})
+                slot["robots"][rr.robot] = rr
+            elif kind == "world":
+                wr = EpisodeRecord.unpack(payload, self.cfg)
+                self.c.world_records += 1
+                slot = self.pending.setdefault(wr.ep, {"robots": {}, "first": time.monotonic()})
+                slot["world"], slot["t"] = wr, time.monotonic()
+            else:
+                er = EpisodeRollout.unpack(payload, self.cfg)
+                self.c.worker_episodes += 1
+                self._accept(er)
+        except (BadMessage, ValueError) as exc:
+            self._bad(key, str(exc))
+
+    def _accept(self, er: EpisodeRollout) -> None:
+        if er.actions.shape[0] != self.cfg.horizon:  # a batch stacks whole episodes only
+            self.c.incomplete += 1
+            log.warning("learner dropped episode %d: %d of %d ticks", er.ep,
+                        er.actions.shape[0], self.cfg.horizon)
+            return
+        if self.version - er.version > self.lc.max_staleness:
+            self.c.stale_dropped += 1
+            return
+        if er.version < self.version:
+            self.c.stale_used += 1
+        self.c.episodes += 1
+        if not self.lc.gather_only:
+            self.ready.append(er)
+
+    def join_ready(self, seed: int, force: bool = False) -> None:
+        """Join every pending episode whose records are all in (or whose wait timed out)."""
+        now = time.monotonic()
+        for ep in sorted(self.pending):
+            slot = self.pending[ep]
+            wr = slot.get("world")
+            if wr is None:  # robots' records whose world record never came: give up on them
+                if now - slot["first"] > 4 * self.lc.join_timeout:
+                    del self.pending[ep]
+                    self.c.incomplete += 1
+                    log.warning("learner dropped episode %d: no world record", ep)
+                continue
+            acted = set(np.flatnonzero(wr.acted.any(0)).tolist())
+            complete = acted <= set(slot["robots"])
+            if not complete and not force and now - slot["t"] < self.lc.join_timeout:
+                continue
+            del self.pending[ep]
+            try:
+                self._accept(join(self.cfg, seed, wr, slot["robots"]))
+            except BadMessage as exc:
+                self.c.incomplete += 1
+                log.warning("learner dropped episode %d: %s", ep, exc)
+
+    # --- learning ---------------------------------------------------------------------------
+    def maybe_update(self) -> bool:
+        if self.lc.gather_only or len(self.ready) < self.tc.batch:
+            return False
+        batch, self.ready = self.ready[:self.tc.batch], self.ready[self.tc.batch:]
+        t0 = time.perf_counter()
+        roll = rollout_of(batch, self.policy, self.version)
+        torch.set_flush_denormal(True)
+        try:
+            parts = update(self.policy, self.opt, roll, self.tc)
+        finally:
+            torch.set_flush_denormal(False)
+        self.version += 1
+        self.c.updates += 1
+        m = roll.metrics
+        row = {"update": self.version, "epoch": 0, "episodes": self.c.episodes,
+               "n_dynamic": self.cfg.n_active_dynamic, "elratio": float(m.elratio.mean()),
+               "success": float(m.success.mean()), "reward": float(m.reward.mean()),
+               "collisions": float(m.collisions.mean()),
+               "block_collisions": float(m.block_collisions.mean()), **parts,
+               "episodes_per_s": len(batch) / max(time.perf_counter() - t0, 1e-9),
+               "elapsed_s": time.monotonic() - self.t0}
+        self.save()  # acknowledged only once durable ...
+        self.weights_payload = weights_of(self.policy, self.version).pack()
+        self.weights_pub.put(self.weights_payload)  # ... then published
+        self.curves.append(row, version=self.version, episode_ids=[e.ep for e in batch],
+                           versions=[e.version for e in batch])
+        self.curve.append(row["elratio"])
+        self.last_row = row
+        log.info("learner: version %d, elratio %.3f", self.version, row["elratio"])
+        self.status(force=True)
+        return True
+
+    def save(self) -> None:
+        payload = self.policy.payload({"command": "swarm learner", "version": self.version,
+                                       "episodes": self.c.episodes, "run_id": self.lc.run_id})
+        payload["learner"] = {"version": self.version, "optimizer": self.opt.state_dict(),
+                              "train": dataclasses.asdict(self.tc),
+                              "counters": dataclasses.asdict(self.c)}
+        save_checkpoint(self.ckpt, payload)
+
+    def status(self, force: bool = False) -> dict[str, Any] | None:
+        """Publish the status record when it is due (or `force`d); returns it, None if not due."""
+        now = time.monotonic()
+        if not force and now - self._last_status < self.lc.status_every:
+            return None
+        self._last_status = now
+        rec = {"version": self.version, "episodes": self.c.episodes, "updates": self.c.updates,
+               "pending": len(self.pending), "ready": len(self.ready),
+               "stale_used": self.c.stale_used, "stale_dropped": self.c.stale_dropped,
+               "incomplete": self.c.incomplete, "bad": self.c.bad,
+               "worker_episodes": self.c.worker_episodes,
+               "rollout_bytes": self.c.rollout_bytes,
+               "rollout_bytes_per_s": self.c.rollout_bytes / max(now - self.t0, 1e-9),
+               "curve": self.curve[-40:], "last": {k: self.last_row.get(k) for k in
+                                                   ("elratio", "reward", "loss")},
+               "wall": time.time()}
+        self.status_pub.put(pack_record(K_LSTATUS, rec))
+        return rec
+
+    def run(self, seed: int, stop: Any = lambda: False) -> dict[str, Any]:
+        inbox = self._declare()
+        try:
+            self.weights_pub.put(self.weights_payload)  # late joiners also query it
+            while not stop():
+                ev = inbox.next(0.05)
+                if ev is not None:
+                    self.handle(ev.kind, ev.key, ev.payload or b"")
+                self.join_ready(seed)
+                self.maybe_update()
+                self.status()
+            return self.status(force=True)
+        finally:
+            inbox.close()
+
+
+def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptions,
+         seed: int, stop: Any = lambda: False) -> dict[str, Any]:
+    """Open a session and learn until interrupted (or `stop()`); returns the last status."""
+    with zenoh.open(zopts.to_config()) as session:
+        learner = Learner(cfg, lc, tc, session)
+        try:
+            return learner.run(seed, stop)
+        except KeyboardInterrupt:
+            return learner.status(force=True)

@@ -1,0 +1,405 @@
+"""A robot process: one robot, one Zenoh session, the same policy code as the batched evaluator.
+
+Per tick: take the observation from the world, append the position to its own trajectory,
+publish the trajectory message, take the radio's bundle of what it heard, (for a chained policy)
+take the predecessor's hidden-state message, decide with `world.decentral.robot_view` and the
+shared policy, publish the action (and its own hidden-state message). It keeps acting for as
+long as the world is alive and exits by itself when the world's liveliness token disappears.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from policies import policy_class
+from policies.base import Policy
+from swarm.common.policy_spec import build_policy
+from swarm.net.inbox import Inbox, query
+from swarm.net.keys import Keys
+from swarm.net.messages import (
+    K_RSTATUS,
+    Action,
+    BadMessage,
+    Bundle,
+    Hidden,
+    Obs,
+    RolloutTick,
+    Traj,
+    pack_record,
+)
+from swarm.net.zconfig import ZenohOptions
+from swarm.procs.runconfig import RunConfig, RunRecord
+from world.config import ConfigError, WorldConfig
+from world.decentral import TrajMessages, robot_view
+
+log = logging.getLogger("swarm.robot")
+ROLLOUT_STREAM = 7  # counter-based noise stream of the rollout-loss fault
+STALL_S = 0.5  # a wait that overran its timeout by this much means the process was stopped
+REJOIN_S = 10.0  # how long a robot that just stalled waits for the world's token to come back
+GONE_S = 1.0  # how long any other robot waits before it takes a vanished token for the world's end
+
+
+def hop_deadline(t_recv: float, deadline: float, robot: int, n: int) -> float:
+    """How long robot `robot` waits for its predecessor's hidden-state message: until its slot,
+    (robot + 1) / n of the way to the tick deadline.
+
+    Ids along a chain strictly decrease, so a predecessor j < robot gives up on its own
+    predecessor at its earlier slot and its message (late only by its decode and one hop) still
+    reaches `robot` before this one. A lost message therefore costs one slot of waiting and
+    breaks one link, never the whole budget of every robot downstream (the deadline cascade of
+    waiting until the tick deadline, see docs/DECISIONS.md)."""
+    return t_recv + (deadline - t_recv) * (robot + 1) / max(n, 1)
+
+
+@dataclass
+class RobotCounters:
+    msgs_in: int = 0
+    msgs_out: int = 0
+    bytes_in: int = 0
+    bytes_out: int = 0
+    bad: int = 0
+    stale: int = 0
+    missed: int = 0  # ticks it could not act on (no bundle in time)
+    missed_hidden: int = 0  # predecessor's hidden-state message lost or late: decoded without
+    last_latency_ms: float = 0.0
+    weights_bad: int = 0  # weights messages rejected (wrong policy, shape or version)
+    rollouts_lost: int = 0  # episode records dropped by the injected rollout loss
+    stalls: int = 0  # times this process was stopped or starved for over STALL_S
+    rejoins: int = 0  # times the world's token came back after vanishing (session drop)
+    bad_by_key: dict[str, int] = field(default_factory=dict)
+
+
+def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecord:
+    """Ask the world for the run's record, retrying until `timeout`."""
+    payload = query(session, keys.config, timeout, f"world answered on {keys.config}")
+    return RunRecord.unpack(payload, f"run record from {keys.config}")
+
+
+class RobotProcess:
+    """Robot `robot` of a run."""
+
+    def __init__(self, robot: int, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
+                 policy: Policy) -> None:
+        if not 0 <= robot < cfg.n_robots:
+            raise ValueError(f"robot id {robot} outside 0..{cfg.n_robots - 1}")
+        self.robot, self.cfg, self.run_cfg, self.session = robot, cfg, run, session
+        self.keys = Keys(run.run_id)
+        self.policy = policy
+        self.inbox: Inbox | None = None
+        self.c = RobotCounters()
+        self.world_alive = False
+        self.world_seen = False
+        self.ended = False  # the world announced the run's end
+        self.last_stall = -1e9  # monotonic time of the last detected stall
+        self.ep = -1
+        self.visited = np.zeros(cfg.cells, dtype=bool)
+        self.recent: list[int] = []
+        self._bundles: dict[tuple[int, int], Bundle] = {}
+        self._hidden: dict[tuple[int, int], Hidden] = {}
+        self.traj_pub = session.declare_publisher(self.keys.traj(robot))
+        self.act_pub = session.declare_publisher(self.keys.action(robot))
+        self.hid_pub = session.declare_publisher(self.keys.hidden(robot))
+        self.status_pub = session.declare_publisher(self.keys.robot_status(robot))
+        # learning in the field (run.train): weights version in use, the next one, the record
+        self.train = run.train and getattr(policy, "learned", False)
+        self.version = 0
+        self.next_weights: Any = None
+        self.record: list[RolloutTick] = []
+        self.roll_pub = session.declare_publisher(self.keys.rollout(robot)) if self.train else None
+
+    def _declare(self) -> Inbox:
+        k, r = self.keys, self.robot
+        inbox = Inbox(self.session)
+        if self.train:
+            inbox.subscribe(k.weights, "weights")
+        return (inbox.subscribe(k.obs(r), "obs").subscribe(k.inbox(r), "bundle")
+                .subscribe(k.inbox_hidden(r), "hidden").subscribe(k.end, "end")
+                .liveliness(k.alive_world, "world")
+                .token(k.alive_robot(r)))
+
+    def _bad(self, key: str, why: str) -> None:
+        self.c.bad += 1
+        self.c.bad_by_key[key] = self.c.bad_by_key.get(key, 0) + 1
+        log.warning("robot %d dropped bad payload on %s: %s", self.robot, key, why)
+
+    def _next(self, deadline: float) -> tuple[str, Any] | None:
+        """The next valid message before `deadline` (bad ones dropped and counted)."""
+        assert self.inbox is not None
+        while True:
+            wait = deadline - time.monotonic()
+            t0 = time.monotonic()
+            ev = self.inbox.next(wait)
+            if time.monotonic() - t0 > max(wait, 0.0) + STALL_S:
+                self.c.stalls += 1  # this process was stopped (or starved) for a while
+                self.last_stall = time.monotonic()
+                log.warning("robot %d stalled %.1f s", self.robot, time.monotonic() - t0 - wait)
+            if ev is None:
+                return None
+            kind, key, payload = ev
+            if kind == "end":
+                self.ended = True
+                return ("end", None)
+            if kind in ("world:live", "world:dead"):
+                self.world_alive = kind == "world:live"
+                self.world_seen |= self.world_alive
+                return ("wlive" if self.world_alive else "wdead", None)
+            self.c.msgs_in += 1
+            self.c.bytes_in += len(payload or b"")
+            if kind == "weights":
+                self.offer_weights(payload or b"", key)
+                continue
+            try:
+                if kind == "obs":
+                    msg: Any = Obs.unpack(payload or b"", self.cfg)
+                elif kind == "bundle":
+                    msg = Bundle.unpack(payload or b"", self.cfg)
+                else:
+                    msg = Hidden.unpack(payload or b"", self.cfg)
+                if kind != "hidden" and msg.robot != self.robot:
+                    raise BadMessage(f"addressed to robot {msg.robot}")
+            except BadMessage as exc:
+                self._bad(key, str(exc))
+                continue
+            return (kind, msg)
+
+    def _wait(self, kind: str, ep: int, t: int, sender: int | None, deadline: float) -> Any:
+        """Wait for a bundle/hidden of tick (ep, t), keeping early ones and dropping stale ones."""
+        store = self._bundles if kind == "bundle" else self._hidden
+        want = (ep, t) if kind == "bundle" else (ep, t, sender)
+        while True:
+            got = store.pop(want, None)  # type: ignore[call-overload]
+            if got is not None:
+                return got
+            item = self._next(deadline)
+            if item is None:
+                return None
+            k, msg = item
+            if k == "wdead":
+                return None
+            if k == "obs":
+                self._pending_obs = msg
+                return None
+            if k in ("bundle", "hidden"):
+                key = (msg.ep, msg.t) if k == "bundle" else (msg.ep, msg.t, msg.robot)
+                if (msg.ep, msg.t) >= (ep, t):
+                    (self._bundles if k == "bundle" else self._hidden)[key] = msg  # type: ignore
+                else:
+                    self.c.stale += 1
+
+    def offer_weights(self, payload: bytes, key: str) -> None:
+        """Keep a newer weights version for the next episode boundary; reject bad ones."""
+        from swarm.learn.weights import check_weights
+        from swarm.net.messages import Weights
+
+        try:
+            w = Weights.unpack(payload)
+            check_weights(self.policy, w)  # type: ignore[arg-type]
+        except BadMessage as exc:
+            self.c.weights_bad += 1
+            log.warning("robot %d rejected weights on %s: %s", self.robot, key, exc)
+            self.status()  # visible at once on the dashboard
+            return
+        newest = self.next_weights.version if self.next_weights is not None else self.version
+        if w.version > newest:
+            self.next_weights = w
+
+    def adopt_weights(self) -> None:
+        """At an episode boundary: switch to the newest weights received, if they fit."""
+        from swarm.learn.weights import adopt
+
+        w, self.next_weights = self.next_weights, None
+        if w is None:
+            return
+        try:
+            adopt(self.policy, w)  # type: ignore[arg-type]
+            self.version = w.version
+        except BadMessage as exc:
+            self.c.weights_bad += 1
+            log.warning("robot %d rejected weights: %s", self.robot, exc)
+
+    def fetch_weights(self, timeout: float = 1.0) -> None:
+        """A late joiner asks the learner for the current weights (none: keep its own)."""
+        for reply in self.session.get(self.keys.weights, timeout=timeout):
+            if reply.ok is not None:
+                self.offer_weights(reply.ok.payload.to_bytes(), self.keys.weights)
+
+    def heard(self, bundle: Bundle) -> TrajMessages:
+        m = TrajMessages.empty(self.cfg)
+        for payload in bundle.trajs:
+            try:
+                tr = Traj.unpack(payload, self.cfg)
+            except BadMessage as exc:
+                self._bad(self.keys.inbox(self.robot), str(exc))
+                continue
+            j = tr.robot
+            m.present[0, j] = True
+            m.pos[0, j] = (tr.y, tr.x)
+            m.visited[0, j] = tr.visited_bits(self.cfg.cells)
+            rec = tr.recent[-self.cfg.recent_len:]
+            m.recent[0, j, self.cfg.recent_len - len(rec):] = rec
+            m.patch[0, j] = np.frombuffer(tr.patch, dtype=np.uint8).reshape(self.cfg.vision, -1)
+        return m
+
+    def on_obs(self, obs: Obs) -> None:
+        cfg, r = self.cfg, self.robot
+        if obs.ep != self.ep or obs.t == 0:
+            self.ep = obs.ep
+            self.policy.reset(1)
+            self.visited[:] = False
+            self.recent = []
+            self.record = []
+            if self.train:
+                self.adopt_weights()  # never mid-episode
+        cell = obs.y * cfg.width + obs.x
+        self.visited[cell] = True
+        self.recent = (self.recent + [cell])[-cfg.recent_len:]
+        if obs.done:
+            if self.train and self.record and self.roll_pub is not None:
+                from swarm.net.messages import RobotRollout
+                from world.noise import uniform
+
+                lost = self.run_cfg.rollout_loss > 0 and float(uniform(
+                    self.run_cfg.seed, obs.ep, 0, r, 1, stream=ROLLOUT_STREAM)[0]) < \
+                    self.run_cfg.rollout_loss
+                if lost:  # the injected rollout-traffic fault: the learner never hears it
+                    self.c.rollouts_lost += 1
+                else:
+                    payload = RobotRollout(obs.ep, r, self.record).pack()
+                    self.roll_pub.put(payload)
+                    self.c.msgs_out += 1
+                    self.c.bytes_out += len(payload)
+            self.record = []
+            return
+        t_recv = time.monotonic()
+        traj = Traj(obs.ep, obs.t, r, obs.y, obs.x, np.packbits(self.visited).tobytes(),
+                    self.recent, obs.patch).pack()
+        self.traj_pub.put(traj)
+        self.c.msgs_out += 1
+        self.c.bytes_out += len(traj)
+        # Act before the world's deadline whatever is missing (a late message is never used).
+        deadline = t_recv + 0.95 * obs.budget_ms / 1e3
+        bundle = self._wait("bundle", obs.ep, obs.t, None, deadline)
+        if bundle is None:
+            self.c.missed += 1
+            return
+        self.c.last_latency_ms = 1e3 * (time.monotonic() - t_recv)
+        heard = self.heard(bundle)
+        view = robot_view(cfg, self.run_cfg.seed, obs.ep, obs.t, r, heard, obs.reward)
+        chain_ok = True
+        t0 = time.perf_counter()
+        if self.policy.chained:
+            pred = int(view.predecessor()[0, r])
+            prepared = self.policy.prepare_chain(view)  # type: ignore[attr-defined]
+            hidden = None  # ... computed before waiting: only decoding waits for the predecessor
+            if pred >= 0:
+                hidden = self._wait("hidden", obs.ep, obs.t, pred,
+                                    hop_deadline(t_recv, deadline, r, cfg.n_robots))
+                if hidden is None or len(hidden.state) != 4 * self.policy.state_size:
+                    # lost, late or malformed: decode as if there were no predecessor
+                    self.c.missed_hidden += 1
+                    view.chain_ok = np.zeros((1, cfg.n_robots), dtype=bool)
+                    hidden = None
+                    chain_ok = False
+            actions, state = self.policy.act_with_chain(  # type: ignore[attr-defined]
+                view, None if hidden is None else hidden.vector()[None],
+                None if hidden is None else np.array([hidden.action]),
+                greedy=self.run_cfg.greedy, prepared=prepared)
+            action = int(actions[0, r])
+            h = Hidden(obs.ep, obs.t, r, action, np.asarray(state[0], "<f4").tobytes()).pack()
+            self.hid_pub.put(h)
+            self.c.msgs_out += 1
+            self.c.bytes_out += len(h)
+        else:
+            action = int(self.policy.act(view, greedy=self.run_cfg.greedy)[0, r])
+        ms = 1e3 * (time.perf_counter() - t0)
+        if self.train:
+            probs = self.policy.last_probs  # type: ignore[attr-defined]
+            logp = float(np.log(max(float(probs[0, r, action]), 1e-30)))
+            mask = int(sum(1 << int(j) for j in np.flatnonzero(heard.present[0])))
+            self.record.append(RolloutTick(traj, mask, chain_ok, action, logp, float(obs.reward),
+                                self.version))
+        a = Action(obs.ep, obs.t, r, int(action), ms).pack()
+        self.act_pub.put(a)
+        self.c.msgs_out += 1
+        self.c.bytes_out += len(a)
+        if obs.t % 5 == 0:
+            self.status()
+
+    def status(self) -> None:
+        rec = {"robot": self.robot, "ep": self.ep, "msgs_in": self.c.msgs_in,
+               "msgs_out": self.c.msgs_out, "bytes_in": self.c.bytes_in,
+               "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
+               "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
+               "latency_ms": self.c.last_latency_ms, "version": self.version,
+               "weights_bad": self.c.weights_bad, "rollouts_lost": self.c.rollouts_lost}
+        self.status_pub.put(pack_record(K_RSTATUS, rec))
+
+    def run(self, wait_world: float = 30.0, rejoin: float = REJOIN_S) -> RobotCounters:
+        """Act until the world ends the run (its `end` record), or its liveliness token has been
+        gone for `rejoin` seconds: a token that vanishes because this robot's own session dropped
+        (the process hung past the lease) comes back when the session reconnects, and the robot
+        rejoins the run (`rejoins` counts it)."""
+        self.inbox = self._declare()
+        try:
+            if self.train:
+                self.fetch_weights()
+            deadline = time.monotonic() + wait_world
+            gone_since: float | None = None
+            grace = rejoin
+            while not self.ended:
+                self._pending_obs: Obs | None = None
+                if not self.world_seen:
+                    wait_until = deadline
+                elif gone_since is not None:
+                    wait_until = gone_since + grace
+                else:
+                    wait_until = time.monotonic() + 3600
+                item = self._next(wait_until)
+                if item is None:
+                    if not self.world_seen:
+                        raise TimeoutError(f"no world within {wait_world:g} s")
+                    if gone_since is not None and time.monotonic() >= gone_since + grace:
+                        log.info("robot %d: world gone for %.0f s, exiting", self.robot, grace)
+                        break
+                    continue
+                kind, msg = item
+                while kind == "obs" and msg is not None:
+                    self.on_obs(msg)  # (may itself see the world's token go or come back)
+                    msg, self._pending_obs = self._pending_obs, None
+                if not self.world_alive and self.world_seen and gone_since is None:
+                    gone_since = time.monotonic()
+                    # its own stall (hung past the lease) explains a dropped session; otherwise
+                    # the world is gone, unless its token is back within a short grace
+                    stalled = time.monotonic() - self.last_stall < rejoin
+                    grace = rejoin if stalled else min(GONE_S, rejoin)
+                elif self.world_alive and gone_since is not None:
+                    gone_since = None
+                    self.c.rejoins += 1
+                    log.warning("robot %d: world back, rejoining", self.robot)
+            self.status()
+            return self.c
+        finally:
+            self.inbox.close()
+
+
+def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0) -> RobotCounters:
+    """Join run `run_id` as robot `robot`: fetch the run record, act until the run ends."""
+    keys = Keys(run_id)
+    with zenoh.open(zopts.to_config()) as session:
+        rec = fetch_config(session, keys, wait_world)
+        cfg, run = rec.world, rec.run
+        if not 0 <= robot < cfg.n_robots:
+            raise ConfigError(f"robot id {robot} outside 0..{cfg.n_robots - 1} of run {run_id}")
+        if policy_class(run.policy).learned:  # frontier robots never import torch (~230 MB)
+            import torch
+
+            torch.set_num_threads(run.robot_threads)
+        policy = build_policy(run.policy, cfg, run.checkpoint)
+        policy.reset(1)
+        return RobotProcess(robot, cfg, run, session, policy).run(wait_world)

@@ -1,0 +1,93 @@
+"""A rollout worker: batched episodes with the learner's current weights, published to it.
+
+`swarm rollout-worker --run-id R --connect tcp/HOST:PORT --worker-id K` asks the learner for the
+run's configuration and current weights, then loops: collect `batch` episodes with sampled
+actions (the batched trainer's `collect`, one process, `threads` torch threads), put each as an
+`EpisodeRollout` on `rollout/episode`, adopt any newer weights between batches. Worker K plays
+episodes of its own seed (the train offset + run seed + K + 1, never an evaluation seed), so
+workers on several hosts never repeat each other's episodes. It exits
+after `max_batches` or on Ctrl-C; while the learner is gone it goes on with its last weights
+(what it sends meanwhile is lost, as on any pub/sub link without a subscriber).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+import torch
+import zenoh
+
+from policies import policy_class
+from swarm.learn.config import TrainConfig
+from swarm.learn.join import episodes_of
+from swarm.learn.rollout import collect
+from swarm.learn.weights import adopt
+from swarm.net.inbox import Event, Inbox, query
+from swarm.net.keys import Keys
+from swarm.net.messages import BadMessage, Weights
+from swarm.net.zconfig import ZenohOptions
+from swarm.procs.runconfig import RunRecord
+from world.config import ConfigError, from_dict
+
+log = logging.getLogger("swarm.worker")
+
+
+def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
+         threads: int = 1, max_batches: int = 0, wait: float = 30.0) -> dict[str, Any]:
+    keys = Keys(run_id)
+    torch.set_num_threads(threads)
+    with zenoh.open(zopts.to_config()) as session:
+        rec = RunRecord.unpack(query(session, keys.learner_config, wait,
+                                     f"learner answered on {keys.learner_config}"),
+                               "the learner's run record")
+        cfg = rec.world
+        if rec.train is None or rec.model is None:
+            raise ConfigError("the learner's run record has no train or model table")
+        tc = from_dict(TrainConfig, rec.train, "learner train")
+        cls = policy_class(rec.run.policy)
+        policy = cls(cfg, model=from_dict(cls.config_cls, rec.model, "learner model"))
+        inbox = Inbox(session).subscribe(keys.weights, "w").liveliness(keys.alive_learner,
+                                                                         "learner")
+        pub = session.declare_publisher(keys.worker_episodes)
+        for reply in session.get(keys.weights, timeout=2.0):
+            if reply.ok is not None:
+                inbox.q.put(Event("w", keys.weights, reply.ok.payload.to_bytes()))
+        version, sent, bad, batches, sent_bytes = -1, 0, 0, 0, 0
+        seed = tc.train_seed_offset + tc.seed + worker_id + 1
+        t0 = time.monotonic()
+        try:
+            while max_batches <= 0 or batches < max_batches:
+                while (ev := inbox.next(0)) is not None:  # adopt the newest weights between batches
+                    kind, payload = ev.kind, ev.payload
+                    if kind == "learner:dead":  # keep going on the last weights; it may come back
+                        log.warning("worker %d: learner gone", worker_id)
+                    elif kind == "w":
+                        try:
+                            w = Weights.unpack(payload or b"")
+                            if w.version > version:
+                                adopt(policy, w)
+                                version = w.version
+                        except BadMessage as exc:
+                            bad += 1
+                            log.warning("worker %d rejected weights: %s", worker_id, exc)
+                if version < 0:
+                    time.sleep(0.05)
+                    if time.monotonic() - t0 > wait:
+                        raise TimeoutError("no weights from the learner")
+                    continue
+                episodes = batches * batch + np.arange(batch)
+                roll = collect(policy, cfg, seed, episodes)
+                for er in episodes_of(roll, version):
+                    payload = er.pack()
+                    pub.put(payload)
+                    sent += 1
+                    sent_bytes += len(payload)
+                batches += 1
+        finally:
+            inbox.close()
+        wall = time.monotonic() - t0
+        return {"worker": worker_id, "episodes": sent, "batches": batches, "bytes": sent_bytes,
+                "weights_bad": bad, "version": version, "episodes_per_s": sent / max(wall, 1e-9)}

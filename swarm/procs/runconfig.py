@@ -1,0 +1,149 @@
+"""Configuration of one distributed run: `RunConfig` (what the run does) and `RunRecord`, the one
+record every process of a run agrees on (world + run + faults + learner + train), served by the
+world's and the learner's queryables, fetched by robots and rollout workers, and written by the
+supervisor as the spec file its children read."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgpack
+
+from world.config import ConfigError, WorldConfig, from_dict, to_dict
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """What a swarm run does; the world serves it (with the world config) to every robot."""
+
+    run_id: str = "run"
+    """Namespaces every key: `swarm/<run_id>/...`."""
+    policy: str = "nearest-frontier"
+    """Registry name of the policy every robot runs."""
+    checkpoint: str | None = None
+    """Checkpoint file of a learned policy (a path the robots can read)."""
+    seed: int = 0
+    """Episode seed: episode e of the run is episode e of `swarm eval --seed`."""
+    episodes: int = 5
+    """Episodes to run, numbered first_episode, first_episode + 1, ..."""
+    first_episode: int = 0
+    """Number of the first episode."""
+    greedy: bool = True
+    """Greedy (argmax) decisions; False samples with the counter-based noise."""
+    tick_timeout: float = 2.0
+    """Seconds the world waits for a tick's actions before stepping without the missing ones."""
+    start_timeout: float = 60.0
+    """Seconds the world waits for every robot to come alive before the first tick."""
+    pace: float = 0.0
+    """Cap on ticks per second so a person can watch (0: as fast as the swarm goes)."""
+    robot_threads: int = 1
+    """torch threads per robot process (many processes share 2 cores)."""
+    train: bool = False
+    """Learning in the field: robots record their episodes for the learner and adopt its
+    weights at episode boundaries; the world publishes each episode's rewards."""
+    rollout_loss: float = 0.0
+    """With `train`: each robot drops its episode record with this probability (seeded, like
+    the radio's loss), a fault on the rollout traffic to the learner."""
+
+    def __post_init__(self) -> None:
+        from swarm.net.keys import check_run_id
+
+        try:
+            check_run_id(self.run_id)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        def check(name: str, lo: float, hi: float) -> None:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and lo <= v <= hi):  # also NaN
+                raise ConfigError(f"{name} must lie in [{lo}, {hi}], got {v!r}")
+
+        big = 2**31 - 1
+        check("seed", 0, big)
+        check("episodes", 1, 1_000_000)
+        check("first_episode", 0, big - 1_000_000)
+        check("tick_timeout", 1e-3, 3600.0)
+        check("start_timeout", 1e-3, 3600.0)
+        check("pace", 0.0, 1000.0)
+        check("robot_threads", 1, 64)
+        check("rollout_loss", 0.0, 1.0)
+        if not isinstance(self.policy, str) or not self.policy:
+            raise ConfigError("policy must be a registry name")
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """What every process of a run needs to agree on, as one record."""
+
+    world: WorldConfig
+    run: RunConfig = field(default_factory=RunConfig)
+    faults: dict[str, Any] = field(default_factory=dict)
+    """The `[faults]` table in human units (swarm.net.faults.plan_from_table reads it)."""
+    learner: dict[str, Any] | None = None
+    """LearnerConfig fields (swarm.procs.learner) of a run that trains, else None."""
+    train: dict[str, Any] | None = None
+    """TrainConfig fields (swarm.learn.config) of a run that trains, else None."""
+    model: dict[str, Any] | None = None
+    """The learned network's config (served by the learner to rollout workers)."""
+    version: int = 0
+    """The learner's weights version when it answered."""
+
+    def to_record(self) -> dict[str, Any]:
+        """A JSON- and msgpack-safe map (inf as the string 'inf')."""
+        out: dict[str, Any] = {"world": to_dict(self.world), "run": dataclasses.asdict(self.run),
+                               "faults": dict(self.faults), "version": self.version}
+        for key in ("learner", "train", "model"):
+            if getattr(self, key) is not None:
+                out[key] = dict(getattr(self, key))
+        return out
+
+    @classmethod
+    def from_record(cls, rec: Any, where: str = "run record") -> RunRecord:
+        """Validate and rebuild; anything missing, unknown or out of range is a ConfigError."""
+        if not isinstance(rec, dict) or not isinstance(rec.get("world"), dict):
+            raise ConfigError(f"{where}: not a run record (no world table)")
+        unknown = set(rec) - {"world", "run", "faults", "learner", "train", "model", "version"}
+        if unknown:
+            raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+        for key in ("run", "faults", "learner", "train", "model"):
+            if rec.get(key) is not None and not isinstance(rec[key], dict):
+                raise ConfigError(f"{where}: {key} must be a table")
+        version = rec.get("version", 0)
+        if not isinstance(version, int) or isinstance(version, bool) or version < 0:
+            raise ConfigError(f"{where}: version must be a non-negative integer")
+        try:
+            return cls(world=from_dict(WorldConfig, rec["world"], f"{where} world"),
+                       run=from_dict(RunConfig, rec.get("run") or {}, f"{where} run"),
+                       faults=dict(rec.get("faults") or {}), learner=rec.get("learner"),
+                       train=rec.get("train"), model=rec.get("model"), version=version)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+
+    def pack(self) -> bytes:
+        return msgpack.packb(self.to_record(), use_bin_type=True)
+
+    @classmethod
+    def unpack(cls, payload: bytes, where: str = "run record") -> RunRecord:
+        try:
+            rec = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        except Exception as exc:  # msgpack raises several types; all mean "not msgpack"
+            raise ConfigError(f"{where}: not msgpack ({type(exc).__name__})") from None
+        return cls.from_record(rec, where)
+
+    def write(self, path: str | Path) -> None:
+        """The spec file the supervisor hands its children (atomically)."""
+        from swarm.common.atomic import write_json
+
+        write_json(path, self.to_record())
+
+    @classmethod
+    def read(cls, path: str | Path) -> RunRecord:
+        try:
+            with open(path) as fh:
+                rec = json.load(fh)
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"cannot read spec {path}: {exc}") from None
+        return cls.from_record(rec, f"spec {path}")

@@ -1,0 +1,437 @@
+"""`swarm run`: spawn the world and N robot processes, supervise them, show the live dashboard.
+
+Every child is a fresh interpreter (subprocess, never fork: a forked Zenoh session hangs). The
+world listens on a free loopback port; robots and the supervisor's own session connect to it.
+Ctrl-C (or any exit) sends SIGINT to every child, then SIGKILL to whatever is left after 2 s,
+so no process of the run outlives it. With `--netns` (swarm/netns.py) the world and each robot run
+in network namespaces of their own, joined by veth pairs, and the kernel applies the link faults.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from rich.console import Console
+from rich.live import Live
+
+from swarm.common.atomic import write_json
+from swarm.net.faults import ProcessFault, parse_process, plan_from_table
+from swarm.net.inbox import Inbox
+from swarm.net.keys import Keys
+from swarm.net.messages import (
+    K_CONTROL,
+    K_LSTATUS,
+    K_RESULT,
+    K_RSTATUS,
+    K_STATUS,
+    pack_record,
+    unpack_record,
+)
+from swarm.net.netns import NetnsConfig, Topology
+from swarm.net.zconfig import ZenohOptions, free_port
+from swarm.procs.dashboard import SwarmView, render
+from swarm.procs.runconfig import RunConfig, RunRecord
+from world.config import ConfigError, WorldConfig
+
+log = logging.getLogger("swarm.supervisor")
+
+
+@dataclass
+class SuperviseOptions:
+    headless: bool = False
+    """No live dashboard."""
+    status_lines: bool = True
+    """With `headless`: write each world status as a JSON line on stdout."""
+    json_path: str | None = None
+    """Write the run's result (one JSON object) here, atomically."""
+    restart_crashed: bool = False
+    """Start a robot process again when it dies."""
+    log_dir: str | None = None
+    """Children's stderr goes to files here (default: a temporary directory)."""
+    netns: NetnsConfig | None = None
+    """Kernel-level realism (swarm/netns.py): world and robots in network namespaces joined by
+    veth pairs, with these kernel faults on the robot links; None: everything on loopback."""
+
+
+def _registry(run_id: str) -> Path:
+    """Where a running supervisor notes its hub endpoint, for `swarm fault --run ID`."""
+    return Path(tempfile.gettempdir()) / "swarm-runs" / f"{run_id}.json"
+
+
+def lookup_run(run_id: str) -> str:
+    """The hub endpoint of a run started on this machine by `swarm run`."""
+    try:
+        return str(json.loads(_registry(run_id).read_text())["hub"])
+    except (OSError, ValueError, KeyError):
+        raise ConfigError(f"no running swarm {run_id!r} on this machine; "
+                          f"give --connect ENDPOINT") from None
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "swarm.cli", *args]
+
+
+def _wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: float,
+               name: str = "world") -> None:
+    """Wait until `proc` (the hub: world or learner) accepts connections on host:port."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"{name} process exited with code {proc.returncode} before "
+                               "listening")
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            if s.connect_ex((host, port)) == 0:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"{name} did not listen on {host}:{port} within {timeout:g} s")
+
+
+def last_error(log: Path, tail: int = 4096) -> str:
+    """The last exception line (`SomeError: message`) of a child's log, or "" if none."""
+    try:
+        with log.open("rb") as fh:
+            fh.seek(max(fh.seek(0, os.SEEK_END) - tail, 0))
+            lines = fh.read().decode("utf-8", "replace").splitlines()
+    except OSError:
+        return ""
+    for line in reversed(lines):
+        head = line.split(":", 1)[0]
+        if line and not line[0].isspace() and head.endswith(("Error", "Exception")):
+            return line.strip()
+    return ""
+
+
+class Supervisor:
+    def __init__(self, cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
+                 console: Console | None = None, faults: dict[str, Any] | None = None,
+                 learning: dict[str, Any] | None = None) -> None:
+        self.cfg, self.run_cfg, self.opts = cfg, run, opts
+        self.learning = learning  # {"learner": LearnerConfig fields, "train": ...} or None
+        self.learner: subprocess.Popen[bytes] | None = None
+        self.learner_status: dict[str, Any] | None = None
+        self.learner_alive = False
+        self.faults = dict(faults or {})
+        plan = plan_from_table(self.faults, run.seed)
+        self.process_faults = sorted(plan.process, key=lambda p: p.tick)
+        self.hung: set[int] = set()
+        self.fault_log: list[str] = []
+        self.console = console or Console()
+        self.keys = Keys(run.run_id)
+        self.port = free_port()
+        self.hub = f"tcp/127.0.0.1:{self.port}"
+        self.topo = None if opts.netns is None else Topology(run.run_id, cfg.n_robots, opts.netns)
+        self.zcfg = [] if opts.netns is None else opts.netns.zenoh_cfg()  # --cfg of every session
+        self.tmp = Path(tempfile.mkdtemp(prefix=f"swarm-{run.run_id}-"))
+        self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.world: subprocess.Popen[bytes] | None = None
+        self.robots: dict[int, subprocess.Popen[bytes]] = {}
+        self.inbox: Inbox | None = None
+        self.bad = 0  # records that did not decode or fit, dropped
+        self.view = SwarmView(run.run_id, run.policy, cfg.height, cfg.width, cfg.n_robots,
+                              cfg.comm_range, run.episodes)
+        self.result: dict[str, Any] | None = None
+        self.crashes = 0
+        self.restarts = 0
+        self.rss_mb: dict[str, float] = {}  # peak resident memory per child, sampled
+        self.pss_mb: dict[str, float] = {}  # peak proportional set size per child
+        self._last_rss = 0.0
+
+    def _spawn(self, args: list[str], name: str, ns: str | None = None) -> subprocess.Popen[bytes]:
+        err = open(self.log_dir / f"{name}.log", "ab")
+        env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+        prefix = self.topo.exec_prefix(ns) if self.topo is not None and ns else []
+        args = [*args, *(x for c in self.zcfg for x in ("--cfg", c))]
+        return subprocess.Popen([*prefix, *_cli(*args)], stdout=subprocess.DEVNULL, stderr=err,
+                                stdin=subprocess.DEVNULL, env=env)
+
+    def spawn_robot(self, i: int) -> None:
+        hub, ns = self.hub, None
+        if self.topo is not None:  # its own namespace, through its link to the world
+            hub, ns = self.topo.robot_endpoint(i, self.port), self.topo.robot_ns[i]
+        self.robots[i] = self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
+                                      "--connect", hub, "--zenoh-mode", "client"],
+                                     f"robot{i}", ns)
+
+    def _initial_weights(self) -> None:
+        """--train without --checkpoint: one fresh network (torch seed = run seed) saved for the
+        robots and the learner alike, so every process starts from the same version 0."""
+        if self.run_cfg.checkpoint:
+            return
+        import dataclasses
+
+        import torch
+
+        from policies import make_policy
+        from policies.checkpoint import save_checkpoint
+
+        torch.manual_seed(self.run_cfg.seed)
+        pol = make_policy(self.run_cfg.policy, self.cfg)
+        path = self.tmp / "initial.pt"
+        save_checkpoint(path, pol.payload({"command": "swarm run --train (initial weights)",
+                                           "seed": self.run_cfg.seed}))
+        self.run_cfg = dataclasses.replace(self.run_cfg, checkpoint=str(path))
+
+    def start(self) -> float:
+        """Write the spec and start the world; robots follow once the supervisor listens."""
+        spec = self.tmp / "spec.json"
+        if self.learning is not None:
+            self._initial_weights()
+        learning = self.learning or {}
+        RunRecord(self.cfg, self.run_cfg, self.faults, learner=learning.get("learner"),
+                  train=learning.get("train")).write(spec)
+        listen, host, ns = [self.hub], "127.0.0.1", None
+        if self.topo is not None:  # the world listens on each of its veths, in its namespace
+            self.topo.up()
+            host, ns = self.topo.hub_addr, self.topo.world_ns
+            self.hub = f"tcp/{host}:{self.port}"
+            listen = self.topo.world_listen(self.port)
+        write_json(_registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
+        t0 = time.monotonic()
+        self.world = self._spawn(["world", "--spec", str(spec),
+                                  *(x for e in listen for x in ("--listen", e)),
+                                  "--zenoh-mode", "router"], "world", ns)
+        _wait_port(host, self.port, self.world, 30.0)
+        if self.learning is not None:
+            out = self.learning["learner"].get("out") or str(self.log_dir / "learner")
+            self.learner_out = out
+            self.learner = self._spawn(["learner", "--spec", str(spec), "--run-id",
+                                        self.run_cfg.run_id, "--policy", self.run_cfg.policy,
+                                        "--checkpoint", str(self.run_cfg.checkpoint),
+                                        "--out", out, "--connect", self.hub,
+                                        "--zenoh-mode", "client"], "learner")
+        return t0
+
+    def stop_all(self, grace: float = 2.0) -> None:
+        procs = [p for p in [self.world, *self.robots.values(), self.learner] if p is not None]
+        for i in self.hung:  # a stopped process cannot take SIGINT
+            p = self.robots.get(i)
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGCONT)
+        try:
+            _registry(self.run_cfg.run_id).unlink()
+        except OSError:
+            pass
+        for p in procs:
+            if p.poll() is None:
+                try:
+                    p.send_signal(signal.SIGINT)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + grace
+        for p in procs:
+            try:
+                p.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+    def _handle(self, kind: str, key: str, payload: bytes | None) -> None:
+        v = self.view
+        try:
+            if kind == "status":
+                rec = unpack_record(payload or b"", K_STATUS)
+                v.apply_status(rec)
+                while self.process_faults and self.process_faults[0].tick <= rec.get("run_tick", 0):
+                    self._process_fault(self.process_faults.pop(0))
+                if self.opts.headless and self.opts.status_lines:
+                    print(json.dumps({"status": rec}), flush=True)
+            elif kind == "rstatus":
+                v.apply_robot(unpack_record(payload or b"", K_RSTATUS))
+            elif kind == "result":
+                self.result = unpack_record(payload or b"", K_RESULT)
+            elif kind == "lstatus":
+                self.learner_status = unpack_record(payload or b"", K_LSTATUS)
+                v.learner = self.learner_status
+            elif kind == "control":
+                rec = unpack_record(payload or b"", K_CONTROL)
+                for text in rec.get("process", []):
+                    kind_, _, rest = str(text).partition(":")
+                    self._process_fault(parse_process(kind_, rest))
+            elif kind in ("alive:live", "alive:dead"):
+                live, parts = kind == "alive:live", key.split("/")
+                if parts[-2] == "robot" and parts[-1].isdigit():
+                    v.set_alive(int(parts[-1]), live)
+                elif parts[-1] == "learner":
+                    self.learner_alive = live
+                elif parts[-1] == "world":
+                    v.world_alive = live
+        except Exception as exc:  # a record of the right kind with wrong contents: dropped
+            self.bad += 1
+            self.view.bad_records = self.bad
+            log.warning("supervisor dropped a %s record on %s: %s", kind, key, exc)
+
+    def _process_fault(self, f: ProcessFault) -> None:
+        """crash = SIGKILL, hang = SIGSTOP, restart = SIGCONT a hung robot or respawn a dead one."""
+        p = self.robots.get(f.robot)
+        self.fault_log.append(f"{f.kind} {f.robot}@{self.view.ticks_done}")
+        self.view.events = self.view.events[-5:] + [self.fault_log[-1]]
+        if f.kind == "crash" and p is not None and p.poll() is None:
+            p.kill()
+        elif f.kind == "hang" and p is not None and p.poll() is None:
+            p.send_signal(signal.SIGSTOP)
+            self.hung.add(f.robot)
+        elif f.kind == "restart":
+            if f.robot in self.hung and p is not None and p.poll() is None:
+                p.send_signal(signal.SIGCONT)
+                self.hung.discard(f.robot)
+            elif p is None or p.poll() is not None:
+                self.restarts += 1
+                self.spawn_robot(f.robot)
+
+    def supervise(self) -> dict[str, Any]:
+        if self.topo is None:
+            return self._supervise()
+        try:  # whatever happens, no process and no namespace of the run is left behind
+            return self._supervise()
+        finally:
+            self.stop_all()
+            self.topo.down()
+
+    def _supervise(self) -> dict[str, Any]:
+        t_start = self.start()
+        conf = ZenohOptions(mode="client", connect=[self.hub], cfg=self.zcfg).to_config()
+        first_tick: float | None = None
+        with zenoh.open(conf) as session:
+            k = self.keys
+            self.inbox = inbox = (
+                Inbox(session).subscribe(k.status, "status")
+                .subscribe(k.robot_status("*"), "rstatus").subscribe(k.result, "result")
+                .subscribe(k.control, "control").subscribe(k.learner_status, "lstatus")
+                .liveliness(f"{k.base}/alive/**", "alive"))
+            if self.learner is not None:  # its subscriptions before the first episode ends
+                deadline = time.monotonic() + 60.0
+                while not self.learner_alive:
+                    ev = inbox.next(0.1)
+                    if ev is not None:
+                        self._handle(*ev)
+                    if self.learner.poll() is not None or time.monotonic() > deadline:
+                        self.stop_all()
+                        raise RuntimeError(f"the learner did not start (logs in {self.log_dir})")
+            # Robots only after our subscriptions reached the world: the first tick is not missed.
+            for i in range(self.cfg.n_robots):
+                self.spawn_robot(i)
+            live = None if self.opts.headless else Live(
+                get_renderable=lambda: render(self.view), console=self.console,
+                refresh_per_second=4, screen=False, transient=False)
+            try:
+                if live:
+                    live.start()
+                while self.result is None:
+                    ev = inbox.next(0.1)
+                    if ev is not None:
+                        self._handle(*ev)
+                        if ev.kind == "status" and first_tick is None:
+                            first_tick = time.monotonic()
+                    self._check_children()
+                    self._sample_rss()
+                    if self.world is not None and self.world.poll() is not None and \
+                            inbox.q.empty():
+                        break
+                self._drain_learner()
+                if self.learner is not None:
+                    session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
+            except KeyboardInterrupt:
+                session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
+                raise
+            finally:
+                if live:
+                    live.stop()
+                inbox.close()
+                self.stop_all()
+        if self.result is None:
+            code = self.world.returncode if self.world else "?"
+            why = last_error(self.log_dir / "world.log")
+            raise RuntimeError(f"world ended without a result (exit code {code}"
+                               f"{': ' + why if why else ''}); logs in {self.log_dir}")
+        res = dict(self.result)
+        res["startup_s"] = (first_tick - t_start) if first_tick else None
+        res["robot_crashes"] = self.crashes
+        res["robot_restarts"] = self.restarts
+        res["process_faults"] = self.fault_log
+        robots = [v for k, v in self.rss_mb.items() if k.startswith("robot")]
+        res["rss_mb_per_robot"] = sum(robots) / len(robots) if robots else None
+        res["rss_mb_world"] = self.rss_mb.get("world")
+        pss = [v for k, v in self.pss_mb.items() if k.startswith("robot")]
+        res["pss_mb_per_robot"] = sum(pss) / len(pss) if pss else None
+        if self.learning is not None:
+            res["learner"] = {**(self.learner_status or {}), "out": self.learner_out}
+        res["robot_status"] = {str(i): {"msgs_in": r.msgs_in, "msgs_out": r.msgs_out,
+                                        "bad": r.bad, "missed": r.missed,
+                                        "version": r.version, "weights_bad": r.weights_bad}
+                               for i, r in self.view.robots.items()}
+        if self.topo is not None:  # a robot whose session never opened is in no other count
+            res["netns"] = {**self.topo.describe(), "never_joined": sum(
+                r.state == "starting" for r in self.view.robots.values())}
+        if self.opts.json_path:
+            write_json(self.opts.json_path, res)
+        return res
+
+    def _drain_learner(self, grace: float = 10.0) -> None:
+        """After the last episode: let the learner take in (or drop) every episode of the run
+        before it is stopped; a partial batch is never trained on (its episodes are counted)."""
+        if self.learner is None or self.result is None:
+            return
+        done = int(self.result.get("completed", 0))
+        deadline = time.monotonic() + grace
+        while time.monotonic() < deadline and self.learner.poll() is None:
+            st = self.learner_status or {}
+            if (st.get("episodes", 0) + st.get("incomplete", 0) + st.get("stale_dropped", 0)
+                    >= done and st.get("pending", 1) == 0
+                    and st.get("ready", 0) < int(self.learning["train"]["batch"])):
+                return
+            ev = self.inbox.next(0.1) if self.inbox is not None else None
+            if ev is not None:
+                self._handle(*ev)
+
+    def _sample_rss(self, every: float = 0.5) -> None:
+        now = time.monotonic()
+        if now - self._last_rss < every:
+            return
+        self._last_rss = now
+        procs = {"world": self.world, **{f"robot{i}": p for i, p in self.robots.items()}}
+        for name, p in procs.items():
+            if p is None or p.poll() is not None:
+                continue
+            try:
+                with open(f"/proc/{p.pid}/status") as fh:
+                    kb = next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:"))
+            except (OSError, StopIteration, ValueError):
+                continue
+            self.rss_mb[name] = max(self.rss_mb.get(name, 0.0), kb / 1024)
+            try:  # PSS: shared library pages (torch) split among the processes mapping them
+                with open(f"/proc/{p.pid}/smaps_rollup") as fh:
+                    pss = next(int(line.split()[1]) for line in fh if line.startswith("Pss:"))
+                self.pss_mb[name] = max(self.pss_mb.get(name, 0.0), pss / 1024)
+            except (OSError, StopIteration, ValueError):
+                pass
+
+    def _check_children(self) -> None:
+        for i, p in list(self.robots.items()):
+            if p.poll() is not None and self.result is None:
+                if p.returncode != 0:
+                    self.crashes += 1
+                if self.opts.restart_crashed:
+                    self.restarts += 1
+                    self.spawn_robot(i)
+                else:
+                    del self.robots[i]
+
+
+def main(cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,
+         console: Console | None = None, faults: dict[str, Any] | None = None,
+         learning: dict[str, Any] | None = None) -> dict[str, Any]:
+    return Supervisor(cfg, run, opts, console, faults, learning).supervise()

@@ -1,0 +1,381 @@
+"""The world process: owns the grid and the clock, hosts the radio, steps once per tick.
+
+Per tick t: send every live robot its observation; collect trajectory messages and hand each
+robot its bundle through the radio as soon as every live robot has sent (or half the tick
+deadline passed); forward hidden-state messages to the successors that need them; collect
+actions until every live robot has acted or the deadline passed (a robot that missed it stays in
+place, counted as a timeout); step with the same `world.core.step` as the batched evaluator.
+Everything arriving from the network goes through one queue and is validated there: a bad
+payload is dropped and counted with its key, never raised.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from swarm.learn.evaluate import EvalResult
+from swarm.net.faults import FaultPlan, plan_from_table
+from swarm.net.inbox import Inbox
+from swarm.net.keys import Keys
+from swarm.net.messages import (
+    K_CONTROL,
+    K_RESULT,
+    K_STATUS,
+    Action,
+    BadMessage,
+    Bundle,
+    EpisodeRecord,
+    Hidden,
+    Obs,
+    Traj,
+    pack_record,
+    unpack_record,
+)
+from swarm.net.radio import Radio
+from swarm.net.zconfig import ZenohOptions
+from swarm.procs.runconfig import RunConfig, RunRecord
+from world import core
+from world.config import ConfigError, WorldConfig
+
+log = logging.getLogger("swarm.world")
+
+
+SCHEMA = {"traj": Traj, "hidden": Hidden, "action": Action}  # subscription kind -> schema
+
+
+@dataclass
+class TickInbox:
+    """What the world gathered for tick `t` of episode `ep` (the radio delivers from it)."""
+
+    ep: int
+    t: int
+    traj_deadline: float
+    """Monotonic time after which a trajectory copy is late for its receivers."""
+    hidden_deadline: float
+    """Monotonic time after which a hidden-state copy is late for its successor."""
+    traj: dict[int, tuple[bytes, float]] = field(default_factory=dict)
+    """Sender -> (its trajectory payload, arrival time)."""
+    hidden: dict[int, tuple[Hidden, bytes]] = field(default_factory=dict)
+    """Hidden-state messages held until the bundles are out (then forwarded as they come)."""
+    action: dict[int, Action] = field(default_factory=dict)
+    delivered: bool = False
+    """The bundles of this tick have been handed to the radio."""
+
+
+class WorldProcess:
+    """One world of one run; `run()` plays every episode and returns the result record."""
+
+    def __init__(self, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
+                 on_status: Callable[[dict[str, Any]], None] | None = None,
+                 faults: dict[str, Any] | None = None) -> None:
+        self.cfg, self.run_cfg, self.session = cfg, run, session
+        self.keys = Keys(run.run_id)
+        self.inbox: Inbox | None = None
+        self.fault_table = dict(faults or {})  # human-unit [faults] table; live changes merge in
+        self._record = RunRecord(cfg, run, self.fault_table).pack()  # served to the robots
+        self.radio = Radio(cfg, plan_from_table(self.fault_table, run.seed))
+        self._pending_plan: FaultPlan | None = None
+        self._due: list[tuple[float, int, str, bytes]] = []  # scheduled radio deliveries
+        self._seq = 0
+        self.run_tick = 0
+        self.planning_ms = 0.0  # robots' reported planning time, summed
+        self.parent = None  # set by the supervisor's child: stop if the supervisor vanishes
+        self.alive = np.zeros(cfg.n_robots, dtype=bool)
+        self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
+        self.bad: dict[str, int] = {}
+        self.timeouts = 0
+        self.late = 0
+        self.stop = False
+        self.on_status = on_status
+        self._pubs: dict[str, zenoh.Publisher] = {}
+
+    # --- network plumbing -------------------------------------------------------------------
+    def _put(self, key: str, payload: bytes) -> None:
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = self.session.declare_publisher(key)
+        pub.put(payload)
+
+    def _count_bad(self, key: str, why: str) -> None:
+        self.bad[key] = self.bad.get(key, 0) + 1
+        log.warning("dropped bad payload on %s: %s", key, why)
+
+    def _declare(self) -> Inbox:
+        k = self.keys
+        return (Inbox(self.session).subscribe(k.traj("*"), "traj")
+                .subscribe(k.hidden("*"), "hidden").subscribe(k.action("*"), "action")
+                .subscribe(k.control, "control").queryable(k.config, lambda: self._record)
+                .liveliness(k.alive_robot("*"), "robot").token(k.alive_world))
+
+    def _liveness(self, live: bool, key: str) -> None:
+        try:
+            robot = Keys.robot_of(key)
+        except ValueError:
+            return
+        if 0 <= robot < self.cfg.n_robots:
+            self.alive[robot] = live
+            self.ever_alive[robot] |= live
+            log.info("robot %d %s", robot, "alive" if live else "gone")
+
+    # --- the tick loop ----------------------------------------------------------------------
+    def wait_for_robots(self) -> None:
+        deadline = time.monotonic() + self.run_cfg.start_timeout
+        while not self.alive.all() and time.monotonic() < deadline and not self.stop:
+            self._pump(deadline)
+        if not self.alive.any():
+            raise RuntimeError(f"no robot came alive within {self.run_cfg.start_timeout:g} s")
+
+    def _pump(self, deadline: float, tick: TickInbox | None = None) -> bool:
+        """Handle one queued event (or due delivery) before `deadline`; False when it passed."""
+        assert self.inbox is not None
+        self._flush_due()
+        wait_until = min(deadline, self._due[0][0]) if self._due else deadline
+        ev = self.inbox.next(wait_until - time.monotonic())
+        if ev is None:
+            self._flush_due()
+            return time.monotonic() < deadline
+        kind, key, payload = ev
+        if kind in ("robot:live", "robot:dead"):
+            self._liveness(kind == "robot:live", key)
+            return True
+        if kind == "control":
+            try:
+                rec = unpack_record(payload or b"", K_CONTROL)
+            except BadMessage as exc:
+                self._count_bad(key, str(exc))
+                return True
+            if rec.get("stop"):
+                self.stop = True
+            if isinstance(rec.get("faults_table"), dict):
+                table = rec["faults_table"] if rec.get("replace") else {
+                    **self.fault_table, **rec["faults_table"]}
+                table = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
+                try:
+                    self._pending_plan = plan_from_table(table, self.run_cfg.seed)
+                    self.fault_table = table
+                    self._record = RunRecord(self.cfg, self.run_cfg, table).pack()
+                except ConfigError as exc:
+                    self._count_bad(key, str(exc))
+            return True
+        if tick is None:
+            return True
+        try:
+            msg: Any = SCHEMA[kind].unpack(payload or b"", self.cfg)
+            if Keys.robot_of(key) != msg.robot:
+                raise BadMessage(f"robot id {msg.robot} does not match key")
+        except (BadMessage, KeyError, ValueError) as exc:
+            self._count_bad(key, str(exc))
+            return True
+        if (msg.ep, msg.t) != (tick.ep, tick.t):
+            self.late += 1
+            return True
+        if kind == "traj":
+            self.radio.counters.traj_in += 1
+            self.radio.counters.bytes_in += len(payload or b"")
+            tick.traj[msg.robot] = (payload or b"", time.monotonic())
+        elif kind == "hidden":
+            self.radio.counters.hidden_in += 1
+            if tick.delivered:
+                self._forward_hidden(msg, payload or b"", tick)
+            else:
+                tick.hidden[msg.robot] = (msg, payload or b"")
+        else:
+            tick.action[msg.robot] = msg
+        return True
+
+    def _schedule(self, when: float, key: str, payload: bytes) -> None:
+        if when <= time.monotonic():
+            self._put(key, payload)
+        else:
+            self._seq += 1
+            heapq.heappush(self._due, (when, self._seq, key, payload))
+
+    def _flush_due(self) -> None:
+        now = time.monotonic()
+        while self._due and self._due[0][0] <= now:
+            _, _, key, payload = heapq.heappop(self._due)
+            self._put(key, payload)
+
+    def _forward_hidden(self, msg: Hidden, payload: bytes, tick: TickInbox) -> None:
+        for i, when in self.radio.hidden_deliveries(msg.ep, msg.t, msg.robot, len(payload),
+                                                    time.monotonic(), tick.hidden_deadline):
+            self._schedule(when, self.keys.inbox_hidden(i), payload)
+            self.radio.counters.hidden_delivered += 1
+
+    def _deliver(self, state: core.WorldState, tick: TickInbox) -> None:
+        lay = core.Layout.of(self.cfg)
+        bundles = self.radio.bundles(tick.ep, tick.t, lay.to_yx(state.pos[0]), tick.traj,
+                                     tick.traj_deadline)
+        for i, (when, payloads) in bundles.items():
+            self._schedule(when, self.keys.inbox(i), Bundle(tick.ep, tick.t, i, payloads).pack())
+        tick.delivered = True
+        for msg, payload in tick.hidden.values():
+            self._forward_hidden(msg, payload, tick)
+
+    def play_episode(self, ep: int) -> tuple[core.WorldState, list[np.ndarray], int]:
+        cfg, keys = self.cfg, self.keys
+        state = core.reset(cfg, self.run_cfg.seed, [ep])
+        lay = core.Layout.of(cfg)
+        actions_log: list[np.ndarray] = []
+        rewards: list[np.ndarray] = []  # per tick, for the learner (run.train)
+        acted: list[np.ndarray] = []
+        ticks = 0
+        next_tick = time.monotonic()
+        while True:
+            if self.run_cfg.pace > 0:
+                time.sleep(max(0.0, next_tick - time.monotonic()))
+                next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
+            if self.parent is not None and os.getppid() != self.parent:
+                log.warning("supervisor gone: stopping the run")
+                self.stop = True
+            if self._pending_plan is not None:
+                self.radio.set_plan(self._pending_plan)
+                log.info("faults now: %s", "; ".join(self._pending_plan.describe()) or "none")
+                self._pending_plan = None
+            self._due.clear()  # nothing of an older tick is ever delivered
+            state.alive[0] = self.alive
+            t = state.t
+            yx = lay.to_yx(state.pos[0])
+            patch = core.patches(cfg, state)[0]
+            done = state.done
+            start = time.monotonic()
+            timeout = self.run_cfg.tick_timeout
+            deadline = start + timeout
+            budget_ms = 1e3 * timeout
+            for i in np.flatnonzero(self.alive):
+                self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
+                                                 patch[i].tobytes(), float(state.last_reward[0, i]),
+                                                 bool(done), budget_ms).pack())
+            if done and self.run_cfg.train and rewards:
+                m = core.metrics(cfg, state)
+                rec = EpisodeRecord(ep, np.stack(rewards).astype(np.float32), np.stack(acted),
+                                    m.row(0))
+                self._put(keys.episode, rec.pack())
+            if done or self.stop:
+                return state, actions_log, ticks
+            traj_deadline = start + timeout / 2  # the radio stops waiting for senders
+            tick = TickInbox(ep, t, traj_deadline=start + 0.8 * timeout,
+                             hidden_deadline=start + 0.9 * timeout)
+            while True:
+                live = set(np.flatnonzero(self.alive).tolist())
+                if not tick.delivered and (live <= set(tick.traj)
+                                           or time.monotonic() >= traj_deadline):
+                    self._deliver(state, tick)
+                if tick.delivered and live <= set(tick.action):
+                    break
+                if self.stop or not self.alive.any():
+                    break
+                limit = deadline if tick.delivered else min(deadline, traj_deadline)
+                if not self._pump(limit, tick) and time.monotonic() >= deadline:
+                    break
+            acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
+            for i, msg in tick.action.items():
+                acts[0, i] = msg.action
+            self.planning_ms += sum(m.planning_ms for m in tick.action.values())
+            missing = [int(i) for i in np.flatnonzero(self.alive) if i not in tick.action]
+            self.timeouts += len(missing)
+            state.alive[0] = self.alive
+            reward = core.step(cfg, state, acts)
+            if self.run_cfg.train:
+                rewards.append(np.asarray(reward)[0].copy())
+                did = np.zeros(cfg.n_robots, dtype=bool)
+                did[list(tick.action)] = True
+                acted.append(did & self.alive)
+            actions_log.append(acts[0].copy())
+            ticks += 1
+            self.run_tick += 1
+            self._status(state, ep, missing)
+
+    def _status(self, state: core.WorldState, ep: int, missing: list[int]) -> None:
+        lay = core.Layout.of(self.cfg)
+        rec = {
+            "ep": ep, "t": state.t, "pos": lay.to_yx(state.pos[0]).tolist(),
+            "alive": self.alive.tolist(), "elratio": float(state.elratio[0, state.t]),
+            "block_coll": int(state.block_coll.sum()), "robot_coll": int(state.robot_coll.sum()),
+            "dyn": lay.to_yx(state.dyn_cells[0][state.dyn_active[0]]).tolist(),
+            "timeouts": missing, "bad": sum(self.bad.values()), "late": self.late,
+            "run_tick": self.run_tick, "wall": time.time(), "radio": self.radio.counters.totals(),
+            "faults": self.radio.plan.describe(),
+            "links": {f"{a}-{b}": [s.delivered, s.lost + s.cut + s.dropped_bw, s.late, s.queued]
+                      for (a, b), s in self.radio.counters.links.items()
+                      if s.lost or s.cut or s.late or s.queued or s.dropped_bw},
+        }
+        if state.t == 1:
+            rec["static"] = np.argwhere(lay.inner(state.grid[0]) == core.STATIC).tolist()
+        if self.on_status is not None:
+            self.on_status(rec)
+        self._put(self.keys.status, pack_record(K_STATUS, rec))
+
+    def run(self) -> dict[str, Any]:
+        self.inbox = self._declare()
+        try:
+            self.wait_for_robots()
+            parts, curves, actions = [], [], []
+            ticks, t0 = 0, time.monotonic()
+            rc = self.run_cfg
+            for ep in range(rc.first_episode, rc.first_episode + rc.episodes):
+                state, acts, n = self.play_episode(ep)
+                ticks += n
+                if self.stop:
+                    break
+                parts.append(core.metrics(self.cfg, state))
+                curves.append(state.elratio)
+                actions.append(np.array(acts).tolist())
+            wall = time.monotonic() - t0
+            result = self._result(parts, curves, actions, ticks, wall)
+            self._put(self.keys.result, pack_record(K_RESULT, result))
+            self._put(self.keys.end, pack_record(K_RESULT, {"run_id": rc.run_id}))
+            time.sleep(0.05)  # let the result leave before the session closes
+            if rc.train:  # robots' and learner's traffic is routed through this session:
+                # stay up until the supervisor has let the learner take the last episodes
+                deadline = time.monotonic() + 15.0
+                while not self.stop and self._pump(deadline):
+                    pass
+            return result
+        finally:
+            self.inbox.close()
+
+    def _result(self, parts: list[core.EpisodeMetrics], curves: list[np.ndarray],
+                actions: list[Any], ticks: int, wall: float) -> dict[str, Any]:
+        rc = self.run_cfg
+        out: dict[str, Any] = {"policy": rc.policy, "run_id": rc.run_id, "completed": len(parts)}
+        if parts:
+            res = EvalResult.of(rc.policy, rc.seed,
+                                np.arange(rc.first_episode, rc.first_episode + len(parts)),
+                                parts, curves, wall_s=wall)
+            out.update(res.summary(self.cfg))
+            # per team decision: the robots' planning times of a tick, summed (they run in
+            # parallel processes, so this is CPU work, not latency)
+            out["planning_ms_per_decision"] = self.planning_ms / max(self.run_tick, 1)
+        c = self.radio.counters
+        messages = c.totals()
+        messages["late"] += self.late  # radio-late copies + messages of an older tick
+        out.update({
+            "ticks": ticks, "ticks_per_s": ticks / wall if wall > 0 else 0.0,
+            "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad)},
+            "faults": self.radio.plan.to_record(),
+            "timeouts": self.timeouts,
+            "robots_lost": int((self.ever_alive & ~self.alive).sum()),
+            "actions": actions,
+        })
+        return out
+
+
+def main(cfg: WorldConfig, run: RunConfig, zopts: ZenohOptions,
+         on_status: Callable[[dict[str, Any]], None] | None = None,
+         faults: dict[str, Any] | None = None, watch_parent: bool = False) -> dict[str, Any]:
+    """Open a session, play the run, return its result record."""
+    with zenoh.open(zopts.to_config()) as session:
+        world = WorldProcess(cfg, run, session, on_status, faults)
+        if watch_parent:
+            world.parent = os.getppid()
+        return world.run()

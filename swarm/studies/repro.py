@@ -1,0 +1,371 @@
+"""`swarm repro ITEM`: the paper's Table 1, Table 2, Fig. 4, Fig. 5 and Fig. 8 on the batched
+evaluator (Fig. 8 from the training curves shipped beside the checkpoints).
+
+Each item writes `ITEM.csv` (long format), `ITEM.md` (a Markdown table headed by the command and
+seed that made it), `ITEM.png` (matplotlib, Agg) and `ITEM.json` into the output directory,
+every file atomically. Policies are registry names, so a learned policy joins by name (with
+`checkpoints[name]` when it needs one; by default the one shipped in `checkpoints/NAME.pt`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from policies import learned_names
+from swarm.bench.micro import (
+    NullProgress,
+    ProgressSink,
+    int_list,
+    name_list,
+    time_decisions,
+    timing_stats,
+)
+from swarm.common import atomic
+from swarm.common.policy_spec import SHIPPED, build_policy
+from swarm.common.report import header, md_table, write_item
+from swarm.learn.curves import moving_mean, read_curve
+from swarm.learn.evaluate import evaluate
+from world.config import ConfigError, WorldConfig, replace, to_dict
+
+ITEMS = ("table1", "table2", "fig4", "fig5", "fig8")
+LEARNED = learned_names()
+ALL_POLICIES = (*LEARNED, "nearest-frontier", "coordinated-frontier", "cost-utility", "random")
+# Paper's Table 2 (10 robots, 30 s, 1000 episodes): mean reward, collisions, elratio %, std %.
+PAPER_TABLE2: dict[str, tuple[float, float, float, float | None]] = {
+    "commattn": (37, 9, 95.2, 3.1), "vain": (21, 15, 90.2, None),
+    "bicnet": (25, 22, 89.8, None), "commnet": (24, 13, 89.2, None),
+}
+# Paper's Table 1 (ms per decision, 10 robots): mean, std.
+PAPER_TABLE1: dict[str, tuple[float, float]] = {
+    "commattn": (37.0, 5.0), "coordinated-frontier": (230.0, 20.0),
+    "nearest-frontier": (35.0, 5.0), "cost-utility": (395.0, 15.0),
+}
+SWEEP_KEYS = ("elratio_mean", "elratio_std", "reward_mean", "collisions_mean",
+              "block_collisions_mean", "success_rate", "planning_ms_per_decision")
+
+
+@dataclass(frozen=True)
+class ReproConfig:
+    """Options of `swarm repro` (TOML table `[repro]`)."""
+
+    out: str | None = None
+    """Directory the item files are written to (required)."""
+    episodes: int = 200
+    """Episodes per point of Fig. 4 and Fig. 5."""
+    seed: int = 0
+    """Seed of every map; every policy and point sees the same episodes."""
+    policies: tuple[str, ...] = ALL_POLICIES
+    """Policies compared (registry names; learned ones take `checkpoints`)."""
+    checkpoints: dict[str, str] = field(default_factory=dict)
+    """Checkpoint file per learned policy name (default: the shipped checkpoints/NAME.pt)."""
+    table2_episodes: int = 1000
+    """Table 2: held-out episodes per policy (the paper: 1000)."""
+    curves: dict[str, str] = field(default_factory=dict)
+    """Fig. 8: training-curve CSV per learned policy (default: checkpoints/NAME_curve.csv)."""
+    smooth: int = 25
+    """Fig. 8: moving-average window, in updates."""
+    robots: tuple[int, ...] = (2, 4, 6, 8, 10, 12)
+    """Fig. 4: team sizes on the static map."""
+    add_every: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 9)
+    """Fig. 5: block-adding periods m on the dynamic map."""
+    decisions: int = 150
+    """Table 1: timed team decisions per policy."""
+    batch: int = 250
+    """Episodes stepped at once by the evaluator."""
+    json: str | None = None
+    """Also write every item's results into this one JSON file."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "policies", name_list(self.policies))
+        object.__setattr__(self, "robots", int_list(self.robots, "robots"))
+        object.__setattr__(self, "add_every", int_list(self.add_every, "add_every"))
+        for key in ("episodes", "decisions", "batch", "table2_episodes", "smooth"):
+            if getattr(self, key) < 1:
+                raise ConfigError(f"{key} must be >= 1, got {getattr(self, key)}")
+        if not isinstance(self.checkpoints, dict) or not all(
+                isinstance(k, str) and isinstance(v, str) for k, v in self.checkpoints.items()):
+            raise ConfigError("checkpoints must map policy names to file names")
+        if not isinstance(self.curves, dict):
+            raise ConfigError("curves must map policy names to CSV file names")
+
+    def checkpoint(self, name: str) -> str | None:
+        """The checkpoint of policy `name`: given, else shipped (learned policies), else None."""
+        from swarm.common.policy_spec import effective_checkpoint
+
+        try:
+            return effective_checkpoint(name, self.checkpoints.get(name))
+        except ConfigError:
+            raise ConfigError(f"no checkpoint for {name}: pass --checkpoint {name}=FILE") from None
+
+    def curve(self, name: str) -> Path:
+        return Path(self.curves.get(name, SHIPPED / f"{name}_curve.csv"))
+
+
+def table1(world: WorldConfig, cfg: ReproConfig, command: str,
+           progress: ProgressSink) -> dict[str, Any]:
+    """Planning ms per decision of N robots (G = 1) next to the paper's Table 1."""
+    rows: list[dict[str, Any]] = []
+    for name in cfg.policies:
+        progress.start(f"table1 {name}", cfg.decisions)
+        ms = time_decisions(world, name, cfg.decisions, cfg.seed, 1, cfg.checkpoint(name),
+                            progress)
+        paper = PAPER_TABLE1.get(name, (None, None))
+        rows.append({"policy": name, "robots": world.n_robots, **timing_stats(ms),
+                     "paper_mean_ms": paper[0], "paper_std_ms": paper[1]})
+    md = header("Table 1: planning time per decision, ms", command, cfg.seed,
+                f"{world.n_robots} robots, one episode at a time, every robot deciding; "
+                f"{cfg.decisions} decisions per policy. The paper's figures are from its own "
+                "hardware and implementation.")
+    md += md_table(
+        ["policy", "ours mean ± std", "ours median", "ours p90", "paper mean ± std"],
+        [[r["policy"], f"{r['mean_ms']:.3f} ± {r['std_ms']:.3f}", f"{r['median_ms']:.3f}",
+          f"{r['p90_ms']:.3f}",
+          "-" if r["paper_mean_ms"] is None else f"{r['paper_mean_ms']:g} ± {r['paper_std_ms']:g}"]
+         for r in rows])
+
+    def draw(ax: Any) -> None:
+        xs = range(len(rows))
+        ax.bar([x - 0.2 for x in xs], [r["mean_ms"] for r in rows], 0.4,
+               yerr=[r["std_ms"] for r in rows], label="ours", capsize=3)
+        paper = [(x, r) for x, r in zip(xs, rows, strict=True) if r["paper_mean_ms"] is not None]
+        ax.bar([x + 0.2 for x, _ in paper], [r["paper_mean_ms"] for _, r in paper], 0.4,
+               yerr=[r["paper_std_ms"] for _, r in paper], label="paper", capsize=3)
+        ax.set_xticks(list(xs), [r["policy"] for r in rows], rotation=15)
+        ax.set_yscale("log")
+        ax.set_ylabel("planning time per decision (ms, log scale)")
+        ax.set_title(f"Table 1: planning time, {world.n_robots} robots")
+        ax.legend()
+
+    meta = {"item": "table1", "command": command, "seed": cfg.seed, "world": to_dict(world)}
+    return {"item": "table1", "rows": rows,
+            "files": write_item(Path(cfg.out or "."), "table1", rows, md, draw, meta)}
+
+
+def sweep_worlds(world: WorldConfig, item: str, cfg: ReproConfig) -> list[tuple[int, WorldConfig]]:
+    """The (x, world config) points of Fig. 4 (robots, static) or Fig. 5 (add_every, dynamic)."""
+    if item == "fig4":
+        return [(n, replace(world, n_robots=n, dynamic=False)) for n in cfg.robots]
+    return [(m, replace(world, add_every=m, dynamic=True)) for m in cfg.add_every]
+
+
+def sweep(world: WorldConfig, item: str, cfg: ReproConfig, command: str,
+          progress: ProgressSink) -> dict[str, Any]:
+    """Fig. 4 or Fig. 5: elratio at the last step per policy along the swept parameter."""
+    x_name = "robots" if item == "fig4" else "add_every"
+    points = sweep_worlds(world, item, cfg)
+    progress.start(item, len(cfg.policies) * len(points) * cfg.episodes)
+    rows: list[dict[str, Any]] = []
+    for name in cfg.policies:
+        for x, wc in points:
+            policy = build_policy(name, wc, cfg.checkpoint(name))
+            res = evaluate(wc, policy, cfg.seed, cfg.episodes, batch=cfg.batch,
+                           on_progress=progress.advance)
+            s = res.summary(wc)
+            rows.append({"policy": name, x_name: x, "episodes": cfg.episodes,
+                         **{k: s[k] for k in SWEEP_KEYS}})
+    t = world.horizon
+    if item == "fig4":
+        title = f"Fig. 4: exploration rate in {t} steps vs number of robots (static map)"
+        note = "Paper: learned > nearest > coordinated > cost-utility."
+        xlabel = "number of robots"
+        short = f"Fig. 4: static map, T = {t}"
+    else:
+        title = (f"Fig. 5: exploration rate in {t} steps vs block-adding period m "
+                 f"(dynamic map, {world.n_robots} robots, {world.n_dynamic} blocks)")
+        note = "Paper: CommAttn most stable."
+        xlabel = "block-adding period m (steps between batches)"
+        short = f"Fig. 5: dynamic map, {world.n_robots} robots, T = {t}"
+    md = header(title, command, cfg.seed,
+                f"elratio mean ± std over {cfg.episodes} episodes per point. {note}")
+    policies = list(cfg.policies)
+    cell = {(r["policy"], r[x_name]): r for r in rows}
+    md += md_table([x_name, *policies],
+                   [[str(x), *(f"{cell[p, x]['elratio_mean']:.3f} ± {cell[p, x]['elratio_std']:.3f}"
+                               for p in policies)] for x, _ in points])
+
+    def draw(ax: Any) -> None:
+        xs = [x for x, _ in points]
+        for p in policies:
+            ax.errorbar(xs, [cell[p, x]["elratio_mean"] for x in xs],
+                        yerr=[cell[p, x]["elratio_std"] for x in xs], marker="o", capsize=3,
+                        label=p)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(f"exploration rate in {t} steps (elratio)")
+        ax.set_title(short)
+        ax.grid(alpha=0.3)
+        ax.legend()
+
+    meta = {"item": item, "command": command, "seed": cfg.seed, "x": x_name,
+            "episodes": cfg.episodes, "world": to_dict(world)}
+    return {"item": item, "rows": rows,
+            "files": write_item(Path(cfg.out or "."), item, rows, md, draw, meta)}
+
+
+def learned_of(cfg: ReproConfig) -> list[str]:
+    return [p for p in cfg.policies if p in LEARNED]
+
+
+def table2(world: WorldConfig, cfg: ReproConfig, command: str,
+           progress: ProgressSink) -> dict[str, Any]:
+    """Table 2: every policy on the same held-out dynamic-map episodes, next to the paper's."""
+    wc = replace(world, dynamic=True)
+    progress.start("table2", len(cfg.policies) * cfg.table2_episodes)
+    rows: list[dict[str, Any]] = []
+    first: np.ndarray | None = None  # the first policy's per-episode elratio (paired reference)
+    for name in cfg.policies:
+        policy = build_policy(name, wc, cfg.checkpoint(name))
+        res = evaluate(wc, policy, cfg.seed, cfg.table2_episodes, batch=cfg.batch,
+                       on_progress=progress.advance)
+        s = res.summary(wc)
+        paper = PAPER_TABLE2.get(name)
+        if first is None:
+            first = res.elratio
+        diff = first - res.elratio  # same episodes: a paired difference
+        se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else float("nan")
+        rows.append({"policy": name, "robots": wc.n_robots, "episodes": cfg.table2_episodes,
+                     **{k: s[k] for k in SWEEP_KEYS}, "robot_collisions_mean":
+                     float(res.robot_collisions.mean()),
+                     "first_minus_elratio": float(diff.mean()), "first_minus_elratio_se": se,
+                     "paper_reward": paper[0] if paper else None,
+                     "paper_collisions": paper[1] if paper else None,
+                     "paper_elratio_pct": paper[2] if paper else None,
+                     "paper_elratio_std_pct": paper[3] if paper else None})
+    md = header(f"Table 2: {wc.n_robots} robots, {wc.horizon} steps, dynamic map", command,
+                cfg.seed,
+                f"{cfg.table2_episodes} held-out episodes per policy (evaluation seed {cfg.seed}; "
+                "training used seeds from 1,000,000 up), greedy actions. Our rewards are the "
+                "SPEC's (negative for good policies); the paper's are from its own reward "
+                "scale. Collisions = block + robot collisions per episode. The last column is "
+                f"{cfg.policies[0]}'s elratio minus the row's, episode by episode, with the "
+                "standard error of that paired mean.")
+
+    def paper_cell(r: dict[str, Any]) -> str:
+        if r["paper_reward"] is None:
+            return "-"
+        std = f" ± {r['paper_elratio_std_pct']:g}" if r["paper_elratio_std_pct"] else ""
+        return (f"{r['paper_reward']:g} / {r['paper_collisions']:g} / "
+                f"{r['paper_elratio_pct']:g}{std} %")
+
+    def paired(r: dict[str, Any]) -> str:
+        if r is rows[0]:
+            return "-"
+        return f"{r['first_minus_elratio']:+.4f} ± {r['first_minus_elratio_se']:.4f}"
+
+    md += md_table(
+        ["policy", "reward / robot", "collisions (block)", "elratio", "success",
+         "paper: reward / collisions / elratio", f"{cfg.policies[0]} - this (paired)"],
+        [[r["policy"], f"{r['reward_mean']:.1f}",
+          f"{r['collisions_mean']:.2f} ({r['block_collisions_mean']:.2f})",
+          f"{r['elratio_mean']:.3f} ± {r['elratio_std']:.3f}", f"{100 * r['success_rate']:.1f}%",
+          paper_cell(r), paired(r)] for r in rows])
+
+    def draw(ax: Any) -> None:
+        xs = range(len(rows))
+        ax.bar(list(xs), [r["elratio_mean"] for r in rows], 0.6,
+               yerr=[r["elratio_std"] for r in rows], capsize=3, label="ours")
+        paper = [(x, r) for x, r in zip(xs, rows, strict=True) if r["paper_elratio_pct"]]
+        ax.scatter([x for x, _ in paper], [r["paper_elratio_pct"] / 100 for _, r in paper],
+                   color="k", marker="_", s=400, zorder=3, label="paper")
+        ax.set_xticks(list(xs), [r["policy"] for r in rows], rotation=25, ha="right")
+        ax.set_ylim(0.5, 1.0)
+        ax.set_ylabel("elratio at the last step")
+        ax.set_title(f"Table 2: {wc.n_robots} robots, dynamic map, {cfg.table2_episodes} "
+                     "episodes")
+        ax.grid(alpha=0.3, axis="y")
+        ax.legend()
+
+    meta = {"item": "table2", "command": command, "seed": cfg.seed, "world": to_dict(wc)}
+    return {"item": "table2", "rows": rows,
+            "files": write_item(Path(cfg.out or "."), "table2", rows, md, draw, meta)}
+
+
+def fig8(cfg: ReproConfig, command: str) -> dict[str, Any]:
+    """Fig. 8: training curves (score = mean reward per robot, and elratio) of the learned
+    policies against training episodes, smoothed over `smooth` updates."""
+    names = learned_of(cfg)
+    if not names:
+        raise ConfigError("fig8 needs at least one learned policy in --policies")
+    curves = {n: read_curve(cfg.curve(n)) for n in names}
+    rows: list[dict[str, Any]] = []
+    smooth = {}
+    for n, c in curves.items():
+        el, rw = moving_mean(c["elratio"], cfg.smooth), moving_mean(c["reward"], cfg.smooth)
+        smooth[n] = (el, rw)
+        for k in range(len(el)):
+            if (k + 1) % 10 == 0 or k == len(el) - 1:
+                rows.append({"policy": n, "update": int(c["update"][k]),
+                             "episodes": int(c["episodes"][k]), "elratio": round(el[k], 5),
+                             "reward": round(rw[k], 3)})
+    last = {n: (smooth[n][0][-1], smooth[n][1][-1], int(curves[n]["episodes"][-1]))
+            for n in names}
+    md = header("Fig. 8: training curves of the learned policies", command, cfg.seed,
+                f"Training elratio and reward per robot (sampled actions, curriculum on), "
+                f"moving mean over {cfg.smooth} updates. Paper: CommAttn's score ~150% of the "
+                "others'.")
+    md += md_table(["policy", "training episodes", "final elratio", "final reward / robot"],
+                   [[n, f"{e:,}", f"{el:.3f}", f"{rw:.1f}"] for n, (el, rw, e) in last.items()])
+
+    def draw(axes: Any) -> None:
+        for n in names:
+            ep = [e / 1000 for e in curves[n]["episodes"]]
+            axes[0].plot(ep, smooth[n][0], label=n)
+            axes[1].plot(ep, smooth[n][1], label=n)
+        axes[0].set_ylabel("training elratio (sampled)")
+        axes[1].set_ylabel("training reward per robot (score)")
+        for ax in axes:
+            ax.set_xlabel("training episodes (thousands)")
+            ax.grid(alpha=0.3)
+            ax.legend()
+        axes[0].set_title("Fig. 8: training curves")
+
+    meta = {"item": "fig8", "command": command, "seed": cfg.seed, "smooth": cfg.smooth,
+            "curves": {n: str(cfg.curve(n)) for n in names}}
+    return {"item": "fig8", "rows": rows,
+            "files": write_item(Path(cfg.out or "."), "fig8", rows, md, draw, meta, ncols=2)}
+
+
+def expand(item: str) -> list[str]:
+    """`all` -> every item; otherwise the one item (ConfigError if unknown)."""
+    if item == "all":
+        return list(ITEMS)
+    if item not in ITEMS:
+        raise ConfigError(f"unknown repro item {item!r}; choose from {', '.join(ITEMS)}, all")
+    return [item]
+
+
+def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str,
+        progress: ProgressSink | None = None) -> dict[str, Any]:
+    """Reproduce `items` into `cfg.out`; every configuration is validated before any runs."""
+    if not cfg.out:
+        raise ConfigError("repro needs an output directory (--out DIR)")
+    progress = progress or NullProgress()
+    if len(items) > 1 and "fig8" in items and not learned_of(cfg):
+        items = [i for i in items if i != "fig8"]  # `all` without learned policies: no curves
+    for item in items:
+        if item != "table1":
+            sweep_worlds(world, item, cfg)  # raises ConfigError on an impossible point
+    for name in cfg.policies if set(items) - {"fig8"} else ():  # fail before hours of work
+        build_policy(name, world, cfg.checkpoint(name))
+    if "fig8" in items:
+        for name in learned_of(cfg):
+            if not cfg.curve(name).is_file():
+                raise ConfigError(f"no training curve for {name}: {cfg.curve(name)} not found")
+    results: dict[str, Any] = {}
+    for item in items:
+        if item == "table1":
+            results[item] = table1(world, cfg, command, progress)
+        elif item == "table2":
+            results[item] = table2(world, cfg, command, progress)
+        elif item == "fig8":
+            results[item] = fig8(cfg, command)
+        else:
+            results[item] = sweep(world, item, cfg, command, progress)
+    if cfg.json:
+        atomic.write_json(cfg.json, {"command": command, "seed": cfg.seed,
+                                     "items": {k: v["rows"] for k, v in results.items()}})
+    return results

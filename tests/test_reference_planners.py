@@ -1,0 +1,107 @@
+"""Reference planners (issue 17): the full-knowledge oracle and the perfect-radio central one."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+
+import numpy as np
+import pytest
+
+from policies import BASELINES, REGISTRY, make_policy, policy_class
+from policies.base import Policy
+from policies.central import CentralPolicy
+from policies.oracle import OracleConfig, OraclePolicy, certify, plan_episode, replay
+from world import core
+from world.config import WorldConfig
+from world.decentral import batch_view
+
+CFG = WorldConfig()
+FAST = OracleConfig(iters=8, beam=32)
+SMALL = WorldConfig(height=8, width=8, n_static=10, n_dynamic=8, n_robots=2, horizon=10)
+
+
+def _evaluate():
+    """The batched evaluator, wherever the swarm package keeps it."""
+    for mod in ("swarm.learn.evaluate", "swarm.evaluate"):
+        if importlib.util.find_spec(mod) is not None:
+            return importlib.import_module(mod).evaluate
+    pytest.skip("batched evaluator not found")
+
+
+def test_registered_and_not_decentralized() -> None:
+    assert Policy.decentralized is True
+    assert policy_class("nearest-frontier").decentralized is True
+    for name, cls in (("oracle", OraclePolicy), ("central", CentralPolicy)):
+        assert name in REGISTRY and name not in BASELINES
+        assert policy_class(name) is cls
+        assert cls.decentralized is False and cls.learned is False
+
+
+def test_oracle_replay_matches_evaluator_and_beats_frontier() -> None:
+    evaluate = _evaluate()
+    oracle = OraclePolicy(CFG, search=FAST)
+    res = evaluate(CFG, oracle, 0, 3, batch=3)
+    frontier = evaluate(CFG, make_policy("coordinated-frontier", CFG), 0, 3, batch=3)
+    for k, ep in enumerate(range(3)):
+        plan = plan_episode(CFG, 0, ep, FAST)
+        assert plan.elratio == pytest.approx(res.elratio[k])
+        assert plan.planned_elratio == pytest.approx(plan.elratio)
+        assert plan.block_collisions == 0 and res.block_collisions[k] == 0
+        state = replay(CFG, 0, ep, plan.actions)
+        assert core.metrics(CFG, state).elratio[0] == pytest.approx(res.elratio[k])
+    assert (res.elratio >= frontier.elratio).all()
+    assert res.success.all()
+
+
+def test_certificate_bounds_the_plan() -> None:
+    pytest.importorskip("scipy")
+    for ep in range(3):
+        plan = plan_episode(SMALL, 1, ep, OracleConfig(iters=20, beam=32))
+        cert = certify(SMALL, 1, ep, plan, time_limit=20.0, force_milp=True)
+        assert cert.method.startswith("milp")
+        assert cert.bound >= cert.plan_value == plan.covered
+        if cert.proven:
+            assert cert.bound == cert.plan_value
+    # robots that never move: far from optimal, and the IP says so
+    start = np.repeat(plan.paths[:, :1], SMALL.horizon + 1, axis=1)
+    lazy = certify(SMALL, 1, 2, start, time_limit=20.0, force_milp=True)
+    assert lazy.plan_value == 0 and not lazy.proven and lazy.bound >= plan.covered
+
+
+def _run(cfg: WorldConfig, state: core.WorldState, policy: Policy, ticks: int) -> list[np.ndarray]:
+    policy.reset(state.batch)
+    acts = []
+    for _ in range(ticks):
+        a = policy.act(batch_view(cfg, state))
+        acts.append(a.copy())
+        core.step(cfg, state, a)
+    return acts
+
+
+def test_central_ignores_the_future_schedule() -> None:
+    blocks, starts, dyn = core.generate_episode(CFG, 0, 5)
+    due = core.dynamic_due(CFG)
+    cut = 12
+    rng = np.random.default_rng(0)
+    taken = {tuple(c) for c in starts} | {tuple(c) for c in dyn}
+    spare = [c for c in zip(*np.nonzero(~blocks), strict=True) if c not in taken]
+    moved = dyn.copy()
+    late = np.flatnonzero(due > cut)
+    moved[late] = np.array(spare)[rng.choice(len(spare), size=len(late), replace=False)]
+    assert not np.array_equal(moved, dyn)
+    runs = []
+    for d in (dyn, moved):
+        state = core.from_layout(CFG, blocks[None], starts[None], d[None], seed=0,
+                                 episodes=np.array([5]))
+        runs.append(_run(CFG, state, CentralPolicy(CFG), cut + 1))
+    for t in range(cut + 1):  # ticks 0..cut saw the same world
+        np.testing.assert_array_equal(runs[0][t], runs[1][t])
+
+
+def test_central_beats_nearest_frontier() -> None:
+    evaluate = _evaluate()
+    central = evaluate(CFG, CentralPolicy(CFG), 0, 20, batch=20)
+    nearest = evaluate(CFG, make_policy("nearest-frontier", CFG), 0, 20, batch=20)
+    assert central.elratio.mean() >= nearest.elratio.mean()
+    assert central.block_collisions.sum() == 0
