@@ -21,6 +21,8 @@ REGISTRY: dict[str, str] = {
     "commnet": "policies.commnet:CommNetPolicy",
     "vain": "policies.vain:VAINPolicy",
     "bicnet": "policies.bicnet:BicNetPolicy",
+    "oracle": "policies.oracle:OraclePolicy",
+    "central": "policies.central:CentralPolicy",
 }
 
 BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility")

@@ -24,6 +24,8 @@ class Policy(ABC):
     name: ClassVar[str] = ""
     learned: ClassVar[bool] = False
     chained: ClassVar[bool] = False  # needs the predecessor's hidden-state message (SPEC 3.5)
+    decentralized: ClassVar[bool] = True
+    """False for reference planners (oracle, central) that read more than a robot could hear."""
 
     def __init__(self, cfg: WorldConfig) -> None:
         self.cfg = cfg

@@ -8,25 +8,15 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from policies.features import Members, TokenEmbed, bigru, rows
+from policies.features import Members, ModelConfig, TokenEmbed, bigru, rows
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
 
 @dataclass
-class BicNetConfig:
+class BicNetConfig(ModelConfig):
     """Sizes of the BicNet network."""
 
-    crop: int = 9
-    """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
-    team_pool: int = 3
-    """Block size of the coarse team map added to the receiver's own token (0: no team map;
-    checkpoints older than this field load with 0). See policies.features."""
-    team_memory: bool = True
-    """Build the team map from the receiver's memory of every bitmap heard this episode
-    (world.decentral.TeamMemory) instead of this tick's messages only, so a lost message costs
-    one teammate's latest steps, not its whole map. Changes no weight shape; no effect without
-    the team map; checkpoints older than this field load with it off."""
     embed: int = 32
     """Width of the per-member token embedding fed to the BiGRU."""
     hidden: int = 32

@@ -31,9 +31,24 @@ import torch
 from torch import nn
 from torch.nn.utils.rnn import PackedSequence
 
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 from world.decentral import View, heard_union
 
+
+@dataclass
+class ModelConfig:
+    """The feature settings every learned network shares (each network's config extends it)."""
+
+    crop: int = 9
+    """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
+    team_pool: int = 3
+    """Block size of the coarse team map added to the receiver's own token (0: no team map;
+    checkpoints older than this field load with 0). See policies.features."""
+    team_memory: bool = True
+    """Build the team map from the receiver's memory of every bitmap heard this episode
+    (world.decentral.TeamMemory) instead of this tick's messages only, so a lost message costs
+    one teammate's latest steps, not its whole map. Changes no weight shape; no effect without
+    the team map; checkpoints older than this field load with it off."""
 
 @dataclass
 class Members:
@@ -200,9 +215,9 @@ class Featurizer:
     def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0,
                  memory: bool = False) -> None:
         if crop < 1 or crop % 2 == 0:
-            raise ValueError(f"crop must be a positive odd number, got {crop}")
+            raise ConfigError(f"crop must be a positive odd number, got {crop}")
         if team_pool < 0:
-            raise ValueError(f"team_pool must be >= 0, got {team_pool}")
+            raise ConfigError(f"team_pool must be >= 0, got {team_pool}")
         self.cfg = cfg
         self.crop = crop
         c = crop // 2

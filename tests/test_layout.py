@@ -64,3 +64,14 @@ def test_net_never_imports_torch_and_learn_never_imports_zenoh() -> None:
         if name.startswith(("swarm.learn", "swarm.common", "world", "policies")) and "zenoh" in top:
             bad.append(f"{name} imports zenoh")
     assert not bad, bad
+
+
+def test_the_cli_and_a_frontier_robot_never_import_torch() -> None:
+    """Every child process builds the whole parser: torch (~230 MB, ~2 s) must stay out of it."""
+    import subprocess
+    import sys
+
+    code = ("import sys, swarm.cli, swarm.procs.robot, swarm.procs.world, swarm.procs.supervisor;"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert out.stdout.strip() == "False", out.stderr

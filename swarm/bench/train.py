@@ -4,17 +4,39 @@ from __future__ import annotations
 
 import statistics
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
 
 from policies import make_policy
 from swarm.learn.config import TrainConfig
-from swarm.learn.parallel import ParallelUpdater
-from swarm.learn.rollout import collect
-from swarm.learn.update import update
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
+
+
+@dataclass(frozen=True)
+class TrainBenchConfig:
+    """Options of `swarm bench train` (TOML table `[bench.train]`)."""
+
+    policy: str = "commattn"
+    """Learned policy timed."""
+    batch: int = 288
+    """Episodes per update (rollout of `batch` 30-step episodes + the REINFORCE step)."""
+    updates: int = 3
+    """Timed updates after one untimed warm-up; the figures are medians."""
+    threads: int = 2
+    """torch threads per process."""
+    workers: int = 1
+    """Training processes (see `swarm train --workers`)."""
+    seed: int = 0
+    """Seed of the network and the training episodes."""
+    json: str | None = None
+    """Write the figures to this JSON file."""
+
+    def __post_init__(self) -> None:
+        for key in ("batch", "updates", "threads", "workers"):
+            if not 1 <= getattr(self, key) <= 100_000:
+                raise ConfigError(f"{key} must lie in [1, 100000], got {getattr(self, key)}")
 
 
 def bench_train(policy: str = "commattn", batch: int = 288, updates: int = 3, threads: int = 2,
@@ -23,6 +45,12 @@ def bench_train(policy: str = "commattn", batch: int = 288, updates: int = 3, th
     """Seconds per update (rollout of `batch` episodes + REINFORCE step) on the full world;
     the first update is a warm-up and not counted. Median figures. With one process the
     rollout and learning parts are timed apart; with several they overlap."""
+    import torch  # here, not at import: the CLI builds this parser in every process
+
+    from swarm.learn.parallel import ParallelUpdater
+    from swarm.learn.rollout import collect
+    from swarm.learn.update import update
+
     world = world or WorldConfig()
     torch.set_num_threads(threads)
     torch.manual_seed(seed)

@@ -6,6 +6,7 @@ import argparse
 from dataclasses import dataclass
 from typing import Any
 
+from swarm.bench.train import TrainBenchConfig
 from swarm.cli.common import (
     RichProgress,
     _checkpoint_pairs,
@@ -33,6 +34,7 @@ from swarm.cli.console import (
     table2_table,
 )
 from swarm.common import atomic
+from swarm.common.flags import add_flags, given
 from world.config import ConfigError, WorldConfig, from_dict
 
 
@@ -160,12 +162,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
             result = bench.bench_env(world, cfg, progress)
         out.print(env_bench_table(result))
     elif args.what == "train":
-        from swarm.bench.train import bench_train
+        from swarm.bench.train import TrainBenchConfig, bench_train
 
-        cfg = argparse.Namespace(json=args.json)
-        result = bench_train(args.policy or "commattn", batch=args.batch or 288,
-                             updates=args.updates or 3, threads=args.threads or 2, world=world,
-                             seed=args.seed or 0, workers=args.workers or 1)
+        cfg = merged(TrainBenchConfig, table, given(TrainBenchConfig, args), where)
+        result = bench_train(cfg.policy, batch=cfg.batch, updates=cfg.updates,
+                             threads=cfg.threads, world=world, seed=cfg.seed, workers=cfg.workers)
         out.print(kv_table("Training speed (median)", result))
     elif args.what == "rollout":
         from swarm.bench.rollout import RolloutBenchConfig, bench_rollout
@@ -280,12 +281,8 @@ def add_parsers(sub: Any) -> None:
     b = bsub.add_parser("train", help="seconds per REINFORCE update of a learned policy",
                         description="One update = rollout of --batch episodes (30 steps, N "
                                     "robots) + the REINFORCE step; median over --updates.")
-    b.add_argument("--policy", help="learned policy (default commattn)")
-    b.add_argument("--batch", type=int, help="episodes per update (default 288)")
-    b.add_argument("--updates", type=int, help="timed updates after one warm-up (default 3)")
-    b.add_argument("--threads", type=int, help="torch threads per process (default 2)")
-    b.add_argument("--workers", type=int, help="training processes (default 1; see swarm train)")
     add_common(b)
+    add_flags(b, TrainBenchConfig)
     add_world(b)
     b.set_defaults(func=cmd_bench)
     b = bsub.add_parser("rollout", help="episodes/s a learner gathers from K rollout workers",

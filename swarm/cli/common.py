@@ -67,7 +67,7 @@ def file_tables(path: str | None) -> dict[str, Any]:
     for key, value in bench.items():
         if key not in BENCH_TABLES or not isinstance(value, dict):
             raise ConfigError(f"config file {path}: unknown key bench.{key}; the [bench] table "
-                              f"holds only [bench.env] and [bench.policy]")
+                              f"holds only {', '.join(f'[bench.{t}]' for t in BENCH_TABLES)}")
     return data
 
 

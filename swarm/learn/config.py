@@ -4,11 +4,10 @@ subcommand's parser in every process, robots included)."""
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from world.config import replace
+from swarm.common.flags import add_flags, from_flags
 
 
 @dataclass
@@ -90,37 +89,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     Flags the parser already has (a shared --seed, say) are left as they are."""
     parser.add_argument("--out", type=Path, required=True, help="run directory (checkpoint, logs)")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
-    for f in dataclasses.fields(TrainConfig):
-        flag = "--" + f.name.replace("_", "-")
-        if flag in parser._option_string_actions:
-            continue
-        kind = {"int": int, "float": float, "str": str}.get(str(f.type))
-        if str(f.type) == "bool":
-            parser.add_argument(flag, type=lambda s: s.lower() in ("1", "true", "yes"),
-                                default=None, metavar="BOOL", help=_field_doc(f.name))
-        else:
-            parser.add_argument(flag, type=kind, default=None, help=_field_doc(f.name))
-
-
-def _field_doc(name: str) -> str:
-    """The docstring under a TrainConfig field (for --help)."""
-    import ast
-    import inspect
-    import itertools
-
-    tree = ast.parse(inspect.getsource(TrainConfig))
-    body = tree.body[0].body  # type: ignore[attr-defined]
-    for node, nxt in itertools.pairwise(body):
-        if (isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == name
-                and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)):
-            return " ".join(str(nxt.value.value).split()).replace("%", "%%")
-    return ""
+    add_flags(parser, TrainConfig)
 
 
 def from_args(args: argparse.Namespace, base: TrainConfig | None = None) -> TrainConfig:
     """TrainConfig from parsed flags over `base` (e.g. a TOML [train] table)."""
-    base = base or TrainConfig()
-    names = [f.name for f in dataclasses.fields(TrainConfig)]
-    return replace(base, **{name: getattr(args, name, None) for name in names})
-
-
+    return from_flags(TrainConfig, args, base)

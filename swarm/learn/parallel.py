@@ -30,7 +30,7 @@ from policies import policy_class
 from policies.learned import LearnedPolicy
 from swarm.learn.config import TrainConfig
 from world import core
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 
 
 @dataclass
@@ -87,7 +87,7 @@ class ParallelUpdater:
     def __init__(self, policy: LearnedPolicy, world: WorldConfig, workers: int,
                  threads: int = 1) -> None:
         if workers < 1:
-            raise ValueError(f"workers must be >= 1, got {workers}")
+            raise ConfigError(f"workers must be >= 1, got {workers}")
         from world.config import to_dict
 
         ctx = mp.get_context("spawn")

@@ -95,7 +95,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         torch.manual_seed(cfg.seed)
         policy = make_policy(cfg.policy, world)
         if not isinstance(policy, LearnedPolicy):
-            raise ValueError(f"policy {cfg.policy!r} is not a learned policy")
+            raise ConfigError(f"policy {cfg.policy!r} is not a learned policy")
         if cfg.init:
             policy = make_policy(cfg.policy, world, checkpoint=cfg.init)
         if cfg.team_memory:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import re
 
+from world.config import ConfigError
+
 ROOT = "swarm"
 _RUN_ID = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
 
@@ -15,7 +17,7 @@ _RUN_ID = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
 def check_run_id(run: str) -> str:
     """A run id is 1-64 characters of letters, digits, '-' and '_' (no key-expression syntax)."""
     if not _RUN_ID.match(run):
-        raise ValueError(f"bad run id {run!r}: use 1-64 letters, digits, '-' or '_'")
+        raise ConfigError(f"bad run id {run!r}: use 1-64 letters, digits, '-' or '_'")
     return run
 
 

@@ -172,6 +172,12 @@ class Radio:
                     c.link(int(j), i).delivered += 1
         return out
 
+    def heard_links(self) -> int:
+        """Robot pairs that heard each other (either way) in the last tick's delivery, faults and
+        partitions included: the links the dashboard shows."""
+        d = self.delivered
+        return int(np.triu(d | d.T, 1).sum())
+
     def hidden_deliveries(self, ep: int, t: int, sender: int, size: int, now: float,
                           deadline: float) -> list[tuple[int, float]]:
         """(receiver, delivery time) for a hidden-state message of `sender` received at `now`."""

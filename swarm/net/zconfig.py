@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from world.config import ConfigError
+
 
 @dataclass
 class ZenohOptions:
@@ -48,7 +50,7 @@ class ZenohOptions:
         for item in self.cfg:
             key, sep, value = item.partition(":")
             if not sep:
-                raise ValueError(f"--cfg expects KEY:JSON5, got {item!r}")
+                raise ConfigError(f"--cfg expects KEY:JSON5, got {item!r}")
             conf.insert_json5(key, value)
         return conf
 

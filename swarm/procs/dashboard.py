@@ -67,6 +67,8 @@ class SwarmView:
     links: dict[str, list[int]] = field(default_factory=dict)  # "a-b": delivered, dropped, late, queued
     radio: dict[str, int] = field(default_factory=dict)
     learner: dict[str, Any] | None = None  # the learner's last status (swarm run --train)
+    heard_links: int = 0  # robot pairs the radio delivered between in the last tick
+    bad_records: int = 0  # status records the supervisor dropped (did not fit their schema)
 
     def __post_init__(self) -> None:
         for i in range(self.n_robots):
@@ -94,6 +96,7 @@ class SwarmView:
         self.faults = list(rec.get("faults", self.faults))
         self.links = dict(rec.get("links", self.links))
         self.radio = dict(rec.get("radio", self.radio))
+        self.heard_links = int(rec.get("heard_links", 0))
         for i, (p, alive) in enumerate(zip(rec.get("pos", []), rec.get("alive", []))):
             row = self.robots.setdefault(i, RobotRow())
             row.pos = (int(p[0]), int(p[1]))
@@ -154,18 +157,6 @@ def render_grid(v: SwarmView) -> Text:
     return text
 
 
-def links_in_range(v: SwarmView) -> int:
-    """Number of robot pairs currently within comm range (shown in the figures)."""
-    pos = [(i, r.pos) for i, r in v.robots.items() if r.pos is not None and r.alive]
-    n = 0
-    for a in range(len(pos)):
-        for b in range(a + 1, len(pos)):
-            (ya, xa), (yb, xb) = pos[a][1], pos[b][1]  # type: ignore[misc]
-            if (ya - yb) ** 2 + (xa - xb) ** 2 <= v.comm_range ** 2:
-                n += 1
-    return n
-
-
 def render_robots(v: SwarmView) -> Table:
     table = Table(title="robots", expand=True, pad_edge=False)
     cols = ["id", "state", "pos", "in", "out", "lat ms", "missed", "bad", "restarts"]
@@ -195,7 +186,7 @@ def render_figures(v: SwarmView) -> Table:
         ("tick", str(v.tick)), ("ticks/s", f"{v.ticks_per_s:.1f}"),
         ("elratio", f"{v.elratio:.3f}"),
         ("collisions", f"block {v.block_coll}  robot {v.robot_coll}"),
-        ("links in range", str(links_in_range(v))),
+        ("links heard", str(v.heard_links)),
         ("msgs/s", f"{sum(r.msgs_out for r in v.robots.values()) / elapsed:.0f}"),
         ("bytes/s", f"{sum(r.bytes_out for r in v.robots.values()) / elapsed:.0f}"),
         ("timeouts", str(v.timeouts)), ("bad / late", f"{v.bad} / {v.late}"),

@@ -22,8 +22,9 @@ its version is published; a SIGKILLed learner resumes from the checkpoint of the
 
 Stale rollouts: an episode's version is the oldest any of its robots acted with. Episodes more
 than `max_staleness` versions behind are dropped and counted (`stale_dropped`); others are used
-as if on-policy (`stale_used` counts them): REINFORCE has no correction for the lag, and with
-robots adopting weights at episode boundaries the lag is at most one version in practice.
+(`stale_used` counts them), each decision weighted by the truncated importance ratio
+min(is_clip, pi_now / pi_acted) from the log-probabilities the robots recorded
+(swarm.learn.update.backward); fresh episodes weigh exactly 1.
 """
 
 from __future__ import annotations

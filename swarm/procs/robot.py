@@ -87,7 +87,7 @@ class RobotProcess:
     def __init__(self, robot: int, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
                  policy: Policy) -> None:
         if not 0 <= robot < cfg.n_robots:
-            raise ValueError(f"robot id {robot} outside 0..{cfg.n_robots - 1}")
+            raise ConfigError(f"robot id {robot} outside 0..{cfg.n_robots - 1}")
         self.robot, self.cfg, self.run_cfg, self.session = robot, cfg, run, session
         self.keys = Keys(run.run_id)
         self.policy = policy

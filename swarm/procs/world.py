@@ -305,6 +305,7 @@ class WorldProcess:
             "timeouts": missing, "bad": sum(self.bad.values()), "late": self.late,
             "run_tick": self.run_tick, "wall": time.time(), "radio": self.radio.counters.totals(),
             "faults": self.radio.plan.describe(),
+            "heard_links": self.radio.heard_links(),
             "links": {f"{a}-{b}": [s.delivered, s.lost + s.cut + s.dropped_bw, s.late, s.queued]
                       for (a, b), s in self.radio.counters.links.items()
                       if s.lost or s.cut or s.late or s.queued or s.dropped_bw},

@@ -1,0 +1,72 @@
+"""Config dataclasses as command-line flags: one flag per field, its help the field's docstring.
+
+A flag left unset is None and keeps the value from the TOML table or the default, so the
+precedence is always defaults < `--config FILE` table < flags (see `swarm.cli.common.merged`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import functools
+import inspect
+import itertools
+from typing import Any
+
+from world.config import replace
+
+
+@functools.cache
+def field_docs(cls: type) -> dict[str, str]:
+    """The docstring under each field of dataclass `cls` (one line, `%` escaped for argparse)."""
+    tree = ast.parse(inspect.getsource(cls))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    out = {}
+    for node, nxt in itertools.pairwise(body):
+        if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)):
+            out[node.target.id] = " ".join(str(nxt.value.value).split()).replace("%", "%%")
+    return out
+
+
+def _bool(text: str) -> bool:
+    if text.lower() not in ("1", "0", "true", "false", "yes", "no"):
+        raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+    return text.lower() in ("1", "true", "yes")
+
+
+def add_flags(parser: argparse.ArgumentParser | Any, cls: type, skip: tuple[str, ...] = (),
+              dest_prefix: str = "") -> None:
+    """One `--field-name` flag per field of `cls` (ints, floats, strings, bools); fields in
+    `skip` and flags the parser already has (a shared --seed, say) are left out."""
+    docs = field_docs(cls)
+    for f in dataclasses.fields(cls):
+        flag = "--" + f.name.replace("_", "-")
+        if f.name in skip or flag in parser._option_string_actions:
+            continue
+        ftype = str(f.type).replace(" | None", "")
+        dest = dest_prefix + f.name
+        if ftype == "bool":
+            parser.add_argument(flag, dest=dest, type=_bool, default=None, metavar="BOOL",
+                                help=docs.get(f.name, ""))
+        else:
+            kind = {"int": int, "float": float}.get(ftype, str)
+            parser.add_argument(flag, dest=dest, type=kind, default=None,
+                                help=docs.get(f.name, ""))
+
+
+def given(cls: type, args: argparse.Namespace, dest_prefix: str = "") -> dict[str, Any]:
+    """The fields of `cls` whose flags were given, as a dict."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        value = getattr(args, dest_prefix + f.name, None)
+        if value is not None:
+            out[f.name] = value
+    return out
+
+
+def from_flags(cls: type, args: argparse.Namespace, base: Any = None,
+               dest_prefix: str = "") -> Any:
+    """`base` (default: the defaults of `cls`) with every flag that was given applied."""
+    return replace(base if base is not None else cls(), **given(cls, args, dest_prefix))
