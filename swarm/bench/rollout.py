@@ -24,7 +24,7 @@ from swarm.bench.micro import int_list
 from swarm.net.keys import Keys
 from swarm.net.messages import K_LSTATUS, BadMessage, unpack_record
 from swarm.net.zconfig import ZenohOptions, free_port
-from swarm.procs.supervisor import _cli, _wait_port
+from swarm.procs.spawn import child_env, cli_args, wait_port
 from world.config import ConfigError
 
 
@@ -73,18 +73,19 @@ def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
     log = open(tmp / f"bench-{k}.log", "ab")  # noqa: SIM115
     try:
         procs.append(subprocess.Popen(
-            _cli("learner", "--run-id", run_id, "--policy", cfg.policy, "--gather-only",
-                 "--out", str(tmp / f"learner{k}"), "--zenoh-mode", "router", "--listen", hub),
-            stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL))
-        _wait_port("127.0.0.1", port, procs[0], 60.0, "learner")
+            cli_args("learner", "--run-id", run_id, "--policy", cfg.policy, "--gather-only",
+                     "--out", str(tmp / f"learner{k}"), "--zenoh-mode", "router", "--listen", hub),
+            stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, env=child_env()))
+        wait_port("127.0.0.1", port, procs[0], 60.0, "learner")
         with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
             sub = session.declare_subscriber(Keys(run_id).learner_status, on_status)
             for w in range(k):
                 procs.append(subprocess.Popen(
-                    _cli("rollout-worker", "--run-id", run_id, "--worker-id", str(w),
-                         "--batch", str(cfg.batch), "--threads", str(cfg.threads),
-                         "--connect", hub, "--zenoh-mode", "client"),
-                    stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL))
+                    cli_args("rollout-worker", "--run-id", run_id, "--worker-id", str(w),
+                             "--batch", str(cfg.batch), "--threads", str(cfg.threads),
+                             "--connect", hub, "--zenoh-mode", "client"),
+                    stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL,
+                    env=child_env()))
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline:
                 with lock:

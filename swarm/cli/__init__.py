@@ -12,6 +12,7 @@ from collections.abc import Sequence
 
 from swarm.cli import batch, learn, run
 from swarm.cli.common import _Parser
+from swarm.procs.spawn import die_with_parent, terminate_as_interrupt
 from world.config import ConfigError
 
 
@@ -28,6 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `swarm` console script; returns the exit status."""
+    die_with_parent()  # a child of `swarm run` goes when its supervisor goes, SIGKILL included
+    terminate_as_interrupt()  # SIGTERM cleans up like Ctrl-C (children stopped, files closed)
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:
@@ -40,6 +43,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except OSError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
+        return 1
+    except (RuntimeError, TimeoutError) as exc:  # a run that failed: one line, the logs named
+        print(f"swarm: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("swarm: interrupted", file=sys.stderr)

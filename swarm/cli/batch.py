@@ -19,6 +19,7 @@ from swarm.cli.common import (
     add_world,
     file_tables,
     merged,
+    output_file,
     world_config,
 )
 from swarm.cli.console import (
@@ -69,17 +70,27 @@ class EvalConfig:
 # ---------------------------------------------------------------------------- subcommands
 
 
-def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
-             faults: Any = None) -> list[dict[str, Any]]:
-    """Evaluate each policy of `cfg.policy` on the same episodes; summaries in order."""
-    from swarm.bench.micro import NullProgress
-    from swarm.common.policy_spec import build_policy, effective_checkpoint, resolve_policies
-    from swarm.learn.evaluate import evaluate
+def eval_policies(world: WorldConfig, cfg: EvalConfig) -> list[tuple[str, Any]]:
+    """(name, built policy) of every policy `cfg.policy` names: a bad name or checkpoint fails
+    here, before anything runs."""
+    from swarm.common.policy_spec import build_policy, resolve_policies
 
     names = resolve_policies(cfg.policy)
     if cfg.checkpoint is not None and len(names) > 1:
         raise ConfigError("--checkpoint needs a single --policy")
-    policies = [build_policy(n, world, cfg.checkpoint) for n in names]  # fail before running
+    return [(n, build_policy(n, world, cfg.checkpoint)) for n in names]
+
+
+def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
+             faults: Any = None, built: list[tuple[str, Any]] | None = None
+             ) -> list[dict[str, Any]]:
+    """Evaluate each policy of `cfg.policy` on the same episodes; summaries in order."""
+    from swarm.bench.micro import NullProgress
+    from swarm.common.policy_spec import effective_checkpoint
+    from swarm.learn.evaluate import evaluate
+
+    built = built if built is not None else eval_policies(world, cfg)
+    names, policies = [n for n, _ in built], [p for _, p in built]
     progress = progress or NullProgress()
     out = []
     for name, policy in zip(names, policies, strict=True):
@@ -114,9 +125,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
                   "seed": args.seed, "batch": args.batch, "greedy": greedy, "json": args.json},
                  "[eval]")
     faults = _eval_faults(args, tables)
+    built = eval_policies(world, cfg)  # every bad input fails before the progress bar
+    output_file(cfg.json)
     out, err = _consoles()
     with RichProgress(err) as progress:
-        summaries = run_eval(world, cfg, progress, faults)
+        summaries = run_eval(world, cfg, progress, faults, built)
     map_kind = f"dynamic (m={world.add_every})" if world.dynamic else "static"
     out.print(eval_table(summaries, f"eval: {world.n_robots} robots, {map_kind} map, "
                                     f"{cfg.episodes} episodes, seed {cfg.seed}"))

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
 import sys
+from pathlib import Path
 from typing import Any, NoReturn, Self
 
 from rich.console import Console
@@ -185,3 +187,31 @@ def _checkpoint_pairs(pairs: list[str] | None, flag: str = "--checkpoint") -> di
     return out
 
 
+
+
+def output_file(path: str | None, flag: str = "--json") -> None:
+    """A result file must be writable before the work that produces it starts."""
+    if path is None:
+        return
+    target = Path(path)
+    if target.is_dir():
+        raise ConfigError(f"{flag} {path} is a directory, not a file")
+    parent = target.parent if str(target.parent) else Path(".")
+    if not parent.is_dir():
+        raise ConfigError(f"{flag} {path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK) or (target.exists() and not os.access(target, os.W_OK)):
+        raise ConfigError(f"{flag} {path} is not writable")
+
+
+def output_dir(path: str | None, flag: str) -> None:
+    """A directory a run will write into: existing and writable, or creatable."""
+    if path is None:
+        return
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise ConfigError(f"{flag} {path} exists and is not a directory")
+    probe = target
+    while not probe.exists():
+        probe = probe.parent
+    if not os.access(probe, os.W_OK):
+        raise ConfigError(f"{flag} {path} is not writable")

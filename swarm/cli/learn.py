@@ -4,9 +4,17 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
-from swarm.cli.common import add_common, add_world, file_tables, world_config
+from swarm.cli.common import (
+    add_common,
+    add_world,
+    file_tables,
+    output_dir,
+    output_file,
+    world_config,
+)
 from swarm.cli.run import _logging, learner_configs
 from swarm.net import zconfig
 from swarm.procs.runconfig import RunRecord
@@ -28,6 +36,10 @@ def cmd_learner(args: argparse.Namespace) -> int:
     lc, tc = learner_configs(args, tables)
     if not lc.out:
         raise ConfigError("swarm learner needs --out DIR")
+    if lc.resume and not (Path(lc.out) / "checkpoint.pt").is_file():
+        raise ConfigError(f"--resume: {Path(lc.out) / 'checkpoint.pt'} does not exist")
+    output_dir(lc.out, "--out")
+    output_file(args.json)
     try:
         status = learner_main(world, lc, tc, zconfig.from_args(args), seed)
     except KeyboardInterrupt:

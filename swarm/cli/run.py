@@ -13,9 +13,19 @@ import secrets
 import sys
 from typing import Any
 
-from swarm.cli.common import _consoles, add_common, add_world, file_tables, world_config
+from swarm.cli.common import (
+    _consoles,
+    add_common,
+    add_world,
+    file_tables,
+    output_dir,
+    output_file,
+    world_config,
+)
+from swarm.common.policy_spec import build_policy
 from swarm.net import zconfig
 from swarm.net.faults import plan_from_table
+from swarm.net.zconfig import open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, from_dict
 
@@ -66,7 +76,7 @@ def _add_fault_flags(p: argparse.ArgumentParser) -> None:
 
 
 def _add_netns_flags(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("kernel-level realism (root; see swarm/netns.py)")
+    g = p.add_argument_group("kernel-level realism (root; see swarm/net/netns.py)")
     g.add_argument("--netns", action="store_true",
                    help="world and robots in network namespaces joined by veth pairs")
     g.add_argument("--kernel-loss", metavar="P",
@@ -96,7 +106,8 @@ def netns_faults(args: argparse.Namespace) -> Any:
     return faults
 
 
-def fault_table(args: argparse.Namespace, tables: dict[str, Any]) -> dict[str, Any]:
+def fault_table(args: argparse.Namespace, tables: dict[str, Any],
+                n_robots: int | None = None) -> dict[str, Any]:
     """The `[faults]` table of the file overridden by the fault flags given."""
     table = dict(tables.get("faults", {}))
     for key in ("latency", "jitter", "loss", "bandwidth", "overflow", "partition"):
@@ -108,7 +119,7 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any]) -> dict[str, A
             table[kind] = list(getattr(args, kind))
     if getattr(args, "fault_seed", None) is not None:
         table["seed"] = args.fault_seed
-    plan_from_table(table)  # validate now: a bad value is a one-line error before any spawn
+    plan_from_table(table, n_robots=n_robots)  # a bad value: one line before any spawn
     return table
 
 
@@ -170,7 +181,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     tables = file_tables(args.config)
     world = world_config(args, tables)
     run = run_config(args, tables)
-    faults = fault_table(args, tables)
+    faults = fault_table(args, tables, world.n_robots)
+    # everything the run needs, checked before a process is spawned: one line, exit 2
+    output_file(args.json)
+    output_dir(args.log_dir, "--log-dir")
+    output_dir(getattr(args, "learner_out", None), "--learner-out")
+    if not (run.train and run.checkpoint is None):  # --train alone starts from fresh weights
+        build_policy(run.policy, world, run.checkpoint)  # readable, right policy, right shapes
     out, _ = _consoles()
     if args.pace is None and "pace" not in tables.get("run", {}) and not args.headless \
             and out.is_terminal:
@@ -221,11 +238,13 @@ def cmd_world(args: argparse.Namespace) -> int:
     else:
         tables = file_tables(args.config)
         world, run = world_config(args, tables), run_config(args, tables)
-        faults = fault_table(args, tables)
+        faults = fault_table(args, tables, world.n_robots)
+    zopts = zconfig.from_args(args)
+    output_file(args.json)
+    if not args.spec:
         print(f"swarm world: run id {run.run_id}", file=sys.stderr, flush=True)
     try:
-        res = world_main(world, run, zconfig.from_args(args), faults=faults,
-                         watch_parent=bool(args.spec))
+        res = world_main(world, run, zopts, faults=faults)
     except KeyboardInterrupt:
         return 130
     if args.json:
@@ -249,11 +268,10 @@ def cmd_robot(args: argparse.Namespace) -> int:
 def cmd_fault(args: argparse.Namespace) -> int:
     """Change the faults of a running swarm: link faults go to the world (applied from the next
     tick), process faults to the supervisor (applied at once)."""
-    import zenoh
 
     from swarm.net.keys import Keys
     from swarm.net.messages import K_CONTROL, pack_record
-    from swarm.procs.supervisor import lookup_run
+    from swarm.procs.spawn import lookup_run
 
     table = fault_table(args, {})
     process = [f"{kind}:{text}" for kind in ("crash", "hang", "restart")
@@ -273,7 +291,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
         rec["replace"] = bool(args.clear or args.replace)
     if process:
         rec["process"] = process
-    with zenoh.open(opts.to_config()) as session:
+    with open_session(opts) as session:
         import time
 
         time.sleep(0.3)  # let the session join the run's network before the one put

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from swarm.common.flags import add_flags, from_flags
+from world.config import ConfigError
 
 
 @dataclass
@@ -79,6 +80,21 @@ class TrainConfig:
     chunk_ticks: int = 3
     """Ticks per backward pass: bounds memory and keeps tensors cache-sized (3 is fastest here);
     the gradient is the same for any value."""
+
+    def __post_init__(self) -> None:
+        ranges = {"train_loss": (0, 1), "seed": (0, 2**31 - 1), "epochs": (1, 10**6),
+                  "updates": (1, 10**6), "batch": (1, 10**6), "lr": (1e-12, 10.0),
+                  "alpha": (0, 1e6), "gamma": (0, 1), "reward_scale": (1e-12, 1e6),
+                  "ent_coef": (0, 1e6), "max_grad_norm": (0, 1e12), "is_clip": (0, 1e6),
+                  "curriculum_step": (0, 10**6), "curriculum_threshold": (0, 1),
+                  "curriculum_min_updates": (0, 10**6), "curriculum_max_updates": (0, 10**6),
+                  "curriculum_ema": (0, 1), "train_seed_offset": (0, 2**40),
+                  "val_episodes": (0, 10**7), "threads": (1, 256), "workers": (1, 256),
+                  "chunk_ticks": (1, 10**6)}
+        for name, (lo, hi) in ranges.items():
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and lo <= v <= hi):  # also NaN
+                raise ConfigError(f"train {name} must lie in [{lo}, {hi}], got {v!r}")
 
 
 # ------------------------------------------------------------------------------------ rollout

@@ -44,8 +44,12 @@ class LinkFault:
     """What the token bucket does with a message that exceeds the cap: `queue` or `drop`."""
 
     def __post_init__(self) -> None:
-        if self.latency_ms < 0 or self.jitter_ms < 0 or self.bandwidth < 0 or self.burst < 0:
-            raise ConfigError("latency, jitter, bandwidth and burst must be >= 0")
+        for name in ("latency_ms", "jitter_ms"):
+            if not 0 <= getattr(self, name) <= MAX_MS:  # also NaN
+                raise ConfigError(f"{name} must lie in [0, {MAX_MS:g}], got {getattr(self, name)}")
+        for name in ("bandwidth", "burst"):
+            if not 0 <= getattr(self, name) <= 1e12:
+                raise ConfigError(f"{name} must lie in [0, 1e12], got {getattr(self, name)}")
         if not 0.0 <= self.loss <= 1.0:
             raise ConfigError(f"loss must be in [0, 1], got {self.loss}")
         if self.overflow not in ("queue", "drop"):
@@ -74,6 +78,17 @@ class FaultPlan:
     partition: tuple[tuple[int, ...], ...] = ()
     process: tuple[ProcessFault, ...] = ()
     seed: int = 0
+
+    def check(self, n_robots: int) -> FaultPlan:
+        """Every robot id the plan names exists in a team of `n_robots`; a one-line ConfigError
+        otherwise (checked before a run starts, and on every live change)."""
+        ids = [*self.per_robot, *(x for pair in self.per_link for x in pair),
+               *(r for g in self.partition for r in g), *(p.robot for p in self.process)]
+        bad = sorted({r for r in ids if not 0 <= r < n_robots})
+        if bad:
+            raise ConfigError(f"faults name robot(s) {', '.join(map(str, bad[:5]))} but the team "
+                              f"has robots 0..{n_robots - 1}")
+        return self
 
     def link(self, sender: int, receiver: int) -> LinkFault:
         return self.per_link.get((sender, receiver), self.per_robot.get(sender, self.default))
@@ -147,6 +162,8 @@ class FaultPlan:
 
 # --------------------------------------------------------------------- parsing of CLI values
 
+MAX_MS = 3.6e6  # an hour: the longest latency or jitter a plan may hold
+MAX_ROBOTS = 100_000  # robot ids a plan may name (bounds a hostile partition list)
 _UNITS_TIME = {"us": 1e-3, "ms": 1.0, "s": 1000.0, "": 1.0}
 _UNITS_RATE = {"b": 1.0, "kb": 1e3, "mb": 1e6, "kib": 1024.0, "mib": 1024.0 ** 2}
 
@@ -176,8 +193,8 @@ def parse_ids(text: str) -> tuple[int, ...]:
         if not m:
             raise ConfigError(f"bad robot list {text!r}: use e.g. 0-4 or 0,2,5")
         lo, hi = int(m.group(1)), int(m.group(2) or m.group(1))
-        if hi < lo:
-            raise ConfigError(f"bad robot range {part!r}")
+        if hi < lo or hi >= MAX_ROBOTS:
+            raise ConfigError(f"bad robot range {part!r} (ids lie in 0..{MAX_ROBOTS - 1})")
         out += range(lo, hi + 1)
     return tuple(out)
 
@@ -195,7 +212,7 @@ def parse_partition(text: str) -> tuple[tuple[int, ...], ...]:
 
 def parse_process(kind: str, text: str) -> ProcessFault:
     """`3@20` -> robot 3 at run tick 20; `3` -> robot 3 at once (tick -1)."""
-    m = re.fullmatch(r"\s*(\d+)\s*(?:@\s*(\d+))?\s*", str(text))
+    m = re.fullmatch(r"\s*(\d{1,9})\s*(?:@\s*(\d{1,12}))?\s*", str(text))
     if not m:
         raise ConfigError(f"bad --{kind} {text!r}: use ROBOT@TICK, e.g. 3@20")
     return ProcessFault(kind, int(m.group(1)), int(m.group(2)) if m.group(2) else -1)
@@ -228,10 +245,23 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
     return replace(base, **ch)
 
 
-def plan_from_table(t: dict[str, Any], seed: int = 0) -> FaultPlan:
+def plan_from_table(t: dict[str, Any], seed: int = 0, n_robots: int | None = None) -> FaultPlan:
     """`[faults]` of an experiment file: latency, jitter, loss, bandwidth, overflow, partition,
-    crash/hang/restart lists, `[faults.robot.K]` and `[faults.link."A-B"]` overrides."""
-    t = dict(t)
+    crash/hang/restart lists, `[faults.robot.K]` and `[faults.link."A-B"]` overrides. Anything
+    malformed (also from a live `swarm fault` message) is a one-line ConfigError; with
+    `n_robots`, so is a robot id outside the team."""
+    if not isinstance(t, dict):
+        raise ConfigError("faults must be a table")
+    try:
+        plan = _plan(dict(t), seed)
+    except (TypeError, ValueError, AttributeError, OverflowError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(f"bad faults table: {exc}") from None
+    return plan if n_robots is None else plan.check(n_robots)
+
+
+def _plan(t: dict[str, Any], seed: int) -> FaultPlan:
     per_robot_t = t.pop("robot", {})
     per_link_t = t.pop("link", {})
     partition = parse_partition(t.pop("partition")) if "partition" in t else ()

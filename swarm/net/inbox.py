@@ -114,3 +114,11 @@ def query(session: zenoh.Session, key: str, timeout: float, what: str = "") -> b
         if time.monotonic() >= deadline:
             raise TimeoutError(f"no {what or 'answer on ' + key} within {timeout:g} s")
         time.sleep(0.1)
+
+
+def tally(counts: dict[str, int], key: str, cap: int = 64) -> None:
+    """Count one dropped payload under its key; past `cap` distinct keys (a flood of made-up
+    keys) the rest share one entry, so the table cannot grow without bound."""
+    if key not in counts and len(counts) >= cap:
+        key = "(other keys)"
+    counts[key] = counts.get(key, 0) + 1

@@ -340,8 +340,8 @@ class EpisodeRecord:
 
 @dataclass
 class EpisodeRollout:
-    """One whole episode in the batched trainer's terms (what `swarm.learn.trainer.collect` records for
-    one group), from the swarm's joined records or from a rollout worker. Arrays [T, N, ...]."""
+    """One whole episode in the batched trainer's terms (what `swarm.learn.rollout.collect` records
+    for one group), from the swarm's joined records or from a rollout worker. Arrays [T, N, ...]."""
 
     ep: int
     seed: int

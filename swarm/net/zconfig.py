@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import socket
 from dataclasses import dataclass, field
 
@@ -34,6 +35,13 @@ class ZenohOptions:
     """Extra `KEY:JSON5` settings applied last."""
 
     def to_config(self) -> zenoh.Config:
+        """The session config; anything Zenoh rejects is a one-line ConfigError."""
+        try:
+            return self._config()
+        except zenoh.ZError as exc:
+            raise ConfigError(f"zenoh configuration: {zenoh_reason(exc)}") from None
+
+    def _config(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
         if not self.config_file:
             conf.insert_json5("scouting/multicast/enabled", "false")
@@ -81,8 +89,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def from_args(args: argparse.Namespace) -> ZenohOptions:
-    return ZenohOptions(mode=args.zenoh_mode, connect=list(args.connect), listen=list(args.listen),
-                        config_file=args.zenoh_config, cfg=list(args.cfg))
+    """The options of the flags, checked at once (before any session or process exists)."""
+    opts = ZenohOptions(mode=args.zenoh_mode, connect=list(args.connect),
+                        listen=list(args.listen), config_file=args.zenoh_config,
+                        cfg=list(args.cfg))
+    opts.to_config()
+    return opts
+
+
+def zenoh_reason(exc: BaseException) -> str:
+    """Zenoh's message without its Rust source location, on one line."""
+    text = " ".join(str(exc).replace("\\n", " ").split())
+    text = re.sub(r" at /\S+?\.rs:\d+\.?", "", text)
+    m = re.search(r'msg: "(.*?)"', text)
+    return (m.group(1) if m else text).strip()
+
+
+def open_session(opts: ZenohOptions) -> zenoh.Session:
+    """A session for these options; a refused connection is one line, not a traceback."""
+    conf = opts.to_config()
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        where = ", ".join(opts.connect or opts.listen) or "defaults"
+        raise RuntimeError(f"cannot open a Zenoh session ({where}): {zenoh_reason(exc)}") from None
 
 
 def free_port(host: str = "127.0.0.1") -> int:

@@ -32,6 +32,9 @@ class RobotRow:
     restarts: int = 0
     version: int = 0  # weights version in use (swarm run --train)
     weights_bad: int = 0
+    stalls: int = 0  # times the robot found itself stopped or starved (SIGSTOP, overload)
+    rejoins: int = 0  # times it rejoined after its session dropped
+    errors: int = 0  # ticks it could not decide on (skipped)
 
 
 @dataclass
@@ -115,6 +118,9 @@ class SwarmView:
         row.bytes_out = int(rec.get("bytes_out", 0))
         row.version = int(rec.get("version", 0))
         row.weights_bad = int(rec.get("weights_bad", 0))
+        row.stalls = int(rec.get("stalls", 0))
+        row.rejoins = int(rec.get("rejoins", 0))
+        row.errors = int(rec.get("errors", 0))
 
     def set_alive(self, robot: int, alive: bool) -> None:
         row = self.robots.setdefault(robot, RobotRow())
@@ -244,6 +250,12 @@ def render_learner(v: SwarmView) -> Table:
         ("stale used / dropped", f"{rec.get('stale_used', 0)} / {rec.get('stale_dropped', 0)}"),
         ("incomplete / bad", f"{rec.get('incomplete', 0)} / {rec.get('bad', 0)}"),
     ]
+    acc = rec.get("accounting") or {}
+    if acc:
+        rows.append(("episodes received", f"{acc.get('received', 0)} = trained "
+                     f"{acc.get('trained', 0)} + pending {acc.get('pending', 0)} + stale "
+                     f"{acc.get('stale_dropped', 0)} + incomplete {acc.get('incomplete', 0)} + "
+                     f"rejected {acc.get('rejected', 0)}"))
     for k, val in rows:
         table.add_row(k, val)
     return table

@@ -15,9 +15,9 @@ Data flow of one episode (keys in swarm.keys):
 
 The learner joins the first two into an `EpisodeRollout` (the robots' own trajectory messages
 are exactly what their receivers heard, so the tick's `View` is rebuilt bit for bit), stacks
-`batch` of them into the batched trainer's `Rollout`, runs the very same `swarm.learn.trainer.update`,
-checkpoints atomically, and only then publishes the new version on `learner/weights` (a
-queryable there serves the current version to late joiners). An update is acknowledged when
+`batch` of them into the batched trainer's `Rollout`, runs the very same
+`swarm.learn.update.update`, checkpoints atomically, and only then publishes the new version
+on `learner/weights` (a queryable there serves the current version to late joiners). An update is acknowledged when
 its version is published; a SIGKILLed learner resumes from the checkpoint of the last one.
 
 Stale rollouts: an episode's version is the oldest any of its robots acted with. Episodes more
@@ -47,7 +47,7 @@ from swarm.learn.curves import CurveLog
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
 from swarm.learn.weights import weights_of
-from swarm.net.inbox import Inbox
+from swarm.net.inbox import Inbox, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_LSTATUS,
@@ -57,7 +57,7 @@ from swarm.net.messages import (
     RobotRollout,
     pack_record,
 )
-from swarm.net.zconfig import ZenohOptions
+from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig, from_dict
 
@@ -100,7 +100,11 @@ class LearnerCounters:
     updates: int = 0
     stale_used: int = 0
     stale_dropped: int = 0
-    incomplete: int = 0
+    incomplete: int = 0  # an acting robot's record (or the world's) never came
+    rejected: int = 0  # its records came but do not fit together (or are not whole episodes)
+    trained: int = 0  # episodes that went into an update
+    received: int = 0  # distinct episodes heard of (swarm episodes + worker episodes)
+    late_records: int = 0  # robot records of an episode already joined or given up
     bad: int = 0
     rollout_bytes: int = 0
     bad_by_key: dict[str, int] = field(default_factory=dict)
@@ -125,7 +129,9 @@ class Learner:
         cls = policy_class(lc.policy)
         if not cls.learned:
             raise ConfigError(f"policy {lc.policy!r} is not a learned policy")
-        if lc.resume and self.ckpt.exists():
+        if lc.resume and not self.ckpt.exists():
+            raise ConfigError(f"--resume: {self.ckpt} does not exist (nothing to resume)")
+        if lc.resume:
             data = load_checkpoint(self.ckpt)
             state = data.get("learner")
             if state is None:
@@ -149,6 +155,7 @@ class Learner:
                 self.curves.start()
         self.tc = tc
         self.pending: dict[int, dict[str, Any]] = {}  # ep -> {"world": rec, "robots": {}, "t": s}
+        self.closed: set[int] = set()  # swarm episodes joined or given up
         self.ready: list[EpisodeRollout] = []
         self.weights_payload = weights_of(self.policy, self.version).pack()
         self.curve: list[float] = []
@@ -176,7 +183,7 @@ class Learner:
 
     def _bad(self, key: str, why: str) -> None:
         self.c.bad += 1
-        self.c.bad_by_key[key] = self.c.bad_by_key.get(key, 0) + 1
+        tally(self.c.bad_by_key, key)
         log.warning("learner dropped bad payload on %s: %s", key, why)
 
     # --- gathering --------------------------------------------------------------------------
@@ -188,23 +195,43 @@ class Learner:
                 if Keys.robot_of(key) != rr.robot:
                     raise BadMessage(f"robot id {rr.robot} does not match key")
                 self.c.robot_records += 1
-                slot = self.pending.setdefault(rr.ep, {"robots": {}, "first": time.monotonic()})
-                slot["robots"][rr.robot] = rr
+                slot = self._slot(rr.ep)
+                if slot is not None:
+                    slot["robots"][rr.robot] = rr
             elif kind == "world":
                 wr = EpisodeRecord.unpack(payload, self.cfg)
                 self.c.world_records += 1
-                slot = self.pending.setdefault(wr.ep, {"robots": {}, "first": time.monotonic()})
-                slot["world"], slot["t"] = wr, time.monotonic()
+                slot = self._slot(wr.ep)
+                if slot is not None:
+                    slot["world"], slot["t"] = wr, time.monotonic()
             else:
                 er = EpisodeRollout.unpack(payload, self.cfg)
                 self.c.worker_episodes += 1
+                self.c.received += 1
                 self._accept(er)
         except (BadMessage, ValueError) as exc:
             self._bad(key, str(exc))
 
+    def _slot(self, ep: int) -> dict[str, Any] | None:
+        """The joining slot of swarm episode `ep` (a new episode counts as received); None
+        for an episode already joined or given up (its late record is counted, not kept)."""
+        if ep in self.closed:
+            self.c.late_records += 1
+            return None
+        if ep not in self.pending:
+            self.c.received += 1
+            self.pending[ep] = {"robots": {}, "first": time.monotonic()}
+        return self.pending[ep]
+
+    def _close(self, ep: int) -> None:
+        del self.pending[ep]
+        self.closed.add(ep)
+        if len(self.closed) > 100_000:  # a long run: forget the oldest half
+            self.closed = set(sorted(self.closed)[50_000:])
+
     def _accept(self, er: EpisodeRollout) -> None:
         if er.actions.shape[0] != self.cfg.horizon:  # a batch stacks whole episodes only
-            self.c.incomplete += 1
+            self.c.rejected += 1
             log.warning("learner dropped episode %d: %d of %d ticks", er.ep,
                         er.actions.shape[0], self.cfg.horizon)
             return
@@ -224,8 +251,8 @@ class Learner:
             slot = self.pending[ep]
             wr = slot.get("world")
             if wr is None:  # robots' records whose world record never came: give up on them
-                if now - slot["first"] > 4 * self.lc.join_timeout:
-                    del self.pending[ep]
+                if force or now - slot["first"] > 4 * self.lc.join_timeout:
+                    self._close(ep)
                     self.c.incomplete += 1
                     log.warning("learner dropped episode %d: no world record", ep)
                 continue
@@ -233,11 +260,14 @@ class Learner:
             complete = acted <= set(slot["robots"])
             if not complete and not force and now - slot["t"] < self.lc.join_timeout:
                 continue
-            del self.pending[ep]
+            self._close(ep)
             try:
                 self._accept(join(self.cfg, seed, wr, slot["robots"]))
             except BadMessage as exc:
-                self.c.incomplete += 1
+                if complete:
+                    self.c.rejected += 1
+                else:
+                    self.c.incomplete += 1
                 log.warning("learner dropped episode %d: %s", ep, exc)
 
     # --- learning ---------------------------------------------------------------------------
@@ -245,6 +275,7 @@ class Learner:
         if self.lc.gather_only or len(self.ready) < self.tc.batch:
             return False
         batch, self.ready = self.ready[:self.tc.batch], self.ready[self.tc.batch:]
+        self.c.trained += len(batch)
         t0 = time.perf_counter()
         roll = rollout_of(batch, self.policy, self.version)
         torch.set_flush_denormal(True)
@@ -281,6 +312,25 @@ class Learner:
                               "counters": dataclasses.asdict(self.c)}
         save_checkpoint(self.ckpt, payload)
 
+    def accounting(self) -> dict[str, int]:
+        """Where every episode heard of is: received = trained + pending + stale_dropped +
+        incomplete + rejected, exactly (pending: joining, or joined and waiting for a batch;
+        in a gather-only learner every accepted episode stays pending)."""
+        gathered = self.c.episodes - self.c.trained - len(self.ready)
+        return {"received": self.c.received, "trained": self.c.trained,
+                "pending": len(self.pending) + len(self.ready) + gathered,
+                "stale_dropped": self.c.stale_dropped, "incomplete": self.c.incomplete,
+                "rejected": self.c.rejected}
+
+    def finish(self, inbox: Inbox, seed: int, grace: float = 0.3) -> dict[str, Any]:
+        """On the way out: take in what is still queued, settle every joining episode (a partial
+        batch is never trained on: it stays pending), publish the final status."""
+        deadline = time.monotonic() + grace
+        while (ev := inbox.next(deadline - time.monotonic())) is not None:
+            self.handle(ev.kind, ev.key, ev.payload or b"")
+        self.join_ready(seed, force=True)
+        return self.status(force=True)  # type: ignore[return-value]
+
     def status(self, force: bool = False) -> dict[str, Any] | None:
         """Publish the status record when it is due (or `force`d); returns it, None if not due."""
         now = time.monotonic()
@@ -291,6 +341,7 @@ class Learner:
                "pending": len(self.pending), "ready": len(self.ready),
                "stale_used": self.c.stale_used, "stale_dropped": self.c.stale_dropped,
                "incomplete": self.c.incomplete, "bad": self.c.bad,
+               "accounting": self.accounting(),
                "worker_episodes": self.c.worker_episodes,
                "rollout_bytes": self.c.rollout_bytes,
                "rollout_bytes_per_s": self.c.rollout_bytes / max(now - self.t0, 1e-9),
@@ -311,7 +362,9 @@ class Learner:
                 self.join_ready(seed)
                 self.maybe_update()
                 self.status()
-            return self.status(force=True)
+            return self.finish(inbox, seed)
+        except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (the supervisor stopping or gone)
+            return self.finish(inbox, seed)
         finally:
             inbox.close()
 
@@ -319,9 +372,6 @@ class Learner:
 def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptions,
          seed: int, stop: Any = lambda: False) -> dict[str, Any]:
     """Open a session and learn until interrupted (or `stop()`); returns the last status."""
-    with zenoh.open(zopts.to_config()) as session:
+    with open_session(zopts) as session:
         learner = Learner(cfg, lc, tc, session)
-        try:
-            return learner.run(seed, stop)
-        except KeyboardInterrupt:
-            return learner.status(force=True)
+        return learner.run(seed, stop)

@@ -10,6 +10,7 @@ long as the world is alive and exits by itself when the world's liveliness token
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -20,9 +21,10 @@ import zenoh
 from policies import policy_class
 from policies.base import Policy
 from swarm.common.policy_spec import build_policy
-from swarm.net.inbox import Inbox, query
+from swarm.net.inbox import Inbox, query, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import (
+    K_RESULT,
     K_RSTATUS,
     Action,
     BadMessage,
@@ -32,8 +34,9 @@ from swarm.net.messages import (
     RolloutTick,
     Traj,
     pack_record,
+    unpack_record,
 )
-from swarm.net.zconfig import ZenohOptions
+from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
 from world.decentral import TrajMessages, robot_view
@@ -58,6 +61,16 @@ def hop_deadline(t_recv: float, deadline: float, robot: int, n: int) -> float:
 
 
 @dataclass
+class Heard:
+    """A validated bundle: what robot `robot` heard at tick `t` of episode `ep`."""
+
+    ep: int
+    t: int
+    robot: int
+    msgs: TrajMessages
+
+
+@dataclass
 class RobotCounters:
     msgs_in: int = 0
     msgs_out: int = 0
@@ -72,6 +85,7 @@ class RobotCounters:
     rollouts_lost: int = 0  # episode records dropped by the injected rollout loss
     stalls: int = 0  # times this process was stopped or starved for over STALL_S
     rejoins: int = 0  # times the world's token came back after vanishing (session drop)
+    errors: int = 0  # ticks it could not decide on (an exception in the policy), skipped
     bad_by_key: dict[str, int] = field(default_factory=dict)
 
 
@@ -96,7 +110,9 @@ class RobotProcess:
         self.world_alive = False
         self.world_seen = False
         self.ended = False  # the world announced the run's end
-        self.last_stall = -1e9  # monotonic time of the last detected stall
+        self._last_stall = -1e9  # monotonic time the last stall ended
+        self._watch = threading.Thread(target=self._stall_watch, daemon=True)
+        self._watch.start()
         self.ep = -1
         self.visited = np.zeros(cfg.cells, dtype=bool)
         self.recent: list[int] = []
@@ -113,6 +129,24 @@ class RobotProcess:
         self.record: list[RolloutTick] = []
         self.roll_pub = session.declare_publisher(self.keys.rollout(robot)) if self.train else None
 
+    @property
+    def last_stall(self) -> float:
+        return self._last_stall
+
+    def _stall_watch(self, period: float = 0.1) -> None:
+        """A heartbeat thread: a gap between beats over STALL_S means the whole process was
+        stopped (SIGSTOP) or starved; counted, and remembered so that a session that dropped
+        meanwhile is taken for this robot's own absence, not the world's end."""
+        last = time.monotonic()
+        while True:
+            time.sleep(period)
+            now = time.monotonic()
+            if now - last > period + STALL_S:
+                self.c.stalls += 1
+                self._last_stall = now
+                log.warning("robot %d was stalled %.1f s", self.robot, now - last - period)
+            last = now
+
     def _declare(self) -> Inbox:
         k, r = self.keys, self.robot
         inbox = Inbox(self.session)
@@ -125,24 +159,25 @@ class RobotProcess:
 
     def _bad(self, key: str, why: str) -> None:
         self.c.bad += 1
-        self.c.bad_by_key[key] = self.c.bad_by_key.get(key, 0) + 1
+        tally(self.c.bad_by_key, key)
         log.warning("robot %d dropped bad payload on %s: %s", self.robot, key, why)
 
     def _next(self, deadline: float) -> tuple[str, Any] | None:
         """The next valid message before `deadline` (bad ones dropped and counted)."""
         assert self.inbox is not None
         while True:
-            wait = deadline - time.monotonic()
-            t0 = time.monotonic()
-            ev = self.inbox.next(wait)
-            if time.monotonic() - t0 > max(wait, 0.0) + STALL_S:
-                self.c.stalls += 1  # this process was stopped (or starved) for a while
-                self.last_stall = time.monotonic()
-                log.warning("robot %d stalled %.1f s", self.robot, time.monotonic() - t0 - wait)
+            ev = self.inbox.next(deadline - time.monotonic())
             if ev is None:
                 return None
             kind, key, payload = ev
             if kind == "end":
+                try:
+                    rec = unpack_record(payload or b"", K_RESULT)
+                    if rec.get("run_id") != self.run_cfg.run_id:
+                        raise BadMessage("an end record of another run")
+                except BadMessage as exc:
+                    self._bad(key, str(exc))
+                    continue
                 self.ended = True
                 return ("end", None)
             if kind in ("world:live", "world:dead"):
@@ -158,7 +193,10 @@ class RobotProcess:
                 if kind == "obs":
                     msg: Any = Obs.unpack(payload or b"", self.cfg)
                 elif kind == "bundle":
-                    msg = Bundle.unpack(payload or b"", self.cfg)
+                    b = Bundle.unpack(payload or b"", self.cfg)
+                    if b.robot != self.robot:
+                        raise BadMessage(f"addressed to robot {b.robot}")
+                    msg = Heard(b.ep, b.t, b.robot, self.heard(b))
                 else:
                     msg = Hidden.unpack(payload or b"", self.cfg)
                 if kind != "hidden" and msg.robot != self.robot:
@@ -230,20 +268,23 @@ class RobotProcess:
                 self.offer_weights(reply.ok.payload.to_bytes(), self.keys.weights)
 
     def heard(self, bundle: Bundle) -> TrajMessages:
+        """The bundle's messages as the policy's input; BadMessage unless every one is a valid
+        trajectory message of the bundle's tick, from distinct senders, its own among them (the
+        radio always hands a robot its own message back)."""
         m = TrajMessages.empty(self.cfg)
         for payload in bundle.trajs:
-            try:
-                tr = Traj.unpack(payload, self.cfg)
-            except BadMessage as exc:
-                self._bad(self.keys.inbox(self.robot), str(exc))
-                continue
+            tr = Traj.unpack(payload, self.cfg)
             j = tr.robot
+            if (tr.ep, tr.t) != (bundle.ep, bundle.t) or m.present[0, j]:
+                raise BadMessage(f"bundle holds a message of robot {j} that does not fit")
             m.present[0, j] = True
             m.pos[0, j] = (tr.y, tr.x)
             m.visited[0, j] = tr.visited_bits(self.cfg.cells)
             rec = tr.recent[-self.cfg.recent_len:]
             m.recent[0, j, self.cfg.recent_len - len(rec):] = rec
             m.patch[0, j] = np.frombuffer(tr.patch, dtype=np.uint8).reshape(self.cfg.vision, -1)
+        if not m.present[0, self.robot]:
+            raise BadMessage("bundle without the robot's own message")
         return m
 
     def on_obs(self, obs: Obs) -> None:
@@ -289,10 +330,36 @@ class RobotProcess:
             self.c.missed += 1
             return
         self.c.last_latency_ms = 1e3 * (time.monotonic() - t_recv)
-        heard = self.heard(bundle)
+        heard = bundle.msgs
+        t0 = time.perf_counter()
+        try:
+            action, chain_ok = self.decide(obs, heard, t_recv, deadline)
+        except Exception as exc:  # a view no world would send must not take the robot down
+            self.c.errors += 1
+            log.error("robot %d could not decide at tick %d: %s: %s", r, obs.t,
+                      type(exc).__name__, exc)
+            return
+        ms = 1e3 * (time.perf_counter() - t0)
+        if self.train:
+            probs = self.policy.last_probs  # type: ignore[attr-defined]
+            logp = float(np.log(max(float(probs[0, r, action]), 1e-30)))
+            mask = int(sum(1 << int(j) for j in np.flatnonzero(heard.present[0])))
+            self.record.append(RolloutTick(traj, mask, chain_ok, action, logp, float(obs.reward),
+                                self.version))
+        a = Action(obs.ep, obs.t, r, int(action), ms).pack()
+        self.act_pub.put(a)
+        self.c.msgs_out += 1
+        self.c.bytes_out += len(a)
+        if obs.t % 5 == 0:
+            self.status()
+
+    def decide(self, obs: Obs, heard: TrajMessages, t_recv: float,
+               deadline: float) -> tuple[int, bool]:
+        """The action (and whether the predecessor's hidden-state message was used) of this
+        robot at `obs`'s tick from what it heard; chained policies wait for the predecessor."""
+        cfg, r = self.cfg, self.robot
         view = robot_view(cfg, self.run_cfg.seed, obs.ep, obs.t, r, heard, obs.reward)
         chain_ok = True
-        t0 = time.perf_counter()
         if self.policy.chained:
             pred = int(view.predecessor()[0, r])
             prepared = self.policy.prepare_chain(view)  # type: ignore[attr-defined]
@@ -317,19 +384,7 @@ class RobotProcess:
             self.c.bytes_out += len(h)
         else:
             action = int(self.policy.act(view, greedy=self.run_cfg.greedy)[0, r])
-        ms = 1e3 * (time.perf_counter() - t0)
-        if self.train:
-            probs = self.policy.last_probs  # type: ignore[attr-defined]
-            logp = float(np.log(max(float(probs[0, r, action]), 1e-30)))
-            mask = int(sum(1 << int(j) for j in np.flatnonzero(heard.present[0])))
-            self.record.append(RolloutTick(traj, mask, chain_ok, action, logp, float(obs.reward),
-                                self.version))
-        a = Action(obs.ep, obs.t, r, int(action), ms).pack()
-        self.act_pub.put(a)
-        self.c.msgs_out += 1
-        self.c.bytes_out += len(a)
-        if obs.t % 5 == 0:
-            self.status()
+        return action, chain_ok
 
     def status(self) -> None:
         rec = {"robot": self.robot, "ep": self.ep, "msgs_in": self.c.msgs_in,
@@ -337,7 +392,8 @@ class RobotProcess:
                "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
                "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
                "latency_ms": self.c.last_latency_ms, "version": self.version,
-               "weights_bad": self.c.weights_bad, "rollouts_lost": self.c.rollouts_lost}
+               "weights_bad": self.c.weights_bad, "rollouts_lost": self.c.rollouts_lost,
+               "stalls": self.c.stalls, "rejoins": self.c.rejoins, "errors": self.c.errors}
         self.status_pub.put(pack_record(K_RSTATUS, rec))
 
     def run(self, wait_world: float = 30.0, rejoin: float = REJOIN_S) -> RobotCounters:
@@ -391,7 +447,7 @@ class RobotProcess:
 def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0) -> RobotCounters:
     """Join run `run_id` as robot `robot`: fetch the run record, act until the run ends."""
     keys = Keys(run_id)
-    with zenoh.open(zopts.to_config()) as session:
+    with open_session(zopts) as session:
         rec = fetch_config(session, keys, wait_world)
         cfg, run = rec.world, rec.run
         if not 0 <= robot < cfg.n_robots:

@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 import torch
-import zenoh
 
 from policies import policy_class
 from swarm.learn.config import TrainConfig
@@ -28,7 +27,7 @@ from swarm.learn.weights import adopt
 from swarm.net.inbox import Event, Inbox, query
 from swarm.net.keys import Keys
 from swarm.net.messages import BadMessage, Weights
-from swarm.net.zconfig import ZenohOptions
+from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError, from_dict
 
@@ -39,7 +38,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
          threads: int = 1, max_batches: int = 0, wait: float = 30.0) -> dict[str, Any]:
     keys = Keys(run_id)
     torch.set_num_threads(threads)
-    with zenoh.open(zopts.to_config()) as session:
+    with open_session(zopts) as session:
         rec = RunRecord.unpack(query(session, keys.learner_config, wait,
                                      f"learner answered on {keys.learner_config}"),
                                "the learner's run record")

@@ -3,8 +3,8 @@
 Every child is a fresh interpreter (subprocess, never fork: a forked Zenoh session hangs). The
 world listens on a free loopback port; robots and the supervisor's own session connect to it.
 Ctrl-C (or any exit) sends SIGINT to every child, then SIGKILL to whatever is left after 2 s,
-so no process of the run outlives it. With `--netns` (swarm/netns.py) the world and each robot run
-in network namespaces of their own, joined by veth pairs, and the kernel applies the link faults.
+so no process of the run outlives it. With `--netns` (swarm/net/netns.py) the world and each
+robot run in network namespaces of their own, joined by veth pairs, and the kernel applies the link faults.
 """
 
 from __future__ import annotations
@@ -13,9 +13,7 @@ import json
 import logging
 import os
 import signal
-import socket
 import subprocess
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -43,7 +41,8 @@ from swarm.net.netns import NetnsConfig, Topology
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.runconfig import RunConfig, RunRecord
-from world.config import ConfigError, WorldConfig
+from swarm.procs.spawn import child_env, cli_args, last_error, registry, wait_port
+from world.config import WorldConfig
 
 log = logging.getLogger("swarm.supervisor")
 
@@ -61,57 +60,8 @@ class SuperviseOptions:
     log_dir: str | None = None
     """Children's stderr goes to files here (default: a temporary directory)."""
     netns: NetnsConfig | None = None
-    """Kernel-level realism (swarm/netns.py): world and robots in network namespaces joined by
+    """Kernel-level realism (swarm/net/netns.py): world and robots in network namespaces joined by
     veth pairs, with these kernel faults on the robot links; None: everything on loopback."""
-
-
-def _registry(run_id: str) -> Path:
-    """Where a running supervisor notes its hub endpoint, for `swarm fault --run ID`."""
-    return Path(tempfile.gettempdir()) / "swarm-runs" / f"{run_id}.json"
-
-
-def lookup_run(run_id: str) -> str:
-    """The hub endpoint of a run started on this machine by `swarm run`."""
-    try:
-        return str(json.loads(_registry(run_id).read_text())["hub"])
-    except (OSError, ValueError, KeyError):
-        raise ConfigError(f"no running swarm {run_id!r} on this machine; "
-                          f"give --connect ENDPOINT") from None
-
-
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "swarm.cli", *args]
-
-
-def _wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: float,
-               name: str = "world") -> None:
-    """Wait until `proc` (the hub: world or learner) accepts connections on host:port."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"{name} process exited with code {proc.returncode} before "
-                               "listening")
-        with socket.socket() as s:
-            s.settimeout(0.2)
-            if s.connect_ex((host, port)) == 0:
-                return
-        time.sleep(0.05)
-    raise TimeoutError(f"{name} did not listen on {host}:{port} within {timeout:g} s")
-
-
-def last_error(log: Path, tail: int = 4096) -> str:
-    """The last exception line (`SomeError: message`) of a child's log, or "" if none."""
-    try:
-        with log.open("rb") as fh:
-            fh.seek(max(fh.seek(0, os.SEEK_END) - tail, 0))
-            lines = fh.read().decode("utf-8", "replace").splitlines()
-    except OSError:
-        return ""
-    for line in reversed(lines):
-        head = line.split(":", 1)[0]
-        if line and not line[0].isspace() and head.endswith(("Error", "Exception")):
-            return line.strip()
-    return ""
 
 
 class Supervisor:
@@ -145,6 +95,7 @@ class Supervisor:
                               cfg.comm_range, run.episodes)
         self.result: dict[str, Any] | None = None
         self.crashes = 0
+        self.child_errors: dict[str, str] = {}  # process -> the last error line of its log
         self.restarts = 0
         self.rss_mb: dict[str, float] = {}  # peak resident memory per child, sampled
         self.pss_mb: dict[str, float] = {}  # peak proportional set size per child
@@ -152,10 +103,10 @@ class Supervisor:
 
     def _spawn(self, args: list[str], name: str, ns: str | None = None) -> subprocess.Popen[bytes]:
         err = open(self.log_dir / f"{name}.log", "ab")
-        env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+        env = child_env()
         prefix = self.topo.exec_prefix(ns) if self.topo is not None and ns else []
         args = [*args, *(x for c in self.zcfg for x in ("--cfg", c))]
-        return subprocess.Popen([*prefix, *_cli(*args)], stdout=subprocess.DEVNULL, stderr=err,
+        return subprocess.Popen([*prefix, *cli_args(*args)], stdout=subprocess.DEVNULL, stderr=err,
                                 stdin=subprocess.DEVNULL, env=env)
 
     def spawn_robot(self, i: int) -> None:
@@ -199,12 +150,12 @@ class Supervisor:
             host, ns = self.topo.hub_addr, self.topo.world_ns
             self.hub = f"tcp/{host}:{self.port}"
             listen = self.topo.world_listen(self.port)
-        write_json(_registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
+        write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
         self.world = self._spawn(["world", "--spec", str(spec),
                                   *(x for e in listen for x in ("--listen", e)),
                                   "--zenoh-mode", "router"], "world", ns)
-        _wait_port(host, self.port, self.world, 30.0)
+        wait_port(host, self.port, self.world, 30.0)
         if self.learning is not None:
             out = self.learning["learner"].get("out") or str(self.log_dir / "learner")
             self.learner_out = out
@@ -222,7 +173,7 @@ class Supervisor:
             if p is not None and p.poll() is None:
                 p.send_signal(signal.SIGCONT)
         try:
-            _registry(self.run_cfg.run_id).unlink()
+            registry(self.run_cfg.run_id).unlink()
         except OSError:
             pass
         for p in procs:
@@ -288,6 +239,7 @@ class Supervisor:
             if f.robot in self.hung and p is not None and p.poll() is None:
                 p.send_signal(signal.SIGCONT)
                 self.hung.discard(f.robot)
+                self.restarts += 1  # resumed: it rejoins the run (counted by the robot too)
             elif p is None or p.poll() is not None:
                 self.restarts += 1
                 self.spawn_robot(f.robot)
@@ -360,6 +312,9 @@ class Supervisor:
         res = dict(self.result)
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["robot_crashes"] = self.crashes
+        if self.child_errors:
+            res["child_errors"] = dict(self.child_errors)
+        res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
         res["robot_restarts"] = self.restarts
         res["process_faults"] = self.fault_log
         robots = [v for k, v in self.rss_mb.items() if k.startswith("robot")]
@@ -368,10 +323,19 @@ class Supervisor:
         pss = [v for k, v in self.pss_mb.items() if k.startswith("robot")]
         res["pss_mb_per_robot"] = sum(pss) / len(pss) if pss else None
         if self.learning is not None:
-            res["learner"] = {**(self.learner_status or {}), "out": self.learner_out}
+            st = self.learner_status or {}
+            acc = dict(st.get("accounting") or {})
+            acc["played"] = int(res.get("completed", 0))
+            # every episode played ends in exactly one of the learner's counters
+            acc["unaccounted"] = acc["played"] - sum(
+                acc.get(k, 0) for k in ("trained", "pending", "stale_dropped", "incomplete",
+                                        "rejected"))
+            res["learner"] = {**st, "accounting": acc, "out": self.learner_out}
         res["robot_status"] = {str(i): {"msgs_in": r.msgs_in, "msgs_out": r.msgs_out,
                                         "bad": r.bad, "missed": r.missed,
-                                        "version": r.version, "weights_bad": r.weights_bad}
+                                        "version": r.version, "weights_bad": r.weights_bad,
+                                        "stalls": r.stalls, "rejoins": r.rejoins,
+                                        "errors": r.errors}
                                for i, r in self.view.robots.items()}
         if self.topo is not None:  # a robot whose session never opened is in no other count
             res["netns"] = {**self.topo.describe(), "never_joined": sum(
@@ -381,21 +345,32 @@ class Supervisor:
         return res
 
     def _drain_learner(self, grace: float = 10.0) -> None:
-        """After the last episode: let the learner take in (or drop) every episode of the run
-        before it is stopped; a partial batch is never trained on (its episodes are counted)."""
+        """After the last episode: let the learner take in every episode of the run, then stop
+        it first (its final status still routes through the world) and keep that status; a
+        partial batch is never trained on (its episodes stay pending, counted)."""
         if self.learner is None or self.result is None:
             return
         done = int(self.result.get("completed", 0))
         deadline = time.monotonic() + grace
         while time.monotonic() < deadline and self.learner.poll() is None:
             st = self.learner_status or {}
-            if (st.get("episodes", 0) + st.get("incomplete", 0) + st.get("stale_dropped", 0)
-                    >= done and st.get("pending", 1) == 0
-                    and st.get("ready", 0) < int(self.learning["train"]["batch"])):
-                return
-            ev = self.inbox.next(0.1) if self.inbox is not None else None
-            if ev is not None:
-                self._handle(*ev)
+            acc = st.get("accounting") or {}
+            joining = acc.get("pending", 0) - st.get("ready", 0)
+            if acc.get("received", 0) >= done and joining == 0 and \
+                    st.get("ready", 0) < int(self.learning["train"]["batch"]):  # type: ignore
+                break
+            self._pump_inbox(0.1)
+        if self.learner.poll() is None:
+            self.learner.send_signal(signal.SIGINT)
+            deadline = time.monotonic() + 5.0
+            while self.learner.poll() is None and time.monotonic() < deadline:
+                self._pump_inbox(0.1)
+        self._pump_inbox(0.3)  # its final status
+
+    def _pump_inbox(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while self.inbox is not None and (ev := self.inbox.next(end - time.monotonic())):
+            self._handle(*ev)
 
     def _sample_rss(self, every: float = 0.5) -> None:
         now = time.monotonic()
@@ -420,15 +395,27 @@ class Supervisor:
                 pass
 
     def _check_children(self) -> None:
+        """Robots that died are counted (and restarted with --restart-crashed); a child that
+        died of an error ends the run with that error as one line, naming the process, when
+        the run cannot go on without it (the learner; every robot before the first tick)."""
         for i, p in list(self.robots.items()):
             if p.poll() is not None and self.result is None:
                 if p.returncode != 0:
                     self.crashes += 1
+                    why = last_error(self.log_dir / f"robot{i}.log")
+                    if why:
+                        self.child_errors[f"robot {i}"] = why
                 if self.opts.restart_crashed:
                     self.restarts += 1
                     self.spawn_robot(i)
                 else:
                     del self.robots[i]
+        if not self.robots and self.child_errors and self.view.ticks_done == 0:
+            who, why = next(iter(self.child_errors.items()))
+            raise RuntimeError(f"{who} failed: {why} (logs in {self.log_dir})")
+        if self.learner is not None and self.learner.poll() is not None and self.result is None:
+            why = last_error(self.log_dir / "learner.log") or f"exit code {self.learner.returncode}"
+            raise RuntimeError(f"the learner failed: {why} (logs in {self.log_dir})")
 
 
 def main(cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,

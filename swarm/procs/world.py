@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import heapq
 import logging
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,7 +23,7 @@ import zenoh
 
 from swarm.learn.evaluate import EvalResult
 from swarm.net.faults import FaultPlan, plan_from_table
-from swarm.net.inbox import Inbox
+from swarm.net.inbox import Inbox, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_CONTROL,
@@ -41,7 +40,7 @@ from swarm.net.messages import (
     unpack_record,
 )
 from swarm.net.radio import Radio
-from swarm.net.zconfig import ZenohOptions
+from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world import core
 from world.config import ConfigError, WorldConfig
@@ -88,7 +87,6 @@ class WorldProcess:
         self._seq = 0
         self.run_tick = 0
         self.planning_ms = 0.0  # robots' reported planning time, summed
-        self.parent = None  # set by the supervisor's child: stop if the supervisor vanishes
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.bad: dict[str, int] = {}
@@ -106,7 +104,7 @@ class WorldProcess:
         pub.put(payload)
 
     def _count_bad(self, key: str, why: str) -> None:
-        self.bad[key] = self.bad.get(key, 0) + 1
+        tally(self.bad, key)
         log.warning("dropped bad payload on %s: %s", key, why)
 
     def _declare(self) -> Inbox:
@@ -160,7 +158,8 @@ class WorldProcess:
                     **self.fault_table, **rec["faults_table"]}
                 table = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
                 try:
-                    self._pending_plan = plan_from_table(table, self.run_cfg.seed)
+                    self._pending_plan = plan_from_table(table, self.run_cfg.seed,
+                                                         self.cfg.n_robots)
                     self.fault_table = table
                     self._record = RunRecord(self.cfg, self.run_cfg, table).pack()
                 except ConfigError as exc:
@@ -234,9 +233,6 @@ class WorldProcess:
             if self.run_cfg.pace > 0:
                 time.sleep(max(0.0, next_tick - time.monotonic()))
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
-            if self.parent is not None and os.getppid() != self.parent:
-                log.warning("supervisor gone: stopping the run")
-                self.stop = True
             if self._pending_plan is not None:
                 self.radio.set_plan(self._pending_plan)
                 log.info("faults now: %s", "; ".join(self._pending_plan.describe()) or "none")
@@ -330,7 +326,7 @@ class WorldProcess:
                     break
                 parts.append(core.metrics(self.cfg, state))
                 curves.append(state.elratio)
-                actions.append(np.array(acts).tolist())
+                actions.append(np.array(acts, dtype=np.int8))  # [T, N], 1 byte an action
             wall = time.monotonic() - t0
             result = self._result(parts, curves, actions, ticks, wall)
             self._put(self.keys.result, pack_record(K_RESULT, result))
@@ -366,17 +362,15 @@ class WorldProcess:
             "faults": self.radio.plan.to_record(),
             "timeouts": self.timeouts,
             "robots_lost": int((self.ever_alive & ~self.alive).sum()),
-            "actions": actions,
+            "actions": [a.tolist() for a in actions],
         })
         return out
 
 
 def main(cfg: WorldConfig, run: RunConfig, zopts: ZenohOptions,
          on_status: Callable[[dict[str, Any]], None] | None = None,
-         faults: dict[str, Any] | None = None, watch_parent: bool = False) -> dict[str, Any]:
+         faults: dict[str, Any] | None = None) -> dict[str, Any]:
     """Open a session, play the run, return its result record."""
-    with zenoh.open(zopts.to_config()) as session:
+    with open_session(zopts) as session:
         world = WorldProcess(cfg, run, session, on_status, faults)
-        if watch_parent:
-            world.parent = os.getppid()
         return world.run()

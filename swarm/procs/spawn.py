@@ -1,0 +1,128 @@
+"""How the supervisor starts its children and how they die with it.
+
+Children are fresh interpreters (`python -m swarm.cli ...`: never fork, a forked Zenoh session
+hangs). Each one gets the supervisor's pid in `SWARM_SUPERVISOR`; `die_with_parent()` (called by
+the CLI before anything else) asks the kernel to send it SIGTERM when that process dies
+(`prctl(PR_SET_PDEATHSIG)`), SIGKILL included, and turns SIGTERM into a KeyboardInterrupt so the
+child closes its session and writes what it owes on the way out. A supervisor's registry entry
+(`swarm fault --run ID` finds the run through it) is ignored and removed once its pid is gone.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from types import FrameType
+
+from world.config import ConfigError
+
+PARENT_ENV = "SWARM_SUPERVISOR"
+PR_SET_PDEATHSIG = 1
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def child_env(**extra: str) -> dict[str, str]:
+    """The environment of a child of this process: one BLAS thread, and this pid to die with."""
+    return dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1",
+                **{PARENT_ENV: str(os.getpid())}, **extra)
+
+
+def _interrupt(signum: int, frame: FrameType | None) -> None:
+    raise KeyboardInterrupt
+
+
+def terminate_as_interrupt() -> None:
+    """SIGTERM unwinds like Ctrl-C (sessions closed, final records written), not a hard stop."""
+    try:
+        signal.signal(signal.SIGTERM, _interrupt)
+    except ValueError:  # not the main thread (main() called from a test's thread)
+        pass
+
+
+def die_with_parent() -> None:
+    """In a child started by a supervisor: SIGTERM when the supervisor dies, however it dies."""
+    parent = os.environ.get(PARENT_ENV)
+    if not parent or not parent.isdigit():
+        return
+    terminate_as_interrupt()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    except (OSError, AttributeError):  # not Linux: the parent's own cleanup still runs
+        return
+    if os.getppid() != int(parent):  # it died before prctl took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def registry(run_id: str) -> Path:
+    """Where a running supervisor notes its hub endpoint, for `swarm fault --run ID`."""
+    return Path(tempfile.gettempdir()) / "swarm-runs" / f"{run_id}.json"
+
+
+def lookup_run(run_id: str) -> str:
+    """The hub endpoint of a run started on this machine by `swarm run`; an entry whose
+    supervisor is gone (SIGKILLed: no chance to remove it) is stale, removed and ignored."""
+    path = registry(run_id)
+    try:
+        rec = json.loads(path.read_text())
+        hub, pid = str(rec["hub"]), int(rec["pid"])
+    except (OSError, ValueError, KeyError, TypeError):
+        raise ConfigError(f"no running swarm {run_id!r} on this machine; "
+                          f"give --connect ENDPOINT") from None
+    if not alive(pid):
+        path.unlink(missing_ok=True)
+        raise ConfigError(f"swarm {run_id!r} is no longer running (its supervisor, pid {pid}, "
+                          "is gone)")
+    return hub
+
+
+def cli_args(*args: str) -> list[str]:
+    return [sys.executable, "-m", "swarm.cli", *args]
+
+
+def wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: float,
+               name: str = "world") -> None:
+    """Wait until `proc` (the hub: world or learner) accepts connections on host:port."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"{name} process exited with code {proc.returncode} before "
+                               "listening")
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            if s.connect_ex((host, port)) == 0:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"{name} did not listen on {host}:{port} within {timeout:g} s")
+
+
+def last_error(log: Path, tail: int = 4096) -> str:
+    """The last exception line (`SomeError: message`) of a child's log, or "" if none."""
+    try:
+        with log.open("rb") as fh:
+            fh.seek(max(fh.seek(0, os.SEEK_END) - tail, 0))
+            lines = fh.read().decode("utf-8", "replace").splitlines()
+    except OSError:
+        return ""
+    for line in reversed(lines):
+        head = line.split(":", 1)[0]
+        if line and not line[0].isspace() and head.endswith(("Error", "Exception")):
+            return line.strip()
+    return ""

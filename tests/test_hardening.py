@@ -1,0 +1,252 @@
+"""Hostile input and process death: no message, signal or bad value takes a process down, hangs
+it, or loses an episode uncounted (real processes, real Zenoh sessions on loopback)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+from conftest import ROOT, swarm
+
+from swarm.net.keys import Keys
+from swarm.net.messages import (
+    K_CONTROL,
+    K_RESULT,
+    K_RSTATUS,
+    K_STATUS,
+    Action,
+    Bundle,
+    EpisodeRecord,
+    Hidden,
+    Obs,
+    RobotRollout,
+    RolloutTick,
+    Traj,
+    Weights,
+    pack_record,
+)
+from swarm.net.zconfig import ZenohOptions
+from swarm.procs.spawn import registry
+
+TINY = """[world]
+height = 10
+width = 10
+n_static = 12
+n_dynamic = 8
+n_robots = 3
+horizon = 12
+"""
+
+
+def run_pids(run_id: str) -> list[int]:
+    """PIDs of live processes whose command line mentions the run id."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit() and int(d.name) != os.getpid():
+            try:
+                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+                state = (d / "stat").read_text().split()[2]
+            except OSError:
+                continue
+            if run_id in cmd and "swarm.cli" in cmd and state != "Z":
+                pids.append(int(d.name))
+    return pids
+
+
+def start_run(tmp: Path, run_id: str, *args: str) -> subprocess.Popen[bytes]:
+    (tmp / "tiny.toml").write_text(TINY)
+    return subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--config", str(tmp / "tiny.toml"),
+         "--run-id", run_id, "--json", str(tmp / "r.json"), "--log-dir", str(tmp / "logs"),
+         *args], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def hub_of(run_id: str, proc: subprocess.Popen[bytes], timeout: float = 60) -> str:
+    """The run's hub endpoint, once its world accepts connections."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            hub = json.loads(registry(run_id).read_text())["hub"]
+            host, port = hub.split("/")[1].rsplit(":", 1)
+            with socket.create_connection((host, int(port)), timeout=0.5):
+                return hub
+        except (OSError, ValueError, KeyError):
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+            time.sleep(0.1)
+    raise TimeoutError("the run never registered")
+
+
+def hostile_payloads(keys: Keys) -> list[tuple[str, bytes]]:
+    """Well-formed messages with out-of-range values in each field, on every key of a run, plus
+    records of the right kind with the wrong contents."""
+    v5 = bytes(25)
+    bits = bytes(13)
+    out: list[tuple[str, bytes]] = []
+    for r in range(3):
+        out += [(keys.obs(r), Obs(0, 1, r, 1, 1, v5, 0.0, False, 1e300).pack()),
+                (keys.obs(r), Obs(0, 1, r, 99, 1, v5, 0.0, False, 100.0).pack()),
+                (keys.obs(r), Obs(-1, 1, r, 1, 1, v5, float("nan"), False, 100.0).pack()),
+                (keys.obs(r), Obs(0, 10**9, r, 1, 1, v5, 0.0, False, 100.0).pack()),
+                (keys.inbox(r), Bundle(0, 1, r, [b"junk", b"\x93"]).pack()),
+                (keys.inbox(r), Bundle(0, 1, 77, []).pack()),
+                (keys.inbox_hidden(r), Hidden(0, 1, 0, 42, bytes(256)).pack()),
+                (keys.inbox_hidden(r), Hidden(0, 1, 0, 1, b"\xff\xff\xff\x7f" * 64).pack()),
+                (keys.traj(r), Traj(0, 1, 99, 1, 1, bits, [], v5).pack()),
+                (keys.traj(r), Traj(0, 1, r, -4, 1, bits, [], v5).pack()),
+                (keys.traj(r), Traj(0, 1, r, 1, 1, b"", [10**12], v5).pack()),
+                (keys.hidden(r), Hidden(0, 1, r, 9, b"\x00\x00\xc0\x7f" * 64).pack()),
+                (keys.action(r), Action(0, 1, r, 9, 0.0).pack()),
+                (keys.action(r), Action(0, 1, r, 3, 1e300).pack()),
+                (keys.action(r), Action(0, 1, (r + 1) % 3, 3, 1.0).pack()),
+                (keys.robot_status(r), pack_record(K_RSTATUS, {"robot": "x", "msgs_in": []})),
+                (keys.rollout(r), RobotRollout(0, r, [RolloutTick(b"x", 2**62, True, 9, 5.0,
+                                                                  0.0, -1)]).pack())]
+    out += [(keys.control, pack_record(K_CONTROL, {"faults_table": {"partition": "0-999999999"}})),
+            (keys.control, pack_record(K_CONTROL, {"faults_table": {"loss": [1], "robot": 5}})),
+            (keys.control, pack_record(K_CONTROL, {"faults_table": {"latency": "1e9s"}})),
+            (keys.control, pack_record(K_CONTROL, {"process": ["crash:99@1", "bogus"]})),
+            (keys.status, pack_record(K_STATUS, {"pos": "x", "alive": 5, "ep": "y"})),
+            (keys.end, pack_record(K_RESULT, {"run_id": "another-run"})),
+            (keys.end, b"\x00"),
+            (keys.episode, EpisodeRecord(0, np.full((2, 3), np.inf, np.float32),
+                                         np.ones((2, 3), bool), {"reward": 0.0}).pack()),
+            (keys.worker_episodes, msgpack.packb([1, 12, 0, 0, 0, 1, {}, {}])),
+            (keys.weights, Weights("commattn", 2**40, {}, {"x": np.full(3, np.nan, "<f4")})
+             .pack()),
+            (keys.weights, b"\x00" * 5000)]
+    return out
+
+
+@pytest.mark.procs
+def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Path) -> None:
+    """Every process stays alive and counts what it refused; the run completes."""
+    run_id = "fuzz1"
+    proc = start_run(tmp_path, run_id, "--policy", "commattn", "--train", "--train-batch", "2",
+                     "--episodes", "8", "--pace", "12", "--tick-timeout", "1")
+    try:
+        hub = hub_of(run_id, proc)
+        keys = Keys(run_id)
+        with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
+            ticks: list[bytes] = []
+            sub = session.declare_subscriber(keys.status, lambda smp: ticks.append(b""))
+            deadline = time.monotonic() + 90
+            while len(ticks) < 3 and time.monotonic() < deadline:  # every robot is acting
+                time.sleep(0.05)
+            sub.undeclare()
+            for _ in range(3):
+                for key, payload in hostile_payloads(keys):
+                    session.put(key, payload)
+                time.sleep(0.5)
+            alive = run_pids(run_id)
+            assert len(alive) >= 6, alive  # supervisor, world, learner, three robots
+        assert proc.wait(timeout=180) == 0, proc.stderr.read().decode()[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["completed"] == 8 and res["robot_crashes"] == 0 and res["robots_lost"] == 0
+    assert res["messages"]["bad"] > 0  # the world refused forged trajectories, actions, control
+    assert all(r["bad"] > 0 and r["errors"] == 0 for r in res["robot_status"].values())
+    assert res["supervisor_bad"] > 0
+    assert res["learner"]["bad"] > 0
+    for log in (tmp_path / "logs").glob("*.log"):
+        assert "Traceback" not in log.read_text(errors="replace"), log
+
+
+@pytest.mark.procs
+def test_a_hung_robot_rejoins_after_it_is_resumed(tmp_path: Path) -> None:
+    """SIGSTOP past the lease, then SIGCONT (`--hang` / `--restart`): its session dropped, but the
+    world did not end: the robot rejoins, acts again, and the stall and the rejoin are counted."""
+    proc = start_run(tmp_path, "hang1", "--robots", "3", "--policy", "nearest-frontier",
+                     "--episodes", "5", "--hang", "1@10", "--restart", "1@50", "--pace", "20")
+    assert proc.wait(timeout=120) == 0, proc.stderr.read().decode()[-2000:]
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["completed"] == 5 and res["robots_lost"] == 0 and res["robot_restarts"] == 1
+    st = res["robot_status"]["1"]
+    assert st["stalls"] >= 1 and st["rejoins"] >= 1
+    assert (np.array(res["actions"])[-1, :, 1] != 0).any()  # it acts in the last episode
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_the_supervisors_death_ends_every_process_of_its_run(tmp_path: Path, sig: int) -> None:
+    run_id = f"die{int(sig)}"
+    proc = start_run(tmp_path, run_id, "--policy", "commattn", "--train", "--train-batch", "2",
+                     "--episodes", "100000", "--pace", "10")
+    try:
+        hub_of(run_id, proc)
+        deadline = time.monotonic() + 60
+        while len(run_pids(run_id)) < 6 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert len(run_pids(run_id)) >= 6
+        proc.send_signal(sig)
+        deadline = time.monotonic() + 10
+        while run_pids(run_id) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert run_pids(run_id) == []
+    finally:
+        for pid in run_pids(run_id):
+            os.kill(pid, signal.SIGKILL)
+        if proc.poll() is None:
+            proc.kill()
+    r = swarm("fault", "--run", run_id, "--loss", "0.1", timeout=30)  # registry gone or stale
+    assert r.returncode == 2 and "swarm: error:" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.procs
+def test_every_played_episode_ends_in_exactly_one_learner_counter(tmp_path: Path) -> None:
+    """played = trained + pending + stale_dropped + incomplete + rejected, in the result."""
+    proc = start_run(tmp_path, "acct1", "--policy", "commattn", "--train", "--train-batch", "4",
+                     "--episodes", "14", "--rollout-loss", "0.2")
+    assert proc.wait(timeout=180) == 0, proc.stderr.read().decode()[-2000:]
+    acc = json.loads((tmp_path / "r.json").read_text())["learner"]["accounting"]
+    assert acc["played"] == 14 and acc["unaccounted"] == 0, acc
+    assert acc["received"] == acc["played"]
+    assert acc["trained"] % 4 == 0 and acc["incomplete"] >= 1  # rollout loss: records missing
+    assert acc["trained"] + acc["pending"] + acc["stale_dropped"] + acc["incomplete"] + \
+        acc["rejected"] == 14
+
+
+BAD_INPUTS = [
+    ["run", "--seed", "-1"], ["run", "--first-episode", "-5"], ["run", "--tick-timeout", "nan"],
+    ["run", "--partition", "0-4/5-12"], ["run", "--crash", "20@5"], ["run", "--pace", "-1"],
+    ["run", "--json", "{tmp}"], ["run", "--json", "/nonexistent/dir/x.json"],
+    ["run", "--log-dir", "{tmp}/file"], ["run", "--policy", "commattn", "--checkpoint",
+                                         "{tmp}/file"],
+    ["run", "--policy", "commattn", "--checkpoint", "checkpoints/vain.pt"],
+    ["run", "--policy", "commattn", "--checkpoint", "{tmp}/missing.pt"],
+    ["run", "--run-id", "a/b"], ["run", "--loss", "2"], ["run", "--bandwidth", "lots"],
+    ["world", "--run-id", "x", "--listen", "notanendpoint"],
+    ["world", "--run-id", "x", "--zenoh-config", "/nonexistent.json5"],
+    ["world", "--run-id", "x", "--cfg", 'mode:"bad'],
+    ["learner", "--run-id", "x", "--out", "{tmp}/empty", "--resume"],
+    ["learner", "--run-id", "x", "--out", "{tmp}/l", "--zenoh-mode", "client", "--connect",
+     "tcp/127.0.0.1:1"],
+    ["robot", "--id", "0", "--run-id", "x", "--zenoh-mode", "client", "--connect",
+     "tcp/127.0.0.1:1"],
+    ["train", "--out", "{tmp}/t", "--lr", "nan"], ["train", "--out", "{tmp}/t", "--epochs", "0"],
+    ["eval", "--policy", "nope"], ["eval", "--json", "{tmp}"],
+    ["fault", "--run", "nosuchrun", "--loss", "0.1"],
+]
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("args", BAD_INPUTS, ids=lambda a: " ".join(a)[:40])
+def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
+        tmp_path: Path, args: list[str]) -> None:
+    (tmp_path / "file").write_text("not a checkpoint")
+    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=30)
+    assert r.returncode in (1, 2), (r.returncode, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("swarm: error: "), r.stderr
+    assert run_pids(str(tmp_path)) == []
