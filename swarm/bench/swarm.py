@@ -40,7 +40,8 @@ def bench_swarm(world: WorldConfig, cfg: SwarmBenchConfig, progress: Any = None)
             wcfg = dataclasses.replace(world, n_robots=n)
             run = RunConfig(run_id=f"bench-{policy}-{n}"[:60], policy=policy, episodes=cfg.episodes,
                             seed=cfg.seed, checkpoint=cfg.checkpoint)
-            res = Supervisor(wcfg, run, SuperviseOptions(headless=True, status_lines=False)).supervise()
+            opts = SuperviseOptions(headless=True, status_lines=False)
+            res = Supervisor(wcfg, run, opts).supervise()
             rows.append({"policy": policy, "robots": n, "ticks_per_s": res["ticks_per_s"],
                          "startup_s": res["startup_s"], "rss_mb_per_robot": res["rss_mb_per_robot"],
                          "pss_mb_per_robot": res.get("pss_mb_per_robot"),

@@ -85,7 +85,8 @@ def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfi
     sense = getattr(args, "sense", None)
     flags = {
         "n_robots": getattr(args, "world_robots", None), "dynamic": dynamic,
-        "add_every": getattr(args, "world_add_every", None), "vision": getattr(args, "vision", None),
+        "add_every": getattr(args, "world_add_every", None),
+        "vision": getattr(args, "vision", None),
         "comm_range": getattr(args, "comm_range", None), "horizon": getattr(args, "horizon", None),
         "explore_mode": "sense" if sense else None,
     }

@@ -218,7 +218,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         m = res.get("messages", {})
         out.print()
         out.print(eval_table([res], title=f"swarm run {run.run_id}"))
-        out.print(f"ticks/s {res.get('ticks_per_s', 0):.1f}   startup {res.get('startup_s') or 0:.1f} s"
+        out.print(f"ticks/s {res.get('ticks_per_s', 0):.1f}   "
+                  f"startup {res.get('startup_s') or 0:.1f} s"
                   f"   messages delivered {m.get('traj_delivered')} lost {m.get('lost')} "
                   f"late {m.get('late')} bad {m.get('bad')}   timeouts {res.get('timeouts')}   "
                   f"robots lost {res.get('robots_lost')}")

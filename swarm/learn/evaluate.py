@@ -1,4 +1,5 @@
-"""Batched in-process evaluation: the same world step and policies the swarm runs, B episodes at once."""
+"""Batched in-process evaluation: the same world step and policies the swarm runs, B episodes
+at once."""
 
 from __future__ import annotations
 
@@ -120,7 +121,8 @@ def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, ba
         actions.append(acts)
         if on_progress is not None:
             on_progress(len(eps))
-    rec = [np.concatenate([a[t] for a in actions]) for t in range(cfg.horizon)] if record_actions else []
+    rec = ([np.concatenate([a[t] for a in actions]) for t in range(cfg.horizon)]
+           if record_actions else [])
     return EvalResult.of(policy.name, seed, np.arange(first_episode, first_episode + n_episodes),
                          parts, curves, planning_s=planning, decisions=decisions,
                          wall_s=time.perf_counter() - start, actions=rec)

@@ -21,7 +21,7 @@ DEFAULT_MAX_EVENTS = 100_000
 
 
 class Event(NamedTuple):
-    """What arrived: `kind` names the subscription (or `<kind>` + ":live"/":dead" for liveliness)."""
+    """What arrived: `kind` names the subscription (`<kind>:live`/`<kind>:dead` for liveliness)."""
 
     kind: str
     key: str
@@ -116,9 +116,12 @@ def query(session: zenoh.Session, key: str, timeout: float, what: str = "") -> b
         time.sleep(0.1)
 
 
-def tally(counts: dict[str, int], key: str, cap: int = 64) -> None:
+def tally(counts: dict[str, int], key: str, cap: int = 64) -> bool:
     """Count one dropped payload under its key; past `cap` distinct keys (a flood of made-up
-    keys) the rest share one entry, so the table cannot grow without bound."""
+    keys) the rest share one entry, so the table cannot grow without bound. True when this one
+    is worth a log line (the first few of a key, then every power of two: a flood cannot fill
+    the log)."""
     if key not in counts and len(counts) >= cap:
         key = "(other keys)"
-    counts[key] = counts.get(key, 0) + 1
+    n = counts[key] = counts.get(key, 0) + 1
+    return n <= 3 or n & (n - 1) == 0

@@ -103,7 +103,7 @@ class Obs:
 
 @dataclass
 class Traj:
-    """Robot -> radio: the trajectory message of SPEC section 3 (what a receiver's encoder needs)."""
+    """Robot -> radio: the trajectory message of SPEC section 3 (all a receiver's encoder needs)."""
 
     ep: int
     t: int

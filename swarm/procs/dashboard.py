@@ -67,7 +67,8 @@ class SwarmView:
     episodes_done: int = 0
     faults: list[str] = field(default_factory=list)  # link faults in force (from the world)
     events: list[str] = field(default_factory=list)  # process faults applied (supervisor)
-    links: dict[str, list[int]] = field(default_factory=dict)  # "a-b": delivered, dropped, late, queued
+    links: dict[str, list[int]] = field(default_factory=dict)  # "a-b": delivered, dropped, late,
+    # queued
     radio: dict[str, int] = field(default_factory=dict)
     learner: dict[str, Any] | None = None  # the learner's last status (swarm run --train)
     heard_links: int = 0  # robot pairs the radio delivered between in the last tick

@@ -17,8 +17,9 @@ The learner joins the first two into an `EpisodeRollout` (the robots' own trajec
 are exactly what their receivers heard, so the tick's `View` is rebuilt bit for bit), stacks
 `batch` of them into the batched trainer's `Rollout`, runs the very same
 `swarm.learn.update.update`, checkpoints atomically, and only then publishes the new version
-on `learner/weights` (a queryable there serves the current version to late joiners). An update is acknowledged when
-its version is published; a SIGKILLed learner resumes from the checkpoint of the last one.
+on `learner/weights` (a queryable there serves the current version to late joiners). An update
+is acknowledged when its version is published; a SIGKILLed learner resumes from the
+checkpoint of the last one.
 
 Stale rollouts: an episode's version is the oldest any of its robots acted with. Episodes more
 than `max_staleness` versions behind are dropped and counted (`stale_dropped`); others are used
@@ -183,8 +184,8 @@ class Learner:
 
     def _bad(self, key: str, why: str) -> None:
         self.c.bad += 1
-        tally(self.c.bad_by_key, key)
-        log.warning("learner dropped bad payload on %s: %s", key, why)
+        if tally(self.c.bad_by_key, key):
+            log.warning("learner dropped bad payload on %s: %s", key, why)
 
     # --- gathering --------------------------------------------------------------------------
     def handle(self, kind: str, key: str, payload: bytes) -> None:

@@ -159,8 +159,8 @@ class RobotProcess:
 
     def _bad(self, key: str, why: str) -> None:
         self.c.bad += 1
-        tally(self.c.bad_by_key, key)
-        log.warning("robot %d dropped bad payload on %s: %s", self.robot, key, why)
+        if tally(self.c.bad_by_key, key):
+            log.warning("robot %d dropped bad payload on %s: %s", self.robot, key, why)
 
     def _next(self, deadline: float) -> tuple[str, Any] | None:
         """The next valid message before `deadline` (bad ones dropped and counted)."""

@@ -4,7 +4,8 @@ Every child is a fresh interpreter (subprocess, never fork: a forked Zenoh sessi
 world listens on a free loopback port; robots and the supervisor's own session connect to it.
 Ctrl-C (or any exit) sends SIGINT to every child, then SIGKILL to whatever is left after 2 s,
 so no process of the run outlives it. With `--netns` (swarm/net/netns.py) the world and each
-robot run in network namespaces of their own, joined by veth pairs, and the kernel applies the link faults.
+robot run in network namespaces of their own, joined by veth pairs, and the kernel applies the
+link faults.
 """
 
 from __future__ import annotations

@@ -104,8 +104,8 @@ class WorldProcess:
         pub.put(payload)
 
     def _count_bad(self, key: str, why: str) -> None:
-        tally(self.bad, key)
-        log.warning("dropped bad payload on %s: %s", key, why)
+        if tally(self.bad, key):
+            log.warning("dropped bad payload on %s: %s", key, why)
 
     def _declare(self) -> Inbox:
         k = self.keys
