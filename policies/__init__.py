@@ -26,6 +26,9 @@ REGISTRY: dict[str, str] = {
 }
 
 BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility")
+# Policies whose robots send hidden-state messages along the id chain (SPEC 3.5), known without
+# importing them (the world process never imports torch); tests check it against the classes.
+CHAINED = frozenset({"commattn"})
 
 
 def policy_class(name: str) -> type[Policy]:

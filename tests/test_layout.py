@@ -75,3 +75,9 @@ def test_the_cli_and_a_frontier_robot_never_import_torch() -> None:
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert out.stdout.strip() == "False", out.stderr
+
+
+def test_the_registry_knows_which_policies_are_chained_without_importing_them() -> None:
+    from policies import CHAINED, REGISTRY, policy_class
+
+    assert {n for n in REGISTRY if policy_class(n).chained} == CHAINED

@@ -16,7 +16,9 @@ from swarm.cli.common import (
     _names,
     _Parser,
     add_common,
+    add_fault_flags,
     add_world,
+    fault_table,
     file_tables,
     merged,
     output_file,
@@ -55,6 +57,8 @@ class EvalConfig:
     """Episodes stepped at once."""
     greedy: bool = True
     """Greedy actions (false: sample where the policy is stochastic)."""
+    tick_timeout: float = 2.0
+    """The tick's virtual length in seconds (message deadlines under faults, as `swarm run`)."""
     json: str | None = None
     """Write the results to this JSON file."""
 
@@ -63,6 +67,8 @@ class EvalConfig:
             raise ConfigError(f"episodes must be >= 1, got {self.episodes}")
         if self.batch < 1:
             raise ConfigError(f"batch must be >= 1, got {self.batch}")
+        if not 1e-3 <= self.tick_timeout <= 3600:  # also NaN
+            raise ConfigError(f"tick_timeout must lie in [0.001, 3600], got {self.tick_timeout}")
 
 
 
@@ -96,24 +102,21 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
     for name, policy in zip(names, policies, strict=True):
         progress.start(f"eval {name}", cfg.episodes)
         res = evaluate(world, policy, cfg.seed, cfg.episodes, batch=cfg.batch, greedy=cfg.greedy,
-                       on_progress=progress.advance, faults=faults)
+                       on_progress=progress.advance, faults=faults, tick_s=cfg.tick_timeout)
         out.append({**res.summary(world), "policy": name,
                     "checkpoint": effective_checkpoint(name, cfg.checkpoint),
                     **({"faults": faults.describe()} if faults is not None else {})})
     return out
 
 
-def _eval_faults(args: argparse.Namespace, tables: dict[str, Any]) -> Any:
-    """Message faults for the batched evaluator: `[faults]` loss/partition/seed and the flags."""
+def _eval_faults(args: argparse.Namespace, tables: dict[str, Any], world: WorldConfig,
+                 seed: int) -> Any:
+    """The radio's fault plan for the batched evaluator: `[faults]` and the fault flags, as
+    `swarm run` reads them (the fault seed defaults to the episode seed there too)."""
     from swarm.net.faults import plan_from_table
 
-    table = {k: v for k, v in tables.get("faults", {}).items()
-             if k in ("loss", "partition", "seed")}
-    for key, flag in (("loss", args.loss), ("partition", args.partition),
-                      ("seed", args.fault_seed)):
-        if flag is not None:
-            table[key] = flag
-    return plan_from_table(table) if table else None
+    table = fault_table(args, tables, world.n_robots)
+    return plan_from_table(table, seed, world.n_robots) if table else None
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -122,9 +125,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     greedy = False if args.sample else None
     cfg = merged(EvalConfig, tables.get("eval", {}),
                  {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
-                  "seed": args.seed, "batch": args.batch, "greedy": greedy, "json": args.json},
+                  "seed": args.seed, "batch": args.batch, "greedy": greedy, "json": args.json,
+                  "tick_timeout": args.tick_timeout},
                  "[eval]")
-    faults = _eval_faults(args, tables)
+    faults = _eval_faults(args, tables, world, cfg.seed)
     built = eval_policies(world, cfg)  # every bad input fails before the progress bar
     output_file(cfg.json)
     out, err = _consoles()
@@ -262,10 +266,9 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--episodes", type=int, metavar="K", help="episodes (default 1000)")
     p.add_argument("--batch", type=int, metavar="B", help="episodes stepped at once (default 250)")
     p.add_argument("--sample", action="store_true", help="sample actions instead of greedy")
-    f = p.add_argument_group("message faults (the swarm radio's seeded draws)")
-    f.add_argument("--loss", metavar="P", help="message loss probability")
-    f.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other")
-    f.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
+    p.add_argument("--tick-timeout", type=float, metavar="S",
+                   help="the tick's virtual length, as in swarm run (default 2)")
+    add_fault_flags(p, process=False)
     add_common(p)
     add_world(p)
     p.set_defaults(func=cmd_eval)

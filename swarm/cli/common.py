@@ -216,3 +216,46 @@ def output_dir(path: str | None, flag: str) -> None:
         probe = probe.parent
     if not os.access(probe, os.W_OK):
         raise ConfigError(f"{flag} {path} is not writable")
+
+
+def add_fault_flags(p: argparse.ArgumentParser, process: bool = True) -> None:
+    """The fault flags of `swarm run`/`world`/`fault` (process faults too) and `swarm eval`."""
+    g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)")
+    g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms")
+    g.add_argument("--jitter", metavar="DUR", help="extra uniform delay in [0, DUR), e.g. 10ms")
+    g.add_argument("--loss", metavar="P", help="message loss probability, e.g. 0.1")
+    g.add_argument("--bandwidth", metavar="RATE", help="per-robot radio cap, e.g. 2kB/s")
+    g.add_argument("--overflow", choices=["queue", "drop"],
+                   help="what the bandwidth cap does with excess messages (default queue)")
+    g.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other, "
+                   "e.g. 0-4/5-9")
+    g.add_argument("--compute-ms", type=float, metavar="MS",
+                   help="virtual clock: every robot's modelled compute time before it sends "
+                        "(per robot: [faults.robot.K] compute)")
+    if process:
+        for kind, what in (("crash", "SIGKILL"), ("hang", "SIGSTOP"),
+                           ("restart", "restart/SIGCONT")):
+            g.add_argument(f"--{kind}", action="append", metavar="ROBOT@TICK",
+                           help=f"{what} robot ROBOT at run tick TICK (repeatable)")
+    g.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
+
+
+def fault_table(args: argparse.Namespace, tables: dict[str, Any],
+                n_robots: int | None = None) -> dict[str, Any]:
+    """The `[faults]` table of the file overridden by the fault flags given, checked."""
+    from swarm.net.faults import plan_from_table
+
+    table = dict(tables.get("faults", {}))
+    for key in ("latency", "jitter", "loss", "bandwidth", "overflow", "partition"):
+        value = getattr(args, key, None)
+        if value is not None:
+            table[key] = value
+    if getattr(args, "compute_ms", None) is not None:
+        table["compute"] = f"{args.compute_ms}ms"
+    for kind in ("crash", "hang", "restart"):
+        if getattr(args, kind, None):
+            table[kind] = list(getattr(args, kind))
+    if getattr(args, "fault_seed", None) is not None:
+        table["seed"] = args.fault_seed
+    plan_from_table(table, n_robots=n_robots)  # a bad value: one line before anything runs
+    return table

@@ -16,7 +16,9 @@ from typing import Any
 from swarm.cli.common import (
     _consoles,
     add_common,
+    add_fault_flags,
     add_world,
+    fault_table,
     file_tables,
     output_dir,
     output_file,
@@ -24,7 +26,6 @@ from swarm.cli.common import (
 )
 from swarm.common.policy_spec import build_policy
 from swarm.net import zconfig
-from swarm.net.faults import plan_from_table
 from swarm.net.zconfig import open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, from_dict
@@ -44,6 +45,12 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
                         "dashboard, unlimited with --headless or --json-only use)")
     g.add_argument("--sample", action="store_true", default=None,
                    help="sample actions (counter-based noise) instead of greedy")
+    g.add_argument("--clock", choices=["virtual", "real"],
+                   help="message timing in virtual time (default: a run is a function of its "
+                        "seed and faults) or on the wall clock (forced by --netns)")
+    g.add_argument("--watchdog", type=float, metavar="S",
+                   help="virtual clock: wall seconds before a hung robot is stepped without "
+                        "(default 10)")
 
 
 def _add_train_flags(p: argparse.ArgumentParser) -> None:
@@ -57,22 +64,6 @@ def _add_train_flags(p: argparse.ArgumentParser) -> None:
                    help="the learner's checkpoint and curve (default: LOG_DIR/learner)")
     g.add_argument("--rollout-loss", type=float, metavar="P",
                    help="drop each robot's episode record to the learner with probability P")
-
-
-def _add_fault_flags(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)")
-    g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms")
-    g.add_argument("--jitter", metavar="DUR", help="extra uniform delay in [0, DUR), e.g. 10ms")
-    g.add_argument("--loss", metavar="P", help="message loss probability, e.g. 0.1")
-    g.add_argument("--bandwidth", metavar="RATE", help="per-robot radio cap, e.g. 2kB/s")
-    g.add_argument("--overflow", choices=["queue", "drop"],
-                   help="what the bandwidth cap does with excess messages (default queue)")
-    g.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other, "
-                   "e.g. 0-4/5-9")
-    for kind, what in (("crash", "SIGKILL"), ("hang", "SIGSTOP"), ("restart", "restart/SIGCONT")):
-        g.add_argument(f"--{kind}", action="append", metavar="ROBOT@TICK",
-                       help=f"{what} robot ROBOT at run tick TICK (repeatable)")
-    g.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
 
 
 def _add_netns_flags(p: argparse.ArgumentParser) -> None:
@@ -106,27 +97,11 @@ def netns_faults(args: argparse.Namespace) -> Any:
     return faults
 
 
-def fault_table(args: argparse.Namespace, tables: dict[str, Any],
-                n_robots: int | None = None) -> dict[str, Any]:
-    """The `[faults]` table of the file overridden by the fault flags given."""
-    table = dict(tables.get("faults", {}))
-    for key in ("latency", "jitter", "loss", "bandwidth", "overflow", "partition"):
-        value = getattr(args, key, None)
-        if value is not None:
-            table[key] = value
-    for kind in ("crash", "hang", "restart"):
-        if getattr(args, kind, None):
-            table[kind] = list(getattr(args, kind))
-    if getattr(args, "fault_seed", None) is not None:
-        table["seed"] = args.fault_seed
-    plan_from_table(table, n_robots=n_robots)  # a bad value: one line before any spawn
-    return table
-
-
 def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
     flags = {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
              "first_episode": args.first_episode, "run_id": args.run_id,
              "tick_timeout": args.tick_timeout, "seed": args.seed, "pace": args.pace,
+             "clock": getattr(args, "clock", None), "watchdog": getattr(args, "watchdog", None),
              "greedy": False if args.sample or getattr(args, "train", None) else None,
              "train": getattr(args, "train", None),
              "rollout_loss": getattr(args, "rollout_loss", None)}
@@ -192,9 +167,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.pace is None and "pace" not in tables.get("run", {}) and not args.headless \
             and out.is_terminal:
         run = dataclasses.replace(run, pace=8.0)  # watchable by default on a terminal
+    netns = netns_faults(args)
+    if netns is not None:  # the kernel decides when a packet arrives: only the wall clock knows
+        run = dataclasses.replace(run, clock="real")
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             restart_crashed=args.restart_crashed, log_dir=args.log_dir,
-                            netns=netns_faults(args))
+                            netns=netns)
     learning = None
     if run.train:
         from policies import policy_class
@@ -274,6 +252,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
     from swarm.net.messages import K_CONTROL, pack_record
     from swarm.procs.spawn import lookup_run
 
+    if args.at_tick is not None and not 0 <= args.at_tick < 2**40:
+        raise ConfigError(f"--at-tick must be a run tick >= 0, got {args.at_tick}")
     table = fault_table(args, {})
     process = [f"{kind}:{text}" for kind in ("crash", "hang", "restart")
                for text in (getattr(args, kind) or [])]
@@ -290,6 +270,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
     if link or args.clear:
         rec["faults_table"] = link
         rec["replace"] = bool(args.clear or args.replace)
+        if args.at_tick is not None:
+            rec["at_tick"] = args.at_tick
     if process:
         rec["process"] = process
     with open_session(opts) as session:
@@ -327,7 +309,7 @@ def add_parsers(sub: Any) -> None:
     add_common(p)
     add_world(p)
     _add_run_flags(p)
-    _add_fault_flags(p)
+    add_fault_flags(p)
     _add_netns_flags(p)
     _add_train_flags(p)
     p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
@@ -340,7 +322,7 @@ def add_parsers(sub: Any) -> None:
     add_common(p)
     add_world(p)
     _add_run_flags(p)
-    _add_fault_flags(p)
+    add_fault_flags(p)
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
@@ -353,7 +335,10 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--replace", action="store_true",
                    help="replace the link faults in force instead of changing the given ones")
     p.add_argument("--clear", action="store_true", help="remove every link fault")
-    _add_fault_flags(p)
+    p.add_argument("--at-tick", type=int, metavar="K",
+                   help="link faults apply from run tick K (default: the next tick); with the "
+                        "virtual clock the change is then reproducible")
+    add_fault_flags(p)
     zconfig.add_arguments(p)
     p.set_defaults(func=cmd_fault)
 

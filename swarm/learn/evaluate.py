@@ -11,22 +11,73 @@ from typing import Any
 import numpy as np
 
 from policies.base import Policy
-from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, delivery_mask
+from swarm.net.channel import VirtualChannel
+from swarm.net.faults import FaultPlan
+from swarm.net.messages import Hidden, Traj
 from world import core
 from world.config import WorldConfig
 from world.decentral import View, batch_view
 
 
-def apply_faults(view: View, faults: FaultPlan) -> None:
-    """Drop the trajectory and hidden-state messages the radio would drop at this tick."""
-    n = view.n
-    view.hears = view.hears & delivery_mask(faults, view.episodes, view.tick, n, KIND_TRAJ)
-    pred = view.predecessor()
-    hidden = delivery_mask(faults, view.episodes, view.tick, n, KIND_HIDDEN)
-    g, i = np.nonzero(pred >= 0)
-    ok = np.ones(pred.shape, dtype=bool)
-    ok[g, i] = hidden[g, i, pred[g, i]]
-    view.chain_ok = ok
+class ChannelFaults:
+    """The radio's decisions applied to batched views, one group per episode: which trajectory
+    copies each receiver hears and whether its predecessor's hidden-state message arrives, by
+    the same `VirtualChannel` the world's radio runs with the virtual clock (loss, partitions,
+    latency + jitter + token-bucket queues against the tick's virtual deadline, each sender's
+    compute time). `hidden_floats` is the chained policy's state size (None: no chain)."""
+
+    def __init__(self, plan: FaultPlan, cfg: WorldConfig, tick_s: float,
+                 hidden_floats: int | None = None) -> None:
+        self.plan, self.cfg, self.hidden_floats = plan, cfg, hidden_floats
+        self.channel = VirtualChannel(plan, cfg.n_robots, tick_s)
+
+    def _traj_sizes(self, view: View) -> np.ndarray:
+        """[G, N] bytes of each sender's trajectory message, exactly as a robot packs it."""
+        m, out = view.msgs, np.zeros(view.receivers.shape)
+        if not self.channel.capped:
+            return out
+        for g, j in zip(*np.nonzero(view.receivers), strict=True):
+            recent = [int(c) for c in m.recent[g, j] if c >= 0]
+            out[g, j] = len(Traj(int(view.episodes[g]), view.tick, int(j), int(m.pos[g, j, 0]),
+                                 int(m.pos[g, j, 1]), np.packbits(m.visited[g, j]).tobytes(),
+                                 recent, m.patch[g, j].tobytes()).pack())
+        return out
+
+    def _hidden_sizes(self, view: View) -> np.ndarray:
+        out = np.zeros(view.receivers.shape)
+        if not self.channel.capped:
+            return out
+        state = bytes(4 * (self.hidden_floats or 0))
+        for g, j in zip(*np.nonzero(view.receivers), strict=True):
+            out[g, j] = len(Hidden(int(view.episodes[g]), view.tick, int(j), 0, state).pack())
+        return out
+
+    def apply(self, view: View) -> None:
+        """Narrow `view.hears` (and set `view.chain_ok`) to what the radio delivers this tick."""
+        if view.tick == 0:
+            self.channel.reset(view.groups)
+        if self.plan.zero:
+            return
+        f = self.channel.traj(view.episodes, view.tick, view.receivers, self._traj_sizes(view))
+        view.hears = view.hears & f.ok
+        if self.hidden_floats is None:
+            return
+        h = self.channel.hidden(view.episodes, view.tick, view.receivers,
+                                self._hidden_sizes(view))
+        pred = view.predecessor()
+        g, i = np.nonzero(pred >= 0)
+        ok = np.ones(pred.shape, dtype=bool)
+        ok[g, i] = h.ok[g, i, pred[g, i]]
+        view.chain_ok = ok
+
+
+def channel_for(plan: FaultPlan | None, cfg: WorldConfig, policy: Policy,
+                tick_s: float) -> ChannelFaults | None:
+    """The fault model of `plan` for `policy` (None without faults)."""
+    if plan is None:
+        return None
+    floats = getattr(policy, "state_size", None) if policy.chained else None
+    return ChannelFaults(plan, cfg, tick_s, floats)
 
 
 @dataclass
@@ -86,14 +137,16 @@ class EvalResult:
 def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, batch: int = 250,
              first_episode: int = 0, greedy: bool = True, record_actions: bool = False,
              on_progress: Callable[[int], None] | None = None,
-             faults: FaultPlan | None = None) -> EvalResult:
+             faults: FaultPlan | None = None, tick_s: float = 2.0) -> EvalResult:
     """Run episodes first_episode .. first_episode + n_episodes - 1 of `seed` in batches.
 
-    `faults` applies the radio's message faults that do not depend on wall time (loss,
-    partition; the same seeded draws as the swarm's radio) to every tick's view.
+    `faults` applies the radio's decisions of a virtual-clock run with ticks of `tick_s` virtual
+    seconds (loss, partitions, latency, jitter, bandwidth queues, compute time; see
+    swarm.net.channel) to every tick's view: the same as `swarm run` with that seed and plan.
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    channel = channel_for(faults, cfg, policy, tick_s)
     parts: list[core.EpisodeMetrics] = []
     curves: list[np.ndarray] = []
     actions: list[list[np.ndarray]] = []
@@ -107,8 +160,8 @@ def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, ba
         acts = []
         while not state.done:
             view = batch_view(cfg, state)
-            if faults is not None and not faults.zero:
-                apply_faults(view, faults)
+            if channel is not None:
+                channel.apply(view)
             t0 = time.perf_counter()
             a = policy.act(view, greedy=greedy)
             planning += time.perf_counter() - t0

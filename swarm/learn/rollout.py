@@ -11,7 +11,7 @@ import numpy as np
 from policies.features import Members
 from policies.learned import LearnedPolicy
 from swarm.learn.config import TrainConfig
-from swarm.learn.evaluate import apply_faults
+from swarm.learn.evaluate import channel_for
 from swarm.net.faults import FaultPlan, plan_from_table
 from world import core
 from world.config import WorldConfig
@@ -49,15 +49,17 @@ def train_faults(cfg: TrainConfig) -> FaultPlan | None:
 
 
 def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.ndarray,
-            faults: FaultPlan | None = None) -> Rollout:
-    """Run `episodes` of `seed` to the horizon with sampled actions."""
+            faults: FaultPlan | None = None, tick_s: float = 2.0) -> Rollout:
+    """Run `episodes` of `seed` to the horizon with sampled actions (under the radio's `faults`
+    in virtual time, ticks of `tick_s`)."""
+    channel = channel_for(faults, world, policy, tick_s)
     state = core.reset(world, seed, episodes)
     policy.reset(len(episodes))
     views, actions, inputs, values, rewards, logp = [], [], [], [], [], []
     while not state.done:
         view = frozen(batch_view(world, state))
-        if faults is not None and not faults.zero:
-            apply_faults(view, faults)  # the swarm radio's message loss, during training
+        if channel is not None:
+            channel.apply(view)  # the swarm radio's message faults, during training
         d = policy.decide(view, greedy=False, keep_inputs=True)
         rewards.append(core.step(world, state, d.actions))
         views.append(view)

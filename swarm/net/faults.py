@@ -42,9 +42,12 @@ class LinkFault:
     """Token-bucket depth in bytes (0: one second's worth of `bandwidth`)."""
     overflow: str = "queue"
     """What the token bucket does with a message that exceeds the cap: `queue` or `drop`."""
+    compute_ms: float = 0.0
+    """Virtual clock: the sender's modelled compute time, from a tick's start to its sends
+    (a sender's property: set it for all robots or per robot)."""
 
     def __post_init__(self) -> None:
-        for name in ("latency_ms", "jitter_ms"):
+        for name in ("latency_ms", "jitter_ms", "compute_ms"):
             if not 0 <= getattr(self, name) <= MAX_MS:  # also NaN
                 raise ConfigError(f"{name} must lie in [0, {MAX_MS:g}], got {getattr(self, name)}")
         for name in ("bandwidth", "burst"):
@@ -58,7 +61,7 @@ class LinkFault:
     @property
     def zero(self) -> bool:
         return (self.latency_ms == 0 and self.jitter_ms == 0 and self.loss == 0
-                and self.bandwidth == 0)
+                and self.bandwidth == 0 and self.compute_ms == 0)
 
 
 @dataclass(frozen=True)
@@ -119,6 +122,8 @@ class FaultPlan:
                 parts.append(f"loss {f.loss:g}")
             if f.bandwidth:
                 parts.append(f"bw {f.bandwidth:g}B/s {f.overflow}")
+            if f.compute_ms:
+                parts.append(f"compute {f.compute_ms:g}ms")
             return " ".join(parts)
 
         if not self.default.zero:
@@ -221,7 +226,7 @@ def parse_process(kind: str, text: str) -> ProcessFault:
 def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFault:
     """A LinkFault from a TOML/CLI mapping with human units (latency = "50ms", ...)."""
     base = base or LinkFault()
-    known = {"latency", "jitter", "loss", "bandwidth", "burst", "overflow"}
+    known = {"latency", "jitter", "loss", "bandwidth", "burst", "overflow", "compute"}
     unknown = set(d) - known
     if unknown:
         raise ConfigError(f"unknown fault key(s) {', '.join(sorted(unknown))}; known: "
@@ -231,6 +236,8 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
         ch["latency_ms"] = parse_duration_ms(d["latency"])
     if "jitter" in d:
         ch["jitter_ms"] = parse_duration_ms(d["jitter"])
+    if "compute" in d:
+        ch["compute_ms"] = parse_duration_ms(d["compute"])
     if "loss" in d:
         try:
             ch["loss"] = float(d["loss"])

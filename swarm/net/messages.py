@@ -183,6 +183,16 @@ class Hidden:
     def vector(self) -> np.ndarray:
         return np.frombuffer(self.state, dtype="<f4")
 
+    @classmethod
+    def miss(cls, ep: int, t: int, robot: int) -> Hidden:
+        """Radio -> successor: robot's hidden-state message of this tick will not come (lost or
+        late in virtual time): decode without it now instead of waiting."""
+        return cls(ep, t, robot, 0, b"")
+
+    @property
+    def is_miss(self) -> bool:
+        return not self.state
+
 
 @dataclass
 class Action:

@@ -14,9 +14,11 @@ loss, partition and the latency draw come from swarm.net.faults.delivery_mask/de
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from swarm.net.channel import FATES, OK, VirtualChannel
 from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, delay_ms, delivery_mask, link_arrays
 from world.config import WorldConfig
 from world.decentral import neighbourhood, predecessor
@@ -49,6 +51,10 @@ class RadioCounters:
     bytes_in: int = 0
     bytes_out: int = 0
     links: dict[tuple[int, int], LinkStats] = field(default_factory=dict)
+    kinds: dict[str, dict[str, int]] = field(default_factory=lambda: {
+        k: dict.fromkeys(("lost", "cut", "late", "dropped_bw", "queued"), 0)
+        for k in ("traj", "hidden")})
+    """The copies that did not arrive (or waited for tokens), per message kind."""
 
     def link(self, j: int, i: int) -> LinkStats:
         s = self.links.get((j, i))
@@ -56,10 +62,19 @@ class RadioCounters:
             s = self.links[(j, i)] = LinkStats()
         return s
 
-    def totals(self) -> dict[str, int]:
-        return {k: getattr(self, k) for k in (
+    def totals(self) -> dict[str, Any]:
+        out: dict[str, Any] = {k: getattr(self, k) for k in (
             "traj_in", "traj_delivered", "hidden_in", "hidden_delivered", "out_of_range", "lost",
             "cut", "late", "queued", "dropped_bw", "bytes_in", "bytes_out")}
+        out["by_kind"] = {k: dict(v) for k, v in self.kinds.items()}
+        return out
+
+    def miss(self, kind: str, what: str, j: int, i: int) -> None:
+        """One copy j -> i of `kind` that was lost, cut, late or dropped (`what`)."""
+        setattr(self, what, getattr(self, what) + 1)
+        s = self.link(j, i)
+        setattr(s, what, getattr(s, what) + 1)
+        self.kinds[kind][what] += 1
 
 
 class TokenBucket:
@@ -93,12 +108,16 @@ class Radio:
         self.delivered = np.zeros((cfg.n_robots, cfg.n_robots), dtype=bool)
         self.pred = np.full(cfg.n_robots, -1, dtype=np.int64)
         self.buckets: dict[int, TokenBucket] = {}
+        self.channel: VirtualChannel | None = None  # set by use_virtual_clock
+        self.tick_s = 0.0
         self.set_plan(plan or FaultPlan())
 
     def set_plan(self, plan: FaultPlan) -> None:
         self.plan = plan
         self._loss, self._lat, self._jit = link_arrays(plan, self.cfg.n_robots)
         self.buckets = {}
+        if self.channel is not None:
+            self.channel = VirtualChannel(plan, self.cfg.n_robots, self.tick_s)
 
     def _queue_delay(self, sender: int, size: int, now: float) -> float | None:
         f = self.plan.per_robot.get(sender, self.plan.default)
@@ -138,25 +157,22 @@ class Radio:
                     s = c.link(j, int(i))
                     if grp[i] != grp[j]:
                         ok[i, j] = False
-                        s.cut += 1
-                        c.cut += 1
+                        c.miss("traj", "cut", j, int(i))
                     elif not fate[i, j]:
                         ok[i, j] = False
-                        s.lost += 1
-                        c.lost += 1
+                        c.miss("traj", "lost", j, int(i))
                     elif q is None:
                         ok[i, j] = False
-                        s.dropped_bw += 1
-                        c.dropped_bw += 1
+                        c.miss("traj", "dropped_bw", j, int(i))
                     else:
                         arrival[i, j] = t_recv + q + delay[i, j]
                         if q > 0:
                             s.queued += 1
                             c.queued += 1
+                            c.kinds["traj"]["queued"] += 1
                         if arrival[i, j] > deadline:
                             ok[i, j] = False
-                            s.late += 1
-                            c.late += 1
+                            c.miss("traj", "late", j, int(i))
         self.delivered = ok
         self.pred = predecessor(ok[None])[0]
         out: dict[int, tuple[float, list[bytes]]] = {}
@@ -191,18 +207,78 @@ class Radio:
         q = self._queue_delay(sender, size, now)
         out = []
         for i in receivers:
-            s = c.link(sender, i)
             if not fate[i, sender]:
-                s.lost += 1
-                c.lost += 1
+                c.miss("hidden", "lost", sender, i)
             elif q is None:
-                s.dropped_bw += 1
-                c.dropped_bw += 1
+                c.miss("hidden", "dropped_bw", sender, i)
             else:
                 when = now + q + delay[i, sender]
                 if when > deadline:
-                    s.late += 1
-                    c.late += 1
+                    c.miss("hidden", "late", sender, i)
                 else:
                     out.append((i, when))
+        return out
+
+    # --- virtual clock (swarm.net.channel): fates decided at send time, delivered at once -----
+    def use_virtual_clock(self, tick_s: float) -> None:
+        self.tick_s = tick_s
+        self.channel = VirtualChannel(self.plan, self.cfg.n_robots, tick_s)
+
+    def new_episode(self) -> None:
+        """Token buckets start full at every episode (as the batched evaluator's do)."""
+        if self.channel is not None:
+            self.channel.reset(1)
+
+    def virtual_bundles(self, ep: int, t: int, positions: np.ndarray,
+                        senders: dict[int, bytes]) -> dict[int, list[bytes]]:
+        """Receiver -> the trajectory payloads it hears (on-time copies only, sender-id order)."""
+        assert self.channel is not None
+        n, c = self.cfg.n_robots, self.counters
+        present = np.zeros(n, dtype=bool)
+        present[list(senders)] = True
+        sizes = np.zeros(n)
+        for j, payload in senders.items():
+            sizes[j] = len(payload)
+        hears = neighbourhood(self.cfg.comm_range, positions[None], present[None])[0]
+        c.out_of_range += int(present.sum() ** 2 - hears.sum())
+        f = self.channel.traj(np.array([ep]), t, present[None], sizes[None])
+        fate = f.fate[0]
+        for j in np.flatnonzero(f.queued[0]):
+            for i in np.flatnonzero(hears[:, j]):
+                if i != j:
+                    c.queued += 1
+                    c.link(int(j), int(i)).queued += 1
+                    c.kinds["traj"]["queued"] += 1
+        for i, j in zip(*np.nonzero(hears & (fate != OK)), strict=True):
+            c.miss("traj", FATES[fate[i, j]], int(j), int(i))
+        ok = hears & (fate == OK)
+        self.delivered = ok
+        self.pred = predecessor(ok[None])[0]
+        out: dict[int, list[bytes]] = {}
+        for i in senders:
+            js = np.flatnonzero(ok[i])
+            out[i] = [senders[int(j)] for j in js]
+            c.traj_delivered += len(js)
+            c.bytes_out += sum(len(p) for p in out[i])
+            for j in js:
+                if j != i:
+                    c.link(int(j), i).delivered += 1
+        return out
+
+    def virtual_hidden(self, ep: int, t: int, sender: int, size: int) -> list[tuple[int, bool]]:
+        """(successor, on time) for the hidden-state message `sender` sent at tick t; charged
+        to its bucket whether or not anyone's predecessor it is."""
+        assert self.channel is not None
+        n = self.cfg.n_robots
+        senders = np.zeros((1, n), dtype=bool)
+        senders[0, sender] = True
+        sizes = np.zeros((1, n))
+        sizes[0, sender] = size
+        f = self.channel.hidden(np.array([ep]), t, senders, sizes)
+        out = []
+        for i in np.flatnonzero(self.pred == sender):
+            fate = int(f.fate[0, i, sender])
+            if fate != OK:
+                self.counters.miss("hidden", FATES[fate], sender, int(i))
+            out.append((int(i), fate == OK))
         return out

@@ -35,6 +35,8 @@ class RobotRow:
     stalls: int = 0  # times the robot found itself stopped or starved (SIGSTOP, overload)
     rejoins: int = 0  # times it rejoined after its session dropped
     errors: int = 0  # ticks it could not decide on (skipped)
+    compute_ms: float = 0.0  # mean planning time per decision, waits excluded
+    wait_ms: float = 0.0  # mean time per decision waiting for the bundle and the predecessor
 
 
 @dataclass
@@ -72,6 +74,8 @@ class SwarmView:
     radio: dict[str, int] = field(default_factory=dict)
     learner: dict[str, Any] | None = None  # the learner's last status (swarm run --train)
     heard_links: int = 0  # robot pairs the radio delivered between in the last tick
+    clock: str = "real"  # the run's clock (status records say which)
+    vtime: float = 0.0  # virtual seconds since the run started (virtual clock)
     bad_records: int = 0  # status records the supervisor dropped (did not fit their schema)
 
     def __post_init__(self) -> None:
@@ -101,6 +105,8 @@ class SwarmView:
         self.links = dict(rec.get("links", self.links))
         self.radio = dict(rec.get("radio", self.radio))
         self.heard_links = int(rec.get("heard_links", 0))
+        self.clock = str(rec.get("clock", self.clock))
+        self.vtime = float(rec.get("vtime", 0.0))
         for i, (p, alive) in enumerate(zip(rec.get("pos", []), rec.get("alive", []))):
             row = self.robots.setdefault(i, RobotRow())
             row.pos = (int(p[0]), int(p[1]))
@@ -122,6 +128,8 @@ class SwarmView:
         row.stalls = int(rec.get("stalls", 0))
         row.rejoins = int(rec.get("rejoins", 0))
         row.errors = int(rec.get("errors", 0))
+        row.compute_ms = float(rec.get("compute_ms", 0.0))
+        row.wait_ms = float(rec.get("wait_ms", 0.0))
 
     def set_alive(self, robot: int, alive: bool) -> None:
         row = self.robots.setdefault(robot, RobotRow())
@@ -166,7 +174,8 @@ def render_grid(v: SwarmView) -> Text:
 
 def render_robots(v: SwarmView) -> Table:
     table = Table(title="robots", expand=True, pad_edge=False)
-    cols = ["id", "state", "pos", "in", "out", "lat ms", "missed", "bad", "restarts"]
+    cols = ["id", "state", "pos", "in", "out", "lat ms", "missed", "bad", "restarts",
+            "compute ms", "wait ms"]
     if v.learner is not None:  # field training: the weights version each robot acts with
         cols += ["weights"]
     for col in cols:
@@ -178,7 +187,8 @@ def render_robots(v: SwarmView) -> Table:
             if v.learner is not None else []
         table.add_row(str(i), state, "-" if r.pos is None else f"{r.pos[0]},{r.pos[1]}",
                       str(r.msgs_in), str(r.msgs_out), f"{r.latency_ms:.1f}", str(r.missed),
-                      str(r.bad), str(r.restarts), *extra)
+                      str(r.bad), str(r.restarts), f"{r.compute_ms:.1f}", f"{r.wait_ms:.1f}",
+                      *extra)
     return table
 
 
@@ -190,7 +200,8 @@ def render_figures(v: SwarmView) -> Table:
     rows = [
         ("run", v.run_id), ("policy", v.policy),
         ("episode", f"{max(v.episodes_done, 0)}/{v.episodes} (ep {v.ep})"),
-        ("tick", str(v.tick)), ("ticks/s", f"{v.ticks_per_s:.1f}"),
+        ("tick", str(v.tick)), ("ticks/s (wall)", f"{v.ticks_per_s:.1f}"),
+        ("clock", v.clock + (f"  t = {v.vtime:.1f} s" if v.clock == "virtual" else "")),
         ("elratio", f"{v.elratio:.3f}"),
         ("collisions", f"block {v.block_coll}  robot {v.robot_coll}"),
         ("links heard", str(v.heard_links)),

@@ -86,6 +86,9 @@ class RobotCounters:
     stalls: int = 0  # times this process was stopped or starved for over STALL_S
     rejoins: int = 0  # times the world's token came back after vanishing (session drop)
     errors: int = 0  # ticks it could not decide on (an exception in the policy), skipped
+    decisions: int = 0
+    compute_ms: float = 0.0  # planning time of its decisions, summed (waits excluded)
+    wait_ms: float = 0.0  # time spent waiting for bundles and predecessors, summed
     bad_by_key: dict[str, int] = field(default_factory=dict)
 
 
@@ -325,13 +328,15 @@ class RobotProcess:
         self.c.bytes_out += len(traj)
         # Act before the world's deadline whatever is missing (a late message is never used).
         deadline = t_recv + 0.95 * obs.budget_ms / 1e3
+        w0 = time.perf_counter()
         bundle = self._wait("bundle", obs.ep, obs.t, None, deadline)
+        self.c.wait_ms += 1e3 * (time.perf_counter() - w0)
         if bundle is None:
             self.c.missed += 1
             return
         self.c.last_latency_ms = 1e3 * (time.monotonic() - t_recv)
         heard = bundle.msgs
-        t0 = time.perf_counter()
+        t0, waited = time.perf_counter(), self.c.wait_ms
         try:
             action, chain_ok = self.decide(obs, heard, t_recv, deadline)
         except Exception as exc:  # a view no world would send must not take the robot down
@@ -339,7 +344,10 @@ class RobotProcess:
             log.error("robot %d could not decide at tick %d: %s: %s", r, obs.t,
                       type(exc).__name__, exc)
             return
-        ms = 1e3 * (time.perf_counter() - t0)
+        # planning time without the wait for the predecessor (reported apart, as wait_ms)
+        ms = max(0.0, 1e3 * (time.perf_counter() - t0) - (self.c.wait_ms - waited))
+        self.c.compute_ms += ms
+        self.c.decisions += 1
         if self.train:
             probs = self.policy.last_probs  # type: ignore[attr-defined]
             logp = float(np.log(max(float(probs[0, r, action]), 1e-30)))
@@ -365,8 +373,10 @@ class RobotProcess:
             prepared = self.policy.prepare_chain(view)  # type: ignore[attr-defined]
             hidden = None  # ... computed before waiting: only decoding waits for the predecessor
             if pred >= 0:
+                w0 = time.perf_counter()
                 hidden = self._wait("hidden", obs.ep, obs.t, pred,
                                     hop_deadline(t_recv, deadline, r, cfg.n_robots))
+                self.c.wait_ms += 1e3 * (time.perf_counter() - w0)
                 if hidden is None or len(hidden.state) != 4 * self.policy.state_size:
                     # lost, late or malformed: decode as if there were no predecessor
                     self.c.missed_hidden += 1
@@ -393,7 +403,9 @@ class RobotProcess:
                "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
                "latency_ms": self.c.last_latency_ms, "version": self.version,
                "weights_bad": self.c.weights_bad, "rollouts_lost": self.c.rollouts_lost,
-               "stalls": self.c.stalls, "rejoins": self.c.rejoins, "errors": self.c.errors}
+               "stalls": self.c.stalls, "rejoins": self.c.rejoins, "errors": self.c.errors,
+               "compute_ms": self.c.compute_ms / max(self.c.decisions, 1),
+               "wait_ms": self.c.wait_ms / max(self.c.decisions, 1)}
         self.status_pub.put(pack_record(K_RSTATUS, rec))
 
     def run(self, wait_world: float = 30.0, rejoin: float = REJOIN_S) -> RobotCounters:

@@ -34,8 +34,17 @@ class RunConfig:
     """Number of the first episode."""
     greedy: bool = True
     """Greedy (argmax) decisions; False samples with the counter-based noise."""
+    clock: str = "virtual"
+    """`virtual`: message timing (latency, jitter, bandwidth queues, compute time) is decided in
+    virtual time against the tick's virtual deadline, so a run is a function of its seed and
+    fault plan (swarm.net.channel); `real`: against the wall clock (forced by --netns)."""
     tick_timeout: float = 2.0
-    """Seconds the world waits for a tick's actions before stepping without the missing ones."""
+    """The tick's length: trajectory messages arriving after 0.8 of it (hidden-state ones after
+    0.9) are late. Virtual seconds with the virtual clock; with the real clock, wall seconds the
+    world waits for a tick's actions before stepping without the missing ones."""
+    watchdog: float = 10.0
+    """Virtual clock: wall seconds the world waits for a hung or slow robot before it steps
+    without it (counted as a timeout); nobody waits this long for a lost message."""
     start_timeout: float = 60.0
     """Seconds the world waits for every robot to come alive before the first tick."""
     pace: float = 0.0
@@ -70,6 +79,9 @@ class RunConfig:
         check("pace", 0.0, 1000.0)
         check("robot_threads", 1, 64)
         check("rollout_loss", 0.0, 1.0)
+        check("watchdog", 0.01, 3600.0)
+        if self.clock not in ("virtual", "real"):
+            raise ConfigError(f"clock must be 'virtual' or 'real', got {self.clock!r}")
         if not isinstance(self.policy, str) or not self.policy:
             raise ConfigError("policy must be a registry name")
 

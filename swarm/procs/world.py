@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from policies import CHAINED
 from swarm.learn.evaluate import EvalResult
 from swarm.net.faults import FaultPlan, plan_from_table
 from swarm.net.inbox import Inbox, tally
@@ -66,6 +67,8 @@ class TickInbox:
     hidden: dict[int, tuple[Hidden, bytes]] = field(default_factory=dict)
     """Hidden-state messages held until the bundles are out (then forwarded as they come)."""
     action: dict[int, Action] = field(default_factory=dict)
+    sent_hidden: set[int] = field(default_factory=set)
+    """Robots whose hidden-state message of this tick arrived (chained policies)."""
     delivered: bool = False
     """The bundles of this tick have been handed to the radio."""
 
@@ -82,6 +85,13 @@ class WorldProcess:
         self.fault_table = dict(faults or {})  # human-unit [faults] table; live changes merge in
         self._record = RunRecord(cfg, run, self.fault_table).pack()  # served to the robots
         self.radio = Radio(cfg, plan_from_table(self.fault_table, run.seed))
+        self.virtual = run.clock == "virtual"
+        # virtual clock + chain: a tick also waits for every hidden-state message, so each one
+        # is charged to its sender's bucket in order (swarm.net.channel), as in the evaluator
+        self.chained = self.virtual and run.policy in CHAINED
+        if self.virtual:
+            self.radio.use_virtual_clock(run.tick_timeout)
+        self._pending_at = -1  # run tick from which the pending plan applies
         self._pending_plan: FaultPlan | None = None
         self._due: list[tuple[float, int, str, bytes]] = []  # scheduled radio deliveries
         self._seq = 0
@@ -160,6 +170,8 @@ class WorldProcess:
                 try:
                     self._pending_plan = plan_from_table(table, self.run_cfg.seed,
                                                          self.cfg.n_robots)
+                    at = rec.get("at_tick", -1)
+                    self._pending_at = at if isinstance(at, int) and 0 <= at < 2**40 else -1
                     self.fault_table = table
                     self._record = RunRecord(self.cfg, self.run_cfg, table).pack()
                 except ConfigError as exc:
@@ -183,6 +195,7 @@ class WorldProcess:
             tick.traj[msg.robot] = (payload or b"", time.monotonic())
         elif kind == "hidden":
             self.radio.counters.hidden_in += 1
+            tick.sent_hidden.add(msg.robot)
             if tick.delivered:
                 self._forward_hidden(msg, payload or b"", tick)
             else:
@@ -205,6 +218,12 @@ class WorldProcess:
             self._put(key, payload)
 
     def _forward_hidden(self, msg: Hidden, payload: bytes, tick: TickInbox) -> None:
+        if self.virtual:  # its fate is known now: the message, or word that it will not come
+            for i, on_time in self.radio.virtual_hidden(msg.ep, msg.t, msg.robot, len(payload)):
+                self._put(self.keys.inbox_hidden(i),
+                          payload if on_time else Hidden.miss(msg.ep, msg.t, msg.robot).pack())
+                self.radio.counters.hidden_delivered += on_time
+            return
         for i, when in self.radio.hidden_deliveries(msg.ep, msg.t, msg.robot, len(payload),
                                                     time.monotonic(), tick.hidden_deadline):
             self._schedule(when, self.keys.inbox_hidden(i), payload)
@@ -212,6 +231,15 @@ class WorldProcess:
 
     def _deliver(self, state: core.WorldState, tick: TickInbox) -> None:
         lay = core.Layout.of(self.cfg)
+        if self.virtual:
+            heard = self.radio.virtual_bundles(tick.ep, tick.t, lay.to_yx(state.pos[0]),
+                                               {j: p for j, (p, _) in tick.traj.items()})
+            for i, payloads in heard.items():
+                self._put(self.keys.inbox(i), Bundle(tick.ep, tick.t, i, payloads).pack())
+            tick.delivered = True
+            for msg, payload in tick.hidden.values():
+                self._forward_hidden(msg, payload, tick)
+            return
         bundles = self.radio.bundles(tick.ep, tick.t, lay.to_yx(state.pos[0]), tick.traj,
                                      tick.traj_deadline)
         for i, (when, payloads) in bundles.items():
@@ -229,11 +257,12 @@ class WorldProcess:
         acted: list[np.ndarray] = []
         ticks = 0
         next_tick = time.monotonic()
+        self.radio.new_episode()
         while True:
             if self.run_cfg.pace > 0:
                 time.sleep(max(0.0, next_tick - time.monotonic()))
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
-            if self._pending_plan is not None:
+            if self._pending_plan is not None and self.run_tick >= self._pending_at:
                 self.radio.set_plan(self._pending_plan)
                 log.info("faults now: %s", "; ".join(self._pending_plan.describe()) or "none")
                 self._pending_plan = None
@@ -244,7 +273,9 @@ class WorldProcess:
             patch = core.patches(cfg, state)[0]
             done = state.done
             start = time.monotonic()
-            timeout = self.run_cfg.tick_timeout
+            # virtual clock: lateness is decided in virtual time, so the world waits for every
+            # live robot, up to the watchdog; real clock: the tick deadline is on the wall
+            timeout = self.run_cfg.watchdog if self.virtual else self.run_cfg.tick_timeout
             deadline = start + timeout
             budget_ms = 1e3 * timeout
             for i in np.flatnonzero(self.alive):
@@ -258,7 +289,8 @@ class WorldProcess:
                 self._put(keys.episode, rec.pack())
             if done or self.stop:
                 return state, actions_log, ticks
-            traj_deadline = start + timeout / 2  # the radio stops waiting for senders
+            # the radio stops waiting for senders (real clock: half way; virtual: never early)
+            traj_deadline = deadline if self.virtual else start + timeout / 2
             tick = TickInbox(ep, t, traj_deadline=start + 0.8 * timeout,
                              hidden_deadline=start + 0.9 * timeout)
             while True:
@@ -266,7 +298,8 @@ class WorldProcess:
                 if not tick.delivered and (live <= set(tick.traj)
                                            or time.monotonic() >= traj_deadline):
                     self._deliver(state, tick)
-                if tick.delivered and live <= set(tick.action):
+                if tick.delivered and live <= set(tick.action) and (
+                        not self.chained or live <= tick.sent_hidden):
                     break
                 if self.stop or not self.alive.any():
                     break
@@ -300,6 +333,7 @@ class WorldProcess:
             "dyn": lay.to_yx(state.dyn_cells[0][state.dyn_active[0]]).tolist(),
             "timeouts": missing, "bad": sum(self.bad.values()), "late": self.late,
             "run_tick": self.run_tick, "wall": time.time(), "radio": self.radio.counters.totals(),
+            "clock": self.run_cfg.clock, "vtime": self.run_tick * self.run_cfg.tick_timeout,
             "faults": self.radio.plan.describe(),
             "heard_links": self.radio.heard_links(),
             "links": {f"{a}-{b}": [s.delivered, s.lost + s.cut + s.dropped_bw, s.late, s.queued]
@@ -355,9 +389,14 @@ class WorldProcess:
             out["planning_ms_per_decision"] = self.planning_ms / max(self.run_tick, 1)
         c = self.radio.counters
         messages = c.totals()
-        messages["late"] += self.late  # radio-late copies + messages of an older tick
+        if self.virtual:  # wall-clock arrivals after their tick changed nothing: apart
+            messages["stale"] = self.late
+        else:
+            messages["late"] += self.late  # radio-late copies + messages of an older tick
         out.update({
             "ticks": ticks, "ticks_per_s": ticks / wall if wall > 0 else 0.0,
+            "clock": rc.clock, "virtual_s": ticks * rc.tick_timeout if rc.clock == "virtual"
+            else None,
             "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad)},
             "faults": self.radio.plan.to_record(),
             "timeouts": self.timeouts,

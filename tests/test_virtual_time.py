@@ -1,0 +1,129 @@
+"""The virtual clock: a swarm run under faults is a pure function of its seed and fault plan,
+equal to the batched evaluator tick by tick, whatever the host's load."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import ROOT, swarm
+
+from policies import make_policy
+from swarm.learn.evaluate import evaluate
+from swarm.net.faults import plan_from_table
+from world.config import WorldConfig
+
+CKPT = str(ROOT / "checkpoints" / "commattn.pt")
+# each fault kind, and all of them at once; tick 0.2 virtual seconds: traj deadline 160 ms,
+# hidden-state deadline 180 ms
+KINDS = {
+    "loss": {"loss": "0.3"},
+    "latency": {"latency": "120ms", "jitter": "60ms"},
+    "bandwidth": {"bandwidth": "400B/s", "burst": 200},
+    "partition": {"partition": "0-1/2-3"},
+    "compute": {"compute-ms": "150", "latency": "15ms"},
+    "mix": {"loss": "0.2", "latency": "120ms", "jitter": "60ms", "bandwidth": "1.5kB/s",
+            "partition": "0/1-3"},
+}
+
+
+def _flags(table: dict[str, object]) -> list[str]:
+    out = []
+    for k, v in table.items():
+        out += [f"--{k}", str(v)] if k != "burst" else []
+    return out
+
+
+def _run(tmp: Path, name: str, policy: str, faults: dict[str, object], *extra: str) -> dict:
+    cfg = tmp / f"{name}.toml"
+    burst = f"burst = {faults['burst']}\n" if "burst" in faults else ""
+    cfg.write_text(f"[run]\ntick_timeout = 0.2\n[faults]\nseed = 5\n{burst}")
+    args = ["run", "--headless", "--robots", "4", "--policy", policy, "--episodes", "2",
+            "--seed", "3", "--run-id", name, "--json", str(tmp / f"{name}.json"), "--config",
+            str(cfg), *_flags(faults), *extra]
+    if policy == "commattn":
+        args += ["--checkpoint", CKPT]
+    r = swarm(*args, timeout=240)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads((tmp / f"{name}.json").read_text())
+
+
+def _batched(policy: str, faults: dict[str, object]) -> np.ndarray:
+    world = WorldConfig(n_robots=4)
+    table = {("compute" if k == "compute-ms" else k): (f"{v}ms" if k == "compute-ms" else v)
+             for k, v in faults.items()}
+    table["seed"] = 5
+    pol = make_policy(policy, world, **({"checkpoint": CKPT} if policy == "commattn" else {}))
+    res = evaluate(world, pol, 3, 2, batch=2, record_actions=True,
+                   faults=plan_from_table(table, 3), tick_s=0.2)
+    return np.stack(res.actions, 1)  # [episodes, T, N]
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("policy,kind", [("nearest-frontier", k) for k in KINDS]
+                         + [("commattn", "mix"), ("commattn", "latency")])
+def test_virtual_swarm_equals_batched_eval_under_each_fault(tmp_path: Path, policy: str,
+                                                            kind: str) -> None:
+    res = _run(tmp_path, f"v{kind}{policy[:4]}", policy, KINDS[kind])
+    assert res["clock"] == "virtual" and res["timeouts"] == 0
+    swarm_actions = np.array(res["actions"])
+    assert np.array_equal(swarm_actions, _batched(policy, KINDS[kind]))
+    m = res["messages"]
+    if kind in ("latency", "bandwidth", "compute", "mix"):
+        assert m["late"] + m["dropped_bw"] > 0  # the plan bites: some copies came too late
+    if kind in ("loss", "mix"):
+        assert m["lost"] > 0
+
+
+@pytest.mark.procs
+def test_two_virtual_runs_agree_while_the_cpu_is_loaded(tmp_path: Path) -> None:
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        a = _run(tmp_path, "hoga", "commattn", KINDS["mix"])
+        b = _run(tmp_path, "hogb", "commattn", KINDS["mix"])
+    finally:
+        hog.kill()
+    assert a["actions"] == b["actions"]
+    for key in ("lost", "late", "cut", "dropped_bw", "traj_delivered", "hidden_delivered"):
+        assert a["messages"][key] == b["messages"][key], key
+
+
+@pytest.mark.procs
+def test_a_stopped_robot_is_caught_by_the_watchdog(tmp_path: Path) -> None:
+    res = _run(tmp_path, "wdog", "nearest-frontier", {"latency": "10ms"}, "--hang", "2@4",
+               "--watchdog", "0.5")
+    assert res["completed"] == 2 and res["timeouts"] >= 3  # robot 2 misses its ticks, counted
+    acts = np.array(res["actions"])
+    assert (acts[:, 10:, 2] == 0).all() and (acts[:, 10:, :2] != 0).any()
+
+
+@pytest.mark.procs
+def test_a_live_fault_change_lands_on_the_named_tick(tmp_path: Path) -> None:
+    run_id = "livetick"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "4", "--policy",
+         "nearest-frontier", "--episodes", "4", "--run-id", run_id, "--pace", "20"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lost_at: dict[int, int] = {}
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if not line.startswith('{"status"'):
+                continue
+            st = json.loads(line)["status"]
+            lost_at[st["run_tick"]] = st["radio"]["lost"]
+            if st["run_tick"] == 5:
+                r = swarm("fault", "--run", run_id, "--loss", "1", "--at-tick", "40", timeout=30)
+                assert r.returncode == 0, r.stderr
+        assert proc.wait(timeout=120) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    # run tick k's status is written after tick k-1 is stepped: copies of tick 40 are in 41
+    assert lost_at[40] == 0 and lost_at[41] > 0
+    time.sleep(0)
