@@ -249,3 +249,21 @@ def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
     bad = swarm("repro", "fig8", "--out", str(out), "--policies", "vain", "--curve",
                 f"vain={tmp_path / 'missing.csv'}")
     assert bad.returncode == 2 and "no training curve" in bad.stderr
+
+
+@pytest.mark.procs
+def test_repro_fig9_writes_a_row_per_policy_vision_and_range(tmp_path: Path) -> None:
+    """Fig. 9 with the shipped CommNet (vision 5); visions without a checkpoint are named."""
+    cfg = tmp_path / "f9.toml"
+    cfg.write_text("[repro]\nfig9_episodes = 4\n")
+    out = tmp_path / "repro"
+    r = swarm("repro", "fig9", "--out", str(out), "--config", str(cfg), "--policies", "commnet",
+              "--seed", "1")
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader((out / "fig9.csv").open()))
+    assert [(row["policy"], row["vision"]) for row in rows] == [("commnet", "5")] * 10
+    assert [row["comm_range"] for row in rows][-1] == "inf"
+    assert all(0 <= float(row["success_rate"]) <= 1 and 0 < float(row["elratio_mean"]) <= 1
+               for row in rows)
+    assert "Left out (no checkpoint): commnet v=3" in (out / "fig9.md").read_text()
+    assert (out / "fig9.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -24,18 +24,6 @@ from swarm.cli.common import (
     output_file,
     world_config,
 )
-from swarm.cli.console import (
-    curves_table,
-    env_bench_table,
-    eval_table,
-    files_table,
-    kv_table,
-    policy_bench_table,
-    rollout_bench_table,
-    sweep_table,
-    table1_table,
-    table2_table,
-)
 from swarm.common import atomic
 from swarm.common.flags import add_flags, given
 from world.config import ConfigError, WorldConfig, from_dict
@@ -105,6 +93,7 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
                        on_progress=progress.advance, faults=faults, tick_s=cfg.tick_timeout)
         out.append({**res.summary(world), "policy": name,
                     "checkpoint": effective_checkpoint(name, cfg.checkpoint),
+                    "decentralized": bool(policy.decentralized),
                     **({"faults": faults.describe()} if faults is not None else {})})
     return out
 
@@ -120,6 +109,8 @@ def _eval_faults(args: argparse.Namespace, tables: dict[str, Any], world: WorldC
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from swarm.cli.console import eval_table
+
     tables = file_tables(args.config)
     world = world_config(args, tables)
     greedy = False if args.sample else None
@@ -164,6 +155,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from swarm.bench import micro as bench
+    from swarm.cli.console import env_bench_table, kv_table, policy_bench_table, rollout_bench_table
     from swarm.common.policy_spec import build_policy
 
     tables = file_tables(args.config)
@@ -224,6 +216,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_repro(args: argparse.Namespace) -> int:
+    from swarm.cli.console import curves_table, files_table, sweep_table, table1_table, table2_table
     from swarm.studies import repro
 
     tables = file_tables(args.config)
@@ -247,6 +240,8 @@ def cmd_repro(args: argparse.Namespace) -> int:
             out.print(table2_table(res["rows"]))
         elif item == "fig8":
             out.print(curves_table(res["rows"]))
+        elif item in ("fig9", "fig10", "fig11"):
+            continue  # its files are listed below
         else:
             x = "robots" if item == "fig4" else "add_every"
             title = "Fig. 4 (static map)" if item == "fig4" else "Fig. 5 (dynamic map)"
@@ -324,12 +319,13 @@ def add_parsers(sub: Any) -> None:
     add_world(b, robots=False)
     b.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("repro", help="reproduce a paper item: table1, table2, fig4, fig5, fig8 "
-                                     "or all",
+    p = sub.add_parser("repro", help="reproduce a paper item: table1, table2, fig4, fig5, fig8, "
+                                     "fig9, fig10, fig11 or all",
                        description="Reproduce Table 1, Table 2, Fig. 4, Fig. 5 or Fig. 8: writes "
                                    "ITEM.csv, .md, .png and .json into --out. Learned policies "
                                    "use the shipped checkpoints/NAME.pt unless --checkpoint.")
-    p.add_argument("item", metavar="ITEM", help="table1, table2, fig4, fig5, fig8 or all")
+    p.add_argument("item", metavar="ITEM",
+                   help="table1, table2, fig4, fig5, fig8, fig9, fig10, fig11 or all")
     p.add_argument("--out", metavar="DIR", help="output directory (required)")
     p.add_argument("--episodes", type=int, metavar="K", help="episodes per point (default 200)")
     p.add_argument("--policies", metavar="A,B,..",

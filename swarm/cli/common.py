@@ -16,16 +16,6 @@ import sys
 from pathlib import Path
 from typing import Any, NoReturn, Self
 
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
-
 from world.config import ConfigError, WorldConfig, from_dict, load_toml
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
@@ -129,7 +119,16 @@ def add_world(p: argparse.ArgumentParser, robots: bool = True, schedule: bool = 
 class RichProgress:
     """A `ProgressSink` drawing rich progress bars on a (stderr) console."""
 
-    def __init__(self, console: Console) -> None:
+    def __init__(self, console: Any) -> None:
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
         self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                             TimeElapsedColumn(), TimeRemainingColumn(), console=console)
         self.task: Any = None
@@ -148,9 +147,11 @@ class RichProgress:
         self.bar.advance(self.task, n)
 
 
-def _consoles() -> tuple[Console, Console]:
+def _consoles() -> tuple[Any, Any]:
     """Stdout console for results (120 columns when piped, so tables do not wrap) and stderr
     console for progress."""
+    from rich.console import Console  # here: robot processes never draw
+
     out = Console()
     if not out.is_terminal:
         out = Console(width=max(out.width, 120))

@@ -23,14 +23,15 @@ def _pm(mean: float, std: float, fmt: str = ".3f") -> str:
 
 
 def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation") -> Table:
-    """One row per policy from `EvalResult.summary` dicts."""
+    """One row per policy from `EvalResult.summary` dicts; * marks a reference planner that is
+    not decentralized (oracle, central)."""
     table = Table(title=title, title_justify="left")
     table.add_column("policy", style="bold")
     for col in ("elratio", "reward/robot", "collisions", "block coll.", "success", "plan ms"):
         table.add_column(col, justify="right")
     for s in summaries:
         table.add_row(
-            str(s["policy"]),
+            str(s["policy"]) + ("" if s.get("decentralized", True) else " *"),
             _pm(s["elratio_mean"], s["elratio_std"]),
             _pm(s["reward_mean"], s.get("reward_std", 0.0), ".1f"),
             f"{s['collisions_mean']:.2f}",

@@ -20,6 +20,7 @@ import io
 import math
 import shlex
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +35,7 @@ from world.config import ConfigError, WorldConfig, from_dict, load_toml
 
 COLUMNS = ("policy", "value", "seed", "elratio_mean", "elratio_std", "collisions_mean",
            "success_rate", "reward_mean", "ticks_per_s", "timeouts", "lost", "late", "cut",
-           "queued", "dropped_bw", "delivered")
+           "queued", "dropped_bw", "delivered", "clock", "twin", "wall_s")
 KERNEL_COLUMNS = ("robots_lost", "never_joined", "startup_s", "error")  # kernel = true only
 
 
@@ -147,6 +148,9 @@ def run_experiment(path: str, resume: bool = False, out: str | None = None,
                                              policy, exp.checkpoints.get(base)))
                 opts = SuperviseOptions(headless=True, status_lines=False,
                                         netns=exp.netns(value))
+                if exp.kernel:
+                    rc = dataclasses.replace(rc, clock="real")
+                t0 = time.monotonic()
                 try:
                     res = Supervisor(world, rc, opts, faults=faults).supervise()
                 except RuntimeError as exc:  # kernel faults can keep every robot from joining
@@ -163,7 +167,9 @@ def run_experiment(path: str, resume: bool = False, out: str | None = None,
                                                   "collisions_mean", "success_rate",
                                                   "reward_mean", "ticks_per_s", "timeouts")},
                        **{k: m.get(k) for k in ("lost", "late", "cut", "queued", "dropped_bw")},
-                       "delivered": m.get("traj_delivered")}
+                       "delivered": m.get("traj_delivered"), "clock": rc.clock,
+                       "twin": twin(world, rc, faults, res) if rc.clock == "virtual" else "",
+                       "wall_s": round(time.monotonic() - t0, 2)}
                 if exp.kernel:
                     row.update(robots_lost=res.get("robots_lost"), startup_s=res.get("startup_s"),
                                never_joined=res["netns"]["never_joined"])
@@ -175,6 +181,29 @@ def run_experiment(path: str, resume: bool = False, out: str | None = None,
     if exp.kernel and exp.compare:
         files.append(write_comparison(rows, _read_rows(Path(exp.compare)), exp, out_dir, path))
     return {"rows": rows, "files": files}
+
+
+def twin(world: WorldConfig, rc: RunConfig, faults: dict[str, Any], res: dict[str, Any]) -> str:
+    """The batched evaluator on the run's episodes, seed and fault plan: `identical` when it
+    takes every action the swarm took (a virtual-clock run must), else what differs."""
+    import numpy as np
+
+    from swarm.common.policy_spec import build_policy
+    from swarm.learn.evaluate import evaluate
+
+    policy = build_policy(rc.policy, world, rc.checkpoint)
+    ev = evaluate(world, policy, rc.seed, rc.episodes, first_episode=rc.first_episode,
+                  greedy=rc.greedy, record_actions=True, tick_s=rc.tick_timeout,
+                  faults=plan_from_table(faults, rc.seed, world.n_robots))
+    ours = np.array(res.get("actions", []))
+    theirs = np.stack(ev.actions, 1) if ev.actions else np.zeros((0,))
+    if ours.shape != theirs.shape:
+        return f"differs: shapes {ours.shape} vs {theirs.shape}"
+    bad = np.argwhere(ours != theirs)
+    if len(bad):
+        e, t, i = bad[0]
+        return f"differs: episode {e} tick {t} robot {i}"
+    return "identical"
 
 
 def _stats(rows: list[dict[str, Any]], policy: str, value: Any, key: str) -> tuple[float, float]:
@@ -195,14 +224,21 @@ def write_summary(rows: list[dict[str, Any]], exp: ExperimentConfig, out_dir: Pa
     import matplotlib.pyplot as plt
 
     command = shlex.join(["swarm", "experiment", source])
-    lines = [f"Made by `{command}` (seeds {', '.join(map(str, exp.seeds))}).", "",
+    walls = [float(r["wall_s"]) for r in rows if r.get("wall_s") not in (None, "")]
+    twins = [r.get("twin") for r in rows if r.get("twin")]
+    same = sum(t == "identical" for t in twins)
+    clocks = sorted({str(r.get("clock") or "real") for r in rows})
+    lines = [f"Made by `{command}` (seeds {', '.join(map(str, exp.seeds))}; clock "
+             f"{', '.join(clocks)}; {len(rows)} runs in {sum(walls):.0f} s of wall time"
+             + (f"; batched twin identical in {same} of {len(twins)} runs" if twins else "")
+             + ").", "",
              f"| policy | {exp.parameter} | elratio | collisions | success | ticks/s |",
              "|---|---|---|---|---|---|"]
     keys = ("elratio_mean", "collisions_mean", "success_rate", "ticks_per_s")
     fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
     xs = list(range(len(exp.values)))
     for policy in exp.policies:
-        for key, ax in zip(keys, axes):
+        for key, ax in zip(keys, axes, strict=True):
             stats = [_stats(rows, policy, v, key) for v in exp.values]
             ax.errorbar(xs, [s[0] for s in stats], yerr=[s[1] for s in stats], marker="o",
                         capsize=3, label=policy)
@@ -210,13 +246,14 @@ def write_summary(rows: list[dict[str, Any]], exp: ExperimentConfig, out_dir: Pa
             e, c, s, tps = (_stats(rows, policy, v, k) for k in keys)
             lines.append(f"| {policy} | {v} | {e[0]:.3f} ± {e[1]:.3f} | {c[0]:.1f} | "
                          f"{s[0]:.2f} | {tps[0]:.1f} |")
-    for key, ax in zip(keys, axes):
+    for key, ax in zip(keys, axes, strict=True):
         ax.set_xticks(xs, [str(v) for v in exp.values])
         ax.set_xlabel(exp.label or exp.parameter)
         ax.set_ylabel(key.replace("_", " "))
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"{exp.name}: real swarm under {exp.parameter} faults")
+    fig.suptitle(f"{exp.name}: real swarm under {exp.parameter} faults ({', '.join(clocks)} "
+                 "clock)")
     fig.tight_layout()
     png = out_dir / f"{exp.name}.png"
     _save(fig, png)
@@ -277,7 +314,8 @@ def _save(fig: Any, png: Path) -> None:
 def main(argv_path: str, resume: bool, out: str | None) -> int:
     res = run_experiment(argv_path, resume, out, on_row=lambda r: print(
         f"  {r['policy']} {r['value']} seed {r['seed']}: elratio {r['elratio_mean']:.3f} "
-        f"collisions {r['collisions_mean']:.1f} ticks/s {r['ticks_per_s']:.1f}",
+        f"collisions {r['collisions_mean']:.1f} ticks/s {r['ticks_per_s']:.1f} "
+        f"{r.get('twin') or ''}",
         file=sys.stderr, flush=True))
     for f in res["files"]:
         print(f"wrote {f}")

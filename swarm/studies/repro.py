@@ -32,9 +32,11 @@ from swarm.learn.curves import moving_mean, read_curve
 from swarm.learn.evaluate import evaluate
 from world.config import ConfigError, WorldConfig, replace, to_dict
 
-ITEMS = ("table1", "table2", "fig4", "fig5", "fig8")
+ITEMS = ("table1", "table2", "fig4", "fig5", "fig8", "fig9", "fig10", "fig11")
+ANALYSES = ("fig10", "fig11")  # what CommAttn communicates (swarm.studies.commviz)
 LEARNED = learned_names()
 ALL_POLICIES = (*LEARNED, "nearest-frontier", "coordinated-frontier", "cost-utility", "random")
+REFERENCE = ("central", "oracle")  # not decentralized: what perfect communication / foresight buy
 # Paper's Table 2 (10 robots, 30 s, 1000 episodes): mean reward, collisions, elratio %, std %.
 PAPER_TABLE2: dict[str, tuple[float, float, float, float | None]] = {
     "commattn": (37, 9, 95.2, 3.1), "vain": (21, 15, 90.2, None),
@@ -65,6 +67,18 @@ class ReproConfig:
     """Checkpoint file per learned policy name (default: the shipped checkpoints/NAME.pt)."""
     table2_episodes: int = 1000
     """Table 2: held-out episodes per policy (the paper: 1000)."""
+    fig9_episodes: int = 1000
+    """Fig. 9: held-out episodes per (policy, vision, comm range) point."""
+    fig10_episodes: int = 200
+    """Fig. 10: static-map episodes whose decoder states are recorded."""
+    fig11_episodes: int = 1000
+    """Fig. 11: episodes on the one fixed static map."""
+    oracle_episodes: int = 60
+    """Table 2: the oracle plans each episode in ~2 s, so it plays only the first this many of
+    the held-out episodes (its paired difference is over those)."""
+    reference: bool = True
+    """Table 2 with the default policies: add the reference planners (central, oracle) and each
+    policy's share of the oracle-to-random gap (name them in `policies` to choose)."""
     curves: dict[str, str] = field(default_factory=dict)
     """Fig. 8: training-curve CSV per learned policy (default: checkpoints/NAME_curve.csv)."""
     smooth: int = 25
@@ -84,7 +98,8 @@ class ReproConfig:
         object.__setattr__(self, "policies", name_list(self.policies))
         object.__setattr__(self, "robots", int_list(self.robots, "robots"))
         object.__setattr__(self, "add_every", int_list(self.add_every, "add_every"))
-        for key in ("episodes", "decisions", "batch", "table2_episodes", "smooth"):
+        for key in ("episodes", "decisions", "batch", "table2_episodes", "smooth",
+                    "fig9_episodes", "fig10_episodes", "fig11_episodes", "oracle_episodes"):
             if getattr(self, key) < 1:
                 raise ConfigError(f"{key} must be >= 1, got {getattr(self, key)}")
         if not isinstance(self.checkpoints, dict) or not all(
@@ -214,20 +229,27 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
            progress: ProgressSink) -> dict[str, Any]:
     """Table 2: every policy on the same held-out dynamic-map episodes, next to the paper's."""
     wc = replace(world, dynamic=True)
-    progress.start("table2", len(cfg.policies) * cfg.table2_episodes)
+    default = tuple(cfg.policies) == ALL_POLICIES  # --policies given: exactly those
+    names = list(cfg.policies) + [r for r in REFERENCE
+                                  if cfg.reference and default and r not in cfg.policies]
+    progress.start("table2", len(names) * cfg.table2_episodes)
     rows: list[dict[str, Any]] = []
     first: np.ndarray | None = None  # the first policy's per-episode elratio (paired reference)
-    for name in cfg.policies:
+    for name in names:
         policy = build_policy(name, wc, cfg.checkpoint(name))
-        res = evaluate(wc, policy, cfg.seed, cfg.table2_episodes, batch=cfg.batch,
+        episodes = min(cfg.table2_episodes, cfg.oracle_episodes) if name == "oracle" \
+            else cfg.table2_episodes
+        res = evaluate(wc, policy, cfg.seed, episodes, batch=cfg.batch,
                        on_progress=progress.advance)
+        progress.advance(cfg.table2_episodes - episodes)
         s = res.summary(wc)
         paper = PAPER_TABLE2.get(name)
         if first is None:
             first = res.elratio
-        diff = first - res.elratio  # same episodes: a paired difference
+        diff = first[:episodes] - res.elratio  # same episodes: a paired difference
         se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else float("nan")
-        rows.append({"policy": name, "robots": wc.n_robots, "episodes": cfg.table2_episodes,
+        rows.append({"policy": name, "robots": wc.n_robots, "episodes": episodes,
+                     "decentralized": bool(policy.decentralized),
                      **{k: s[k] for k in SWEEP_KEYS}, "robot_collisions_mean":
                      float(res.robot_collisions.mean()),
                      "first_minus_elratio": float(diff.mean()), "first_minus_elratio_se": se,
@@ -235,14 +257,24 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
                      "paper_collisions": paper[1] if paper else None,
                      "paper_elratio_pct": paper[2] if paper else None,
                      "paper_elratio_std_pct": paper[3] if paper else None})
+    by = {r["policy"]: r["elratio_mean"] for r in rows}
+    lo, hi = by.get("random"), by.get("oracle")
+    for r in rows:  # the share of the oracle-to-random gap each policy closes
+        r["gap_closed"] = (r["elratio_mean"] - lo) / (hi - lo) if lo is not None and hi and \
+            hi > lo else None
     md = header(f"Table 2: {wc.n_robots} robots, {wc.horizon} steps, dynamic map", command,
+
                 cfg.seed,
                 f"{cfg.table2_episodes} held-out episodes per policy (evaluation seed {cfg.seed}; "
                 "training used seeds from 1,000,000 up), greedy actions. Our rewards are the "
                 "SPEC's (negative for good policies); the paper's are from its own reward "
                 "scale. Collisions = block + robot collisions per episode. The last column is "
                 f"{cfg.policies[0]}'s elratio minus the row's, episode by episode, with the "
-                "standard error of that paired mean.")
+                "standard error of that paired mean. Rows marked * are reference planners, not "
+                f"decentralized: `central` pools every robot's observations (a perfect radio), "
+                f"`oracle` knows the whole episode in advance (first {cfg.oracle_episodes} "
+                "episodes only); 'gap' is the share of the oracle-to-random elratio gap a "
+                "policy closes.")
 
     def paper_cell(r: dict[str, Any]) -> str:
         if r["paper_reward"] is None:
@@ -258,11 +290,12 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
 
     md += md_table(
         ["policy", "reward / robot", "collisions (block)", "elratio", "success",
-         "paper: reward / collisions / elratio", f"{cfg.policies[0]} - this (paired)"],
-        [[r["policy"], f"{r['reward_mean']:.1f}",
+         "paper: reward / collisions / elratio", f"{cfg.policies[0]} - this (paired)", "gap"],
+        [[r["policy"] + ("" if r["decentralized"] else " *"), f"{r['reward_mean']:.1f}",
           f"{r['collisions_mean']:.2f} ({r['block_collisions_mean']:.2f})",
           f"{r['elratio_mean']:.3f} ± {r['elratio_std']:.3f}", f"{100 * r['success_rate']:.1f}%",
-          paper_cell(r), paired(r)] for r in rows])
+          paper_cell(r), paired(r),
+          "-" if r["gap_closed"] is None else f"{100 * r['gap_closed']:.1f}%"] for r in rows])
 
     def draw(ax: Any) -> None:
         xs = range(len(rows))
@@ -329,6 +362,22 @@ def fig8(cfg: ReproConfig, command: str) -> dict[str, Any]:
             "files": write_item(Path(cfg.out or "."), "fig8", rows, md, draw, meta, ncols=2)}
 
 
+def analysis(item: str, cfg: ReproConfig) -> dict[str, Any]:
+    """Fig. 10 (t-SNE of decoder states, with a silhouette and a linear probe) or Fig. 11
+    (communication-vector norm per cell) of CommAttn, by swarm.studies.commviz."""
+    from swarm.studies import commviz
+
+    out = Path(cfg.out or ".")
+    ckpt = cfg.checkpoint("commattn")
+    if item == "fig10":
+        res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt)
+        names = ("fig10.png", "fig10.csv", "fig10_scores.csv", "fig10_scores.md")
+    else:
+        res = commviz.fig11(out, seed=cfg.seed, episodes=cfg.fig11_episodes, checkpoint=ckpt)
+        names = ("fig11.png", "fig11.csv", "fig11_by_neighbours.csv", "fig11_by_neighbours.md")
+    return {"item": item, "rows": [res], "files": [str(out / n) for n in names]}
+
+
 def expand(item: str) -> list[str]:
     """`all` -> every item; otherwise the one item (ConfigError if unknown)."""
     if item == "all":
@@ -346,11 +395,17 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
     progress = progress or NullProgress()
     if len(items) > 1 and "fig8" in items and not learned_of(cfg):
         items = [i for i in items if i != "fig8"]  # `all` without learned policies: no curves
+    if len(items) > 1 and "commattn" not in cfg.policies:  # `all` without CommAttn
+        items = [i for i in items if i not in ANALYSES]
+    if len(items) > 1 and not set(cfg.policies) & {"commnet", "commattn"}:
+        items = [i for i in items if i != "fig9"]
     for item in items:
-        if item != "table1":
+        if item not in ("table1", "fig9", *ANALYSES):
             sweep_worlds(world, item, cfg)  # raises ConfigError on an impossible point
-    for name in cfg.policies if set(items) - {"fig8"} else ():  # fail before hours of work
+    for name in cfg.policies if set(items) - {"fig8", "fig9", *ANALYSES} else ():  # fail early
         build_policy(name, world, cfg.checkpoint(name))
+    if set(items) & set(ANALYSES):
+        build_policy("commattn", world, cfg.checkpoint("commattn"))
     if "fig8" in items:
         for name in learned_of(cfg):
             if not cfg.curve(name).is_file():
@@ -363,6 +418,16 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
             results[item] = table2(world, cfg, command, progress)
         elif item == "fig8":
             results[item] = fig8(cfg, command)
+        elif item in ANALYSES:
+            results[item] = analysis(item, cfg)
+        elif item == "fig9":
+            from swarm.studies.fig9 import fig9
+
+            names = [n for n in ("commnet", "commattn") if n in cfg.policies] or ["commnet",
+                                                                                 "commattn"]
+            results[item] = fig9(world, Path(cfg.out), command, cfg.seed, cfg.fig9_episodes,
+                                 policies=names, batch=cfg.batch,
+                                 checkpoints={n: cfg.checkpoint(n) for n in names})
         else:
             results[item] = sweep(world, item, cfg, command, progress)
     if cfg.json:
