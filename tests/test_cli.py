@@ -267,3 +267,19 @@ def test_repro_fig9_writes_a_row_per_policy_vision_and_range(tmp_path: Path) -> 
                for row in rows)
     assert "Left out (no checkpoint): commnet v=3" in (out / "fig9.md").read_text()
     assert (out / "fig9.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.procs
+def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[repro]\ncomm_episodes = 2\n")
+    r = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg), "--seed", "2")
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader((tmp_path / "comm.csv").open()))
+    assert len(rows) == 8 * 3 and {row["policy"] for row in rows} == {
+        "commattn", "coordinated-frontier", "central"}
+    central = {float(row["elratio_mean"]) for row in rows if row["policy"] == "central"}
+    assert len(central) == 1  # a perfect radio: no condition changes it
+    ref = central.pop()
+    for row in rows:
+        assert float(row["gap_to_central"]) == pytest.approx(ref - float(row["elratio_mean"]))

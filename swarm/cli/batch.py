@@ -240,7 +240,7 @@ def cmd_repro(args: argparse.Namespace) -> int:
             out.print(table2_table(res["rows"]))
         elif item == "fig8":
             out.print(curves_table(res["rows"]))
-        elif item in ("fig9", "fig10", "fig11"):
+        elif item in ("fig9", "fig10", "fig11", "comm"):
             continue  # its files are listed below
         else:
             x = "robots" if item == "fig4" else "add_every"
@@ -320,12 +320,12 @@ def add_parsers(sub: Any) -> None:
     b.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("repro", help="reproduce a paper item: table1, table2, fig4, fig5, fig8, "
-                                     "fig9, fig10, fig11 or all",
+                                     "fig9, fig10, fig11, comm or all",
                        description="Reproduce Table 1, Table 2, Fig. 4, Fig. 5 or Fig. 8: writes "
                                    "ITEM.csv, .md, .png and .json into --out. Learned policies "
                                    "use the shipped checkpoints/NAME.pt unless --checkpoint.")
     p.add_argument("item", metavar="ITEM",
-                   help="table1, table2, fig4, fig5, fig8, fig9, fig10, fig11 or all")
+                   help="table1, table2, fig4, fig5, fig8, fig9, fig10, fig11, comm or all")
     p.add_argument("--out", metavar="DIR", help="output directory (required)")
     p.add_argument("--episodes", type=int, metavar="K", help="episodes per point (default 200)")
     p.add_argument("--policies", metavar="A,B,..",

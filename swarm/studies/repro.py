@@ -32,8 +32,8 @@ from swarm.learn.curves import moving_mean, read_curve
 from swarm.learn.evaluate import evaluate
 from world.config import ConfigError, WorldConfig, replace, to_dict
 
-ITEMS = ("table1", "table2", "fig4", "fig5", "fig8", "fig9", "fig10", "fig11")
-ANALYSES = ("fig10", "fig11")  # what CommAttn communicates (swarm.studies.commviz)
+ITEMS = ("table1", "table2", "fig4", "fig5", "fig8", "fig9", "fig10", "fig11", "comm")
+ANALYSES = ("fig10", "fig11", "comm")  # CommAttn's communication (swarm.studies.commviz, comm)
 LEARNED = learned_names()
 ALL_POLICIES = (*LEARNED, "nearest-frontier", "coordinated-frontier", "cost-utility", "random")
 REFERENCE = ("central", "oracle")  # not decentralized: what perfect communication / foresight buy
@@ -67,6 +67,8 @@ class ReproConfig:
     """Checkpoint file per learned policy name (default: the shipped checkpoints/NAME.pt)."""
     table2_episodes: int = 1000
     """Table 2: held-out episodes per policy (the paper: 1000)."""
+    comm_episodes: int = 200
+    """`comm`: held-out episodes per (policy, condition)."""
     fig9_episodes: int = 1000
     """Fig. 9: held-out episodes per (policy, vision, comm range) point."""
     fig10_episodes: int = 200
@@ -99,7 +101,8 @@ class ReproConfig:
         object.__setattr__(self, "robots", int_list(self.robots, "robots"))
         object.__setattr__(self, "add_every", int_list(self.add_every, "add_every"))
         for key in ("episodes", "decisions", "batch", "table2_episodes", "smooth",
-                    "fig9_episodes", "fig10_episodes", "fig11_episodes", "oracle_episodes"):
+                    "fig9_episodes", "fig10_episodes", "fig11_episodes", "oracle_episodes",
+                    "comm_episodes"):
             if getattr(self, key) < 1:
                 raise ConfigError(f"{key} must be >= 1, got {getattr(self, key)}")
         if not isinstance(self.checkpoints, dict) or not all(
@@ -362,13 +365,19 @@ def fig8(cfg: ReproConfig, command: str) -> dict[str, Any]:
             "files": write_item(Path(cfg.out or "."), "fig8", rows, md, draw, meta, ncols=2)}
 
 
-def analysis(item: str, cfg: ReproConfig) -> dict[str, Any]:
+def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
+             command: str = "") -> dict[str, Any]:
     """Fig. 10 (t-SNE of decoder states, with a silhouette and a linear probe) or Fig. 11
     (communication-vector norm per cell) of CommAttn, by swarm.studies.commviz."""
     from swarm.studies import commviz
 
     out = Path(cfg.out or ".")
     ckpt = cfg.checkpoint("commattn")
+    if item == "comm":
+        from swarm.studies.comm import comm
+
+        return comm(world or WorldConfig(), out, command, cfg.seed, cfg.comm_episodes,
+                    checkpoints={"commattn": ckpt}, batch=cfg.batch)
     if item == "fig10":
         res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt)
         names = ("fig10.png", "fig10.csv", "fig10_scores.csv", "fig10_scores.md")
@@ -419,7 +428,7 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
         elif item == "fig8":
             results[item] = fig8(cfg, command)
         elif item in ANALYSES:
-            results[item] = analysis(item, cfg)
+            results[item] = analysis(item, cfg, world, command)
         elif item == "fig9":
             from swarm.studies.fig9 import fig9
 
