@@ -345,7 +345,7 @@ class Supervisor:
             write_json(self.opts.json_path, res)
         return res
 
-    def _drain_learner(self, grace: float = 10.0) -> None:
+    def _drain_learner(self, grace: float = 30.0) -> None:
         """After the last episode: let the learner take in every episode of the run, then stop
         it first (its final status still routes through the world) and keep that status; a
         partial batch is never trained on (its episodes stay pending, counted)."""
