@@ -364,13 +364,14 @@ class WorldProcess:
             wall = time.monotonic() - t0
             result = self._result(parts, curves, actions, ticks, wall)
             self._put(self.keys.result, pack_record(K_RESULT, result))
-            self._put(self.keys.end, pack_record(K_RESULT, {"run_id": rc.run_id}))
-            time.sleep(0.05)  # let the result leave before the session closes
             if rc.train:  # robots' and learner's traffic is routed through this session:
                 # stay up until the supervisor has let the learner take the last episodes
+                # (robots too: one that left at once could lose its last episode's record)
                 deadline = time.monotonic() + 15.0
                 while not self.stop and self._pump(deadline):
                     pass
+            self._put(self.keys.end, pack_record(K_RESULT, {"run_id": rc.run_id}))
+            time.sleep(0.05)  # let the result and the end leave before the session closes
             return result
         finally:
             self.inbox.close()
