@@ -127,3 +127,23 @@ def test_a_live_fault_change_lands_on_the_named_tick(tmp_path: Path) -> None:
     # run tick k's status is written after tick k-1 is stepped: copies of tick 40 are in 41
     assert lost_at[40] == 0 and lost_at[41] > 0
     time.sleep(0)
+
+
+@pytest.mark.procs
+def test_train_takes_the_fault_flags_of_run_and_eval(tmp_path: Path) -> None:
+    """`swarm train --latency ... --loss ...` trains under the radio's virtual-time model and the
+    plan is part of the checkpoint (resume reproduces it)."""
+    import torch
+
+    from swarm.learn.config import TrainConfig
+    from swarm.learn.rollout import train_faults
+
+    r = swarm("train", "--policy", "commnet", "--robots", "3", "--out", str(tmp_path / "t"),
+              "--epochs", "1", "--updates", "1", "--batch", "2", "--val-episodes", "0",
+              "--threads", "1", "--latency", "150ms", "--jitter", "50ms", "--loss", "0.2",
+              "--tick-s", "0.2", timeout=120)
+    assert r.returncode == 0, r.stderr
+    tr = torch.load(tmp_path / "t" / "checkpoint.pt", weights_only=False)["train"]["config"]
+    plan = train_faults(TrainConfig(**tr))
+    assert plan is not None and plan.default.latency_ms == 150 and plan.default.loss == 0.2
+    assert tr["tick_s"] == 0.2

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -148,6 +150,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     world = world_config(args, tables)
     base = from_dict(train_config.TrainConfig, tables.get("train", {}), "[train]")
     cfg = train_config.from_args(args, base)
+    faults = fault_table(args, tables, world.n_robots)  # the same flags as swarm run / eval
+    if faults and not cfg.faults:
+        cfg = dataclasses.replace(cfg, faults=json.dumps(faults))
     out, _ = _consoles()
     train.main(cfg, world, args.out, resume=args.resume, console=out)
     return 0
@@ -352,5 +357,6 @@ def add_parsers(sub: Any) -> None:
     add_world(p)
     from swarm.learn.config import add_arguments as add_train_arguments
 
+    add_fault_flags(p, process=False)
     add_train_arguments(p)
     p.set_defaults(func=cmd_train)

@@ -27,6 +27,12 @@ class TrainConfig:
     train_loss: float = 0.0
     """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
     with this probability, with the swarm radio's seeded loss model (0: no faults)."""
+    faults: str = ""
+    """Fault-aware training under any radio fault: the `[faults]` table as JSON, set by the same
+    fault flags as `swarm run` (--latency, --jitter, --loss, --bandwidth, --partition,
+    --compute-ms); applied by the virtual-time channel model (swarm.net.channel)."""
+    tick_s: float = 2.0
+    """The tick's virtual length under `faults` (as `swarm run --tick-timeout`)."""
     seed: int = 0
     """Run seed: initial weights and the training / validation episode seeds."""
     epochs: int = 50
@@ -90,7 +96,7 @@ class TrainConfig:
                   "curriculum_min_updates": (0, 10**6), "curriculum_max_updates": (0, 10**6),
                   "curriculum_ema": (0, 1), "train_seed_offset": (0, 2**40),
                   "val_episodes": (0, 10**7), "threads": (1, 256), "workers": (1, 256),
-                  "chunk_ticks": (1, 10**6)}
+                  "chunk_ticks": (1, 10**6), "tick_s": (1e-3, 3600)}
         for name, (lo, hi) in ranges.items():
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and lo <= v <= hi):  # also NaN

@@ -4,6 +4,7 @@ counter-based noise the evaluator and the swarm use), recorded in the form the u
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,10 +43,15 @@ def frozen(view: View) -> View:
 
 
 def train_faults(cfg: TrainConfig) -> FaultPlan | None:
-    """The message-fault model applied during rollouts (`--train-loss`)."""
-    if cfg.train_loss <= 0:
+    """The radio's fault model applied during rollouts: `faults` (the run's fault flags) and
+    `--train-loss`, with its own seed unless the table names one."""
+    table = dict(json.loads(cfg.faults)) if cfg.faults else {}
+    if cfg.train_loss > 0:
+        table["loss"] = cfg.train_loss
+    if not table:
         return None
-    return plan_from_table({"loss": cfg.train_loss, "seed": cfg.seed + 3_000_000})
+    table.setdefault("seed", cfg.seed + 3_000_000)
+    return plan_from_table(table)
 
 
 def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.ndarray,

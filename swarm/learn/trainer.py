@@ -119,7 +119,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                 level_world = cur.world(world, cfg)
                 episodes = upd * cfg.batch + np.arange(cfg.batch)
                 if pool is None:
-                    roll = collect(policy, level_world, train_seed, episodes, train_faults(cfg))
+                    roll = collect(policy, level_world, train_seed, episodes, train_faults(cfg),
+                                   cfg.tick_s)
                     m, parts = roll.metrics, update(policy, opt, roll, cfg)
                 else:
                     m, parts = pool.update(policy, opt, level_world, train_seed, episodes, cfg,
