@@ -55,6 +55,8 @@ class VirtualChannel:
         self.depth = np.array([f.burst or f.bandwidth for f in per])
         self.drop = np.array([f.overflow == "drop" for f in per])
         self.capped = bool((self.rate > 0).any())
+        grp = plan.group_of(n)
+        self._cut = grp[:, None] != grp[None, :]  # [receiver, sender] in different groups
         self.reset(groups)
 
     def reset(self, groups: int) -> None:
@@ -92,13 +94,11 @@ class VirtualChannel:
         fate = np.zeros((g, n, n), dtype=np.int8)
         arrival = np.broadcast_to(now[:, None, :], (g, n, n)).copy()
         if not self.plan.zero:
-            keep = delivery_mask(FaultPlan(self.plan.default, self.plan.per_robot,
-                                           self.plan.per_link, (), (), self.plan.seed),
-                                 episodes, t, n, kind)
+            links = (self._loss, self._lat, self._jit)  # not rebuilt per call (a hot path)
+            keep = delivery_mask(self.plan, episodes, t, n, kind, links=links, partition=False)
             fate[~keep] = LOST
             if self.plan.partition:
-                grp = self.plan.group_of(n)
-                fate[:, grp[:, None] != grp[None, :]] = CUT
+                fate[:, self._cut] = CUT
             delay = delay_ms(self.plan, episodes, t, n, kind, self._lat, self._jit)
             arrival = arrival + q[:, None, :] + delay
             fate[(fate == OK) & np.isnan(q)[:, None, :]] = DROPPED

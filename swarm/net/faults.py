@@ -293,7 +293,9 @@ def _plan(t: dict[str, Any], seed: int) -> FaultPlan:
 
 
 def delivery_mask(plan: FaultPlan, episodes: np.ndarray, tick: int, n: int,
-                  kind: int = KIND_TRAJ, budget_ms: float | None = None) -> np.ndarray:
+                  kind: int = KIND_TRAJ, budget_ms: float | None = None,
+                  links: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                  partition: bool = True) -> np.ndarray:
     """[G, N, N] bool: does j's message reach i (loss, partition, and latency within budget)?
 
     The same decisions the swarm's radio makes for each (episode, tick, sender, receiver); the
@@ -305,13 +307,13 @@ def delivery_mask(plan: FaultPlan, episodes: np.ndarray, tick: int, n: int,
     ok = np.ones((g, n, n), dtype=bool)
     if plan.zero:
         return ok
-    loss, lat, jit = link_arrays(plan, n)
+    loss, lat, jit = links if links is not None else link_arrays(plan, n)
     recv = np.arange(n)[:, None]
     send = np.arange(n)[None, :]
     u = uniform(plan.seed, episodes[:, None, None], tick, send * 1000 + recv, 1,
                 stream=STREAM_LOSS + 100 * kind)[..., 0]
     ok &= ~(u < loss.T[None])  # loss[j, i] is the link j -> i; ok[g, i, j]
-    if plan.partition:
+    if plan.partition and partition:
         grp = plan.group_of(n)
         ok &= (grp[:, None] == grp[None, :])[None]
     if budget_ms is not None:
