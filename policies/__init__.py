@@ -29,6 +29,8 @@ BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility
 # Policies whose robots send hidden-state messages along the id chain (SPEC 3.5), known without
 # importing them (the world process never imports torch); tests check it against the classes.
 CHAINED = frozenset({"commattn"})
+# Learned policies (a torch network to train, a numpy twin in policies.infer.nets to act with).
+LEARNED = frozenset({"commattn", "commnet", "vain", "bicnet"})
 
 
 def policy_class(name: str) -> type[Policy]:

@@ -3,24 +3,13 @@ order; the receiver's action and value come from the BiGRU output at its own pos
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import nn
 
-from policies.features import Members, ModelConfig, TokenEmbed, bigru, rows
+from policies.features import Members, TokenEmbed, bigru, rows
+from policies.infer.nets import BicNetConfig, NumpyBicNet
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
-
-
-@dataclass
-class BicNetConfig(ModelConfig):
-    """Sizes of the BicNet network."""
-
-    embed: int = 32
-    """Width of the per-member token embedding fed to the BiGRU."""
-    hidden: int = 32
-    """BiGRU hidden size per direction."""
 
 
 class BicNet(nn.Module):
@@ -46,4 +35,5 @@ class BicNet(nn.Module):
 class BicNetPolicy(LearnedPolicy):
     name = "bicnet"
     config_cls = BicNetConfig
+    numpy_cls = NumpyBicNet
     net_cls = BicNet

@@ -11,7 +11,8 @@ A checkpoint is a torch file holding a plain dict:
     train       optional trainer state (optimizer, RNG, counters) for `swarm train --resume`
 
 Writes are atomic (temp file in the same directory, fsync, os.replace), so a crash mid-write
-leaves the previous checkpoint intact.
+leaves the previous checkpoint intact. `read_checkpoint` reads one without torch (numpy arrays,
+policies.infer.ptfile): what robot processes do.
 """
 
 from __future__ import annotations
@@ -20,8 +21,6 @@ import os
 import tempfile
 from pathlib import Path
 from typing import Any
-
-import torch
 
 from world.config import ConfigError
 
@@ -34,6 +33,8 @@ class CheckpointError(ConfigError):
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
     """Write `payload` to `path` atomically."""
+    import torch
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -56,6 +57,8 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
     """Read a checkpoint written by `save_checkpoint`; any problem is a one-line CheckpointError."""
+    import torch
+
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"checkpoint not found: {path}")
@@ -64,6 +67,24 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001 - any unpickling problem means "not a checkpoint"
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise CheckpointError(f"checkpoint {path} is unreadable: {first}") from None
+    return _checked(data, path)
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """`load_checkpoint` without torch: the same dict with numpy arrays for tensors."""
+    from policies.infer.ptfile import PtFileError, load_pt
+
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint not found: {path}")
+    try:
+        data = load_pt(path)
+    except PtFileError as exc:
+        raise CheckpointError(f"checkpoint {path} is unreadable: {exc}") from None
+    return _checked(data, path)
+
+
+def _checked(data: Any, path: Path) -> dict[str, Any]:
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise CheckpointError(f"checkpoint {path} is not a format-{FORMAT} checkpoint")
     missing = [k for k in ("policy", "model", "world", "state_dict") if k not in data]

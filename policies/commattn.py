@@ -20,32 +20,12 @@ import numpy as np
 import torch
 from torch import nn
 
-from policies.features import Members, ModelConfig, TokenEmbed, bigru, rows
+from policies.features import Members, TokenEmbed, bigru, rows
+from policies.infer.nets import CommAttnConfig, NumpyCommAttn
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
 NO_ACTION = N_ACTIONS  # action-embedding index used where there is no predecessor
-
-
-@dataclass
-class CommAttnConfig(ModelConfig):
-    """Sizes of the CommAttn network."""
-
-    embed: int = 32
-    """Width of the per-member token embedding fed to the BiGRU."""
-    hidden: int = 32
-    """BiGRU hidden size per direction; h_j has 2 * hidden values."""
-    state: int = 64
-    """Decoder state size (the hidden-state message carries this many floats)."""
-    match: int = 32
-    """Hidden width of the matching net m(s, h)."""
-    action_embed: int = 16
-    """Width of the predecessor-action embedding."""
-    self_input: bool = True
-    """Also feed the receiver's own encoder state h_i and token embedding x_i to the action and
-    value heads g and b (the paper's decoder reaches them only through attention; False
-    reproduces it exactly). With it, reacting to the own patch need not wait for attention to
-    learn to find oneself (3x faster early learning in pilots)."""
 
 
 @dataclass
@@ -172,4 +152,5 @@ class CommAttnPolicy(LearnedPolicy):
     name = "commattn"
     chained = True
     config_cls = CommAttnConfig
+    numpy_cls = NumpyCommAttn
     net_cls = CommAttn

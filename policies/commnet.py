@@ -8,24 +8,13 @@ mean pooling over its own neighbourhood S_i and reads the output at its own slot
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import nn
 
-from policies.features import Members, ModelConfig, TokenEmbed
+from policies.features import Members, TokenEmbed
+from policies.infer.nets import CommNetConfig, NumpyCommNet
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
-
-
-@dataclass
-class CommNetConfig(ModelConfig):
-    """Sizes of the CommNet network."""
-
-    hidden: int = 64
-    """Hidden size of every agent's state h_j."""
-    steps: int = 2
-    """Communication steps K."""
 
 
 class CommNet(nn.Module):
@@ -58,4 +47,5 @@ class CommNet(nn.Module):
 class CommNetPolicy(LearnedPolicy):
     name = "commnet"
     config_cls = CommNetConfig
+    numpy_cls = NumpyCommNet
     net_cls = CommNet

@@ -1,25 +1,7 @@
-"""Member tokens of the learned policies: what receiver i reads about member j of its neighbourhood.
-
-A token for (receiver i, member j in S_i) has two parts:
-
-- a *member* part, the same for every receiver, computed once per (group, robot): j's v x v
-  patch as three one-hot planes (block, off-grid, robot) and j's absolute position in [0, 1];
-- a *pair* part, relative to the receiver: an egocentric `crop x crop` window of j's visited
-  bitmap centred on the *receiver's* cell (1 visited, 0 not, -1 off-grid), j's recent positions
-  relative to i (dy / H, dx / W, valid flag), j's position relative to i, an is-self flag and
-  the tick fraction t / T;
-- optionally (`team_pool > 0`) an *own* part per receiver, added to its own token only: the
-  team map it can assemble from the messages it heard this tick, i.e. the union U_i of its
-  members' visited bitmaps, as an egocentric `crop x crop` window (1 / 0 / -1 as above) and as a
-  coarse egocentric map of the whole grid, the fraction of cells not in U_i in each
-  `team_pool x team_pool` block of a window wide enough to cover the grid from any cell. Without
-  it a receiver can only see 4 cells of explored map around it and has no sense of where the
-  unexplored area lies beyond; frontier planners read the whole belief map.
-
-Only heard pairs exist: `Members` lists them receiver by receiver, members in id order (the
-canonical pair order), so an unheard robot never enters a computation. Receivers are id-major
-(all robot-0 receivers of every group, then robot 1, ...), the order CommAttn's chain decodes
-in. `Members.dense()` gives the [R, N, F] tokens and [R, N] mask view of the same data.
+"""The torch side of the member tokens: `Members` (the numpy `policies.infer.tokens.Tokens` as
+tensors, zero-copy), the token embedding and the bidirectional GRU the trainable networks use.
+The features themselves are computed once, in numpy (policies.infer.tokens), for acting and
+training alike.
 """
 
 from __future__ import annotations
@@ -31,24 +13,10 @@ import torch
 from torch import nn
 from torch.nn.utils.rnn import PackedSequence
 
-from world.config import ConfigError, WorldConfig
-from world.decentral import View, heard_union
+from policies.infer.tokens import Featurizer, ModelConfig, Tokens
 
+__all__ = ["Featurizer", "Members", "ModelConfig", "Sequences", "TokenEmbed", "bigru", "rows"]
 
-@dataclass
-class ModelConfig:
-    """The feature settings every learned network shares (each network's config extends it)."""
-
-    crop: int = 9
-    """Side of the egocentric window of each member's visited bitmap (see policies.features)."""
-    team_pool: int = 3
-    """Block size of the coarse team map added to the receiver's own token (0: no team map;
-    checkpoints older than this field load with 0). See policies.features."""
-    team_memory: bool = True
-    """Build the team map from the receiver's memory of every bitmap heard this episode
-    (world.decentral.TeamMemory) instead of this tick's messages only, so a lost message costs
-    one teammate's latest steps, not its whole map. Changes no weight shape; no effect without
-    the team map; checkpoints older than this field load with it off."""
 
 @dataclass
 class Members:
@@ -85,40 +53,14 @@ class Members:
         idx, mask = self.pad_index(x.shape[0])
         return rows(torch.cat([x, x.new_zeros(1, x.shape[1])]), idx), mask
 
-    def dense(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Tokens [R, N, F] with slot j = robot j (zero where unheard) and the mask [R, N]."""
-        member_ids = (self.pair_member % self.n)
-        receiver = torch.repeat_interleave(torch.arange(self.receivers), self.lens)
-        tokens = torch.cat([self.member_feats[self.pair_member], self.pair_feats], dim=1)
-        out = tokens.new_zeros(self.receivers, self.n, tokens.shape[1])
-        out[receiver, member_ids] = tokens
-        mask = torch.zeros(self.receivers, self.n, dtype=torch.bool)
-        mask[receiver, member_ids] = True
-        return out, mask
-
     @staticmethod
-    def cat(parts: list[Members]) -> Members:
-        """Members of several views as one batch (groups renumbered), re-sorted id-major."""
-        goff = np.cumsum([0] + [len(p.member_feats) // p.n for p in parts])
-        poff = np.cumsum([0] + [len(p.pair_member) for p in parts])
-        group = np.concatenate([p.group + o for p, o in zip(parts, goff[:-1], strict=True)])
-        robot = np.concatenate([p.robot for p in parts])
-        order = np.lexsort((group, robot))
-        pick = torch.from_numpy(order)
-        n = parts[0].n
-        return Members(
-            member_feats=torch.cat([p.member_feats for p in parts]),
-            pair_member=torch.cat([p.pair_member + int(o) * n
-                                   for p, o in zip(parts, goff[:-1], strict=True)]),
-            pair_feats=torch.cat([p.pair_feats for p in parts]),
-            lens=torch.cat([p.lens for p in parts])[pick],
-            start=torch.cat([p.start + int(o)
-                             for p, o in zip(parts, poff[:-1], strict=True)])[pick],
-            self_pos=torch.cat([p.self_pos for p in parts])[pick],
-            group=group[order], robot=robot[order], n=n,
-            own_feats=(None if parts[0].own_feats is None
-                       else torch.cat([p.own_feats for p in parts])[pick]),
-        )
+    def of(t: Tokens) -> Members:
+        """The tokens as tensors (sharing their memory)."""
+        f = torch.from_numpy
+        return Members(member_feats=f(t.member_feats), pair_member=f(t.pair_member),
+                       pair_feats=f(t.pair_feats), lens=f(t.lens), start=f(t.start),
+                       self_pos=f(t.self_pos), group=t.group, robot=t.robot, n=t.n,
+                       own_feats=None if t.own_feats is None else f(t.own_feats))
 
 
 def rows(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
@@ -207,115 +149,3 @@ def _bigru_packed(gru: nn.GRU, x: torch.Tensor, m: Members) -> Sequences:
     order[where[mask]] = idx[mask]  # packed position -> canonical pair
     out, _ = gru(PackedSequence(rows(x, order), batch_sizes))
     return Sequences(out.data, where)
-
-
-class Featurizer:
-    """Turns a View into `Members` for its receivers; member_dim + pair_dim is the token width."""
-
-    def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0,
-                 memory: bool = False) -> None:
-        if crop < 1 or crop % 2 == 0:
-            raise ConfigError(f"crop must be a positive odd number, got {crop}")
-        if team_pool < 0:
-            raise ConfigError(f"team_pool must be >= 0, got {team_pool}")
-        self.cfg = cfg
-        self.crop = crop
-        c = crop // 2
-        self.hc, self.wc = cfg.height + 2 * c, cfg.width + 2 * c
-        dy, dx = np.meshgrid(np.arange(crop), np.arange(crop), indexing="ij")
-        self.window = torch.from_numpy((dy * self.wc + dx).ravel())  # from the window's corner
-        self.member_dim = 3 * cfg.vision * cfg.vision + 2
-        self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
-        self.team_pool = team_pool
-        # the team map from view.team_visited (a TeamMemory), not this tick; nothing to
-        # remember without a team map
-        self.memory = memory and team_pool > 0
-        self.own_dim = 0
-        if team_pool:
-            # the coarse window: k x k blocks of p x p cells, its corner `team_half` cells up and
-            # left of the receiver, wide enough to cover the grid from any cell
-            p = team_pool
-            k = -(-(2 * max(cfg.height, cfg.width) - 1) // p)
-            self.team_k, self.team_half = k, (k * p) // 2
-            self.edges = torch.arange(k + 1) * p - self.team_half  # block edges, from the cell
-            self.dy = torch.from_numpy(dy.ravel() - c)
-            self.dx = torch.from_numpy(dx.ravel() - c)
-            self.own_dim = crop * crop + k * k
-
-    @property
-    def dim(self) -> int:
-        return self.member_dim + self.pair_dim
-
-    def __call__(self, view: View) -> Members:
-        cfg = self.cfg
-        h, w, c = cfg.height, cfg.width, self.crop // 2
-        msgs = view.msgs
-        groups, n = view.receivers.shape
-        i_np, g_np = np.nonzero(view.receivers.T)  # id-major receivers
-        heard = view.hears[g_np, i_np]  # [R, N]
-        r_np, j_np = np.nonzero(heard)  # canonical pairs: receiver-major, members in id order
-        lens = heard.sum(1)
-        g, i, j = (torch.from_numpy(a) for a in (g_np[r_np], i_np[r_np], j_np))
-
-        code = torch.from_numpy(msgs.patch.reshape(groups * n, -1))
-        low = code & 3
-        pos = torch.from_numpy(msgs.pos).reshape(groups * n, 2)
-        norm = torch.tensor([max(h - 1, 1), max(w - 1, 1)], dtype=torch.float32)
-        member = torch.cat([low == 1, low == 2, (code & 4) != 0], dim=1).float()
-        member = torch.cat([member, pos.float() / norm], dim=1)
-
-        scale = torch.tensor([h, w], dtype=torch.float32)
-        mrow = g * n + j  # member's row
-        rpos = rows(pos, g * n + i)  # receiver's cell [P, 2]
-        rel = (rows(pos, mrow) - rpos).float() / scale
-        vpad = torch.full((groups * n, self.hc, self.wc), -1, dtype=torch.int8)
-        vpad[:, c:c + h, c:c + w] = torch.from_numpy(msgs.visited).view(groups * n, h, w)
-        corner = mrow * (self.hc * self.wc) + rpos[:, 0] * self.wc + rpos[:, 1]
-        crop = rows(vpad.view(-1), corner[:, None] + self.window[None, :]).float()
-        recent = rows(torch.from_numpy(msgs.recent).reshape(groups * n, -1), mrow)  # [P, L]
-        valid = recent >= 0
-        ry = torch.div(recent, w, rounding_mode="floor")
-        ryx = (torch.stack([ry, recent - ry * w], dim=-1) - rpos[:, None, :]).float() / scale
-        ryx = (ryx * valid[..., None]).flatten(1)
-        pair = torch.cat([crop, ryx, valid.float(), rel, (i == j).float()[:, None],
-                          torch.full((len(j), 1), view.tick / cfg.horizon)], dim=1)
-        lens_t = torch.from_numpy(lens)
-        self_pos = torch.from_numpy((heard & (np.arange(n)[None, :] < i_np[:, None])).sum(1))
-        own = None
-        if self.team_pool:
-            at = rows(pos, torch.from_numpy(g_np * n + i_np))
-            if self.memory:
-                if view.team_visited is None:
-                    raise ValueError("this network reads the team memory, but the view has none "
-                                     "(LearnedPolicy.remember sets it)")
-                union = torch.from_numpy(view.team_visited[g_np, i_np])
-            else:
-                union = torch.from_numpy(heard_union(view)[g_np, i_np])
-            own = self._team(union, at)
-        return Members(member_feats=member, pair_member=mrow, pair_feats=pair, lens=lens_t,
-                       start=torch.cumsum(lens_t, 0) - lens_t, self_pos=self_pos,
-                       group=g_np, robot=i_np, n=n, own_feats=own)
-
-    def _team(self, union: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
-        """Own features [R, Fo] of receivers at cell `where` [R, 2] whose team-visited map is
-        `union` [R, H*W] bool, as a crop and a coarse map.
-
-        Block sums of the not-yet-explored map come from its summed-area table at the block
-        edges clamped to the grid, so off-grid cells count as explored (nothing to find there).
-        """
-        cfg, p, k = self.cfg, self.team_pool, self.team_k
-        h, w = cfg.height, cfg.width
-        r = len(union)
-        y, x = where[:, 0:1], where[:, 1:2]
-        cy, cx = y + self.dy[None, :], x + self.dx[None, :]
-        inside = (cy >= 0) & (cy < h) & (cx >= 0) & (cx < w)
-        cell = cy.clamp(0, h - 1) * w + cx.clamp(0, w - 1)
-        crop = torch.where(inside, union.gather(1, cell).float(), -1.0)
-        sat = torch.zeros(r, h + 1, w + 1)
-        sat[:, 1:, 1:] = (~union).view(r, h, w).float().cumsum(1).cumsum(2)
-        ey = (y + self.edges[None, :]).clamp(0, h)  # [R, k+1]
-        ex = (x + self.edges[None, :]).clamp(0, w)
-        at = (ey[:, :, None] * (w + 1) + ex[:, None, :]).view(r, -1)
-        s = sat.view(r, -1).gather(1, at).view(r, k + 1, k + 1)
-        blocks = s[:, 1:, 1:] - s[:, :-1, 1:] - s[:, 1:, :-1] + s[:, :-1, :-1]
-        return torch.cat([crop, blocks.reshape(r, k * k) / (p * p)], dim=1)

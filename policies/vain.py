@@ -7,24 +7,13 @@ attention vector a_j; receiver i pools the others with the kernel exp(-||a_i - a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import nn
 
-from policies.features import Members, ModelConfig, TokenEmbed
+from policies.features import Members, TokenEmbed
+from policies.infer.nets import NumpyVAIN, VAINConfig
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
-
-
-@dataclass
-class VAINConfig(ModelConfig):
-    """Sizes of the VAIN network."""
-
-    hidden: int = 64
-    """Width of the member embedding e_j and of the decoder."""
-    attention: int = 16
-    """Length of the attention vector a_j."""
 
 
 class VAIN(nn.Module):
@@ -60,4 +49,5 @@ class VAIN(nn.Module):
 class VAINPolicy(LearnedPolicy):
     name = "vain"
     config_cls = VAINConfig
+    numpy_cls = NumpyVAIN
     net_cls = VAIN

@@ -67,9 +67,9 @@ def test_shapes_and_masks(name: str) -> None:
     tokens, mask = members.dense()
     r = int(view.receivers.sum())
     assert tokens.shape == (r, SMALL.n_robots, pol.features.dim)
-    assert mask.numpy().tolist() == view.hears[members.group, members.robot].tolist()
+    assert mask.tolist() == view.hears[members.group, members.robot].tolist()
     assert (tokens[~mask] == 0).all()
-    assert mask[torch.arange(r), torch.from_numpy(members.robot)].all()  # a receiver hears itself
+    assert mask[np.arange(r), members.robot].all()  # a receiver hears itself
     d = pol.decide(view, greedy=False)
     assert d.actions.shape == (6, SMALL.n_robots) and d.actions.dtype == np.int64
     assert d.actions.min() >= 0 and d.actions.max() <= 8
@@ -176,10 +176,10 @@ def test_team_map_is_the_union_of_heard_trajectories() -> None:
                         if 0 <= yy < h and 0 <= xx < w and not union[yy, xx]:
                             coarse[a, b] += 1 / 9
         want = np.concatenate([np.ravel(crop), coarse.ravel()])
-        np.testing.assert_allclose(members.own_feats[r].numpy(), want, atol=1e-6)
+        np.testing.assert_allclose(members.own_feats[r], want, atol=1e-6)
         rv = robot_view(SMALL, view.seed, int(view.episodes[g]), view.tick, int(i),
                         heard_by(SMALL, view, g, i), 0.0)
-        np.testing.assert_allclose(feats(rv).own_feats[0].numpy(), want, atol=1e-6)
+        np.testing.assert_allclose(feats(rv).own_feats[0], want, atol=1e-6)
     assert not view.hears.all()  # some pairs out of range: the unions differ by receiver
 
 

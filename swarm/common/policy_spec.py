@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from policies import BASELINES, REGISTRY, policy_class
+from policies import BASELINES, LEARNED, REGISTRY, policy_class
 from policies.base import Policy
 from world.config import ConfigError, WorldConfig
 
@@ -49,7 +49,7 @@ def effective_checkpoint(name: str, checkpoint: str | None) -> str | None:
     """The checkpoint a policy runs with: the one given, else for a learned policy the one
     shipped as checkpoints/NAME.pt (a learned policy never runs on untrained weights by
     accident; `swarm train` makes fresh ones)."""
-    if checkpoint is not None or not load_class(name).learned:
+    if checkpoint is not None or name not in LEARNED:
         return checkpoint
     shipped = SHIPPED / f"{name}.pt"
     if not shipped.is_file():
@@ -75,5 +75,20 @@ def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> 
 
     try:
         return cls(cfg, checkpoint=checkpoint)  # type: ignore[call-arg]
+    except CheckpointError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def build_inference(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> Policy:
+    """`build_policy` for a robot process: a learned policy acts in numpy, without torch
+    (policies.infer), from the same checkpoint; other policies are built as usual."""
+    if name not in LEARNED:
+        return build_policy(name, cfg, checkpoint)
+    from policies.checkpoint import CheckpointError
+    from policies.infer.policy import inference_class
+
+    checkpoint = effective_checkpoint(name, checkpoint)
+    try:
+        return inference_class(name)(cfg, checkpoint=checkpoint)
     except CheckpointError as exc:
         raise ConfigError(str(exc)) from None

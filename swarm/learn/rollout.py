@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from policies.features import Members
+from policies.infer.tokens import Tokens
 from policies.learned import LearnedPolicy
 from swarm.learn.config import TrainConfig
 from swarm.learn.evaluate import channel_for
@@ -25,7 +25,7 @@ class Rollout:
 
     views: list[View]
     actions: list[np.ndarray]  # T of [B, N]
-    inputs: list[Members]  # T features computed at acting time (reused by the update)
+    inputs: list[Tokens]  # T features computed at acting time (reused by the update)
     value: np.ndarray  # b(s) at acting time (for the advantage)
     reward: np.ndarray
     metrics: core.EpisodeMetrics

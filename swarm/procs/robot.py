@@ -18,9 +18,8 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from policies import policy_class
 from policies.base import Policy
-from swarm.common.policy_spec import build_policy
+from swarm.common.policy_spec import build_inference
 from swarm.net.inbox import Inbox, query, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import (
@@ -98,8 +97,27 @@ def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecor
     return RunRecord.unpack(payload, f"run record from {keys.config}")
 
 
+def attention_of(policy: Policy, robot: int, n: int, t: int) -> tuple[int, list[float]] | None:
+    """(t, this robot's attention weights over the team) from the policy's `last_attention`
+    (CommAttn: [N] or [G, N, N] weights over the members heard, zero elsewhere), rounded for the
+    status record; None for a policy without attention or weights that do not fit."""
+    att = getattr(policy, "last_attention", None)
+    if att is None:
+        return None
+    w = np.asarray(att, dtype=np.float64)
+    if w.ndim == 3:
+        w = w[0]
+    if w.ndim == 2:
+        w = w[robot] if w.shape[0] == n else w[0]
+    if w.shape != (n,) or not np.isfinite(w).all():
+        return None
+    return t, [round(float(x), 5) for x in w]
+
+
 class RobotProcess:
     """Robot `robot` of a run."""
+
+    attn: tuple[int, list[float]] | None = None  # the last decision's attention (t, weights)
 
     def __init__(self, robot: int, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
                  policy: Policy) -> None:
@@ -358,7 +376,8 @@ class RobotProcess:
         self.act_pub.put(a)
         self.c.msgs_out += 1
         self.c.bytes_out += len(a)
-        if obs.t % 5 == 0:
+        self.attn = attention_of(self.policy, r, cfg.n_robots, obs.t)
+        if obs.t % 5 == 0 or self.attn is not None:  # attention: every tick, drawn live
             self.status()
 
     def decide(self, obs: Obs, heard: TrajMessages, t_recv: float,
@@ -406,6 +425,8 @@ class RobotProcess:
                "stalls": self.c.stalls, "rejoins": self.c.rejoins, "errors": self.c.errors,
                "compute_ms": self.c.compute_ms / max(self.c.decisions, 1),
                "wait_ms": self.c.wait_ms / max(self.c.decisions, 1)}
+        if self.attn is not None:
+            rec["attn_t"], rec["attn"] = self.attn
         self.status_pub.put(pack_record(K_RSTATUS, rec))
 
     def run(self, wait_world: float = 30.0, rejoin: float = REJOIN_S) -> RobotCounters:
@@ -464,10 +485,7 @@ def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0)
         cfg, run = rec.world, rec.run
         if not 0 <= robot < cfg.n_robots:
             raise ConfigError(f"robot id {robot} outside 0..{cfg.n_robots - 1} of run {run_id}")
-        if policy_class(run.policy).learned:  # frontier robots never import torch (~230 MB)
-            import torch
-
-            torch.set_num_threads(run.robot_threads)
-        policy = build_policy(run.policy, cfg, run.checkpoint)
+        # learned policies act in numpy (policies.infer): no robot process imports torch
+        policy = build_inference(run.policy, cfg, run.checkpoint)
         policy.reset(1)
         return RobotProcess(robot, cfg, run, session, policy).run(wait_world)

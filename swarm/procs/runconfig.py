@@ -49,8 +49,6 @@ class RunConfig:
     """Seconds the world waits for every robot to come alive before the first tick."""
     pace: float = 0.0
     """Cap on ticks per second so a person can watch (0: as fast as the swarm goes)."""
-    robot_threads: int = 1
-    """torch threads per robot process (many processes share 2 cores)."""
     train: bool = False
     """Learning in the field: robots record their episodes for the learner and adopt its
     weights at episode boundaries; the world publishes each episode's rewards."""
@@ -77,7 +75,6 @@ class RunConfig:
         check("tick_timeout", 1e-3, 3600.0)
         check("start_timeout", 1e-3, 3600.0)
         check("pace", 0.0, 1000.0)
-        check("robot_threads", 1, 64)
         check("rollout_loss", 0.0, 1.0)
         check("watchdog", 0.01, 3600.0)
         if self.clock not in ("virtual", "real"):

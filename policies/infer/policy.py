@@ -1,0 +1,339 @@
+"""A learned policy that acts with numpy only: what robot processes run, and the acting half of
+every torch `LearnedPolicy` (which subclasses this and adds training), so the batched evaluator,
+the trainer's rollouts and a robot decide with the same code.
+
+Acting: features from the View (policies.infer.tokens), the network (policies.infer.nets), then
+greedy (argmax) or sampled actions by Gumbel-max with counter-based noise `world.noise.uniform(
+seed, episode, tick, robot, 9, stream=0)`: a robot process and the batched evaluator draw the
+same action. Chained networks (CommAttn) decode receivers in id order; the batched `decide` runs
+the whole chain, a robot calls `act_with_chain` with its predecessor's message.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from policies.base import Policy
+from policies.checkpoint import CheckpointError, read_checkpoint
+from policies.infer.layers import Weights, softmax
+from policies.infer.nets import NETS, Encoded, NumpyCommAttn, NumpyNet, Shapes
+from policies.infer.tokens import Featurizer, ModelConfig, Tokens
+from world.config import ConfigError, WorldConfig, from_dict
+from world.core import N_ACTIONS
+from world.decentral import TeamMemory, View
+from world.noise import uniform
+
+NO_ACTION = N_ACTIONS
+WORLD_SHAPE_KEYS = ("vision", "recent_len")  # world fields that change the token width
+
+
+class BadWeights(ValueError):
+    """Weights that do not fit this policy's network; one line."""
+
+
+@dataclass
+class Decision:
+    """What a batched decision computed, arrays [G, N, ...] (zeros off the receivers)."""
+
+    actions: np.ndarray  # [G, N] int64
+    probs: np.ndarray  # [G, N, 9] float32 action distribution of each receiver
+    value: np.ndarray  # [G, N] float32 baseline b(s)
+    state: np.ndarray | None  # [G, N, S] decoder states s_i (chained policies), else None
+    context: np.ndarray | None  # [G, N, 2H] communication vectors c_i (chained), else None
+    inputs: Tokens | None = None  # the features, when kept for training
+    attention: np.ndarray | None = None  # [G, N, N] receiver i's attention over ids (chained)
+
+
+def featurizer(cfg: WorldConfig, model: Any) -> Featurizer:
+    """The features a network of config `model` reads."""
+    return Featurizer(cfg, crop=model.crop, team_pool=getattr(model, "team_pool", 0),
+                      memory=getattr(model, "team_memory", False))
+
+
+def gumbel(view: View, group: np.ndarray, robot: np.ndarray) -> np.ndarray:
+    """Gumbel noise [R, 9] float64 of each receiver, from the counter-based generator (stream 0)."""
+    u = uniform(view.seed, view.episodes[group], view.tick, robot, N_ACTIONS, stream=0)
+    with np.errstate(divide="ignore"):
+        return -np.log(-np.log(u))
+
+
+def chooser(noise: np.ndarray | None) -> Callable[[slice, np.ndarray], np.ndarray]:
+    """Greedy argmax (noise None) or Gumbel-max sampling of a block of rows from their logits."""
+    if noise is None:
+        return lambda rows, logits: logits.argmax(-1)
+    return lambda rows, logits: (logits.astype(np.float64) + noise[rows]).argmax(-1)
+
+
+def check_checkpoint(data: dict[str, Any], path: Path, name: str, cfg: WorldConfig,
+                     config_cls: type, net_cls: type[NumpyNet]) -> tuple[Any, dict[str, Any]]:
+    """The model config and weights of a checkpoint dict, if they fit policy `name` on `cfg`;
+    CheckpointError (one line) otherwise. Weights may be numpy arrays or torch tensors."""
+    if data["policy"] != name:
+        raise CheckpointError(f"checkpoint {path} holds policy {data['policy']!r}, not {name!r}")
+    fields = dict(data["model"])
+    fields.setdefault("team_pool", 0)  # checkpoints from before the team map had none
+    fields.setdefault("team_memory", False)  # ... and from before the team memory
+    try:
+        model = from_dict(config_cls, fields, where=f"checkpoint {path} model")
+    except ConfigError as exc:
+        raise CheckpointError(str(exc)) from None
+    for key in WORLD_SHAPE_KEYS:
+        theirs, ours = data["world"].get(key), getattr(cfg, key)
+        if theirs != ours:
+            raise CheckpointError(f"checkpoint {path} was trained with {key}={theirs}, "
+                                  f"this world has {key}={ours}")
+    try:
+        check_shapes(data["state_dict"], shapes_of(cfg, model, net_cls), f"checkpoint {path}",
+                     name)
+    except BadWeights as exc:
+        raise CheckpointError(str(exc)) from None
+    return model, data["state_dict"]
+
+
+def shapes_of(cfg: WorldConfig, model: Any, net_cls: type[NumpyNet]) -> Shapes:
+    feats = featurizer(cfg, model)
+    return net_cls.shapes(model, feats.member_dim, feats.pair_dim, feats.own_dim)
+
+
+def check_shapes(weights: dict[str, Any], expected: Shapes, what: str, name: str) -> None:
+    """BadWeights unless `weights` has exactly the `expected` names and shapes."""
+    for key, shape in expected.items():
+        got = weights.get(key)
+        if got is None or tuple(got.shape) != tuple(shape):
+            have = None if got is None else tuple(got.shape)
+            raise BadWeights(f"{what} does not fit {name}: {key} has shape {have}, "
+                             f"expected {tuple(shape)}")
+    extra = sorted(set(weights) - set(expected))
+    if extra:
+        raise BadWeights(f"{what} has unexpected weights {', '.join(extra[:3])}")
+
+
+class InferencePolicy(Policy):
+    """A learned network behind the Policy interface, acting in numpy. Subclasses set `name`;
+    `config_cls` and `numpy_cls` come from policies.infer.nets.NETS."""
+
+    learned = True
+    config_cls: ClassVar[type]
+    numpy_cls: ClassVar[type[NumpyNet]]
+
+    def __init__(self, cfg: WorldConfig, checkpoint: str | Path | None = None,
+                 model: Any | None = None) -> None:
+        super().__init__(cfg)
+        weights = None
+        self.meta: dict[str, Any] = {}
+        if checkpoint is not None:
+            data = self.read(checkpoint)
+            model, weights = check_checkpoint(data, Path(checkpoint), self.name, cfg,
+                                              self.config_cls, self.numpy_cls)
+            self.meta = dict(data.get("meta", {}))
+        self.last_probs: np.ndarray | None = None  # [G, N, 9] of the last decision
+        self.last_attention: np.ndarray | None = None  # see act_with_chain
+        self.model_cfg: ModelConfig = model if model is not None else self.config_cls()
+        self.features = featurizer(cfg, self.model_cfg)
+        self.np = self.numpy_cls(self.model_cfg, self.build(weights))
+        self.team = TeamMemory(cfg)
+
+    # ------------------------------------------------------------- weights
+    def read(self, checkpoint: str | Path) -> dict[str, Any]:
+        """The checkpoint dict (numpy arrays; no torch)."""
+        return read_checkpoint(checkpoint)
+
+    def build(self, weights: dict[str, Any] | None) -> Weights:
+        """The numpy weight dict the network computes with (zeros without a checkpoint)."""
+        shapes = shapes_of(self.cfg, self.model_cfg, self.numpy_cls)
+        if weights is None:
+            return {k: np.zeros(s, dtype=np.float32) for k, s in shapes.items()}
+        return {k: np.ascontiguousarray(weights[k], dtype=np.float32) for k in shapes}
+
+    @property
+    def weights(self) -> Weights:
+        """The arrays the network computes with, by torch state_dict name."""
+        return self.np.w
+
+    def check_weights(self, tensors: dict[str, np.ndarray], model: dict[str, Any],
+                      what: str) -> None:
+        """BadWeights (one line) if `tensors` are for another network config, do not have this
+        network's names and shapes, or are not finite."""
+        ours = dataclasses.asdict(self.model_cfg)
+        if {k: model.get(k) for k in ours} != ours:
+            raise BadWeights(f"{what} are for another {self.name} network ({model})")
+        if set(tensors) != set(self.weights):
+            odd = sorted(set(tensors) ^ set(self.weights))[:3]
+            raise BadWeights(f"{what} have tensors {odd} that do not fit")
+        check_shapes(tensors, {k: v.shape for k, v in self.weights.items()}, what, self.name)
+        for k, v in tensors.items():
+            if not np.isfinite(v).all():
+                raise BadWeights(f"{what}: {k} is not finite")
+
+    def load_weights(self, tensors: dict[str, np.ndarray], model: dict[str, Any],
+                     what: str = "weights") -> None:
+        """Copy checked `tensors` into the network in place (unchanged when they don't fit)."""
+        self.check_weights(tensors, model, what)
+        for k, v in tensors.items():
+            np.copyto(self.weights[k], v, casting="same_kind")
+
+    def set_model(self, **changes: Any) -> None:
+        """Change model-config fields that leave every weight shape alone (e.g. team_memory),
+        keeping the weights: how a checkpoint is fine-tuned with a memory it was not trained
+        with."""
+        model = dataclasses.replace(self.model_cfg, **changes)
+        feats = featurizer(self.cfg, model)
+        if (feats.member_dim, feats.pair_dim, feats.own_dim) != (
+                self.features.member_dim, self.features.pair_dim, self.features.own_dim):
+            raise ConfigError(f"{', '.join(changes)} would change the network's input width")
+        self.model_cfg, self.features = model, feats
+        self.np.cfg = model
+
+    def reset(self, groups: int) -> None:
+        self.team.reset(groups)
+
+    def remember(self, view: View) -> None:
+        """Fold the view into the receivers' team memory and attach it (networks that read it)."""
+        if self.features.memory and view.team_visited is None:
+            view.team_visited = self.team.update(view)
+
+    @property
+    def state_size(self) -> int:
+        """Floats in a hidden-state message (chained policies)."""
+        return self.model_cfg.state if self.chained else 0  # type: ignore[attr-defined]
+
+    # ------------------------------------------------------------- acting
+    def act(self, view: View, greedy: bool = True) -> np.ndarray:
+        return self.decide(view, greedy).actions
+
+    def decide(self, view: View, greedy: bool = True, keep_inputs: bool = False) -> Decision:
+        """Actions, values and (chained) decoder states of every receiver of the view;
+        `keep_inputs` keeps the features for a later `evaluate` (the trainer)."""
+        self.remember(view)
+        tokens = self.features(view)
+        g, i = tokens.group, tokens.robot
+        choose = chooser(None if greedy else gumbel(view, g, i))
+        shape = view.receivers.shape
+        actions = np.zeros(shape, dtype=np.int64)
+        probs = np.zeros(shape + (N_ACTIONS,), dtype=np.float32)
+        value = np.zeros(shape, dtype=np.float32)
+        kept = tokens if keep_inputs else None
+        if not self.chained:
+            logits, v = self.np.forward(tokens)
+            actions[g, i] = choose(slice(None), logits)
+            probs[g, i] = softmax(logits)
+            value[g, i] = v
+            self.last_probs = probs
+            return Decision(actions, probs, value, None, None, kept)
+        net: NumpyCommAttn = self.np  # type: ignore[assignment]
+        pred = pred_rows([view], tokens)
+        if (pred == -2).any():
+            raise ValueError("a receiver's predecessor is not a receiver of this view; "
+                             "use act_with_chain with the predecessor's hidden-state message")
+        out, a = net.chain(net.encode(tokens), i, pred, choose)
+        actions[g, i] = a
+        probs[g, i] = softmax(out.logits)
+        value[g, i] = out.value
+        self.last_probs = probs
+        state = np.zeros(shape + (self.state_size,), dtype=np.float32)
+        state[g, i] = out.state
+        context = np.zeros(shape + (out.context.shape[1],), dtype=np.float32)
+        context[g, i] = out.context
+        return Decision(actions, probs, value, state, context, kept,
+                        attention_by_id(view, tokens, out.alpha))
+
+    def prepare_chain(self, view: View) -> tuple[View, Tokens, Encoded]:
+        """The part of `act_with_chain` that needs no predecessor (features and the encoder),
+        so a robot process computes it while it waits for its predecessor's message."""
+        if not self.chained:
+            raise TypeError(f"{self.name} is not a chained policy")
+        if (view.receivers.sum(1) != 1).any():
+            raise ValueError("act_with_chain needs exactly one receiver per group")
+        self.remember(view)
+        tokens = self.features(view)
+        return view, tokens, self.np.encode(tokens)  # type: ignore[attr-defined]
+
+    def act_with_chain(self, view: View, pred_state: np.ndarray | None,
+                       pred_action: np.ndarray | None, greedy: bool = True,
+                       prepared: tuple[View, Tokens, Encoded] | None = None,
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """One receiver per group given its predecessor's hidden-state message.
+
+        pred_state [G, S] float32 and pred_action [G] int (rows of receivers without a
+        predecessor are ignored; pass None when no receiver has one). Returns actions [G, N]
+        and the receivers' new states [G, S] (their own hidden-state messages). `prepared` is
+        `prepare_chain(view)` computed earlier (the same view; its chain_ok may be set since).
+        Sets `last_probs` [G, N, 9] and `last_attention`, each group's receiver's attention
+        over robot ids ([G, N]; [N] when there is one group, as in a robot process).
+        """
+        if prepared is None:
+            prepared = self.prepare_chain(view)
+        elif prepared[0] is not view:
+            raise ValueError("prepared for another view")
+        _, tokens, encoded = prepared
+        net: NumpyCommAttn = self.np  # type: ignore[assignment]
+        order = np.argsort(tokens.group)  # group g's receiver is row order[g]
+        p = view.predecessor()[tokens.group, tokens.robot]
+        if view.chain_ok is not None:  # lost or late hidden-state message: no predecessor
+            p = np.where(view.chain_ok[tokens.group, tokens.robot], p, -1)
+        has = p >= 0
+        s_prev = np.repeat(net.w["s0"][None, :], len(p), axis=0)
+        a_prev = np.full(len(p), NO_ACTION, dtype=np.int64)
+        if has.any():
+            if pred_state is None or pred_action is None:
+                raise ValueError("a receiver has a predecessor but no hidden-state message "
+                                 "was given")
+            ps = np.asarray(pred_state, dtype=np.float32).reshape(view.groups, -1)[tokens.group]
+            pa = np.asarray(pred_action, dtype=np.int64).reshape(view.groups)[tokens.group]
+            if ((pa < 0) | (pa >= N_ACTIONS))[has].any():
+                raise ValueError("predecessor action must lie in 0..8")
+            if ps.shape[1] != s_prev.shape[1]:
+                raise ValueError(f"predecessor state has {ps.shape[1]} floats, "
+                                 f"expected {s_prev.shape[1]}")
+            s_prev = np.where(has[:, None], ps, s_prev)
+            a_prev = np.where(has, pa, a_prev)
+        noise = None if greedy else gumbel(view, tokens.group, tokens.robot)
+        out = net.decode(encoded, s_prev, a_prev)
+        a = chooser(noise)(slice(None), out.logits)
+        actions = np.zeros(view.receivers.shape, dtype=np.int64)
+        actions[tokens.group, tokens.robot] = a
+        self.last_probs = np.zeros(view.receivers.shape + (N_ACTIONS,), dtype=np.float32)
+        self.last_probs[tokens.group, tokens.robot] = softmax(out.logits)
+        att = attention_by_id(view, tokens, out.alpha)[tokens.group, tokens.robot][order]
+        self.last_attention = att[0] if view.groups == 1 else att
+        return actions, out.state[order].copy()
+
+
+def attention_by_id(view: View, tokens: Tokens, alpha: np.ndarray) -> np.ndarray:
+    """Attention [G, N, N] of receiver (g, i) over member ids j from per-slot weights [R, M]."""
+    groups, n = view.receivers.shape
+    out = np.zeros((groups, n, n), dtype=np.float32)
+    idx, mask = tokens.pad_index(0)
+    member = tokens.pair_member[idx] % n  # [R, M] id of each slot's member
+    r = np.broadcast_to(np.arange(tokens.receivers)[:, None], mask.shape)[mask]
+    out[tokens.group[r], tokens.robot[r], member[mask]] = alpha[:, :mask.shape[1]][mask]
+    return out
+
+
+def pred_rows(views: list[View], tokens: Tokens) -> np.ndarray:
+    """Row of each receiver's predecessor: -1 none, -2 a predecessor that is not a receiver."""
+    # a predecessor whose hidden-state message was lost or late counts as none (chain_ok)
+    pred_id = np.concatenate([np.where(v.chain_ok, v.predecessor(), -1)
+                              if v.chain_ok is not None else v.predecessor()
+                              for v in views])  # [G_total, N]
+    n = pred_id.shape[1]
+    row_of = np.full(pred_id.shape, -2, dtype=np.int64)
+    row_of[tokens.group, tokens.robot] = np.arange(tokens.receivers)
+    p = pred_id[tokens.group, tokens.robot]
+    return np.where(p >= 0, row_of[tokens.group, np.clip(p, 0, n - 1)], -1)
+
+
+def inference_class(name: str) -> type[InferencePolicy]:
+    """The torch-free policy class of learned policy `name`."""
+    if name not in NETS:
+        raise ValueError(f"{name!r} is not a learned policy")
+    config_cls, numpy_cls = NETS[name]
+    return type(f"{numpy_cls.__name__}Policy", (InferencePolicy,),
+                {"name": name, "chained": numpy_cls.chained, "config_cls": config_cls,
+                 "numpy_cls": numpy_cls})

@@ -1,0 +1,248 @@
+"""Member tokens of the learned policies in numpy: what receiver i reads about member j of its
+neighbourhood. The torch networks read the same arrays (`policies.features.Members.of`), so the
+features have one implementation, used by robots, the evaluator and the trainer alike.
+
+A token for (receiver i, member j in S_i) has two parts:
+
+- a *member* part, the same for every receiver, computed once per (group, robot): j's v x v
+  patch as three one-hot planes (block, off-grid, robot) and j's absolute position in [0, 1];
+- a *pair* part, relative to the receiver: an egocentric `crop x crop` window of j's visited
+  bitmap centred on the *receiver's* cell (1 visited, 0 not, -1 off-grid), j's recent positions
+  relative to i (dy / H, dx / W, valid flag), j's position relative to i, an is-self flag and
+  the tick fraction t / T;
+- optionally (`team_pool > 0`) an *own* part per receiver, added to its own token only: the
+  team map it can assemble from the messages it heard, i.e. the union U_i of its members'
+  visited bitmaps, as an egocentric `crop x crop` window (1 / 0 / -1 as above) and as a coarse
+  egocentric map, the fraction of cells not in U_i in each block of a k x k grid of blocks
+  centred on the receiver.
+
+Every part has a fixed size whatever the map: positions are fractions of the map, windows are
+egocentric, and the coarse map always has k = ceil(39 / team_pool) blocks a side (the number
+that covers the paper's 20 x 20 grid from any cell with `team_pool`-cell blocks). On a larger
+map the blocks grow (`team_pool` cells on 20 x 20, ceil((2 max(H, W) - 1) / k) beyond), so the
+coarse map still covers the grid from any cell and a checkpoint runs on a map of any size.
+
+Only heard pairs exist: `Tokens` lists them receiver by receiver, members in id order (the
+canonical pair order), so an unheard robot never enters a computation. Receivers are id-major
+(all robot-0 receivers of every group, then robot 1, ...), the order CommAttn's chain decodes in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from world.config import ConfigError, WorldConfig
+from world.decentral import View, heard_union
+
+REFERENCE_SIDE = 20  # the map side the coarse team map's block count is fixed by
+
+
+@dataclass
+class ModelConfig:
+    """The feature settings every learned network shares (each network's config extends it)."""
+
+    crop: int = 9
+    """Side of the egocentric window of each member's visited bitmap (see policies.infer.tokens)."""
+    team_pool: int = 3
+    """Block size of the coarse team map (on a 20 x 20 map; blocks grow with the map, see
+    policies.infer.tokens) added to the receiver's own token (0: no team map; checkpoints older
+    than this field load with 0)."""
+    team_memory: bool = True
+    """Build the team map from the receiver's memory of every bitmap heard this episode
+    (world.decentral.TeamMemory) instead of this tick's messages only, so a lost message costs
+    one teammate's latest steps, not its whole map. Changes no weight shape; no effect without
+    the team map; checkpoints older than this field load with it off."""
+
+
+@dataclass
+class Tokens:
+    """Heard (receiver, member) pairs of R receivers in G groups of N robot slots (numpy)."""
+
+    member_feats: np.ndarray  # [G*N, Fm] float32 per-member part, row g*N + j
+    pair_member: np.ndarray  # [P] int64 row of member_feats of each pair
+    pair_feats: np.ndarray  # [P, Fp] float32 receiver-relative part
+    lens: np.ndarray  # [R] int64 |S_i| (>= 1: a receiver hears itself)
+    start: np.ndarray  # [R] int64 first pair of each receiver (its members follow in id order)
+    self_pos: np.ndarray  # [R] int64 slot of the receiver among its own members
+    group: np.ndarray  # [R] int64
+    robot: np.ndarray  # [R] int64
+    n: int  # robot slots N
+    own_feats: np.ndarray | None = None  # [R, Fo] float32 per-receiver team map (team_pool > 0)
+
+    @property
+    def receivers(self) -> int:
+        return len(self.group)
+
+    @property
+    def width(self) -> int:
+        """Largest neighbourhood M."""
+        return int(self.lens.max()) if self.receivers else 1
+
+    @property
+    def own_row(self) -> np.ndarray:
+        """Pair row of each receiver's own token [R]."""
+        return self.start + self.self_pos
+
+    def pad_index(self, fill: int) -> tuple[np.ndarray, np.ndarray]:
+        """Pair index [R, M] of each receiver's slots (`fill` past its end) and the mask [R, M]."""
+        slots = np.arange(self.width)[None, :]
+        mask = slots < self.lens[:, None]
+        return np.where(mask, self.start[:, None] + slots, fill), mask
+
+    def padded(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-pair rows [P, D] -> [R, M, D] (zeros past each neighbourhood) and mask [R, M]."""
+        idx, mask = self.pad_index(x.shape[0])
+        return np.concatenate([x, np.zeros((1, x.shape[1]), x.dtype)])[idx], mask
+
+    def dense(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tokens [R, N, F] with slot j = robot j (zero where unheard) and the mask [R, N]."""
+        member_ids = self.pair_member % self.n
+        receiver = np.repeat(np.arange(self.receivers), self.lens)
+        tokens = np.concatenate([self.member_feats[self.pair_member], self.pair_feats], axis=1)
+        out = np.zeros((self.receivers, self.n, tokens.shape[1]), dtype=tokens.dtype)
+        out[receiver, member_ids] = tokens
+        mask = np.zeros((self.receivers, self.n), dtype=bool)
+        mask[receiver, member_ids] = True
+        return out, mask
+
+    @staticmethod
+    def cat(parts: list[Tokens]) -> Tokens:
+        """Tokens of several views as one batch (groups renumbered), re-sorted id-major."""
+        goff = np.cumsum([0] + [len(p.member_feats) // p.n for p in parts])
+        poff = np.cumsum([0] + [len(p.pair_member) for p in parts])
+        group = np.concatenate([p.group + o for p, o in zip(parts, goff[:-1], strict=True)])
+        robot = np.concatenate([p.robot for p in parts])
+        order = np.lexsort((group, robot))
+        n = parts[0].n
+        return Tokens(
+            member_feats=np.concatenate([p.member_feats for p in parts]),
+            pair_member=np.concatenate([p.pair_member + int(o) * n
+                                        for p, o in zip(parts, goff[:-1], strict=True)]),
+            pair_feats=np.concatenate([p.pair_feats for p in parts]),
+            lens=np.concatenate([p.lens for p in parts])[order],
+            start=np.concatenate([p.start + int(o)
+                                  for p, o in zip(parts, poff[:-1], strict=True)])[order],
+            self_pos=np.concatenate([p.self_pos for p in parts])[order],
+            group=group[order], robot=robot[order], n=n,
+            own_feats=(None if parts[0].own_feats is None
+                       else np.concatenate([p.own_feats for p in parts])[order]),
+        )
+
+
+def team_blocks(team_pool: int) -> int:
+    """Blocks a side of the coarse team map (fixed by the model, not the map)."""
+    return -(-(2 * REFERENCE_SIDE - 1) // team_pool)
+
+
+class Featurizer:
+    """Turns a View into `Tokens` for its receivers; member_dim + pair_dim is the token width."""
+
+    def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0,
+                 memory: bool = False) -> None:
+        if crop < 1 or crop % 2 == 0:
+            raise ConfigError(f"crop must be a positive odd number, got {crop}")
+        if team_pool < 0:
+            raise ConfigError(f"team_pool must be >= 0, got {team_pool}")
+        self.cfg = cfg
+        self.crop = crop
+        c = crop // 2
+        self.hc, self.wc = cfg.height + 2 * c, cfg.width + 2 * c
+        dy, dx = np.meshgrid(np.arange(crop), np.arange(crop), indexing="ij")
+        self.window = (dy * self.wc + dx).ravel()  # from the window's corner
+        self.member_dim = 3 * cfg.vision * cfg.vision + 2
+        self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
+        self.team_pool = team_pool
+        # the team map from view.team_visited (a TeamMemory), not this tick; nothing to
+        # remember without a team map
+        self.memory = memory and team_pool > 0
+        self.own_dim = 0
+        if team_pool:
+            # k x k blocks of p x p cells, the corner `team_half` cells up and left of the
+            # receiver; p grows past team_pool where the map is larger than the reference
+            k = team_blocks(team_pool)
+            p = max(team_pool, -(-(2 * max(cfg.height, cfg.width) - 1) // k))
+            self.block, self.team_k, self.team_half = p, k, (k * p) // 2
+            self.edges = np.arange(k + 1) * p - self.team_half  # block edges, from the cell
+            self.dy, self.dx = dy.ravel() - c, dx.ravel() - c
+            self.own_dim = crop * crop + k * k
+
+    @property
+    def dim(self) -> int:
+        return self.member_dim + self.pair_dim
+
+    def __call__(self, view: View) -> Tokens:
+        cfg = self.cfg
+        h, w, c = cfg.height, cfg.width, self.crop // 2
+        f32 = np.float32
+        msgs = view.msgs
+        groups, n = view.receivers.shape
+        i_np, g_np = np.nonzero(view.receivers.T)  # id-major receivers
+        heard = view.hears[g_np, i_np]  # [R, N]
+        r_np, j = np.nonzero(heard)  # canonical pairs: receiver-major, members in id order
+        lens = heard.sum(1).astype(np.int64)
+        g, i = g_np[r_np], i_np[r_np]
+
+        code = msgs.patch.reshape(groups * n, -1)
+        low = code & 3
+        pos = msgs.pos.reshape(groups * n, 2).astype(np.int64)
+        norm = np.array([max(h - 1, 1), max(w - 1, 1)], dtype=f32)
+        member = np.concatenate([low == 1, low == 2, (code & 4) != 0], axis=1).astype(f32)
+        member = np.concatenate([member, pos.astype(f32) / norm], axis=1)
+
+        scale = np.array([h, w], dtype=f32)
+        mrow = (g * n + j).astype(np.int64)  # member's row
+        rpos = pos[g * n + i]  # receiver's cell [P, 2]
+        rel = (pos[mrow] - rpos).astype(f32) / scale
+        vpad = np.full((groups * n, self.hc, self.wc), -1, dtype=np.int8)
+        vpad[:, c:c + h, c:c + w] = msgs.visited.reshape(groups * n, h, w)
+        corner = mrow * (self.hc * self.wc) + rpos[:, 0] * self.wc + rpos[:, 1]
+        crop = vpad.reshape(-1)[corner[:, None] + self.window[None, :]].astype(f32)
+        recent = msgs.recent.reshape(groups * n, -1)[mrow].astype(np.int64)  # [P, L]
+        valid = recent >= 0
+        ry = recent // w
+        ryx = (np.stack([ry, recent - ry * w], axis=-1) - rpos[:, None, :]).astype(f32) / scale
+        ryx = (ryx * valid[..., None]).reshape(len(j), -1)
+        pair = np.concatenate([crop, ryx, valid.astype(f32), rel, (i == j).astype(f32)[:, None],
+                               np.full((len(j), 1), view.tick / cfg.horizon, dtype=f32)], axis=1)
+        self_pos = (heard & (np.arange(n)[None, :] < i_np[:, None])).sum(1).astype(np.int64)
+        own = None
+        if self.team_pool:
+            at = pos[g_np * n + i_np]
+            if self.memory:
+                if view.team_visited is None:
+                    raise ValueError("this network reads the team memory, but the view has none "
+                                     "(the policy's remember() sets it)")
+                union = view.team_visited[g_np, i_np]
+            else:
+                union = heard_union(view)[g_np, i_np]
+            own = self._team(union, at)
+        return Tokens(member_feats=member, pair_member=mrow, pair_feats=pair, lens=lens,
+                      start=np.cumsum(lens) - lens, self_pos=self_pos,
+                      group=g_np.astype(np.int64), robot=i_np.astype(np.int64), n=n,
+                      own_feats=own)
+
+    def _team(self, union: np.ndarray, where: np.ndarray) -> np.ndarray:
+        """Own features [R, Fo] of receivers at cell `where` [R, 2] whose team-visited map is
+        `union` [R, H*W] bool, as a crop and a coarse map.
+
+        Block sums of the not-yet-explored map come from its summed-area table at the block
+        edges clamped to the grid, so off-grid cells count as explored (nothing to find there).
+        """
+        h, w = self.cfg.height, self.cfg.width
+        p, k = self.block, self.team_k
+        r = len(union)
+        y, x = where[:, 0:1], where[:, 1:2]
+        cy, cx = y + self.dy[None, :], x + self.dx[None, :]
+        inside = (cy >= 0) & (cy < h) & (cx >= 0) & (cx < w)
+        cell = np.clip(cy, 0, h - 1) * w + np.clip(cx, 0, w - 1)
+        crop = np.where(inside, np.take_along_axis(union, cell, 1), -1).astype(np.float32)
+        sat = np.zeros((r, h + 1, w + 1), dtype=np.float32)
+        sat[:, 1:, 1:] = (~union).reshape(r, h, w).astype(np.float32).cumsum(1).cumsum(2)
+        ey = np.clip(y + self.edges[None, :], 0, h)  # [R, k+1]
+        ex = np.clip(x + self.edges[None, :], 0, w)
+        at = (ey[:, :, None] * (w + 1) + ex[:, None, :]).reshape(r, -1)
+        s = np.take_along_axis(sat.reshape(r, -1), at, 1).reshape(r, k + 1, k + 1)
+        blocks = s[:, 1:, 1:] - s[:, :-1, 1:] - s[:, 1:, :-1] + s[:, :-1, :-1]
+        return np.concatenate([crop, blocks.reshape(r, k * k) / np.float32(p * p)], axis=1)
