@@ -119,7 +119,9 @@ def test_radio_bundles_arrive_after_latency_and_late_copies_are_cut() -> None:
 
 def _run(tmp_path: Path, name: str, *extra: str, timeout: float = 180) -> dict:
     out = tmp_path / f"{name}.json"
-    r = swarm("run", "--headless", "--run-id", name, "--json", str(out), *extra, timeout=timeout)
+    policy = () if "--policy" in extra else ("--policy", "nearest-frontier")
+    r = swarm("run", "--headless", "--run-id", name, "--json", str(out), *policy, *extra,
+              timeout=timeout)
     assert r.returncode == 0, r.stderr[-2000:]
     return json.loads(out.read_text())
 

@@ -147,3 +147,28 @@ def test_train_takes_the_fault_flags_of_run_and_eval(tmp_path: Path) -> None:
     plan = train_faults(TrainConfig(**tr))
     assert plan is not None and plan.default.latency_ms == 150 and plan.default.loss == 0.2
     assert tr["tick_s"] == 0.2
+
+
+@pytest.mark.parametrize("table", [
+    {"loss": 0.3, "latency": "400ms", "jitter": "300ms"},
+    {"bandwidth": "300B/s", "burst": 400, "overflow": "drop", "loss": 0.1},
+    {"bandwidth": "200B/s", "burst": 300, "partition": "0-3/4-9"},
+])
+def test_one_hidden_message_at_a_time_equals_the_batched_channel(table: dict) -> None:
+    """The world decides each hidden-state message as it arrives (`hidden_from`, O(N)); the
+    evaluator decides a tick's at once (`hidden`): the same fates, buckets charged alike."""
+    from swarm.net.channel import VirtualChannel
+    from swarm.net.faults import plan_from_table
+
+    plan = plan_from_table(table, 5, 10)
+    one, batch = VirtualChannel(plan, 10, 2.0), VirtualChannel(plan, 10, 2.0)
+    rng = np.random.default_rng(0)
+    for t in range(12):
+        sizes = rng.integers(100, 400, (1, 10)).astype(float)
+        senders = rng.random((1, 10)) < 0.8
+        for ch in (one, batch):
+            ch.traj(np.array([3]), t, senders, sizes)
+        hs = rng.integers(200, 300, (1, 10)).astype(float)
+        want = batch.hidden(np.array([3]), t, senders, hs).fate[0]
+        for j in np.flatnonzero(senders[0]):
+            assert np.array_equal(one.hidden_from(3, t, int(j), float(hs[0, j])), want[:, j])

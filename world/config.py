@@ -111,6 +111,31 @@ class WorldConfig:
         return math.ceil(self.n_dynamic / math.floor(0.9 * self.horizon / self.add_every))
 
 
+PAPER_CELLS = 20 * 20  # the paper's map; block counts scale from it by area
+
+
+def scaled_blocks(height: int, width: int) -> dict[str, int]:
+    """Static and dynamic block counts of an H x W map at the paper's densities (81 and 70 on
+    20 x 20), rounded: what `--size` gives unless the counts are set too."""
+    area = height * width / PAPER_CELLS
+    return {"n_static": round(WorldConfig.n_static * area),
+            "n_dynamic": round(WorldConfig.n_dynamic * area)}
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """`HxW` (e.g. `40x40`) -> (H, W); a one-line ConfigError otherwise."""
+    h, sep, w = str(text).lower().partition("x")
+    try:
+        if not sep:
+            raise ValueError
+        size = int(h), int(w)
+    except ValueError:
+        raise ConfigError(f"size must be HxW (e.g. 40x40), got {text!r}") from None
+    if min(size) < 3 or max(size) > 1000:
+        raise ConfigError(f"size must be between 3x3 and 1000x1000, got {text!r}")
+    return size
+
+
 def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
     """Build dataclass `cls` from `data`, rejecting unknown keys and coercing simple types."""
     known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]

@@ -1,4 +1,7 @@
-"""`swarm bench swarm`: ticks/s, startup seconds and RSS per robot of real swarm runs."""
+"""`swarm bench swarm`: real swarm runs per (policy, team size): ticks/s, seconds to the first
+tick, RSS and PSS of a robot and of the world, CPU ms per tick by process kind, and where a
+tick's wall time goes in the world (observations out, trajectories in, radio, decisions with the
+hidden-state chain, step and status)."""
 
 from __future__ import annotations
 
@@ -42,11 +45,17 @@ def bench_swarm(world: WorldConfig, cfg: SwarmBenchConfig, progress: Any = None)
                             seed=cfg.seed, checkpoint=cfg.checkpoint)
             opts = SuperviseOptions(headless=True, status_lines=False)
             res = Supervisor(wcfg, run, opts).supervise()
-            rows.append({"policy": policy, "robots": n, "ticks_per_s": res["ticks_per_s"],
-                         "startup_s": res["startup_s"], "rss_mb_per_robot": res["rss_mb_per_robot"],
+            rows.append({"policy": policy, "robots": n, "size": f"{wcfg.height}x{wcfg.width}",
+                         "ticks_per_s": res["ticks_per_s"], "startup_s": res["startup_s"],
+                         "rss_mb_per_robot": res["rss_mb_per_robot"],
                          "pss_mb_per_robot": res.get("pss_mb_per_robot"),
-                         "rss_mb_world": res["rss_mb_world"], "elratio_mean": res["elratio_mean"],
-                         "timeouts": res["timeouts"], "ticks": res["ticks"]})
+                         "rss_mb_world": res["rss_mb_world"],
+                         "pss_mb_world": res.get("pss_mb_world"),
+                         "cpu_ms_per_tick": res.get("cpu_ms_per_tick", {}),
+                         "tick_ms": res.get("tick_ms", {}), "elratio_mean": res["elratio_mean"],
+                         "timeouts": res["timeouts"], "ticks": res["ticks"],
+                         "completed": res.get("completed"), "robots_lost": res.get("robots_lost"),
+                         "bad": res.get("messages", {}).get("bad")})
             if progress is not None:
                 progress(rows[-1])
     return {"rows": rows, "episodes": cfg.episodes, "seed": cfg.seed}

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any, NoReturn, Self
 
-from world.config import ConfigError, WorldConfig, from_dict, load_toml
+from world.config import ConfigError, WorldConfig, from_dict, load_toml, parse_size, scaled_blocks
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
 SECTIONS = ("world", "eval", "bench", "repro", "run", "faults", "train", "learner")
@@ -69,18 +69,38 @@ def merged(cls: type, table: dict[str, Any], flags: dict[str, Any], where: str) 
     return from_dict(cls, {**table, **given}, where=where)
 
 
+def _size(text: str) -> tuple[int, int]:
+    """`--size` value: HxW."""
+    try:
+        return parse_size(text)
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfig:
     """`[world]` of the file overridden by the world flags of this subcommand."""
     dynamic = getattr(args, "dynamic", None)
     sense = getattr(args, "sense", None)
     flags = {
         "n_robots": getattr(args, "world_robots", None), "dynamic": dynamic,
+        "n_static": getattr(args, "static_blocks", None),
+        "n_dynamic": getattr(args, "dynamic_blocks", None),
         "add_every": getattr(args, "world_add_every", None),
         "vision": getattr(args, "vision", None),
         "comm_range": getattr(args, "comm_range", None), "horizon": getattr(args, "horizon", None),
         "explore_mode": "sense" if sense else None,
     }
-    return merged(WorldConfig, tables.get("world", {}), flags, "[world]")
+    table = dict(tables.get("world", {}))
+    size = getattr(args, "size", None)
+    if size is not None:
+        flags["height"], flags["width"] = size
+    h, w = flags.get("height") or table.get("height"), flags.get("width") or table.get("width")
+    if h is not None or w is not None:  # another map size: blocks at the paper's density
+        for key, n in scaled_blocks(int(h or WorldConfig.height),
+                                    int(w or WorldConfig.width)).items():
+            if key not in table and flags.get(key) is None:
+                flags[key] = n
+    return merged(WorldConfig, table, flags, "[world]")
 
 
 def add_common(p: argparse.ArgumentParser, results: bool = True) -> None:
@@ -104,6 +124,14 @@ def add_world(p: argparse.ArgumentParser, robots: bool = True, schedule: bool = 
                        help="dynamic blocks appear (default)")
         g.add_argument("--add-every", dest="world_add_every", type=int, metavar="M",
                        help="steps between dynamic-block batches (default 3)")
+    g.add_argument("--size", type=_size, metavar="HxW",
+                   help="map size (default 20x20); block counts scale with the area unless "
+                        "given")
+    g.add_argument("--static-blocks", type=int, metavar="N",
+                   help="static blocks (default 81 on 20x20, scaled by area)")
+    if schedule:
+        g.add_argument("--dynamic-blocks", type=int, metavar="N",
+                       help="dynamic blocks (default 70 on 20x20, scaled by area)")
     g.add_argument("--vision", type=int, metavar="V",
                    help="side of the v x v view (odd, default 5)")
     g.add_argument("--comm-range", type=_range, metavar="R|inf",

@@ -161,21 +161,28 @@ def files_table(paths: Mapping[str, Sequence[str]]) -> Table:
 
 def swarm_bench_table(result: Mapping[str, Any]) -> Table:
     """Rows of `bench_swarm`: one real swarm run per (policy, team size)."""
-    table = Table(title=f"Swarm benchmark ({result['episodes']} episodes per run)",
+    table = Table(title=f"Swarm benchmark ({result['episodes']} episodes per run; ms per tick: "
+                        "wall time in the world by phase, and CPU by process kind)",
                   title_justify="left")
     table.add_column("policy", style="bold")
-    for col in ("robots", "ticks/s", "startup s", "RSS MB/robot", "PSS MB/robot", "RSS MB world",
-                "elratio",
-                "timeouts"):
+    cols = ("robots", "map", "ticks/s", "1st tick s", "RSS/PSS MB robot", "RSS/PSS MB world",
+            "obs", "collect", "radio", "decide", "step", "CPU world", "CPU robots", "elratio",
+            "lost")
+    for col in cols:
         table.add_column(col, justify="right")
+
+    def f(x: Any, fmt: str = ".1f") -> str:
+        return "-" if x is None else format(x, fmt)
+
     for r in result["rows"]:
-        rss = r["rss_mb_per_robot"]
-        table.add_row(r["policy"], str(r["robots"]), f"{r['ticks_per_s']:.1f}",
-                      "-" if r["startup_s"] is None else f"{r['startup_s']:.2f}",
-                      "-" if rss is None else f"{rss:.0f}",
-                      "-" if r.get("pss_mb_per_robot") is None else f"{r['pss_mb_per_robot']:.0f}",
-                      "-" if r["rss_mb_world"] is None else f"{r['rss_mb_world']:.0f}",
-                      f"{r['elratio_mean']:.3f}", str(r["timeouts"]))
+        ph, cpu = r.get("tick_ms") or {}, r.get("cpu_ms_per_tick") or {}
+        table.add_row(r["policy"], str(r["robots"]), r.get("size", "-"), f(r["ticks_per_s"]),
+                      f(r["startup_s"], ".2f"),
+                      f"{f(r['rss_mb_per_robot'], '.0f')}/{f(r.get('pss_mb_per_robot'), '.0f')}",
+                      f"{f(r['rss_mb_world'], '.0f')}/{f(r.get('pss_mb_world'), '.0f')}",
+                      *(f(ph.get(k)) for k in ("obs", "collect", "radio", "decide", "step")),
+                      f(cpu.get("world")), f(cpu.get("robots")), f(r["elratio_mean"], ".3f"),
+                      str(r["timeouts"] + (r.get("robots_lost") or 0)))
     return table
 
 

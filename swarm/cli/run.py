@@ -24,7 +24,9 @@ from swarm.cli.common import (
     output_file,
     world_config,
 )
-from swarm.common.policy_spec import build_policy
+from swarm.cli.record import add_attention_flag
+from swarm.cli.secure import add_secure_flag, secure_options
+from swarm.common.policy_spec import build_inference
 from swarm.net import zconfig
 from swarm.net.zconfig import open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
@@ -33,7 +35,8 @@ from world.config import ConfigError, from_dict
 
 def _add_run_flags(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("run (override [run] of --config)")
-    g.add_argument("--policy", help="policy every robot runs (default nearest-frontier)")
+    g.add_argument("--policy", help="policy every robot runs (default commattn, from the shipped "
+                                    "checkpoint)")
     g.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
     g.add_argument("--episodes", type=int, metavar="K", help="episodes to run (default 1)")
     g.add_argument("--first-episode", type=int, metavar="E", help="number of the first episode")
@@ -161,8 +164,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     output_file(args.json)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")
+    if args.record:  # the file and the package, before any spawn
+        from swarm.net.recording import need_mcap
+
+        need_mcap()
+        output_file(args.record, "--record")
     if not (run.train and run.checkpoint is None):  # --train alone starts from fresh weights
-        build_policy(run.policy, world, run.checkpoint)  # readable, right policy, right shapes
+        build_inference(run.policy, world, run.checkpoint)  # readable, right policy and shapes
     out, _ = _consoles()
     if args.pace is None and "pace" not in tables.get("run", {}) and not args.headless \
             and out.is_terminal:
@@ -170,9 +178,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     netns = netns_faults(args)
     if netns is not None:  # the kernel decides when a packet arrives: only the wall clock knows
         run = dataclasses.replace(run, clock="real")
+    if args.secure and netns is not None:
+        raise ConfigError("--secure with --netns is not supported yet (the certificates name "
+                          "127.0.0.1, not the namespaces' addresses)")
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             restart_crashed=args.restart_crashed, log_dir=args.log_dir,
-                            netns=netns)
+                            netns=netns, secure=args.secure, record=args.record,
+                            attention=args.attention)
     learning = None
     if run.train:
         from policies import policy_class
@@ -218,7 +230,7 @@ def cmd_world(args: argparse.Namespace) -> int:
         tables = file_tables(args.config)
         world, run = world_config(args, tables), run_config(args, tables)
         faults = fault_table(args, tables, world.n_robots)
-    zopts = zconfig.from_args(args)
+    zopts = secure_options(args, zconfig.from_args(args), "world", run.run_id, world.n_robots)
     output_file(args.json)
     if not args.spec:
         print(f"swarm world: run id {run.run_id}", file=sys.stderr, flush=True)
@@ -236,7 +248,8 @@ def cmd_robot(args: argparse.Namespace) -> int:
 
     _logging(args.verbose)
     try:
-        robot_main(args.id, args.run_id, zconfig.from_args(args), wait_world=args.wait)
+        zopts = secure_options(args, zconfig.from_args(args), f"robot-{args.id}", args.run_id)
+        robot_main(args.id, args.run_id, zopts, wait_world=args.wait)
     except KeyboardInterrupt:
         return 130
     except TimeoutError as exc:
@@ -265,6 +278,10 @@ def cmd_fault(args: argparse.Namespace) -> int:
     opts = zconfig.from_args(args)
     if not opts.connect:
         opts.connect = [lookup_run(args.run)]
+    if not args.secure and any(e.startswith("tls/") for e in opts.connect):
+        raise ConfigError(f"run {args.run} is secure: give --secure DIR (the operator's "
+                          "certificate)")
+    opts = secure_options(args, opts, "operator", args.run)
     keys = Keys(args.run)
     rec: dict[str, Any] = {}
     if link or args.clear:
@@ -315,6 +332,11 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
     p.add_argument("--restart-crashed", action="store_true", help="restart robots that die")
     p.add_argument("--log-dir", metavar="DIR", help="children's logs (default: a temp dir)")
+    p.add_argument("--record", metavar="FILE.mcap",
+                   help="record every message of the run (raw msgpack and JSON, MCAP) into "
+                        "FILE; see `swarm replay` and `swarm trace`")
+    add_attention_flag(p)
+    add_secure_flag(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("world", help="the world process (grid, clock, radio), by hand",
@@ -326,6 +348,7 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
+    add_secure_flag(p)
     p.set_defaults(func=cmd_world)
 
     p = sub.add_parser("fault", help="change the faults of a running swarm",
@@ -340,6 +363,7 @@ def add_parsers(sub: Any) -> None:
                         "virtual clock the change is then reproducible")
     add_fault_flags(p)
     zconfig.add_arguments(p)
+    add_secure_flag(p)
     p.set_defaults(func=cmd_fault)
 
 
@@ -352,4 +376,5 @@ def add_robot_parser(sub: Any) -> None:
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the world")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
+    add_secure_flag(p)
     p.set_defaults(func=cmd_robot)

@@ -57,6 +57,8 @@ class VirtualChannel:
         self.capped = bool((self.rate > 0).any())
         grp = plan.group_of(n)
         self._cut = grp[:, None] != grp[None, :]  # [receiver, sender] in different groups
+        self._base_key: tuple[int, bytes, int] | None = None
+        self._base_val: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros(0))
         self.reset(groups)
 
     def reset(self, groups: int) -> None:
@@ -86,6 +88,19 @@ class VirtualChannel:
         self.last = np.where(capped, now, self.last)
         return q
 
+    def _base(self, kind: int, episodes: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """The seeded draws of tick t's copies of `kind`, [G, N, N] kept and delay (ms),
+        computed once per tick and kind (every hidden-state message of a tick reads them)."""
+        key = (kind, episodes.tobytes(), t)
+        if self._base_key != key:
+            links = (self._loss, self._lat, self._jit)  # not rebuilt per call (a hot path)
+            n = self.n
+            self._base_val = (
+                delivery_mask(self.plan, episodes, t, n, kind, links=links, partition=False),
+                delay_ms(self.plan, episodes, t, n, kind, self._lat, self._jit))
+            self._base_key = key
+        return self._base_val
+
     def _fates(self, kind: int, episodes: np.ndarray, t: int, senders: np.ndarray,
                sizes: np.ndarray, deadline_ms: float) -> Fates:
         g, n = senders.shape
@@ -94,18 +109,42 @@ class VirtualChannel:
         fate = np.zeros((g, n, n), dtype=np.int8)
         arrival = np.broadcast_to(now[:, None, :], (g, n, n)).copy()
         if not self.plan.zero:
-            links = (self._loss, self._lat, self._jit)  # not rebuilt per call (a hot path)
-            keep = delivery_mask(self.plan, episodes, t, n, kind, links=links, partition=False)
+            keep, delay = self._base(kind, episodes, t)
             fate[~keep] = LOST
             if self.plan.partition:
                 fate[:, self._cut] = CUT
-            delay = delay_ms(self.plan, episodes, t, n, kind, self._lat, self._jit)
             arrival = arrival + q[:, None, :] + delay
             fate[(fate == OK) & np.isnan(q)[:, None, :]] = DROPPED
             fate[(fate == OK) & (arrival > deadline_ms)] = LATE
         idx = np.arange(n)
         fate[:, idx, idx] = OK
         return Fates(fate, arrival, senders & (q > 0))
+
+    def hidden_from(self, episode: int, t: int, sender: int, size: float) -> np.ndarray:
+        """Fates [N] of one hidden-state message of `sender` (one group) to every receiver:
+        column `sender` of `hidden()` for that sender alone, in O(N) (a swarm's world decides
+        each message as it arrives)."""
+        n = self.n
+        senders = np.zeros((1, n), dtype=bool)
+        senders[0, sender] = True
+        sizes = np.zeros((1, n))
+        sizes[0, sender] = size
+        now = self.send_ms(t)[None]
+        q = float(self._queue(senders, sizes, now)[0, sender])
+        fate = np.zeros(n, dtype=np.int8)
+        if not self.plan.zero:
+            keep, delay = self._base(KIND_HIDDEN, np.array([episode]), t)
+            fate[~keep[0, :, sender]] = LOST
+            if self.plan.partition:
+                fate[self._cut[:, sender]] = CUT
+            if np.isnan(q):
+                fate[fate == OK] = DROPPED
+            else:
+                arrival = now[0, sender] + q + delay[0, :, sender]
+                deadline = t * self.tick_ms + HIDDEN_FRAC * self.tick_ms
+                fate[(fate == OK) & (arrival > deadline)] = LATE
+        fate[sender] = OK
+        return fate
 
     def traj(self, episodes: np.ndarray, t: int, senders: np.ndarray,
              sizes: np.ndarray) -> Fates:

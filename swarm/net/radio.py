@@ -51,6 +51,10 @@ class RadioCounters:
     bytes_in: int = 0
     bytes_out: int = 0
     links: dict[tuple[int, int], LinkStats] = field(default_factory=dict)
+    """Per-link misses and queued copies (faulted links only; `delivered` is in `delivered`)."""
+    delivered: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
+    """[sender, receiver] copies delivered (own message excluded), counted with numpy: a
+    per-link Python loop would cost O(N^2) a tick for a swarm of hundreds."""
     kinds: dict[str, dict[str, int]] = field(default_factory=lambda: {
         k: dict.fromkeys(("lost", "cut", "late", "dropped_bw", "queued"), 0)
         for k in ("traj", "hidden")})
@@ -61,6 +65,24 @@ class RadioCounters:
         if s is None:
             s = self.links[(j, i)] = LinkStats()
         return s
+
+    def count_delivered(self, ok: np.ndarray) -> None:
+        """Add one delivery per (receiver i, sender j) of `ok` [N, N], own copies excluded."""
+        if self.delivered.shape != ok.shape:
+            self.delivered = np.zeros(ok.shape, dtype=np.int64)
+        off = ok.copy()
+        np.fill_diagonal(off, False)
+        self.delivered += off.T
+
+    def faulted_links(self) -> dict[str, list[int]]:
+        """"j-i" -> [delivered, lost + cut + dropped, late, queued] of every link that lost,
+        delayed or queued a copy: what the world's status and the dashboard show."""
+        out = {}
+        for (a, b), s in self.links.items():
+            if s.lost or s.cut or s.late or s.queued or s.dropped_bw:
+                d = int(self.delivered[a, b]) if self.delivered.size else 0
+                out[f"{a}-{b}"] = [d, s.lost + s.cut + s.dropped_bw, s.late, s.queued]
+        return out
 
     def totals(self) -> dict[str, Any]:
         out: dict[str, Any] = {k: getattr(self, k) for k in (
@@ -183,9 +205,7 @@ class Radio:
             out[i] = (when, heard)
             c.traj_delivered += len(heard)
             c.bytes_out += sum(len(p) for p in heard)
-            for j in js:
-                if j != i:
-                    c.link(int(j), i).delivered += 1
+        c.count_delivered(ok)
         return out
 
     def heard_links(self) -> int:
@@ -255,29 +275,22 @@ class Radio:
         self.delivered = ok
         self.pred = predecessor(ok[None])[0]
         out: dict[int, list[bytes]] = {}
+        payloads = [senders.get(j, b"") for j in range(n)]
         for i in senders:
-            js = np.flatnonzero(ok[i])
-            out[i] = [senders[int(j)] for j in js]
-            c.traj_delivered += len(js)
-            c.bytes_out += sum(len(p) for p in out[i])
-            for j in js:
-                if j != i:
-                    c.link(int(j), i).delivered += 1
+            out[i] = [payloads[j] for j in np.flatnonzero(ok[i]).tolist()]
+        c.traj_delivered += int(ok[list(senders)].sum())
+        c.bytes_out += int((ok[list(senders)] * sizes[None, :]).sum())
+        c.count_delivered(ok)
         return out
 
     def virtual_hidden(self, ep: int, t: int, sender: int, size: int) -> list[tuple[int, bool]]:
         """(successor, on time) for the hidden-state message `sender` sent at tick t; charged
         to its bucket whether or not anyone's predecessor it is."""
         assert self.channel is not None
-        n = self.cfg.n_robots
-        senders = np.zeros((1, n), dtype=bool)
-        senders[0, sender] = True
-        sizes = np.zeros((1, n))
-        sizes[0, sender] = size
-        f = self.channel.hidden(np.array([ep]), t, senders, sizes)
+        fates = self.channel.hidden_from(ep, t, sender, size)  # O(N): per message
         out = []
         for i in np.flatnonzero(self.pred == sender):
-            fate = int(f.fate[0, i, sender])
+            fate = int(fates[i])
             if fate != OK:
                 self.counters.miss("hidden", FATES[fate], sender, int(i))
             out.append((int(i), fate == OK))

@@ -22,8 +22,9 @@ class RunConfig:
 
     run_id: str = "run"
     """Namespaces every key: `swarm/<run_id>/...`."""
-    policy: str = "nearest-frontier"
-    """Registry name of the policy every robot runs."""
+    policy: str = "commattn"
+    """Registry name of the policy every robot runs (default: the paper's CommAttn, from the
+    shipped checkpoint)."""
     checkpoint: str | None = None
     """Checkpoint file of a learned policy (a path the robots can read)."""
     seed: int = 0

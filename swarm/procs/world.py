@@ -47,6 +47,7 @@ from world import core
 from world.config import ConfigError, WorldConfig
 
 log = logging.getLogger("swarm.world")
+PHASES = ("obs", "collect", "radio", "decide", "step")  # see WorldProcess.phase_ms
 
 
 SCHEMA = {"traj": Traj, "hidden": Hidden, "action": Action}  # subscription kind -> schema
@@ -97,6 +98,10 @@ class WorldProcess:
         self._seq = 0
         self.run_tick = 0
         self.planning_ms = 0.0  # robots' reported planning time, summed
+        # where a tick's wall time goes, summed over ticks (ms): publishing observations,
+        # collecting trajectories, the radio (bundles and hidden-state forwarding), waiting for
+        # the decisions (the chain of hidden-state messages included), stepping and status
+        self.phase_ms = dict.fromkeys(PHASES, 0.0)
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.bad: dict[str, int] = {}
@@ -218,6 +223,13 @@ class WorldProcess:
             self._put(key, payload)
 
     def _forward_hidden(self, msg: Hidden, payload: bytes, tick: TickInbox) -> None:
+        t0 = time.perf_counter()
+        try:
+            self._forward_hidden_now(msg, payload, tick)
+        finally:
+            self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
+
+    def _forward_hidden_now(self, msg: Hidden, payload: bytes, tick: TickInbox) -> None:
         if self.virtual:  # its fate is known now: the message, or word that it will not come
             for i, on_time in self.radio.virtual_hidden(msg.ep, msg.t, msg.robot, len(payload)):
                 self._put(self.keys.inbox_hidden(i),
@@ -230,6 +242,11 @@ class WorldProcess:
             self.radio.counters.hidden_delivered += 1
 
     def _deliver(self, state: core.WorldState, tick: TickInbox) -> None:
+        t0 = time.perf_counter()
+        self._deliver_now(state, tick)
+        self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
+
+    def _deliver_now(self, state: core.WorldState, tick: TickInbox) -> None:
         lay = core.Layout.of(self.cfg)
         if self.virtual:
             heard = self.radio.virtual_bundles(tick.ep, tick.t, lay.to_yx(state.pos[0]),
@@ -278,6 +295,7 @@ class WorldProcess:
             timeout = self.run_cfg.watchdog if self.virtual else self.run_cfg.tick_timeout
             deadline = start + timeout
             budget_ms = 1e3 * timeout
+            t_obs = time.perf_counter()
             for i in np.flatnonzero(self.alive):
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
                                                  patch[i].tobytes(), float(state.last_reward[0, i]),
@@ -293,10 +311,14 @@ class WorldProcess:
             traj_deadline = deadline if self.virtual else start + timeout / 2
             tick = TickInbox(ep, t, traj_deadline=start + 0.8 * timeout,
                              hidden_deadline=start + 0.9 * timeout)
+            radio0 = self.phase_ms["radio"]
+            t_sent = t_delivered = time.perf_counter()
+            self.phase_ms["obs"] += 1e3 * (t_sent - t_obs)
             while True:
                 live = set(np.flatnonzero(self.alive).tolist())
                 if not tick.delivered and (live <= set(tick.traj)
                                            or time.monotonic() >= traj_deadline):
+                    t_delivered = time.perf_counter()
                     self._deliver(state, tick)
                 if tick.delivered and live <= set(tick.action) and (
                         not self.chained or live <= tick.sent_hidden):
@@ -306,6 +328,10 @@ class WorldProcess:
                 limit = deadline if tick.delivered else min(deadline, traj_deadline)
                 if not self._pump(limit, tick) and time.monotonic() >= deadline:
                     break
+            t_acted = time.perf_counter()
+            radio = self.phase_ms["radio"] - radio0  # this tick's bundles and forwarding
+            self.phase_ms["collect"] += 1e3 * (t_delivered - t_sent)
+            self.phase_ms["decide"] += max(0.0, 1e3 * (t_acted - t_delivered) - radio)
             acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
             for i, msg in tick.action.items():
                 acts[0, i] = msg.action
@@ -323,6 +349,7 @@ class WorldProcess:
             ticks += 1
             self.run_tick += 1
             self._status(state, ep, missing)
+            self.phase_ms["step"] += 1e3 * (time.perf_counter() - t_acted)
 
     def _status(self, state: core.WorldState, ep: int, missing: list[int]) -> None:
         lay = core.Layout.of(self.cfg)
@@ -336,9 +363,7 @@ class WorldProcess:
             "clock": self.run_cfg.clock, "vtime": self.run_tick * self.run_cfg.tick_timeout,
             "faults": self.radio.plan.describe(),
             "heard_links": self.radio.heard_links(),
-            "links": {f"{a}-{b}": [s.delivered, s.lost + s.cut + s.dropped_bw, s.late, s.queued]
-                      for (a, b), s in self.radio.counters.links.items()
-                      if s.lost or s.cut or s.late or s.queued or s.dropped_bw},
+            "links": self.radio.counters.faulted_links(),
         }
         if state.t == 1:
             rec["static"] = np.argwhere(lay.inner(state.grid[0]) == core.STATIC).tolist()
@@ -388,6 +413,7 @@ class WorldProcess:
             # per team decision: the robots' planning times of a tick, summed (they run in
             # parallel processes, so this is CPU work, not latency)
             out["planning_ms_per_decision"] = self.planning_ms / max(self.run_tick, 1)
+            out["tick_ms"] = {k: v / max(self.run_tick, 1) for k, v in self.phase_ms.items()}
         c = self.radio.counters
         messages = c.totals()
         if self.virtual:  # wall-clock arrivals after their tick changed nothing: apart
