@@ -157,8 +157,16 @@ class TeamMemory:
 def heard_union(view: View) -> np.ndarray:
     """[G, N, H*W] bool: the union of the visited bitmaps each receiver heard this tick (its
     own included); rows of non-receivers are empty."""
+    groups, n = view.receivers.shape
+    g, i = np.nonzero(view.receivers)
+    visited = view.msgs.visited
+    if 4 * len(g) < groups * n:  # few receivers (a robot process): OR the heard bitmaps
+        out = np.zeros(visited.shape, dtype=bool)
+        for gg, ii in zip(g.tolist(), i.tolist(), strict=True):
+            out[gg, ii] = visited[gg, view.hears[gg, ii]].any(0)
+        return out
     heard = (view.hears & view.receivers[:, :, None]).astype(np.float32)  # [G, N, N]
-    return np.matmul(heard, view.msgs.visited.astype(np.float32)) > 0
+    return np.matmul(heard, visited.astype(np.float32)) > 0
 
 
 def remember(views: list[View], cfg: WorldConfig) -> None:

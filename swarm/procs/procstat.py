@@ -36,8 +36,17 @@ class ProcSampler:
         # the ticks done then
         self.cpu_first: dict[str, tuple[float, int]] = {}
         self.cpu_last: dict[str, tuple[float, int]] = {}
+        self._turn = 0  # round robin over the children for PSS
 
-    def sample(self, procs: dict[str, subprocess.Popen | None], ticks_done: int) -> None:
+    def sample(self, procs: dict[str, subprocess.Popen | None], ticks_done: int,
+               pss_per_call: int = 4) -> None:
+        """RSS and CPU of every child; PSS of `pss_per_call` of them in turn (the kernel walks
+        a process's page tables for it: for hundreds of robots, every one every call would be
+        most of the supervisor's time)."""
+        names = sorted(procs)
+        pss_for = {names[(self._turn + k) % len(names)]
+                   for k in range(min(pss_per_call, len(names)))} if names else set()
+        self._turn += pss_per_call
         for name, p in procs.items():
             if p is None or p.poll() is not None:
                 continue
@@ -45,7 +54,7 @@ class ProcSampler:
             if rss is None:
                 continue
             self.rss_mb[name] = max(self.rss_mb.get(name, 0.0), rss / 1024)
-            pss = _kb(f"/proc/{p.pid}/smaps_rollup", "Pss:")
+            pss = _kb(f"/proc/{p.pid}/smaps_rollup", "Pss:") if name in pss_for else None
             if pss is not None:
                 self.pss_mb[name] = max(self.pss_mb.get(name, 0.0), pss / 1024)
             cpu = cpu_seconds(p.pid)
