@@ -1,7 +1,9 @@
 """The `swarm` console script: one parser, one module per command family (all thin).
 
 `swarm.cli.batch`: eval, bench, repro, train (in-process); `swarm.cli.run`: run, world, robot,
-fault, experiment (the distributed swarm); `swarm.cli.learn`: learner, rollout-worker.
+fault, experiment (the distributed swarm); `swarm.cli.learn`: learner, rollout-worker;
+`swarm.cli.secure`: certs, audit; `swarm.cli.record`: record, replay, trace; `swarm.cli.hosts`:
+router.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from swarm.cli import batch, learn, run
+from swarm.cli import batch, hosts, learn, record, run, secure
 from swarm.cli.common import _Parser
 from swarm.procs.spawn import die_with_parent, terminate_as_interrupt
 from world.config import ConfigError
@@ -24,6 +26,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_parsers(sub)
     learn.add_parsers(sub)
     run.add_robot_parser(sub)
+    record.add_parsers(sub)
+    secure.add_parsers(sub)
+    hosts.add_parsers(sub)
     return parser
 
 

@@ -191,6 +191,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
                       "json": args.json}, where)
         result = bench_rollout(cfg, lambda row: err.print(f"  {row}"))
         out.print(rollout_bench_table(result))
+    elif args.what == "record":
+        from swarm.bench.record import RecordBenchConfig, bench_record
+
+        cfg = merged(RecordBenchConfig, table,
+                     {"policy": args.policy, "checkpoint": args.checkpoint,
+                      "episodes": args.episodes, "pairs": args.pairs, "seed": args.seed,
+                      "out": args.out, "json": args.json}, where)
+        build_policy(cfg.policy, world, cfg.checkpoint)
+        result = bench_record(world, cfg, lambda row: err.print(f"  {row}"))
+        out.print(kv_table("Recording cost (medians of interleaved pairs)",
+                           {k: v for k, v in result.items() if k != "rows"}))
     elif args.what == "swarm":
         from swarm.bench.swarm import SwarmBenchConfig, bench_swarm
         from swarm.cli.console import swarm_bench_table
@@ -311,6 +322,17 @@ def add_parsers(sub: Any) -> None:
     b.add_argument("--seconds", type=float, help="measuring window (default 10)")
     b.add_argument("--repeats", type=int, help="windows per count (default 3)")
     add_common(b)
+    b.set_defaults(func=cmd_bench)
+    b = bsub.add_parser("record", help="ticks/s of swarm runs with and without --record",
+                        description="Pairs of the same headless swarm run, plain and recorded, "
+                                    "interleaved; medians of ticks/s and CPU ms per tick.")
+    b.add_argument("--policy", help="policy (default nearest-frontier)")
+    b.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
+    b.add_argument("--episodes", type=int, help="episodes per run (default 3)")
+    b.add_argument("--pairs", type=int, help="(plain, recorded) pairs (default 5)")
+    b.add_argument("--out", metavar="DIR", help="keep the recordings here")
+    add_common(b)
+    add_world(b)
     b.set_defaults(func=cmd_bench)
     b = bsub.add_parser("swarm", help="ticks/s, startup s and RSS per robot of real swarm runs",
                         description="Runs the distributed swarm (real processes, Zenoh on "

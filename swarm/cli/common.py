@@ -20,7 +20,7 @@ from world.config import ConfigError, WorldConfig, from_dict, load_toml, parse_s
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
 SECTIONS = ("world", "eval", "bench", "repro", "run", "faults", "train", "learner")
-BENCH_TABLES = ("env", "policy", "swarm", "train", "rollout")
+BENCH_TABLES = ("env", "policy", "swarm", "train", "rollout", "record")
 
 
 class _Parser(argparse.ArgumentParser):

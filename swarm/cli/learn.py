@@ -16,6 +16,7 @@ from swarm.cli.common import (
     world_config,
 )
 from swarm.cli.run import _logging, learner_configs
+from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.net import zconfig
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError
@@ -41,7 +42,8 @@ def cmd_learner(args: argparse.Namespace) -> int:
     output_dir(lc.out, "--out")
     output_file(args.json)
     try:
-        status = learner_main(world, lc, tc, zconfig.from_args(args), seed)
+        zopts = secure_options(args, zconfig.from_args(args), "learner", lc.run_id)
+        status = learner_main(world, lc, tc, zopts, seed)
     except KeyboardInterrupt:
         return 130
     if args.json:
@@ -58,8 +60,10 @@ def cmd_rollout_worker(args: argparse.Namespace) -> int:
     if args.batch < 1 or args.threads < 1:
         raise ConfigError("--batch and --threads must be >= 1")
     try:
-        res = worker_main(args.run_id, zconfig.from_args(args), args.worker_id, args.batch,
-                          args.threads, args.max_batches, args.wait)
+        zopts = secure_options(args, zconfig.from_args(args), f"worker-{args.worker_id}",
+                               args.run_id)
+        res = worker_main(args.run_id, zopts, args.worker_id, args.batch, args.threads,
+                          args.max_batches, args.wait)
     except KeyboardInterrupt:
         return 130
     except TimeoutError as exc:
@@ -97,6 +101,7 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
+    add_secure_flag(p)
     p.set_defaults(func=cmd_learner)
 
     p = sub.add_parser("rollout-worker", help="batched episodes for a learner, over Zenoh",
@@ -111,4 +116,5 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the learner")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
+    add_secure_flag(p)
     p.set_defaults(func=cmd_rollout_worker)

@@ -24,6 +24,7 @@ from swarm.cli.common import (
     output_file,
     world_config,
 )
+from swarm.cli.hosts import add_hosts_flag, hosts_option
 from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.common.policy_spec import build_inference
@@ -51,6 +52,10 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--clock", choices=["virtual", "real"],
                    help="message timing in virtual time (default: a run is a function of its "
                         "seed and faults) or on the wall clock (forced by --netns)")
+    g.add_argument("--delivery", choices=["radio", "direct"],
+                   help="robot-to-robot messages through the world's radio (default) or straight "
+                        "between robots, each applying range and the seeded faults itself "
+                        "(same decisions; robots learn it from the world)")
     g.add_argument("--watchdog", type=float, metavar="S",
                    help="virtual clock: wall seconds before a hung robot is stepped without "
                         "(default 10)")
@@ -105,6 +110,7 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
              "first_episode": args.first_episode, "run_id": args.run_id,
              "tick_timeout": args.tick_timeout, "seed": args.seed, "pace": args.pace,
              "clock": getattr(args, "clock", None), "watchdog": getattr(args, "watchdog", None),
+             "delivery": getattr(args, "delivery", None),
              "greedy": False if args.sample or getattr(args, "train", None) else None,
              "train": getattr(args, "train", None),
              "rollout_loss": getattr(args, "rollout_loss", None)}
@@ -184,7 +190,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             restart_crashed=args.restart_crashed, log_dir=args.log_dir,
                             netns=netns, secure=args.secure, record=args.record,
-                            attention=args.attention)
+                            attention=args.attention, hosts=hosts_option(args))
     learning = None
     if run.train:
         from policies import policy_class
@@ -328,6 +334,7 @@ def add_parsers(sub: Any) -> None:
     _add_run_flags(p)
     add_fault_flags(p)
     _add_netns_flags(p)
+    add_hosts_flag(p)
     _add_train_flags(p)
     p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
     p.add_argument("--restart-crashed", action="store_true", help="restart robots that die")

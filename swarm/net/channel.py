@@ -101,61 +101,102 @@ class VirtualChannel:
             self._base_key = key
         return self._base_val
 
+    def deadline_ms(self, kind: int, t: int) -> float:
+        """When a copy of `kind` sent at tick t is late (ms from the episode's start)."""
+        frac = TRAJ_FRAC if kind == KIND_TRAJ else HIDDEN_FRAC
+        return t * self.tick_ms + frac * self.tick_ms
+
+    def decide(self, keep: np.ndarray, delay: np.ndarray, cut: np.ndarray | bool,
+               send_ms: np.ndarray | float, queue_ms: np.ndarray | float,
+               deadline_ms: float) -> tuple[np.ndarray, np.ndarray]:
+        """The fate of copies (and when the ones not lost or cut arrive) from their seeded draws
+        (`keep`: not lost, `delay`: latency + jitter), partition cut, send time and the sender's
+        queue delay (NaN: dropped by its bandwidth cap); any broadcastable shapes. The one rule
+        every delivery uses: the batched evaluator, the world's radio and a robot's direct
+        delivery (`swarm.net.direct`) call it on a whole tick, one sender's column or one
+        receiver's row, and so decide every copy alike."""
+        shape = np.broadcast_shapes(np.shape(keep), np.shape(delay), np.shape(cut),
+                                    np.shape(send_ms), np.shape(queue_ms))
+        fate = np.zeros(shape, dtype=np.int8)
+        arrival = np.broadcast_to(np.asarray(send_ms, dtype=np.float64), shape).copy()
+        if self.plan.zero:
+            return fate, arrival
+        fate[np.broadcast_to(~np.asarray(keep), shape)] = LOST
+        fate[np.broadcast_to(cut, shape)] = CUT
+        arrival = arrival + queue_ms + delay
+        fate[(fate == OK) & np.broadcast_to(np.isnan(queue_ms), shape)] = DROPPED
+        fate[(fate == OK) & (arrival > deadline_ms)] = LATE
+        return fate, arrival
+
     def _fates(self, kind: int, episodes: np.ndarray, t: int, senders: np.ndarray,
-               sizes: np.ndarray, deadline_ms: float) -> Fates:
+               sizes: np.ndarray) -> Fates:
         g, n = senders.shape
         now = np.broadcast_to(self.send_ms(t)[None], (g, n))
         q = self._queue(senders, sizes, now)
-        fate = np.zeros((g, n, n), dtype=np.int8)
-        arrival = np.broadcast_to(now[:, None, :], (g, n, n)).copy()
-        if not self.plan.zero:
+        if self.plan.zero:
+            keep, delay = np.ones((g, n, n), dtype=bool), np.zeros((g, n, n))
+        else:
             keep, delay = self._base(kind, episodes, t)
-            fate[~keep] = LOST
-            if self.plan.partition:
-                fate[:, self._cut] = CUT
-            arrival = arrival + q[:, None, :] + delay
-            fate[(fate == OK) & np.isnan(q)[:, None, :]] = DROPPED
-            fate[(fate == OK) & (arrival > deadline_ms)] = LATE
+        cut = self._cut[None] if self.plan.partition else False
+        fate, arrival = self.decide(keep, delay, cut, now[:, None, :], q[:, None, :],
+                                    self.deadline_ms(kind, t))
         idx = np.arange(n)
         fate[:, idx, idx] = OK
         return Fates(fate, arrival, senders & (q > 0))
+
+    def charge(self, t: int, sender: int, size: float) -> float:
+        """Charge one message of `sender` (group 0) sent at tick t to its token bucket: the ms
+        it waits for tokens (0: none), NaN if the cap drops it. A bucket is its sender's own
+        state, so a robot charges its own in direct delivery and stamps its messages with it."""
+        senders = np.zeros((1, self.n), dtype=bool)
+        senders[0, sender] = True
+        sizes = np.zeros((1, self.n))
+        sizes[0, sender] = size
+        return float(self._queue(senders, sizes, self.send_ms(t)[None])[0, sender])
+
+    def _pair(self, kind: int, episode: int, t: int, sel: tuple[object, object],
+              cut: np.ndarray | bool, send: np.ndarray | float, queue_ms: np.ndarray | float
+              ) -> np.ndarray:
+        if self.plan.zero:
+            keep, delay = np.ones(self.n, dtype=bool), np.zeros(self.n)
+        else:
+            k, d = self._base(kind, np.array([episode]), t)
+            keep, delay = k[0][sel], d[0][sel]  # type: ignore[index]
+        return self.decide(keep, delay, cut if self.plan.partition else False, send, queue_ms,
+                           self.deadline_ms(kind, t))[0]
+
+    def column(self, kind: int, episode: int, t: int, sender: int,
+               queue_ms: float) -> np.ndarray:
+        """Fates [N] of `sender`'s message of `kind` at tick t to every receiver, given the ms it
+        waited in the sender's bucket (NaN: dropped)."""
+        fate = self._pair(kind, episode, t, (slice(None), sender), self._cut[:, sender],
+                          float(self.send_ms(t)[sender]), queue_ms)
+        fate[sender] = OK
+        return fate
+
+    def row(self, kind: int, episode: int, t: int, receiver: int,
+            queue_ms: np.ndarray) -> np.ndarray:
+        """Fates [N] of every sender's message of `kind` at tick t to `receiver`, given each
+        sender's queue delay [N] (NaN: dropped): what a robot decides in direct delivery."""
+        fate = self._pair(kind, episode, t, (receiver, slice(None)), self._cut[receiver],
+                          self.send_ms(t), np.asarray(queue_ms, dtype=np.float64))
+        fate[receiver] = OK
+        return fate
 
     def hidden_from(self, episode: int, t: int, sender: int, size: float) -> np.ndarray:
         """Fates [N] of one hidden-state message of `sender` (one group) to every receiver:
         column `sender` of `hidden()` for that sender alone, in O(N) (a swarm's world decides
         each message as it arrives)."""
-        n = self.n
-        senders = np.zeros((1, n), dtype=bool)
-        senders[0, sender] = True
-        sizes = np.zeros((1, n))
-        sizes[0, sender] = size
-        now = self.send_ms(t)[None]
-        q = float(self._queue(senders, sizes, now)[0, sender])
-        fate = np.zeros(n, dtype=np.int8)
-        if not self.plan.zero:
-            keep, delay = self._base(KIND_HIDDEN, np.array([episode]), t)
-            fate[~keep[0, :, sender]] = LOST
-            if self.plan.partition:
-                fate[self._cut[:, sender]] = CUT
-            if np.isnan(q):
-                fate[fate == OK] = DROPPED
-            else:
-                arrival = now[0, sender] + q + delay[0, :, sender]
-                deadline = t * self.tick_ms + HIDDEN_FRAC * self.tick_ms
-                fate[(fate == OK) & (arrival > deadline)] = LATE
-        fate[sender] = OK
-        return fate
+        return self.column(KIND_HIDDEN, episode, t, sender, self.charge(t, sender, size))
 
     def traj(self, episodes: np.ndarray, t: int, senders: np.ndarray,
              sizes: np.ndarray) -> Fates:
         """Fates of tick t's trajectory copies of `senders` [G, N] with payload `sizes` [G, N];
         range is applied by the caller (it needs the true positions)."""
-        return self._fates(KIND_TRAJ, np.asarray(episodes), t, senders, sizes,
-                           t * self.tick_ms + TRAJ_FRAC * self.tick_ms)
+        return self._fates(KIND_TRAJ, np.asarray(episodes), t, senders, sizes)
 
     def hidden(self, episodes: np.ndarray, t: int, senders: np.ndarray,
                sizes: np.ndarray) -> Fates:
         """Fates of tick t's hidden-state copies (charged after the same tick's trajectory
         messages: call `traj` first)."""
-        return self._fates(KIND_HIDDEN, np.asarray(episodes), t, senders, sizes,
-                           t * self.tick_ms + HIDDEN_FRAC * self.tick_ms)
+        return self._fates(KIND_HIDDEN, np.asarray(episodes), t, senders, sizes)

@@ -46,15 +46,17 @@ class Inbox:
         except queue.Full:
             self.overflow += 1
 
-    def subscribe(self, key: str, kind: str) -> Inbox:
-        """Samples on `key` arrive as Event(kind, sample key, payload bytes)."""
+    def subscribe(self, key: str, kind: str, remote: bool = False) -> Inbox:
+        """Samples on `key` arrive as Event(kind, sample key, payload bytes); with `remote`,
+        only those other sessions put (not this process's own)."""
         def on_sample(s: zenoh.Sample) -> None:
             if len(s.payload) > self.max_bytes:
                 self.oversized += 1
                 return
             self._offer(Event(kind, str(s.key_expr), s.payload.to_bytes()))
 
-        self._ents.append(self.session.declare_subscriber(key, on_sample))
+        origin = zenoh.Locality.REMOTE if remote else None
+        self._ents.append(self.session.declare_subscriber(key, on_sample, allowed_origin=origin))
         return self
 
     def liveliness(self, key: str, kind: str, history: bool = True) -> Inbox:

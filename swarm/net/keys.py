@@ -59,6 +59,11 @@ class Keys:
     def hidden(self, robot: int | str) -> str:
         return f"{self.base}/robot/{robot}/hidden"
 
+    def direct(self, robot: int | str, hidden: bool = False) -> str:
+        """Robot -> robots (direct delivery): its stamped trajectory (or hidden-state) messages
+        (`messages.Stamped`); receivers apply range and the fault plan themselves."""
+        return f"{self.base}/robot/{robot}/{'dhidden' if hidden else 'dtraj'}"
+
     def inbox(self, robot: int) -> str:
         """Radio -> robot: the bundle of trajectory messages it heard this tick."""
         return f"{self.base}/radio/inbox/{robot}"
@@ -116,9 +121,44 @@ class Keys:
         return f"{self.base}/alive/world"
 
     @property
+    def alive_recorder(self) -> str:
+        """The recorder's token: declared once it listens and its file is open."""
+        return f"{self.base}/alive/recorder"
+
+    @property
     def control(self) -> str:
         """Supervisor -> world: stop requests (and, later, live fault changes)."""
         return f"{self.base}/control"
+
+    def kind_of(self, key: str) -> tuple[str, int | None]:
+        """What a key of this run carries: (kind, robot id or None); ("", None) for a key that
+        is not one of this run's (another run's, or made up). Kinds: obs, status, end, result,
+        episode, traj, hidden, action, rstatus, rollout, direct, bundle, radio_hidden, control,
+        weights, lstatus, worker_episodes (the names `swarm.net.msgjson` maps to schemas)."""
+        prefix = self.base + "/"
+        if not str(key).startswith(prefix):
+            return "", None
+        parts = str(key)[len(prefix):].split("/")
+        fixed = {("world", "status"): "status", ("world", "end"): "end",
+                 ("world", "result"): "result", ("world", "episode"): "episode",
+                 ("control",): "control", ("learner", "weights"): "weights",
+                 ("learner", "status"): "lstatus", ("rollout", "episode"): "worker_episodes"}
+        kind = fixed.get(tuple(parts))
+        if kind is not None:
+            return kind, None
+        robot: int | None = None
+        if len(parts) == 3 and parts[0] == "world" and parts[1] == "obs":
+            kind, robot = "obs", _id(parts[2])
+        elif len(parts) == 3 and parts[0] == "robot":
+            kind = {"traj": "traj", "hidden": "hidden", "action": "action", "status": "rstatus",
+                    "rollout": "rollout", "dtraj": "direct", "dhidden": "direct"}.get(parts[2], "")
+            robot = _id(parts[1])
+        elif len(parts) == 3 and parts[0] == "radio":
+            kind = {"inbox": "bundle", "hidden": "radio_hidden"}.get(parts[1], "")
+            robot = _id(parts[2])
+        if not kind or robot is None:
+            return "", None
+        return kind, robot
 
     @staticmethod
     def robot_of(key: str) -> int:
@@ -130,3 +170,8 @@ class Keys:
         if parts and parts[-1].isdigit():
             return int(parts[-1])
         raise ValueError(f"no robot id in key {key!r}")
+
+
+def _id(text: str) -> int | None:
+    """A robot id as keys spell it (decimal, no sign, at most 6 digits), else None."""
+    return int(text) if text.isdigit() and len(text) <= 6 and text.isascii() else None

@@ -31,7 +31,7 @@ def _pack(kind: int, *fields: Any) -> bytes:
     return msgpack.packb([SCHEMA, kind, *fields], use_bin_type=True)
 
 
-def _unpack(payload: bytes, kind: int, n_fields: int) -> list[Any]:
+def _unpack(payload: bytes, kind: int, n_fields: int | tuple[int, ...]) -> list[Any]:
     try:
         obj = msgpack.unpackb(payload, raw=False, strict_map_key=False)
     except Exception as exc:  # msgpack raises several types; all mean "not msgpack"
@@ -42,7 +42,7 @@ def _unpack(payload: bytes, kind: int, n_fields: int) -> list[Any]:
         raise BadMessage(f"schema version {obj[0]!r}, expected {SCHEMA}")
     if obj[1] != kind:
         raise BadMessage(f"message kind {obj[1]!r}, expected {kind}")
-    if len(obj) != 2 + n_fields:
+    if len(obj) - 2 not in ((n_fields,) if isinstance(n_fields, int) else n_fields):
         raise BadMessage(f"{len(obj) - 2} fields, expected {n_fields}")
     return obj[2:]
 
@@ -85,20 +85,23 @@ class Obs:
     reward: float  # reward of the previous step (0 at t = 0)
     done: bool  # the episode has ended: no action is expected for this tick
     budget_ms: float  # time left until the world's action deadline when it sent this
+    live: bytes = b""  # direct delivery: np.packbits of the robots the world sent this tick to
+    # (whose trajectory messages a robot waits for); empty (and not sent) with the radio
 
     def pack(self) -> bytes:
         return _pack(K_OBS, self.ep, self.t, self.robot, self.y, self.x, self.patch, self.reward,
-                     self.done, self.budget_ms)
+                     self.done, self.budget_ms, *((self.live,) if self.live else ()))
 
     @classmethod
     def unpack(cls, payload: bytes, cfg: WorldConfig) -> Obs:
-        ep, t, robot, y, x, patch, reward, done, budget = _unpack(payload, K_OBS, 9)
+        ep, t, robot, y, x, patch, reward, done, budget, *live = _unpack(payload, K_OBS, (9, 10))
         if not isinstance(done, bool):
             raise BadMessage("done must be a bool")
         return cls(_int(ep, "ep", 0, BIG), _int(t, "t", 0, cfg.horizon),
                    _int(robot, "robot", 0, cfg.n_robots - 1), _int(y, "y", 0, cfg.height - 1),
                    _int(x, "x", 0, cfg.width - 1), _bytes(patch, "patch", cfg.vision ** 2),
-                   _float(reward, "reward"), done, _float(budget, "budget_ms", 0.0, MAX_MS))
+                   _float(reward, "reward"), done, _float(budget, "budget_ms", 0.0, MAX_MS),
+                   _bytes(live[0], "live", (cfg.n_robots + 7) // 8) if live else b"")
 
 
 @dataclass
@@ -194,6 +197,48 @@ class Hidden:
         return not self.state
 
 
+K_STAMPED, DROPPED_Q = 20, -1.0  # (kept apart from the range above) queue of a dropped message
+
+
+@dataclass
+class Stamped:
+    """Robot -> every robot (direct delivery): its packed Traj or Hidden (`kind`) with the ms it
+    waited in its own token bucket, or DROPPED_Q; receivers draw every other fate themselves."""
+
+    kind: int
+    ep: int
+    t: int
+    robot: int
+    queue_ms: float
+    payload: bytes
+
+    def pack(self) -> bytes:
+        return _pack(K_STAMPED, self.kind, self.ep, self.t, self.robot, self.queue_ms,
+                     self.payload)
+
+    @classmethod
+    def unpack(cls, payload: bytes, cfg: WorldConfig) -> Stamped:
+        kind, ep, t, robot, q, inner = _unpack(payload, K_STAMPED, 6)
+        if kind not in (K_TRAJ, K_HIDDEN) or isinstance(kind, bool):
+            raise BadMessage(f"stamped kind {kind!r} is neither a trajectory nor a hidden state")
+        q = _float(q, "queue_ms", DROPPED_Q, MAX_MS)
+        if q < 0 and q != DROPPED_Q:
+            raise BadMessage(f"queue_ms={q!r} neither >= 0 nor {DROPPED_Q}")
+        if not isinstance(inner, bytes) or len(inner) > 4 * 4096 + 4 * cfg.cells + 1024:
+            raise BadMessage("payload must be the bytes of one message")
+        return cls(kind, _int(ep, "ep", 0, BIG), _int(t, "t", 0, cfg.horizon),
+                   _int(robot, "robot", 0, cfg.n_robots - 1), q, inner)
+
+    def message(self, cfg: WorldConfig) -> Traj | Hidden:
+        """The carried message, checked against the envelope (kind, episode, tick, sender)."""
+        msg: Traj | Hidden = (Traj if self.kind == K_TRAJ else Hidden).unpack(self.payload, cfg)
+        if (msg.ep, msg.t, msg.robot) != (self.ep, self.t, self.robot):
+            raise BadMessage("the carried message does not match its envelope")
+        if isinstance(msg, Hidden) and msg.is_miss:
+            raise BadMessage("a miss marker is the radio's, never a robot's")
+        return msg
+
+
 @dataclass
 class Action:
     """Robot -> world: its action for tick `t`, and how long it took to plan."""
@@ -225,6 +270,27 @@ def unpack_record(payload: bytes, kind: int) -> dict[str, Any]:
     if not isinstance(record, dict):
         raise BadMessage("record must be a map")
     return record
+
+
+ATTN_SUM_TOL = 1e-3  # attention weights are float32 softmax outputs, sent rounded
+
+
+def check_robot_status(rec: dict[str, Any], n_robots: int, horizon: int) -> dict[str, Any]:
+    """A robot status record's id and its optional attention fields, range-checked (BadMessage
+    otherwise: the consumer drops and counts the record). `attn` is the robot's attention
+    weights over the team, [N] numbers in [0, 1], zero for members it did not hear, summing to 1
+    (it always hears itself); `attn_t` the tick they were computed at. Both or neither."""
+    _int(rec.get("robot"), "robot", 0, n_robots - 1)
+    if "attn" not in rec and "attn_t" not in rec:
+        return rec
+    w = rec.get("attn")
+    if not isinstance(w, list) or len(w) != n_robots:
+        raise BadMessage(f"attn must be a list of {n_robots} weights")
+    total = sum(_float(x, "attn weight", 0.0, 1.0) for x in w)
+    if abs(total - 1.0) > ATTN_SUM_TOL * max(1, n_robots):
+        raise BadMessage(f"attn weights sum to {total:.4f}, not 1")
+    _int(rec.get("attn_t"), "attn_t", 0, horizon)
+    return rec
 
 
 # ------------------------------------------------------------------- learning (issue: learner)

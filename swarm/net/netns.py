@@ -157,6 +157,10 @@ class Topology:
         return [f"tcp/{self.hub_addr}:{port}", *(self.robot_endpoint(i, port)
                                                  for i in range(self.n))]
 
+    def routers(self, port: int) -> list[tuple[str, list[str], str, str]]:
+        """Router processes to start (swarm.net.hosts has some): none, the world routes."""
+        return []
+
     def describe(self) -> dict[str, Any]:
         f = self.faults
         return {"world_ns": self.world_ns, "robot_ns": self.robot_ns, "hub_addr": self.hub_addr,

@@ -91,6 +91,30 @@ class RadioCounters:
         out["by_kind"] = {k: dict(v) for k, v in self.kinds.items()}
         return out
 
+    def count_traj(self, rows: np.ndarray, hears: np.ndarray, fate: np.ndarray,
+                   present: np.ndarray, queued: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+        """Count the trajectory copies to receivers `rows` [R] of one tick, each in exactly one
+        counter (delivered, out of range, lost, cut, late, dropped), and the queued ones apart;
+        returns what each receiver hears, `ok` [R, N]. `hears` [R, N] is range (both present),
+        `fate` [R, N] the channel's, `present` [N] who sent, `queued` [N] whose message waited
+        for tokens, `sizes` [N] bytes. The world's radio counts every receiver of a tick, a
+        robot in direct delivery its own row: the sums agree."""
+        self.out_of_range += int(len(rows) * present.sum() - hears.sum())
+        others = hears & (rows[:, None] != np.arange(hears.shape[1])[None])
+        for r, j in zip(*np.nonzero(others & queued[None]), strict=True):
+            self.queued += 1
+            self.link(int(j), int(rows[r])).queued += 1
+            self.kinds["traj"]["queued"] += 1
+        for r, j in zip(*np.nonzero(hears & (fate != OK)), strict=True):
+            self.miss("traj", FATES[fate[r, j]], int(j), int(rows[r]))
+        ok = hears & (fate == OK)
+        self.traj_delivered += int(ok.sum())
+        self.bytes_out += int((ok * sizes[None, :]).sum())
+        full = np.zeros((hears.shape[1], hears.shape[1]), dtype=bool)
+        full[rows] = ok
+        self.count_delivered(full)
+        return ok
+
     def miss(self, kind: str, what: str, j: int, i: int) -> None:
         """One copy j -> i of `kind` that was lost, cut, late or dropped (`what`)."""
         setattr(self, what, getattr(self, what) + 1)
@@ -260,28 +284,14 @@ class Radio:
         for j, payload in senders.items():
             sizes[j] = len(payload)
         hears = neighbourhood(self.cfg.comm_range, positions[None], present[None])[0]
-        c.out_of_range += int(present.sum() ** 2 - hears.sum())
         f = self.channel.traj(np.array([ep]), t, present[None], sizes[None])
-        fate = f.fate[0]
-        for j in np.flatnonzero(f.queued[0]):
-            for i in np.flatnonzero(hears[:, j]):
-                if i != j:
-                    c.queued += 1
-                    c.link(int(j), int(i)).queued += 1
-                    c.kinds["traj"]["queued"] += 1
-        for i, j in zip(*np.nonzero(hears & (fate != OK)), strict=True):
-            c.miss("traj", FATES[fate[i, j]], int(j), int(i))
-        ok = hears & (fate == OK)
+        rows = np.flatnonzero(present)
+        ok = np.zeros((n, n), dtype=bool)
+        ok[rows] = c.count_traj(rows, hears[rows], f.fate[0][rows], present, f.queued[0], sizes)
         self.delivered = ok
         self.pred = predecessor(ok[None])[0]
-        out: dict[int, list[bytes]] = {}
         payloads = [senders.get(j, b"") for j in range(n)]
-        for i in senders:
-            out[i] = [payloads[j] for j in np.flatnonzero(ok[i]).tolist()]
-        c.traj_delivered += int(ok[list(senders)].sum())
-        c.bytes_out += int((ok[list(senders)] * sizes[None, :]).sum())
-        c.count_delivered(ok)
-        return out
+        return {i: [payloads[j] for j in np.flatnonzero(ok[i]).tolist()] for i in senders}
 
     def virtual_hidden(self, ep: int, t: int, sender: int, size: int) -> list[tuple[int, bool]]:
         """(successor, on time) for the hidden-state message `sender` sent at tick t; charged

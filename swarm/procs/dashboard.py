@@ -77,6 +77,14 @@ class SwarmView:
     clock: str = "real"  # the run's clock (status records say which)
     vtime: float = 0.0  # virtual seconds since the run started (virtual clock)
     bad_records: int = 0  # status records the supervisor dropped (did not fit their schema)
+    attention: dict[int, tuple[int, list[float]]] = field(default_factory=dict)
+    """Robot -> (tick, its attention weights over the team), from robot statuses (CommAttn)."""
+    attention_focus: int | None = -1
+    """Whose strongest attention the map draws: -1 every robot's, k robot k's, None nobody's."""
+    replay: str = ""
+    """What is replayed (a recording, its speed and position); empty on a live run."""
+    elapsed_s: float | None = None
+    """Replay: the recorded seconds since the run started (live: wall time since `started`)."""
 
     def __post_init__(self) -> None:
         for i in range(self.n_robots):
@@ -91,6 +99,7 @@ class SwarmView:
             self.ep = int(rec.get("ep", 0))
             self.explored.clear()
             self.dynamic.clear()
+            self.attention.clear()
         if "static" in rec:
             self.static = {tuple(c) for c in rec["static"]}  # type: ignore[misc]
         self.tick = int(rec.get("t", 0))
@@ -107,7 +116,8 @@ class SwarmView:
         self.heard_links = int(rec.get("heard_links", 0))
         self.clock = str(rec.get("clock", self.clock))
         self.vtime = float(rec.get("vtime", 0.0))
-        for i, (p, alive) in enumerate(zip(rec.get("pos", []), rec.get("alive", []))):
+        for i, (p, alive) in enumerate(zip(rec.get("pos", []), rec.get("alive", []),
+                                           strict=False)):
             row = self.robots.setdefault(i, RobotRow())
             row.pos = (int(p[0]), int(p[1]))
             if alive:
@@ -130,6 +140,20 @@ class SwarmView:
         row.errors = int(rec.get("errors", 0))
         row.compute_ms = float(rec.get("compute_ms", 0.0))
         row.wait_ms = float(rec.get("wait_ms", 0.0))
+        if isinstance(rec.get("attn"), list):  # range-checked by messages.check_robot_status
+            self.attention[int(rec["robot"])] = (int(rec.get("attn_t", 0)),
+                                                 [float(x) for x in rec["attn"]])
+
+    def strongest(self) -> dict[int, tuple[int, float]]:
+        """Robot -> (the other member it attends to most, weight), for robots reporting
+        attention that heard someone besides themselves."""
+        out = {}
+        for i, (_, w) in self.attention.items():
+            others = [(x, j) for j, x in enumerate(w) if j != i and x > 0]
+            if others:
+                x, j = max(others)
+                out[i] = (j, x)
+        return out
 
     def set_alive(self, robot: int, alive: bool) -> None:
         row = self.robots.setdefault(robot, RobotRow())
@@ -146,12 +170,48 @@ class SwarmView:
         return (len(self.tick_times) - 1) / span if span > 0 else 0.0
 
 
+def line_cells(a: tuple[int, int], b: tuple[int, int]) -> list[tuple[int, int]]:
+    """The grid cells strictly between a and b on a straight line (Bresenham)."""
+    (y0, x0), (y1, x1) = a, b
+    dy, dx = abs(y1 - y0), abs(x1 - x0)
+    sy, sx = (1 if y1 > y0 else -1), (1 if x1 > x0 else -1)
+    err, out = dx - dy, []
+    y, x = y0, x0
+    while (y, x) != (y1, x1):
+        e2 = 2 * err
+        if e2 > -dy:
+            err -= dy
+            x += sx
+        if e2 < dx:
+            err += dx
+            y += sy
+        out.append((y, x))
+    return out[:-1]
+
+
+def attention_lines(v: SwarmView) -> dict[tuple[int, int], int]:
+    """Cell -> robot whose line to the member it attends to most crosses it (focus applied)."""
+    marks: dict[tuple[int, int], int] = {}
+    if v.attention_focus is None:
+        return marks
+    for i, (j, _) in sorted(v.strongest().items()):
+        a, b = v.robots.get(i), v.robots.get(j)
+        if v.attention_focus not in (-1, i) or a is None or b is None or a.pos is None \
+                or b.pos is None:
+            continue
+        for c in line_cells(a.pos, b.pos):
+            marks.setdefault(c, i)
+    return marks
+
+
 def render_grid(v: SwarmView) -> Text:
-    """The map: static blocks, dynamic blocks, explored cells, robots by id."""
+    """The map: static blocks, dynamic blocks, explored cells, robots by id, and a dotted line
+    from each robot to the member it attends to most (CommAttn), in the robot's colour."""
     at: dict[tuple[int, int], list[int]] = {}
     for i, row in v.robots.items():
         if row.pos is not None and row.alive:
             at.setdefault(row.pos, []).append(i)
+    marks = attention_lines(v)
     text = Text()
     for y in range(v.height):
         for x in range(v.width):
@@ -164,6 +224,8 @@ def render_grid(v: SwarmView) -> Text:
                 text.append("██", style="grey50")
             elif c in v.dynamic:
                 text.append("██", style="dark_orange")
+            elif c in marks:
+                text.append("∙∙", style=ROBOT_STYLES[marks[c] % len(ROBOT_STYLES)])
             elif c in v.explored:
                 text.append("· ", style="green")
             else:
@@ -196,8 +258,9 @@ def render_figures(v: SwarmView) -> Table:
     table = Table.grid(padding=(0, 2))
     table.add_column(style="bold")
     table.add_column()
-    elapsed = max(time.monotonic() - v.started, 1e-9)
+    elapsed = max(time.monotonic() - v.started if v.elapsed_s is None else v.elapsed_s, 1e-9)
     rows = [
+        *([("replay", v.replay)] if v.replay else []),
         ("run", v.run_id), ("policy", v.policy),
         ("episode", f"{max(v.episodes_done, 0)}/{v.episodes} (ep {v.ep})"),
         ("tick", str(v.tick)), ("ticks/s (wall)", f"{v.ticks_per_s:.1f}"),
@@ -227,6 +290,24 @@ def render_links(v: SwarmView, top: int = 8) -> Table:
     worst = sorted(v.links.items(), key=lambda kv: -(kv[1][1] + kv[1][2] + kv[1][3]))[:top]
     for link, (delivered, dropped, late, queued) in worst:
         table.add_row(link.replace("-", "→"), str(delivered), str(dropped), str(late), str(queued))
+    return table
+
+
+def render_attention(v: SwarmView) -> Table:
+    """Per robot reporting attention: the member it attends to most and that weight, its weight
+    on itself, how many it weighed (heard) and at which tick."""
+    table = Table(title="attention (strongest)", expand=True, pad_edge=False)
+    for col in ("robot", "→ member", "weight", "self", "heard", "tick"):
+        table.add_column(col, justify="right")
+    top = v.strongest()
+    fmt = lambda x: f"{x:.2f}" if x >= 0.01 or x == 0 else f"{x:.1e}"  # noqa: E731
+    for i in sorted(v.attention):
+        t, w = v.attention[i]
+        j, x = top.get(i, (None, 0.0))
+        style = "bold" if v.attention_focus in (-1, i) else "dim"
+        table.add_row(Text(str(i), style=style), "-" if j is None else str(j),
+                      "-" if j is None else fmt(x), fmt(w[i]) if i < len(w) else "-",
+                      str(sum(1 for y in w if y > 0)), str(t))
     return table
 
 
@@ -283,6 +364,8 @@ def render(v: SwarmView) -> Table:
         side.insert(1, Panel(render_learner(v), title="learner"))
     if v.links:
         side.append(render_links(v))
+    if v.attention and v.attention_focus is not None:
+        side.append(render_attention(v))
     screen = Table.grid(padding=(0, 1))
     screen.add_column(no_wrap=True)
     screen.add_column(ratio=1)

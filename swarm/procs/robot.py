@@ -36,6 +36,7 @@ from swarm.net.messages import (
     unpack_record,
 )
 from swarm.net.zconfig import ZenohOptions, open_session
+from swarm.procs.robot_direct import Heard, with_delivery
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
 from world.decentral import TrajMessages, robot_view
@@ -57,16 +58,6 @@ def hop_deadline(t_recv: float, deadline: float, robot: int, n: int) -> float:
     breaks one link, never the whole budget of every robot downstream (the deadline cascade of
     waiting until the tick deadline, see docs/DECISIONS.md)."""
     return t_recv + (deadline - t_recv) * (robot + 1) / max(n, 1)
-
-
-@dataclass
-class Heard:
-    """A validated bundle: what robot `robot` heard at tick `t` of episode `ep`."""
-
-    ep: int
-    t: int
-    robot: int
-    msgs: TrajMessages
 
 
 @dataclass
@@ -99,7 +90,7 @@ def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecor
 
 def attention_of(policy: Policy, robot: int, n: int, t: int) -> tuple[int, list[float]] | None:
     """(t, this robot's attention weights over the team) from the policy's `last_attention`
-    (CommAttn: [N] or [G, N, N] weights over the members heard, zero elsewhere), rounded for the
+    (CommAttn: [N] or [G, N, N] weights over the members heard, zero elsewhere), for the robot
     status record; None for a policy without attention or weights that do not fit."""
     att = getattr(policy, "last_attention", None)
     if att is None:
@@ -111,13 +102,14 @@ def attention_of(policy: Policy, robot: int, n: int, t: int) -> tuple[int, list[
         w = w[robot] if w.shape[0] == n else w[0]
     if w.shape != (n,) or not np.isfinite(w).all():
         return None
-    return t, [round(float(x), 5) for x in w]
+    return t, [float(x) for x in w]
 
 
 class RobotProcess:
     """Robot `robot` of a run."""
 
     attn: tuple[int, list[float]] | None = None  # the last decision's attention (t, weights)
+    direct: Any = None  # swarm.procs.robot_direct.DirectDelivery with --delivery direct
 
     def __init__(self, robot: int, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
                  policy: Policy) -> None:
@@ -170,7 +162,7 @@ class RobotProcess:
 
     def _declare(self) -> Inbox:
         k, r = self.keys, self.robot
-        inbox = Inbox(self.session)
+        inbox = Inbox(self.session) if self.direct is None else self.direct.inbox()
         if self.train:
             inbox.subscribe(k.weights, "weights")
         return (inbox.subscribe(k.obs(r), "obs").subscribe(k.inbox(r), "bundle")
@@ -229,6 +221,8 @@ class RobotProcess:
 
     def _wait(self, kind: str, ep: int, t: int, sender: int | None, deadline: float) -> Any:
         """Wait for a bundle/hidden of tick (ep, t), keeping early ones and dropping stale ones."""
+        if self.direct is not None:  # assembled from the peers' messages, no radio
+            return self.direct.wait(kind, ep, t, sender, deadline)
         store = self._bundles if kind == "bundle" else self._hidden
         want = (ep, t) if kind == "bundle" else (ep, t, sender)
         while True:
@@ -310,6 +304,8 @@ class RobotProcess:
 
     def on_obs(self, obs: Obs) -> None:
         cfg, r = self.cfg, self.robot
+        if self.direct is not None:
+            self.direct.begin(obs)
         if obs.ep != self.ep or obs.t == 0:
             self.ep = obs.ep
             self.policy.reset(1)
@@ -377,7 +373,9 @@ class RobotProcess:
         self.c.msgs_out += 1
         self.c.bytes_out += len(a)
         self.attn = attention_of(self.policy, r, cfg.n_robots, obs.t)
-        if obs.t % 5 == 0 or self.attn is not None:  # attention: every tick, drawn live
+        # attention is drawn live: every tick when someone watches (a paced run), else with
+        # the counters every 5 ticks (no extra message a tick in benchmarks and sweeps)
+        if obs.t % 5 == 0 or (self.attn is not None and self.run_cfg.pace > 0):
             self.status()
 
     def decide(self, obs: Obs, heard: TrajMessages, t_recv: float,
@@ -488,4 +486,5 @@ def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0)
         # learned policies act in numpy (policies.infer): no robot process imports torch
         policy = build_inference(run.policy, cfg, run.checkpoint)
         policy.reset(1)
-        return RobotProcess(robot, cfg, run, session, policy).run(wait_world)
+        proc = RobotProcess(robot, cfg, run, session, policy)
+        return with_delivery(proc, rec.faults).run(wait_world)  # swarm.procs.robot_direct

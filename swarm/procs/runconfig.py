@@ -39,6 +39,11 @@ class RunConfig:
     """`virtual`: message timing (latency, jitter, bandwidth queues, compute time) is decided in
     virtual time against the tick's virtual deadline, so a run is a function of its seed and
     fault plan (swarm.net.channel); `real`: against the wall clock (forced by --netns)."""
+    delivery: str = "radio"
+    """`radio`: the world's radio owns robot-to-robot delivery (range, faults, bundles);
+    `direct`: robots subscribe to one another's messages and apply range and the fault plan's
+    seeded draws themselves (swarm.net.direct), for hosts where nobody owns the channel. Both
+    decide identically; `direct` needs the virtual clock."""
     tick_timeout: float = 2.0
     """The tick's length: trajectory messages arriving after 0.8 of it (hidden-state ones after
     0.9) are late. Virtual seconds with the virtual clock; with the real clock, wall seconds the
@@ -80,6 +85,11 @@ class RunConfig:
         check("watchdog", 0.01, 3600.0)
         if self.clock not in ("virtual", "real"):
             raise ConfigError(f"clock must be 'virtual' or 'real', got {self.clock!r}")
+        if self.delivery not in ("radio", "direct"):
+            raise ConfigError(f"delivery must be 'radio' or 'direct', got {self.delivery!r}")
+        if self.delivery == "direct" and self.clock != "virtual":
+            raise ConfigError("direct delivery needs the virtual clock (robots decide each "
+                              "copy's fate in virtual time; --netns forces the real clock)")
         if not isinstance(self.policy, str) or not self.policy:
             raise ConfigError("policy must be a registry name")
 

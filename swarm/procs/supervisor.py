@@ -27,6 +27,7 @@ from rich.live import Live
 
 from swarm.common.atomic import write_json
 from swarm.net.faults import ProcessFault, parse_process, plan_from_table
+from swarm.net.hosts import topology
 from swarm.net.inbox import Inbox
 from swarm.net.keys import Keys
 from swarm.net.messages import (
@@ -35,12 +36,15 @@ from swarm.net.messages import (
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
+    check_robot_status,
     pack_record,
     unpack_record,
 )
-from swarm.net.netns import NetnsConfig, Topology
+from swarm.net.netns import NetnsConfig
+from swarm.net.security.tls import identity_of, run_configs
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
+from swarm.procs.procstat import ProcSampler, process_age
 from swarm.procs.runconfig import RunConfig, RunRecord
 from swarm.procs.spawn import child_env, cli_args, last_error, registry, wait_port
 from world.config import WorldConfig
@@ -63,6 +67,15 @@ class SuperviseOptions:
     netns: NetnsConfig | None = None
     """Kernel-level realism (swarm/net/netns.py): world and robots in network namespaces joined by
     veth pairs, with these kernel faults on the robot links; None: everything on loopback."""
+    secure: str | None = None
+    """Certificate directory (`swarm certs`): every session on TLS with its own identity and the
+    run's access control (swarm/net/security/); configs in LOG_DIR/zenoh/. None: plain TCP."""
+    record: str | None = None
+    """Record every message of the run into this MCAP file (a `swarm record` child process)."""
+    attention: int | None = -1
+    """Whose strongest attention the dashboard's map draws: -1 all, k robot k, None nobody."""
+    hosts: int = 0
+    """Emulated hosts (swarm/net/hosts.py): K namespaces on a bridge, a Zenoh router each."""
 
 
 class Supervisor:
@@ -83,23 +96,30 @@ class Supervisor:
         self.keys = Keys(run.run_id)
         self.port = free_port()
         self.hub = f"tcp/127.0.0.1:{self.port}"
-        self.topo = None if opts.netns is None else Topology(run.run_id, cfg.n_robots, opts.netns)
+        self.topo = topology(run.run_id, cfg.n_robots, opts.netns, opts.hosts)
+        self.routers: list[subprocess.Popen[bytes]] = []  # --hosts: one per host but the world's
         self.zcfg = [] if opts.netns is None else opts.netns.zenoh_cfg()  # --cfg of every session
         self.tmp = Path(tempfile.mkdtemp(prefix=f"swarm-{run.run_id}-"))
         self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
         self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.zfiles: dict[str, Path] = {}  # --secure: identity -> its session's config file
+        if opts.secure:
+            self.hub, self.zfiles = run_configs(opts.secure, run.run_id, cfg.n_robots, self.port,
+                                                self.log_dir / "zenoh", learning is not None)
         self.world: subprocess.Popen[bytes] | None = None
         self.robots: dict[int, subprocess.Popen[bytes]] = {}
         self.inbox: Inbox | None = None
         self.bad = 0  # records that did not decode or fit, dropped
         self.view = SwarmView(run.run_id, run.policy, cfg.height, cfg.width, cfg.n_robots,
-                              cfg.comm_range, run.episodes)
+                              cfg.comm_range, run.episodes, attention_focus=opts.attention)
+        self.recorder: subprocess.Popen[bytes] | None = None
+        self.recorder_alive = False
         self.result: dict[str, Any] | None = None
         self.crashes = 0
         self.child_errors: dict[str, str] = {}  # process -> the last error line of its log
         self.restarts = 0
-        self.rss_mb: dict[str, float] = {}  # peak resident memory per child, sampled
-        self.pss_mb: dict[str, float] = {}  # peak proportional set size per child
+        self.procstat = ProcSampler()  # peak memory and CPU per tick of the children
+        self.first_tick_age: float | None = None
         self._last_rss = 0.0
 
     def _spawn(self, args: list[str], name: str, ns: str | None = None) -> subprocess.Popen[bytes]:
@@ -107,6 +127,8 @@ class Supervisor:
         env = child_env()
         prefix = self.topo.exec_prefix(ns) if self.topo is not None and ns else []
         args = [*args, *(x for c in self.zcfg for x in ("--cfg", c))]
+        if self.zfiles:  # --secure: its own identity's TLS and access control
+            args += ["--zenoh-config", str(self.zfiles[identity_of(name)])]
         return subprocess.Popen([*prefix, *cli_args(*args)], stdout=subprocess.DEVNULL, stderr=err,
                                 stdin=subprocess.DEVNULL, env=env)
 
@@ -157,6 +179,13 @@ class Supervisor:
                                   *(x for e in listen for x in ("--listen", e)),
                                   "--zenoh-mode", "router"], "world", ns)
         wait_port(host, self.port, self.world, 30.0)
+        for name, args, rns, addr in self.topo.routers(self.port) if self.topo else []:
+            self.routers.append(self._spawn(args, name, rns))
+            wait_port(addr, self.port, self.routers[-1], 30.0, name)
+        if self.opts.record:  # in the root namespace, like the supervisor's own session
+            self.recorder = self._spawn(["record", "--run-id", self.run_cfg.run_id, "--out",
+                                         self.opts.record, "--connect", self.hub,
+                                         "--zenoh-mode", "client"], "recorder")
         if self.learning is not None:
             out = self.learning["learner"].get("out") or str(self.log_dir / "learner")
             self.learner_out = out
@@ -168,7 +197,8 @@ class Supervisor:
         return t0
 
     def stop_all(self, grace: float = 2.0) -> None:
-        procs = [p for p in [self.world, *self.robots.values(), self.learner] if p is not None]
+        procs = [p for p in [self.world, *self.robots.values(), self.learner, self.recorder,
+                             *self.routers] if p is not None]
         for i in self.hung:  # a stopped process cannot take SIGINT
             p = self.robots.get(i)
             if p is not None and p.poll() is None:
@@ -202,7 +232,8 @@ class Supervisor:
                 if self.opts.headless and self.opts.status_lines:
                     print(json.dumps({"status": rec}), flush=True)
             elif kind == "rstatus":
-                v.apply_robot(unpack_record(payload or b"", K_RSTATUS))
+                v.apply_robot(check_robot_status(unpack_record(payload or b"", K_RSTATUS),
+                                                 self.cfg.n_robots, self.cfg.horizon))
             elif kind == "result":
                 self.result = unpack_record(payload or b"", K_RESULT)
             elif kind == "lstatus":
@@ -219,6 +250,8 @@ class Supervisor:
                     v.set_alive(int(parts[-1]), live)
                 elif parts[-1] == "learner":
                     self.learner_alive = live
+                elif parts[-1] == "recorder":
+                    self.recorder_alive = live
                 elif parts[-1] == "world":
                     v.world_alive = live
         except Exception as exc:  # a record of the right kind with wrong contents: dropped
@@ -256,7 +289,9 @@ class Supervisor:
 
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()
-        conf = ZenohOptions(mode="client", connect=[self.hub], cfg=self.zcfg).to_config()
+        mine = str(self.zfiles["supervisor"]) if self.zfiles else None  # --secure
+        conf = ZenohOptions(mode="client", connect=[self.hub], cfg=self.zcfg,
+                            config_file=mine).to_config()
         first_tick: float | None = None
         with zenoh.open(conf) as session:
             k = self.keys
@@ -274,6 +309,8 @@ class Supervisor:
                     if self.learner.poll() is not None or time.monotonic() > deadline:
                         self.stop_all()
                         raise RuntimeError(f"the learner did not start (logs in {self.log_dir})")
+            if self.recorder is not None:  # its subscription first: every tick is recorded
+                self._wait_recorder(inbox)
             # Robots only after our subscriptions reached the world: the first tick is not missed.
             for i in range(self.cfg.n_robots):
                 self.spawn_robot(i)
@@ -289,6 +326,7 @@ class Supervisor:
                         self._handle(*ev)
                         if ev.kind == "status" and first_tick is None:
                             first_tick = time.monotonic()
+                            self.first_tick_age = process_age()
                     self._check_children()
                     self._sample_rss()
                     if self.world is not None and self.world.poll() is not None and \
@@ -297,6 +335,7 @@ class Supervisor:
                 self._drain_learner()
                 if self.learner is not None:
                     session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
+                self._finish_recorder()
             except KeyboardInterrupt:
                 session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
                 raise
@@ -312,17 +351,19 @@ class Supervisor:
                                f"{': ' + why if why else ''}); logs in {self.log_dir}")
         res = dict(self.result)
         res["startup_s"] = (first_tick - t_start) if first_tick else None
+        res["first_tick_s"] = self.first_tick_age  # from the command (this process's start)
         res["robot_crashes"] = self.crashes
         if self.child_errors:
             res["child_errors"] = dict(self.child_errors)
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
         res["robot_restarts"] = self.restarts
+        if self.recorder is not None:
+            res["recording"] = {"path": self.opts.record, "exit": self.recorder.returncode}
         res["process_faults"] = self.fault_log
-        robots = [v for k, v in self.rss_mb.items() if k.startswith("robot")]
-        res["rss_mb_per_robot"] = sum(robots) / len(robots) if robots else None
-        res["rss_mb_world"] = self.rss_mb.get("world")
-        pss = [v for k, v in self.pss_mb.items() if k.startswith("robot")]
-        res["pss_mb_per_robot"] = sum(pss) / len(pss) if pss else None
+        if self.zfiles:
+            res["secure"] = {"certs": self.opts.secure, "hub": self.hub,
+                             "configs": str(self.log_dir / "zenoh")}
+        res.update(self.procstat.summary())
         if self.learning is not None:
             st = self.learner_status or {}
             acc = dict(st.get("accounting") or {})
@@ -368,6 +409,30 @@ class Supervisor:
                 self._pump_inbox(0.1)
         self._pump_inbox(0.3)  # its final status
 
+    def _wait_recorder(self, inbox: Inbox, timeout: float = 60.0) -> None:
+        """Until the recorder's token is up (it listens and its file is open)."""
+        assert self.recorder is not None
+        deadline = time.monotonic() + timeout
+        while not self.recorder_alive:
+            ev = inbox.next(0.1)
+            if ev is not None:
+                self._handle(*ev)
+            if self.recorder.poll() is not None or time.monotonic() > deadline:
+                why = last_error(self.log_dir / "recorder.log") or \
+                    f"exit code {self.recorder.poll()}"
+                self.stop_all()
+                raise RuntimeError(f"the recorder did not start: {why} (logs in {self.log_dir})")
+
+    def _finish_recorder(self, timeout: float = 60.0) -> None:
+        """The recorder ends by itself at the world's `end` record; give it the time to write
+        the result and the footer (stop_all would SIGINT it: it still writes the footer)."""
+        if self.recorder is None:
+            return
+        try:
+            self.recorder.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            log.warning("the recorder did not finish within %g s; stopping it", timeout)
+
     def _pump_inbox(self, seconds: float) -> None:
         end = time.monotonic() + seconds
         while self.inbox is not None and (ev := self.inbox.next(end - time.monotonic())):
@@ -379,21 +444,7 @@ class Supervisor:
             return
         self._last_rss = now
         procs = {"world": self.world, **{f"robot{i}": p for i, p in self.robots.items()}}
-        for name, p in procs.items():
-            if p is None or p.poll() is not None:
-                continue
-            try:
-                with open(f"/proc/{p.pid}/status") as fh:
-                    kb = next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:"))
-            except (OSError, StopIteration, ValueError):
-                continue
-            self.rss_mb[name] = max(self.rss_mb.get(name, 0.0), kb / 1024)
-            try:  # PSS: shared library pages (torch) split among the processes mapping them
-                with open(f"/proc/{p.pid}/smaps_rollup") as fh:
-                    pss = next(int(line.split()[1]) for line in fh if line.startswith("Pss:"))
-                self.pss_mb[name] = max(self.pss_mb.get(name, 0.0), pss / 1024)
-            except (OSError, StopIteration, ValueError):
-                pass
+        self.procstat.sample(procs, self.view.ticks_done)
 
     def _check_children(self) -> None:
         """Robots that died are counted (and restarted with --restart-crashed); a child that

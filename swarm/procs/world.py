@@ -23,12 +23,14 @@ import zenoh
 
 from policies import CHAINED
 from swarm.learn.evaluate import EvalResult
+from swarm.net.direct import DirectTally
 from swarm.net.faults import FaultPlan, plan_from_table
 from swarm.net.inbox import Inbox, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_CONTROL,
     K_RESULT,
+    K_RSTATUS,
     K_STATUS,
     Action,
     BadMessage,
@@ -89,7 +91,9 @@ class WorldProcess:
         self.virtual = run.clock == "virtual"
         # virtual clock + chain: a tick also waits for every hidden-state message, so each one
         # is charged to its sender's bucket in order (swarm.net.channel), as in the evaluator
-        self.chained = self.virtual and run.policy in CHAINED
+        self.chained = self.virtual and run.policy in CHAINED and run.delivery == "radio"
+        # direct delivery (swarm.net.direct): robots deliver to one another and report counts
+        self.direct = DirectTally(cfg.n_robots) if run.delivery == "direct" else None
         if self.virtual:
             self.radio.use_virtual_clock(run.tick_timeout)
         self._pending_at = -1  # run tick from which the pending plan applies
@@ -124,7 +128,10 @@ class WorldProcess:
 
     def _declare(self) -> Inbox:
         k = self.keys
-        return (Inbox(self.session).subscribe(k.traj("*"), "traj")
+        inbox = Inbox(self.session)
+        if self.direct is not None:  # the robots' counters of direct delivery
+            inbox.subscribe(k.robot_status("*"), "rstatus")
+        return (inbox.subscribe(k.traj("*"), "traj")
                 .subscribe(k.hidden("*"), "hidden").subscribe(k.action("*"), "action")
                 .subscribe(k.control, "control").queryable(k.config, lambda: self._record)
                 .liveliness(k.alive_robot("*"), "robot").token(k.alive_world))
@@ -168,7 +175,9 @@ class WorldProcess:
                 return True
             if rec.get("stop"):
                 self.stop = True
-            if isinstance(rec.get("faults_table"), dict):
+            if isinstance(rec.get("faults_table"), dict) and self.direct is not None:
+                self._count_bad(key, "live link faults need the radio (robots hold the plan)")
+            elif isinstance(rec.get("faults_table"), dict):
                 table = rec["faults_table"] if rec.get("replace") else {
                     **self.fault_table, **rec["faults_table"]}
                 table = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
@@ -181,6 +190,12 @@ class WorldProcess:
                     self._record = RunRecord(self.cfg, self.run_cfg, table).pack()
                 except ConfigError as exc:
                     self._count_bad(key, str(exc))
+            return True
+        if kind == "rstatus" and self.direct is not None:  # the counters of direct delivery
+            try:
+                self.direct.offer(unpack_record(payload or b"", K_RSTATUS))
+            except BadMessage as exc:
+                self._count_bad(key, str(exc))
             return True
         if tick is None:
             return True
@@ -296,10 +311,11 @@ class WorldProcess:
             deadline = start + timeout
             budget_ms = 1e3 * timeout
             t_obs = time.perf_counter()
+            live = np.packbits(self.alive).tobytes() if self.direct is not None else b""
             for i in np.flatnonzero(self.alive):
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
                                                  patch[i].tobytes(), float(state.last_reward[0, i]),
-                                                 bool(done), budget_ms).pack())
+                                                 bool(done), budget_ms, live).pack())
             if done and self.run_cfg.train and rewards:
                 m = core.metrics(cfg, state)
                 rec = EpisodeRecord(ep, np.stack(rewards).astype(np.float32), np.stack(acted),
@@ -311,6 +327,7 @@ class WorldProcess:
             traj_deadline = deadline if self.virtual else start + timeout / 2
             tick = TickInbox(ep, t, traj_deadline=start + 0.8 * timeout,
                              hidden_deadline=start + 0.9 * timeout)
+            tick.delivered = self.direct is not None  # direct delivery: the robots' own
             radio0 = self.phase_ms["radio"]
             t_sent = t_delivered = time.perf_counter()
             self.phase_ms["obs"] += 1e3 * (t_sent - t_obs)
@@ -359,7 +376,8 @@ class WorldProcess:
             "block_coll": int(state.block_coll.sum()), "robot_coll": int(state.robot_coll.sum()),
             "dyn": lay.to_yx(state.dyn_cells[0][state.dyn_active[0]]).tolist(),
             "timeouts": missing, "bad": sum(self.bad.values()), "late": self.late,
-            "run_tick": self.run_tick, "wall": time.time(), "radio": self.radio.counters.totals(),
+            "run_tick": self.run_tick, "wall": time.time(),
+            "radio": (self.direct or self.radio.counters).totals(),
             "clock": self.run_cfg.clock, "vtime": self.run_tick * self.run_cfg.tick_timeout,
             "faults": self.radio.plan.describe(),
             "heard_links": self.radio.heard_links(),
@@ -387,6 +405,10 @@ class WorldProcess:
                 curves.append(state.elratio)
                 actions.append(np.array(acts, dtype=np.int8))  # [T, N], 1 byte an action
             wall = time.monotonic() - t0
+            deadline = time.monotonic() + 5.0  # direct: each robot's counts after the last end
+            while self.direct is not None and not self.stop and \
+                    not self.direct.complete(self.alive, ep) and self._pump(deadline):
+                pass
             result = self._result(parts, curves, actions, ticks, wall)
             self._put(self.keys.result, pack_record(K_RESULT, result))
             if rc.train:  # robots' and learner's traffic is routed through this session:
@@ -415,7 +437,7 @@ class WorldProcess:
             out["planning_ms_per_decision"] = self.planning_ms / max(self.run_tick, 1)
             out["tick_ms"] = {k: v / max(self.run_tick, 1) for k, v in self.phase_ms.items()}
         c = self.radio.counters
-        messages = c.totals()
+        messages = c.totals() if self.direct is None else self.direct.totals()
         if self.virtual:  # wall-clock arrivals after their tick changed nothing: apart
             messages["stale"] = self.late
         else:
@@ -423,7 +445,7 @@ class WorldProcess:
         out.update({
             "ticks": ticks, "ticks_per_s": ticks / wall if wall > 0 else 0.0,
             "clock": rc.clock, "virtual_s": ticks * rc.tick_timeout if rc.clock == "virtual"
-            else None,
+            else None, "delivery": rc.delivery,
             "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad)},
             "faults": self.radio.plan.to_record(),
             "timeouts": self.timeouts,

@@ -9,7 +9,8 @@ Outputs: `<name>.csv` (one row per run), `<name>.md` and `<name>.png` (elratio, 
 success and ticks/s against the fault level, one line per policy, error bars = std over seeds).
 With `kernel = true` every run is `swarm run --netns` and the swept loss or bandwidth is applied
 by the kernel (swarm/net/netns.py) instead of the radio; `compare = "other.csv"` then also draws
-`<name>_compare.png` against another sweep of the same parameter (e.g. the radio's).
+`<name>_compare.png` against another sweep of the same parameter (e.g. the radio's). With
+`record = true` every run's traffic is also recorded into `<name>-<k>.mcap` beside the CSV.
 """
 
 from __future__ import annotations
@@ -65,6 +66,9 @@ class ExperimentConfig:
     `bandwidth` applied by iptables / tc on the robot links and not by the radio."""
     compare: str = ""
     """With `kernel`: a CSV of the same sweep by the radio, drawn in `<name>_compare.png`."""
+    record: bool = False
+    """Record every run's traffic into `<out>/<name>-<k>.mcap` (`swarm replay`, `swarm trace`);
+    the CSV's `recording` column names each run's file."""
 
     def __post_init__(self) -> None:
         if not self.values or not self.policies or not self.seeds:
@@ -131,6 +135,11 @@ def run_experiment(path: str, resume: bool = False, out: str | None = None,
     rows = _read_rows(csv_path) if resume else []
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
+    if exp.record:
+        from swarm.net.recording import need_mcap
+
+        need_mcap()
+        columns = columns + ("recording",)
     if exp.kernel:
         check_tools(NetnsConfig(loss=0.5, bandwidth=1.0))  # one line now, not after a run
     for policy in exp.policies:
@@ -146,8 +155,11 @@ def run_experiment(path: str, resume: bool = False, out: str | None = None,
                 rc = dataclasses.replace(run, run_id=rid, policy=base, seed=int(seed),
                                          checkpoint=exp.checkpoints.get(
                                              policy, exp.checkpoints.get(base)))
+                recording = str(out_dir / f"{exp.name}-{len(rows)}.mcap") if exp.record else None
+                if recording:
+                    out_dir.mkdir(parents=True, exist_ok=True)
                 opts = SuperviseOptions(headless=True, status_lines=False,
-                                        netns=exp.netns(value))
+                                        netns=exp.netns(value), record=recording)
                 if exp.kernel:
                     rc = dataclasses.replace(rc, clock="real")
                 t0 = time.monotonic()
@@ -169,7 +181,7 @@ def run_experiment(path: str, resume: bool = False, out: str | None = None,
                        **{k: m.get(k) for k in ("lost", "late", "cut", "queued", "dropped_bw")},
                        "delivered": m.get("traj_delivered"), "clock": rc.clock,
                        "twin": twin(world, rc, faults, res) if rc.clock == "virtual" else "",
-                       "wall_s": round(time.monotonic() - t0, 2)}
+                       "wall_s": round(time.monotonic() - t0, 2), "recording": recording}
                 if exp.kernel:
                     row.update(robots_lost=res.get("robots_lost"), startup_s=res.get("startup_s"),
                                never_joined=res["netns"]["never_joined"])

@@ -1,0 +1,62 @@
+"""`swarm router` (a Zenoh router process) and `swarm run --hosts K` (emulated hosts, see
+swarm/net/hosts.py)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from swarm.net import zconfig
+from world.config import ConfigError
+
+
+def add_hosts_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--hosts", type=int, metavar="K",
+                   help="emulated hosts (root): K network namespaces on a bridge, a Zenoh router "
+                        "each, robots spread round robin; pair with --delivery direct")
+
+
+def hosts_option(args: argparse.Namespace) -> int:
+    """The number of emulated hosts of `swarm run` (0: none), checked before any spawn."""
+    k = getattr(args, "hosts", None)
+    if k is None:
+        return 0
+    from swarm.net.hosts import MAX_HOSTS, hosts_reason
+
+    if not 1 <= k <= MAX_HOSTS:
+        raise ConfigError(f"--hosts must lie in [1, {MAX_HOSTS}], got {k}")
+    if getattr(args, "netns", False):
+        raise ConfigError("--hosts and --netns are two topologies: give one")
+    if getattr(args, "secure", None):
+        raise ConfigError("--secure with --hosts is not supported yet (the certificates name "
+                          "127.0.0.1, not the hosts' addresses)")
+    reason = hosts_reason()
+    if reason:
+        raise ConfigError(reason)
+    return int(k)
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    import logging
+    import sys
+
+    from swarm.net.hosts import route
+
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        stream=sys.stderr, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    try:
+        route(zconfig.from_args(args), args.run_id)
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+def add_parsers(sub: Any) -> None:
+    """Register `router` on the `swarm` subparsers."""
+    p = sub.add_parser("router", help="a Zenoh router process (one per host)",
+                       description="Route Zenoh traffic between this host's processes and the "
+                                   "other hosts' routers (a Python session in router mode).")
+    p.add_argument("--run-id", help="declare a liveliness token under the run's keys")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    zconfig.add_arguments(p)
+    p.set_defaults(func=cmd_router, zenoh_mode="router")

@@ -1,0 +1,176 @@
+"""Command-line front ends of recordings: `swarm record` (the recorder process, spawned by
+`swarm run --record FILE` or started by hand), `swarm replay FILE [--verify]` and
+`swarm trace FILE --out DIR`. Thin wrappers around `swarm.procs.recorder`, `swarm.studies.replay`,
+`swarm.studies.verify` and `swarm.studies.trace`. A bad file is one line, exit status 2; a
+recording that does not verify is its first divergence, exit status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from swarm.cli.common import _consoles, output_dir, output_file
+from swarm.net import zconfig
+from world.config import ConfigError
+
+
+def attention_focus(text: str) -> int | None:
+    """`--attention` value: `all` (-1), `off` (None) or a robot id."""
+    if text == "all":
+        return -1
+    if text == "off":
+        return None
+    if text.isdigit():
+        return int(text)
+    raise argparse.ArgumentTypeError(f"expected all, off or a robot id, got {text!r}")
+
+
+def add_attention_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--attention", type=attention_focus, default=-1, metavar="all|off|ID",
+                   help="on the map, draw whom each robot (all), robot ID, or nobody (off) "
+                        "attends to most (CommAttn robots report it; default all)")
+
+
+def _output_json(path: str | None, obj: dict[str, Any]) -> None:
+    if path:
+        from swarm.common.atomic import write_json
+
+        write_json(path, obj)
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    import logging
+
+    from swarm.net.recording import need_mcap
+    from swarm.procs.recorder import main as record_main
+
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        stream=sys.stderr, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    need_mcap()
+    output_file(args.out, "--out")
+    if not 0.01 <= args.flush <= 60:
+        raise ConfigError(f"--flush must lie in [0.01, 60] seconds, got {args.flush}")
+    try:
+        from swarm.cli.secure import secure_options
+
+        zopts = secure_options(args, zconfig.from_args(args), "recorder", args.run_id)
+        stats = record_main(args.run_id, args.out, zopts, args.wait, args.flush)
+    except TimeoutError as exc:
+        raise ConfigError(str(exc)) from None
+    print(json.dumps({"recording": args.out, **stats}), file=sys.stderr)
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from swarm.studies.replay import load, replay
+
+    if not (args.speed >= 0 and args.speed <= 1e6):
+        raise ConfigError(f"--speed must be >= 0 (0: as fast as it goes), got {args.speed}")
+    if args.from_tick < 0 or (args.until is not None and args.until < args.from_tick):
+        raise ConfigError("--from must be >= 0 and --until >= --from")
+    output_file(args.json)
+    rec = load(args.file, partial=args.partial)
+    out, err = _consoles()
+    if not rec.raw.complete:
+        err.print(f"[yellow]partial recording[/]: the recorder stopped at run tick "
+                  f"{rec.last_tick}; using the {len(rec.messages)} messages before the cut")
+    if args.verify:
+        from swarm.studies.verify import verify
+
+        report = verify(rec)
+        div = report.divergence
+        checked = ", ".join(f"{v} {k}" for k, v in report.checked.items())
+        summary = {"file": args.file, "run_id": rec.record.run.run_id,
+                   "clock": rec.record.run.clock, "ticks": report.ticks, "checked": report.checked,
+                   "notes": report.notes, "ok": div is None,
+                   "divergence": None if div is None else vars(div) | {"line": div.line()}}
+        _output_json(args.json, summary)
+        for note in report.notes:
+            err.print(f"note: {note}")
+        if div is not None:
+            print(f"swarm: verify: {args.file}: {div.line()}", file=sys.stderr)
+            return 1
+        out.print(f"verified {args.file}: run {rec.record.run.run_id} "
+                  f"({rec.record.run.policy}, {rec.record.run.clock} clock), {report.ticks} "
+                  f"ticks recomputed; {checked}: every one as recorded")
+        return 0
+    try:
+        view, stats = replay(rec, out, speed=args.speed, from_tick=args.from_tick,
+                             until_tick=args.until, attention=args.attention)
+    except KeyboardInterrupt:
+        return 130
+    res = rec.result or {}
+    _output_json(args.json, {"file": args.file, **vars(stats), "elratio": view.elratio,
+                             "result": {k: res.get(k) for k in ("elratio_mean", "ticks",
+                                                                "completed")}})
+    out.print()
+    out.print(f"replayed {stats.messages} messages of run {rec.record.run.run_id} (ticks "
+              f"{stats.first_tick}..{stats.last_tick}; {stats.bad} bad records dropped)")
+    return 0
+
+
+def cmd_trace(args: argparse.Namespace) -> int:
+    from swarm.studies.replay import load
+    from swarm.studies.trace import trace
+
+    output_dir(args.out, "--out")
+    output_file(args.json)
+    rec = load(args.file, partial=args.partial)
+    res = trace(rec, args.out)
+    _output_json(args.json, res)
+    out, _ = _consoles()
+    for f in res["files"]:
+        out.print(f"wrote {f}")
+    return 0
+
+
+def add_parsers(sub: Any) -> None:
+    """Register `record`, `replay` and `trace` on the `swarm` subparsers."""
+    p = sub.add_parser("record", help="record a running swarm's traffic into an MCAP file",
+                       description="Join run RUN_ID and write every message of it (raw msgpack "
+                                   "and JSON) into FILE until the run ends; `swarm run --record "
+                                   "FILE` starts this for you.")
+    p.add_argument("--run-id", required=True, help="the run to record")
+    p.add_argument("--out", required=True, metavar="FILE", help="the MCAP file to write")
+    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the world")
+    p.add_argument("--flush", type=float, default=0.5, metavar="S",
+                   help="seconds between chunk flushes (what a killed recorder leaves)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    zconfig.add_arguments(p)
+    from swarm.cli.secure import add_secure_flag
+
+    add_secure_flag(p)
+    p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("replay", help="replay a recording on the live dashboard, or --verify it",
+                       description="Play FILE (from `swarm run --record`) through the live "
+                                   "dashboard, no network needed; --verify re-steps the world "
+                                   "(and, in virtual time, the radio) and checks every record.")
+    p.add_argument("file", metavar="FILE", help="an MCAP recording")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+                   help="x times the recorded pace (0: as fast as it goes; default 1)")
+    p.add_argument("--from", dest="from_tick", type=int, default=0, metavar="TICK",
+                   help="fast-forward to run tick TICK, then play at --speed")
+    p.add_argument("--until", type=int, metavar="TICK", help="stop (the frame stays) after TICK")
+    p.add_argument("--verify", action="store_true",
+                   help="recompute every status, observation, delivery and the result; print "
+                        "the first divergence and exit 1 on one")
+    p.add_argument("--partial", action="store_true",
+                   help="use a recording cut short (a killed recorder) up to its last chunk")
+    p.add_argument("--json", metavar="FILE", help="write what was replayed or verified")
+    add_attention_flag(p)
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("trace", help="per-link, per-robot and per-kind figures of a recording",
+                       description="CSV and PNG of a recording: link delivery matrix, latency "
+                                   "and compute-time distributions, bytes per kind, elratio "
+                                   "over ticks, mean attention per (receiver, sender distance).")
+    p.add_argument("file", metavar="FILE", help="an MCAP recording")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--partial", action="store_true",
+                   help="use a recording cut short (a killed recorder) up to its last chunk")
+    p.add_argument("--json", metavar="FILE", help="write the list of files and counts")
+    p.set_defaults(func=cmd_trace)

@@ -1,0 +1,146 @@
+"""Command-line front ends of a run's security: `swarm certs`, `swarm audit`, and `--secure DIR`
+for the commands that open a session into a run (swarm.net.security holds the rules)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from swarm.cli.common import output_file
+from world.config import ConfigError
+
+
+def add_secure_flag(p: argparse.ArgumentParser) -> None:
+    """`--secure DIR` on a command that opens a session into a run."""
+    p.add_argument("--secure", metavar="DIR",
+                   help="TLS with mutual authentication and the run's access control, with the "
+                        "certificates of DIR (made by `swarm certs`)")
+
+
+def secure_options(args: argparse.Namespace, zopts: Any, identity: str, run_id: str,
+                   robots: int | None = None) -> Any:
+    """`zopts` made secure for `identity` when `--secure DIR` was given (else unchanged); every
+    file it needs is checked here, before a session opens: one line, exit status 2."""
+    if not getattr(args, "secure", None):
+        return zopts
+    from swarm.net.security.tls import Secure, apply
+
+    return apply(zopts, Secure.load(args.secure, identity, run_id, robots))
+
+
+def cmd_certs(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
+    from swarm.cli.common import _consoles
+    from swarm.net.security.certs import make_certs
+
+    output_file(args.json)
+    rep = make_certs(args.out, args.robots, args.workers, args.host, args.days)
+    out, _ = _consoles()
+    t = Table(title=f"swarm certs {args.out}")
+    t.add_column("what")
+    t.add_column("files", overflow="fold")
+    for what, files in (("made", rep.made), ("reissued (same key)", rep.reissued),
+                        ("kept", rep.kept)):
+        t.add_row(what, ", ".join(files) or "-")
+    out.print(t)
+    out.print("keys are 0600 in a 0700 directory; copy ca.pem, roster.json and only each host's "
+              "own <identity>.pem/.key to it")
+    if args.json:
+        from swarm.common.atomic import write_json
+
+        write_json(args.json, {"out": args.out, "made": rep.made, "reissued": rep.reissued,
+                               "kept": rep.kept})
+    return 0
+
+
+def cmd_audit(args: argparse.Namespace) -> int:
+    from swarm.net.keys import Keys
+    from swarm.net.security.audit import main as audit_main
+    from swarm.net.security.tls import Secure
+    from swarm.procs.spawn import lookup_run
+
+    Keys(args.run)
+    if not 0 <= args.attacker < 4096 or not 0 <= args.victim < 4096 or \
+            args.attacker == args.victim:
+        raise ConfigError("--as and --victim must be two different robot ids")
+    if not 0.1 <= args.duration <= 600:
+        raise ConfigError(f"--duration must lie in [0.1, 600] s, got {args.duration}")
+    output_file(args.json)
+    endpoint = args.connect or lookup_run(args.run)
+    if not endpoint.startswith(("tcp/", "tls/")):
+        raise ConfigError(f"--connect {endpoint}: expected tcp/HOST:PORT or tls/HOST:PORT")
+    sec = None
+    if args.secure:  # the witness is the recorder; the attacker holds robot I's credentials
+        sec = Secure.load(args.secure, "recorder", args.run, need=(f"robot-{args.attacker}",))
+    rep = audit_main(args.run, endpoint, sec, args.attacker, args.victim, args.duration,
+                     args.stop)
+    _print_audit(rep)
+    if args.json:
+        from swarm.common.atomic import write_json
+
+        write_json(args.json, rep)
+    return 0 if rep["verdict"] == "pass" else 1
+
+
+def _print_audit(rep: dict[str, Any]) -> None:
+    from rich.table import Table
+
+    from swarm.cli.common import _consoles
+
+    out, _ = _consoles()
+    t = Table(title=f"swarm audit of run {rep['run']} at {rep['endpoint']} "
+                    f"({'secure' if rep['secure'] else 'not secure'})")
+    for col in ("session", "connected", "forged action / weights / control delivered",
+                "own key delivered", "why refused"):
+        t.add_column(col, overflow="fold")
+    for name, s in rep["sessions"].items():
+        d = s["delivered"]
+        forged = " / ".join(f"{d.get(k, 0)} of {s['sent'].get(k, 0)}"
+                            for k in ("action", "weights", "control")) if s["connected"] else "-"
+        own = f"{d.get('own_key', 0)} of {s['sent'].get('own_key', 0)}" if s["connected"] \
+            else "-"
+        t.add_row(name, "yes" if s["connected"] else "no", forged, own, s["error"][:80])
+    out.print(t)
+    out.print(f"forged messages accepted: {rep['accepted']}   witness saw the valid session's own "
+              f"key: {rep['witness_ok']}   verdict: {rep['verdict']}")
+
+
+def add_parsers(sub: Any) -> None:
+    """Register `certs` and `audit` on the `swarm` subparsers."""
+    p = sub.add_parser("certs", help="make a CA and one certificate per process identity",
+                       description="Make (or complete) DIR: a CA, one ECDSA P-256 certificate + "
+                                   "key per identity (world, supervisor, learner, operator, "
+                                   "recorder, robot-0..N-1, worker-0..K-1) for `--secure DIR`. "
+                                   "Re-running adds what is missing and never overwrites a key.")
+    p.add_argument("--out", required=True, metavar="DIR", help="certificate directory (0700)")
+    p.add_argument("--robots", type=int, required=True, metavar="N", help="robot identities")
+    p.add_argument("--workers", type=int, default=0, metavar="K",
+                   help="rollout-worker identities (default 0)")
+    p.add_argument("--host", action="append", default=[], metavar="NAME|IP",
+                   help="a host name or address the processes are reached at, besides "
+                        "127.0.0.1/localhost (repeatable; in every certificate)")
+    p.add_argument("--days", type=int, default=825, help="validity in days (default 825)")
+    p.add_argument("--json", metavar="FILE", help="write what was made as one JSON object")
+    p.set_defaults(func=cmd_certs)
+
+    p = sub.add_parser("audit", help="attack a running swarm as a foreign peer",
+                       description="Try, as a foreign peer, to join run RUN without credentials, "
+                                   "with a certificate of another CA, and with a valid robot "
+                                   "certificate to put another robot's action, weights and "
+                                   "control; report what got through (exit 1 if anything "
+                                   "forged did).")
+    p.add_argument("--run", required=True, help="run id")
+    p.add_argument("--connect", metavar="ENDPOINT",
+                   help="the run's hub endpoint (default: the local registry of `swarm run`)")
+    add_secure_flag(p)
+    p.add_argument("--as", dest="attacker", type=int, default=3, metavar="I",
+                   help="robot identity the attacker holds (default 3)")
+    p.add_argument("--victim", type=int, default=4, metavar="J",
+                   help="robot whose action is forged (default 4)")
+    p.add_argument("--duration", type=float, default=2.0, metavar="S",
+                   help="seconds each session forges actions (default 2)")
+    p.add_argument("--stop", action="store_true",
+                   help="forge a stop request as the control message (default: a no-op one)")
+    p.add_argument("--json", metavar="FILE", help="write the report as one JSON object")
+    p.set_defaults(func=cmd_audit)

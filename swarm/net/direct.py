@@ -1,0 +1,270 @@
+"""Direct delivery (SPEC 5, `--delivery direct`): no radio in the message path.
+
+Every robot puts its trajectory and hidden-state messages on its own keys
+(`Keys.direct(i)`, `Keys.direct(i, hidden=True)`), each wrapped in a `Stamped` envelope that
+carries the one fate only its sender can know, the wait in its own token bucket (or that the cap
+dropped it); every robot subscribes to every other's trajectory key and to the hidden-state keys
+of the robots that can be its predecessor (the lower ids). A receiver then decides each copy
+itself, with the same code the world's radio runs (`swarm.net.channel.VirtualChannel`): range
+from the sender's true cell in its trajectory message (`world.decentral.neighbourhood`), loss,
+partition, latency and jitter from the counter-based draws keyed by (seed, episode, tick,
+sender, receiver, kind), lateness against the tick's virtual deadline. Counting goes through
+the radio's own `RadioCounters.count_traj`, so the counters robots report sum to the radio's.
+
+`DirectLink` is a robot's side, one tick at a time: `begin` (the observation names the robots
+whose trajectory messages to wait for), `stamp` (its own sends), `offer` (what arrives),
+`heard` once `traj_complete`, `hidden` for its predecessor. `DirectTally` is the world's side:
+it sums the counters robots report in their status records.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from swarm.net.channel import CUT, FATES, LOST, OK, VirtualChannel
+from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan
+from swarm.net.keys import Keys
+from swarm.net.messages import (
+    DROPPED_Q,
+    K_HIDDEN,
+    K_TRAJ,
+    BadMessage,
+    Hidden,
+    Obs,
+    Stamped,
+    Traj,
+)
+from swarm.net.radio import RadioCounters
+from world.config import WorldConfig
+from world.decentral import neighbourhood
+
+WAIT_FRAC = 0.5  # a robot waits for the tick's trajectory messages up to this part of its budget
+BIG = 2**53  # counters a status record may report
+
+
+class DirectLink:
+    """Robot `robot`'s direct delivery (see the module docstring)."""
+
+    def __init__(self, cfg: WorldConfig, robot: int, plan: FaultPlan, tick_s: float) -> None:
+        self.cfg, self.robot, self.n = cfg, robot, cfg.n_robots
+        self.channel = VirtualChannel(plan, cfg.n_robots, tick_s)
+        self.counters = RadioCounters()
+        self.ep, self.t = -1, -1
+        self.done_ep = -1  # the last episode whose end this robot saw (the world's tally waits)
+        self.expected = np.zeros(self.n, dtype=bool)
+        self.gone: set[int] = set()  # peers whose liveliness token vanished
+        self.seen: set[int] = {robot}  # peers whose liveliness token it sees now
+        self.store: dict[tuple[int, int, int, int], tuple[Stamped, Traj | Hidden]] = {}
+        self.decided: set[tuple[int, int, int]] = set()  # hidden copies decided before arrival
+        self.early: dict[tuple[int, int, int], int] = {}  # their fate as far as draws tell
+        self.stale = 0  # messages of a tick this robot had already left
+        self.overflow = 0  # messages refused because too many were held
+
+    # --- a tick ------------------------------------------------------------------------------
+    def begin(self, obs: Obs) -> None:
+        """A new tick (a new episode starts with full token buckets)."""
+        if obs.ep != self.ep or obs.t == 0:
+            self.channel.reset(1)
+        self.ep, self.t = obs.ep, obs.t
+        self.expected = np.ones(self.n, dtype=bool) if not obs.live else np.unpackbits(
+            np.frombuffer(obs.live, dtype=np.uint8), count=self.n).astype(bool)
+        self.expected[self.robot] = True
+        for key in [k for k in self.store if (k[1], k[2]) < (self.ep, self.t)]:
+            del self.store[key]  # others' hidden states, copies that came after it decided
+        self.decided, self.early = set(), {}
+
+    def stamp(self, kind: int, payload: bytes) -> bytes:
+        """This robot's message of the current tick in its envelope, charged to its bucket (a
+        trajectory first, then the hidden state: the radio's order)."""
+        q = self.channel.charge(self.t, self.robot, len(payload))
+        st = Stamped(kind, self.ep, self.t, self.robot, DROPPED_Q if math.isnan(q) else q,
+                     payload)
+        msg: Traj | Hidden = (Traj if kind == K_TRAJ else Hidden).unpack(payload, self.cfg)
+        self.store[(kind, self.ep, self.t, self.robot)] = (st, msg)  # its own copy, kept
+        c = self.counters  # what it sent, as the radio counted what it received
+        if kind == K_TRAJ:
+            c.traj_in += 1
+            c.bytes_in += len(payload)
+        else:
+            c.hidden_in += 1
+        return st.pack()
+
+    def peer(self, key: str, live: bool) -> None:
+        """A robot's liveliness token came or went: a gone robot is not waited for."""
+        try:
+            j = Keys.robot_of(key)
+        except ValueError:
+            return
+        if 0 <= j < self.n and j != self.robot:
+            (self.gone.discard if live else self.gone.add)(j)
+            (self.seen.add if live else self.seen.discard)(j)
+
+    def sees_peers(self) -> bool:
+        """It sees the token of every robot the world sent this tick's observation to. A peer's
+        token comes after its subscriptions on the same links, so from then on this robot's
+        messages reach it: a robot sends only once this holds (or a wait ran out), or a
+        subscription still on its way across routers could miss its first messages."""
+        return bool(self.seen.issuperset(np.flatnonzero(self.expected).tolist()))
+
+    def offer(self, key: str, payload: bytes) -> None:
+        """A stamped message from the network; BadMessage (to drop and count) unless it fits
+        its key and schema."""
+        st = Stamped.unpack(payload, self.cfg)
+        if Keys.robot_of(key) != st.robot:
+            raise BadMessage(f"robot id {st.robot} does not match key")
+        if key.endswith("/dhidden") != (st.kind == K_HIDDEN):
+            raise BadMessage("message kind does not match key")
+        msg = st.message(self.cfg)
+        if st.robot == self.robot or (st.kind == K_HIDDEN and st.robot > self.robot):
+            return  # its own copy is kept when it is sent; a later id is never its predecessor
+        if (st.ep, st.t) < (self.ep, self.t):
+            self.stale += st.kind == K_TRAJ  # a hidden state it decided without, or not its own
+            return
+        k = (st.kind, st.ep, st.t, st.robot)
+        if k in self.store:
+            raise BadMessage(f"a second {'trajectory' if st.kind == K_TRAJ else 'hidden-state'}"
+                             f" message of robot {st.robot} for tick {st.t}")
+        if len(self.store) >= 8 * self.n:  # a peer far ahead (or a flood): bounded
+            self.overflow += 1
+            return
+        self.store[k] = (st, msg)
+
+    def traj_complete(self) -> bool:
+        """Every robot the world sent this tick's observation to (and that is still alive) has
+        sent its trajectory message."""
+        for j in np.flatnonzero(self.expected):
+            if (K_TRAJ, self.ep, self.t, int(j)) not in self.store and int(j) not in self.gone:
+                return False
+        return True
+
+    def heard(self) -> list[bytes]:
+        """The trajectory payloads this robot hears this tick, in sender-id order (its own
+        included): range at the senders' true cells, then each copy's fate; every copy
+        counted once."""
+        n, c = self.n, self.counters
+        present = np.zeros(n, dtype=bool)
+        pos = np.zeros((n, 2), dtype=np.int64)
+        q = np.zeros(n)
+        sizes = np.zeros(n)
+        payloads: list[bytes] = [b""] * n
+        for j in range(n):
+            got = self.store.get((K_TRAJ, self.ep, self.t, j))
+            if got is None:
+                continue
+            st, msg = got
+            assert isinstance(msg, Traj)
+            present[j] = True
+            pos[j] = (msg.y, msg.x)
+            q[j] = math.nan if st.queue_ms == DROPPED_Q else st.queue_ms
+            sizes[j] = len(st.payload)
+            payloads[j] = st.payload
+        if not present[self.robot]:
+            return []
+        hears = neighbourhood(self.cfg.comm_range, pos[None], present[None])[0][self.robot]
+        fate = self.channel.row(KIND_TRAJ, self.ep, self.t, self.robot, q)
+        rows = np.array([self.robot])
+        ok = c.count_traj(rows, hears[None], fate[None], present, present & (q > 0), sizes)[0]
+        return [payloads[j] for j in np.flatnonzero(ok).tolist()]
+
+    def hidden(self, pred: int) -> Hidden | None:
+        """Predecessor `pred`'s hidden-state message of this tick: the message, a miss marker
+        (lost, cut, dropped or late: decode without it), or None while it has not come and its
+        fate depends on it (its queue delay)."""
+        c, key = self.counters, (self.ep, self.t, pred)
+        if key in self.decided:
+            return Hidden.miss(*key)
+        got = self.store.get((K_HIDDEN, self.ep, self.t, pred))
+        msg: Traj | Hidden | None = None
+        if got is None:  # loss and partition are known without it: nobody waits for those
+            if key not in self.early:
+                self.early[key] = OK if self.channel.plan.zero else int(
+                    self.channel.column(KIND_HIDDEN, self.ep, self.t, pred, 0.0)[self.robot])
+            fate = self.early[key]
+            if fate not in (LOST, CUT):
+                return None
+        else:
+            st, msg = got
+            q = math.nan if st.queue_ms == DROPPED_Q else st.queue_ms
+            fate = int(self.channel.column(KIND_HIDDEN, self.ep, self.t, pred, q)[self.robot])
+        self.decided.add(key)
+        if fate != OK or not isinstance(msg, Hidden):
+            c.miss("hidden", FATES[fate], pred, self.robot)
+            return Hidden.miss(*key)
+        c.hidden_delivered += 1
+        return msg
+
+    def record(self) -> dict[str, Any]:
+        """The counters for the robot's status record (`DirectTally` sums them)."""
+        return {"done_ep": self.done_ep, "stale": self.stale, "overflow": self.overflow,
+                "counts": self.counters.totals()}
+
+
+COUNT_KEYS = ("traj_in", "traj_delivered", "hidden_in", "hidden_delivered", "out_of_range", "lost",
+              "cut", "late", "queued", "dropped_bw", "bytes_in", "bytes_out")
+KIND_KEYS = ("lost", "cut", "late", "dropped_bw", "queued")
+
+
+def _count(v: Any, name: str) -> int:
+    if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= BIG:
+        raise BadMessage(f"{name}={v!r} is not a count")
+    return v
+
+
+def check_direct(rec: Any, n: int) -> tuple[int, dict[str, Any]]:
+    """(robot, its `direct` counters) of a robot status record, every field range-checked
+    (BadMessage otherwise)."""
+    if not isinstance(rec, dict):
+        raise BadMessage("status must be a map")
+    robot = rec.get("robot")
+    if not isinstance(robot, int) or isinstance(robot, bool) or not 0 <= robot < n:
+        raise BadMessage(f"robot={robot!r} not in the team")
+    d = rec.get("direct")
+    if not isinstance(d, dict) or not isinstance(d.get("counts"), dict):
+        raise BadMessage("no direct counters")
+    done = d.get("done_ep")
+    if not isinstance(done, int) or isinstance(done, bool) or not -1 <= done < 2**31:
+        raise BadMessage(f"done_ep={done!r} out of range")
+    counts, by_kind = d["counts"], d["counts"].get("by_kind")
+    out: dict[str, Any] = {k: _count(counts.get(k), k) for k in COUNT_KEYS}
+    if not isinstance(by_kind, dict) or set(by_kind) != {"traj", "hidden"}:
+        raise BadMessage("by_kind must hold traj and hidden")
+    out["by_kind"] = {kind: {k: _count((by_kind[kind] or {}).get(k) if isinstance(
+        by_kind[kind], dict) else None, f"{kind}.{k}") for k in KIND_KEYS} for kind in by_kind}
+    return robot, {"done_ep": done, "stale": _count(d.get("stale", 0), "stale"),
+                   "counts": out}
+
+
+class DirectTally:
+    """The world's sum of the counters its robots report (direct delivery): the latest record of
+    each robot, whose counters are cumulative over the run."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.latest: dict[int, dict[str, Any]] = {}
+
+    def offer(self, payload_record: Any) -> None:
+        robot, rec = check_direct(payload_record, self.n)
+        self.latest[robot] = rec
+
+    def complete(self, robots: np.ndarray, ep: int) -> bool:
+        """Each robot of `robots` [N] bool has reported after the end of episode `ep`."""
+        return all(self.latest.get(int(i), {}).get("done_ep", -1) >= ep
+                   for i in np.flatnonzero(robots))
+
+    def totals(self) -> dict[str, Any]:
+        """The run's message counters, the radio's keys (`RadioCounters.totals`), summed."""
+        out: dict[str, Any] = dict.fromkeys(COUNT_KEYS, 0)
+        out["by_kind"] = {k: dict.fromkeys(KIND_KEYS, 0) for k in ("traj", "hidden")}
+        for rec in self.latest.values():
+            c = rec["counts"]
+            for k in COUNT_KEYS:
+                out[k] += c[k]
+            for kind in ("traj", "hidden"):
+                for k in KIND_KEYS:
+                    out["by_kind"][kind][k] += c["by_kind"][kind][k]
+        out["robot_stale"] = sum(rec["stale"] for rec in self.latest.values())
+        out["reported"] = sorted(self.latest)
+        return out

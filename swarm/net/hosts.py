@@ -1,0 +1,237 @@
+"""Emulated hosts (`swarm run --hosts K`): a run spread over K Linux network namespaces, each a
+host with its own address on one bridge, each with its own Zenoh router, the routers connected
+to one another; so multi-host is exercised on one machine exactly as on several.
+
+Host k is namespace `swarm-<run id>-h<k>` with address `.k+2` of a /24 in 10.215.0.0/16 (chosen
+clear of every route the host has); the bridge `sw<tag>b` in the root namespace holds `.1`, so
+the supervisor reaches every host from where it stays. Host 0's router is the world's own
+session (in router mode, as in a single-host run); hosts 1..K-1 get a router process each
+(`swarm router`, `route` here: a Python session in router mode), listening on its host's
+address and connected to the world and to the routers of the hosts before it. Robot i runs on
+host i mod K and connects to its host's router only. No fault is injected in the kernel: with the
+virtual clock a run is still a function of its seed and plan, and `--delivery direct` takes
+the radio out of the path, so robot-to-robot messages go router to router, not through the
+world.
+
+`Hosts` has the interface the supervisor uses for `--netns` (`swarm.net.netns.Topology`):
+`up`/`down` (idempotent, at exit and on SIGTERM too; `remove` cleans up after a SIGKILLed
+supervisor), `exec_prefix`, `world_ns`, `robot_ns`, `hub_addr`, `world_listen`,
+`robot_endpoint`, `routers`, `describe`.
+"""
+
+from __future__ import annotations
+
+import atexit
+import ipaddress
+import json
+import logging
+import shutil
+import signal
+import subprocess
+import time
+from typing import Any
+
+from swarm.net.keys import Keys
+from swarm.net.netns import _exit_on_term, _link_exists, _run, _tag, check_tools, namespaces
+from swarm.net.zconfig import ZenohOptions, open_session
+from world.config import ConfigError
+
+HOST_NET = ipaddress.ip_network("10.215.0.0/16")
+MAX_HOSTS = 250
+
+
+def hosts_reason() -> str | None:
+    """Why emulated hosts cannot run here (None: they can): root, `ip`, `ip netns`, bridges."""
+    try:
+        check_tools()
+    except ConfigError as exc:
+        return str(exc).replace("--netns", "--hosts")
+    p = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True)
+    if p.returncode != 0:
+        return f"`ip netns` is unavailable: {p.stderr.strip()}"
+    return None
+
+
+class Hosts:
+    """The namespaces, bridge and veths of one run's K emulated hosts."""
+
+    def __init__(self, run_id: str, n_robots: int, k: int) -> None:
+        if not 1 <= k <= MAX_HOSTS:
+            raise ConfigError(f"--hosts must lie in [1, {MAX_HOSTS}], got {k}")
+        self.run_id, self.n, self.k = run_id, n_robots, k
+        tag = _tag(run_id)
+        self.host_ns = [f"swarm-{run_id}-h{h}" for h in range(k)]
+        self.bridge = f"sw{tag}b"
+        self.root_if = [f"sw{tag}v{h}" for h in range(k)]  # on the bridge
+        self.host_if = [f"sw{tag}e{h}" for h in range(k)]  # in host h
+        self.world_ns = self.host_ns[0]
+        self.robot_ns = [self.host_ns[self.host_of(i)] for i in range(n_robots)]
+        self.addr: list[str] = []
+        self.hub_addr = ""
+        self.is_up = False
+        self._old_term: Any = None
+
+    def host_of(self, robot: int) -> int:
+        """The host robot `robot` runs on (round robin)."""
+        return robot % self.k
+
+    # --- endpoints ----------------------------------------------------------------------------
+    def endpoint(self, host: int, port: int) -> str:
+        """Host `host`'s router (host 0: the world)."""
+        return f"tcp/{self.addr[host]}:{port}"
+
+    def world_listen(self, port: int) -> list[str]:
+        return [self.endpoint(0, port)]
+
+    def robot_endpoint(self, i: int, port: int) -> str:
+        """The one endpoint robot i connects to: its own host's router."""
+        return self.endpoint(self.host_of(i), port)
+
+    def routers(self, port: int) -> list[tuple[str, list[str], str, str]]:
+        """(name, `swarm` arguments, namespace, address) of each router process to start once
+        the world listens: host h's listens on its address and connects to the world and to
+        hosts 1..h-1's routers."""
+        out = []
+        for h in range(1, self.k):
+            connect = [x for g in range(h) for x in ("--connect", self.endpoint(g, port))]
+            out.append((f"router{h}", ["router", "--run-id", self.run_id, "--listen",
+                                       self.endpoint(h, port), *connect], self.host_ns[h],
+                        self.addr[h]))
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        return {"hosts": self.k, "host_ns": self.host_ns, "host_addr": self.addr,
+                "robot_host": [self.host_of(i) for i in range(self.n)]}
+
+    # --- life cycle ---------------------------------------------------------------------------
+    def _subnet(self) -> ipaddress.IPv4Network:
+        """A /24 of HOST_NET that overlaps no route of the root namespace."""
+        routes = json.loads(_run(["ip", "-j", "-4", "route", "show", "table", "all"]) or "[]")
+        used = []
+        for r in routes:
+            dst = r.get("dst", "default")
+            if dst != "default" and r.get("type", "unicast") in ("unicast", "local"):
+                used.append(ipaddress.ip_network(dst if "/" in dst else f"{dst}/32", strict=False))
+        slots = HOST_NET.num_addresses // 256
+        start = int(_tag(self.run_id), 16) % slots
+        for s in range(slots):
+            net = ipaddress.ip_network(
+                (int(HOST_NET.network_address) + 256 * ((start + s) % slots), 24))
+            if not any(net.overlaps(u) for u in used):
+                return net
+        raise ConfigError(f"--hosts: no free /24 in {HOST_NET} for the hosts' bridge")
+
+    def up(self) -> Hosts:
+        reason = hosts_reason()
+        if reason:
+            raise ConfigError(reason)
+        if self.is_up:
+            return self
+        clash = set(namespaces()) & set(self.host_ns)
+        if clash or _link_exists(self.bridge):  # not ours: never torn down by us
+            raise ConfigError(f"--hosts: {sorted(clash)[0] if clash else self.bridge} exists "
+                              f"already (another run with id {self.run_id!r}?)")
+        atexit.register(self.down)
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            try:  # SIGTERM unwinds (finally: down) instead of killing with the namespaces left
+                self._old_term = signal.signal(signal.SIGTERM, _exit_on_term)
+            except ValueError:  # not the main thread
+                pass
+        self.is_up = True
+        try:
+            self._make()
+        except BaseException:
+            self.down()
+            raise
+        return self
+
+    def _make(self) -> None:
+        net = self._subnet()
+        self.hub_bridge = str(net[1])
+        self.addr = [str(net[h + 2]) for h in range(self.k)]
+        self.hub_addr = self.addr[0]
+        cmds = [f"netns add {ns}" for ns in self.host_ns]
+        cmds += [f"link add {self.bridge} type bridge", f"link set {self.bridge} addrgenmode none",
+                 f"addr add {self.hub_bridge}/24 dev {self.bridge}", f"link set {self.bridge} up"]
+        for h, ns in enumerate(self.host_ns):
+            a, b = self.root_if[h], self.host_if[h]  # no IPv6: only our IPv4 on the wire
+            cmds += [f"link add {a} type veth peer name {b} netns {ns}",
+                     f"link set {a} master {self.bridge}", f"link set {a} addrgenmode none",
+                     f"link set {a} up"]
+        _run(["ip", "-batch", "-"], "\n".join(cmds) + "\n")
+        for h, ns in enumerate(self.host_ns):
+            b = self.host_if[h]
+            _run(["ip", "-n", ns, "-batch", "-"], "\n".join([
+                "link set lo up", f"addr add {self.addr[h]}/24 dev {b}",
+                f"link set {b} addrgenmode none", f"link set {b} up"]) + "\n")
+
+    def down(self) -> None:
+        """Delete every namespace, veth and the bridge `up()` made (idempotent)."""
+        if self._old_term is not None:
+            try:
+                signal.signal(signal.SIGTERM, self._old_term)
+            except ValueError:
+                pass
+            self._old_term = None
+        atexit.unregister(self.down)
+        if self.is_up:
+            self.is_up = False
+            remove(self.run_id, self.k)
+
+    def exec_prefix(self, ns: str) -> list[str]:
+        """The command prefix that runs a child on host namespace `ns` (exec: same pid)."""
+        return ["ip", "netns", "exec", ns]
+
+    def __enter__(self) -> Hosts:
+        return self.up()
+
+    def __exit__(self, *exc: object) -> None:
+        self.down()
+
+
+def remove(run_id: str, k: int) -> None:
+    """Delete the hosts of run `run_id` (what a SIGKILLed supervisor left)."""
+    if shutil.which("ip") is None:
+        return
+    t = Hosts(run_id, 0, max(1, min(k, MAX_HOSTS)))
+    for name in (*t.root_if, t.bridge):
+        _run(["ip", "link", "del", name], check=False)
+    existing = set(namespaces())
+    lines = [f"netns del {ns}" for ns in t.host_ns if ns in existing]
+    if lines:
+        _run(["ip", "-force", "-batch", "-"], "\n".join(lines) + "\n", check=False)
+
+
+def topology(run_id: str, n_robots: int, netns: Any = None, hosts: int = 0) -> Any:
+    """The supervisor's topology: `--netns` namespaces, `--hosts` hosts, or None (loopback)."""
+    if netns is not None and hosts:
+        raise ConfigError("--hosts and --netns are two topologies: give one")
+    if hosts:
+        return Hosts(run_id, n_robots, hosts)
+    if netns is not None:
+        from swarm.net.netns import Topology
+
+        return Topology(run_id, n_robots, netns)
+    return None
+
+
+def route(zopts: ZenohOptions, run_id: str | None = None) -> None:
+    """The router process (`swarm router`): a Python session in router mode that only routes
+    (zenohd is not installable here; any Zenoh session can route), until interrupted (Ctrl-C,
+    SIGTERM, its supervisor's death). `--hosts` starts one per host but the world's; on real
+    hosts, start one per machine and point that machine's processes at it. With `run_id` it
+    declares `swarm/<run>/alive/router/<zid>`, so a run can see which routers are up."""
+    zopts.mode = "router"
+    with open_session(zopts) as session:
+        token = None
+        if run_id is not None:
+            key = f"{Keys(run_id).base}/alive/router/{session.zid()}"
+            token = session.liveliness().declare_token(key)
+        logging.getLogger("swarm.router").info("routing: listen %s, connect %s", zopts.listen,
+                                               zopts.connect)
+        try:
+            while True:
+                time.sleep(3600)
+        finally:
+            if token is not None:
+                token.undeclare()

@@ -1,0 +1,276 @@
+"""A run's traffic as an MCAP file: what `swarm record` writes and `swarm replay|trace` read.
+
+Layout of a recording (format FORMAT):
+- metadata `swarm.recording`: format, message schema version, run id, clock, tick length, start;
+- attachment `run_record.json`: the run's `RunRecord` (world, run, faults, ...) at its start;
+  `result.json`: the world's result record (absent when the recorder was stopped first);
+  metadata `swarm.recorder`: what the recorder counted (messages, bad, dropped);
+- per Zenoh key two channels: topic = the key, message encoding `msgpack`, no schema: the
+  payload bit-exact as it was on the wire; topic = key + `/json`, encoding `json` with a
+  `jsonschema` schema per message kind (`swarm.net.msgjson`): the validated, decoded message;
+- every message: log time = wall clock at receipt (ns since the epoch), publish time = the
+  run's virtual time at its tick (ns), sequence = the run tick.
+
+Chunks are small and flushed every `flush_s`, so a SIGKILLed recorder leaves every chunk
+flushed before it readable (`read(..., partial=True)`). The reader treats the file as hostile:
+wrong magic, records or chunks over the size limit, bad CRCs, another format or schema version
+and a cut-off end are one-line `RecordingError`s (a `ConfigError`: exit status 2 in the CLI).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from swarm.net import msgjson
+from swarm.net.messages import SCHEMA, BadMessage
+from world.config import ConfigError, WorldConfig
+
+FORMAT = 1
+PROFILE = "commattn-swarm"
+META, STATS = "swarm.recording", "swarm.recorder"
+RUN_RECORD, RESULT = "run_record.json", "result.json"
+JSON_SUFFIX = "/json"
+LIMIT = 256 << 20  # largest record or decompressed chunk a reader accepts
+MAGIC = b"\x89MCAP0\r\n"
+
+
+class RecordingError(ConfigError):
+    """A file that is not a readable recording of this build (one line, exit status 2)."""
+
+
+def need_mcap() -> Any:
+    """The `mcap` package, or a one-line error naming the extra that installs it."""
+    try:
+        import mcap.writer
+
+        return mcap
+    except ImportError:
+        raise ConfigError("recordings need the mcap package: pip install "
+                          "'commattn-swarm[record]'") from None
+
+
+@dataclass
+class WriterStats:
+    messages: int = 0  # raw messages written
+    json: int = 0  # of which also written as JSON
+    bad: dict[str, int] = field(default_factory=dict)  # per key: no JSON form (failed checks)
+    bytes: int = 0
+
+
+class RecordingWriter:
+    """Writes one run's recording; `message` per payload, `finish` at the end."""
+
+    def __init__(self, path: str | Path, run_id: str, record: dict[str, Any], cfg: WorldConfig,
+                 clock: str, tick_s: float, chunk_bytes: int = 64 << 10,
+                 flush_s: float = 0.5) -> None:
+        mcap = need_mcap()
+        from mcap.writer import CompressionType, Writer
+
+        self.cfg, self.flush_s = cfg, flush_s
+        self.fh: IO[bytes] = open(path, "wb")  # noqa: SIM115 (closed in finish)
+        self.w = Writer(self.fh, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
+        self.w.start(profile=PROFILE, library=f"commattn-swarm (mcap {mcap.__version__})")
+        self.w.add_metadata(META, {
+            "format": str(FORMAT), "schema": str(SCHEMA), "run_id": run_id, "clock": clock,
+            "tick_s": repr(float(tick_s)), "started": dt.datetime.now(dt.UTC).isoformat()})
+        self.attach(RUN_RECORD, record)
+        self.stats = WriterStats()
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, tuple[int, int]] = {}
+        self._last_flush = time.monotonic()
+        self.w.flush()
+
+    def attach(self, name: str, obj: Any) -> None:
+        now = time.time_ns()
+        data = json.dumps(msgjson.safe(obj), allow_nan=False).encode()
+        self.w.add_attachment(now, now, name, "application/json", data)
+
+    def _channel(self, key: str, kind: str) -> tuple[int, int]:
+        ids = self._channels.get(key)
+        if ids is None:
+            sid = self._schemas.get(kind)
+            if sid is None:
+                sid = self._schemas[kind] = self.w.register_schema(
+                    f"swarm.{kind}", "jsonschema",
+                    json.dumps(msgjson.SCHEMAS.get(kind, msgjson.GENERIC)).encode())
+            meta = {"kind": kind, "key": key}
+            ids = self._channels[key] = (
+                self.w.register_channel(key, "msgpack", 0, {**meta, "form": "raw"}),
+                self.w.register_channel(key + JSON_SUFFIX, "json", sid, {**meta, "form": "json"}))
+        return ids
+
+    def decode(self, key: str, kind: str, payload: bytes) -> tuple[dict[str, Any], bytes] | None:
+        """The payload's validated JSON form and its encoding, or None (counted in `stats.bad`
+        under its key)."""
+        try:
+            obj = msgjson.to_json(kind, payload, self.cfg)
+            return obj, json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+        except (BadMessage, ValueError, TypeError, KeyError, OverflowError, RecursionError):
+            self.stats.bad[key] = self.stats.bad.get(key, 0) + 1
+            return None
+
+    def message(self, key: str, kind: str, payload: bytes, data: bytes | None,
+                wall_ns: int, tick: int, vtime_ns: int) -> None:
+        """One payload received on `key` (of `kind`, see Keys.kind_of): raw always, and its
+        JSON form `data` (from `decode`) when it has one."""
+        raw, js = self._channel(key, kind)
+        seq = max(0, min(tick, 2**32 - 1))
+        self.w.add_message(raw, log_time=wall_ns, data=payload, publish_time=vtime_ns,
+                           sequence=seq)
+        self.stats.messages += 1
+        self.stats.bytes += len(payload)
+        if data is not None:
+            self.w.add_message(js, log_time=wall_ns, data=data, publish_time=vtime_ns,
+                               sequence=seq)
+            self.stats.json += 1
+        self.maybe_flush()
+
+    def json(self, key: str, kind: str, data: bytes, wall_ns: int, tick: int,
+             vtime_ns: int) -> None:
+        """The JSON form (from `decode`) of a payload already written raw."""
+        js = self._channel(key, kind)[1]
+        self.w.add_message(js, log_time=wall_ns, data=data, publish_time=vtime_ns,
+                           sequence=max(0, min(tick, 2**32 - 1)))
+        self.stats.json += 1
+        self.maybe_flush()
+
+    def maybe_flush(self) -> None:
+        """Finish the chunk and flush the file every `flush_s` (what a SIGKILL leaves)."""
+        if time.monotonic() - self._last_flush >= self.flush_s:
+            self.w.flush()
+            self._last_flush = time.monotonic()
+
+    def finish(self, result: dict[str, Any] | None, extra: dict[str, Any]) -> None:
+        """Result attachment, the recorder's counts, summary and footer; closes the file."""
+        if result is not None:
+            try:  # the result came from the wire: whatever it holds, the footer gets written
+                self.attach(RESULT, result)
+            except (BadMessage, ValueError, TypeError, RecursionError, OverflowError):
+                extra = {**extra, "result": "unreadable"}
+        s = self.stats
+        self.w.add_metadata(STATS, {k: str(v) for k, v in {
+            "messages": s.messages, "json": s.json, "bad": sum(s.bad.values()),
+            "bytes": s.bytes, "finished": dt.datetime.now(dt.UTC).isoformat(),
+            **extra}.items()})
+        self.w.finish()
+        self.fh.close()
+
+
+@dataclass
+class RawMessage:
+    """A raw payload of the recording: receipt wall time and virtual time (ns), run tick, key."""
+
+    wall_ns: int
+    vtime_ns: int
+    tick: int
+    key: str
+    payload: bytes
+
+
+@dataclass
+class RawRecording:
+    """What a file holds, checked against the format but not yet against a run."""
+
+    path: str
+    meta: dict[str, str]
+    attachments: dict[str, bytes]
+    stats: dict[str, str]
+    keys: list[str]  # topics of the raw channels
+    json_topics: list[str]
+    messages: list[RawMessage]
+    complete: bool  # the footer was read: the recorder finished
+    end_offset: int  # bytes read before the end (or the cut)
+
+    def attachment(self, name: str) -> Any:
+        """A JSON attachment, or None when absent; RecordingError when it does not parse."""
+        data = self.attachments.get(name)
+        if data is None:
+            return None
+        try:
+            return json.loads(data)
+        except ValueError:
+            raise RecordingError(f"{self.path}: attachment {name} is not JSON") from None
+
+
+def read(path: str | Path, partial: bool = False) -> RawRecording:
+    """Every raw message of a recording, in file (= arrival) order. A file that ends before its
+    footer is a RecordingError unless `partial` (then: every complete chunk before the cut)."""
+    need_mcap()
+    from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    path = str(path)
+    try:
+        fh = open(path, "rb")  # noqa: SIM115
+    except OSError as exc:
+        raise RecordingError(f"cannot read {path}: {exc.strerror or exc}") from None
+    meta: dict[str, str] = {}
+    stats: dict[str, str] = {}
+    attachments: dict[str, bytes] = {}
+    channels: dict[int, Any] = {}
+    messages: list[RawMessage] = []
+    complete, error = False, ""
+    with fh:
+        if fh.read(len(MAGIC)) != MAGIC:
+            raise RecordingError(f"{path} is not an MCAP file")
+        fh.seek(0)
+        reader = StreamReader(fh, emit_chunks=True, validate_crcs=True, record_size_limit=LIMIT)
+
+        def take(rec: Any) -> None:
+            if isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Message):
+                ch = channels.get(rec.channel_id)
+                if ch is None:
+                    raise RecordingError(f"{path}: a message on unknown channel {rec.channel_id}")
+                if ch.message_encoding == "msgpack":
+                    messages.append(RawMessage(rec.log_time, rec.publish_time, rec.sequence,
+                                               ch.topic, bytes(rec.data)))
+
+        try:
+            for rec in reader.records:
+                if isinstance(rec, Chunk):
+                    if rec.uncompressed_size > LIMIT:
+                        raise RecordingError(f"{path}: a chunk of {rec.uncompressed_size} bytes")
+                    for inner in breakup_chunk(rec, validate_crc=True):
+                        take(inner)
+                elif isinstance(rec, Metadata):
+                    if rec.name == META and not meta:
+                        meta = dict(rec.metadata)
+                    elif rec.name == STATS:
+                        stats = dict(rec.metadata)
+                elif isinstance(rec, Attachment):
+                    attachments.setdefault(rec.name, bytes(rec.data))
+                elif isinstance(rec, Footer):
+                    complete = True
+                else:
+                    take(rec)
+        except RecordingError:
+            raise
+        except Exception as exc:  # anything a cut or corrupt file raises inside the reader
+            error = f"{type(exc).__name__}: {exc}"[:200]
+        end = fh.tell()
+    if not meta:
+        raise RecordingError(f"{path} is not a swarm recording (no {META} metadata"
+                             + (f"; unreadable at byte {end}: {error})" if error else ")"))
+    if meta.get("format") != str(FORMAT):
+        raise RecordingError(f"{path} is in recording format {meta.get('format')!r}; this "
+                             f"build reads format {FORMAT}")
+    if meta.get("schema") != str(SCHEMA):
+        raise RecordingError(f"{path} holds messages of schema version {meta.get('schema')!r}; "
+                             f"this build reads version {SCHEMA}")
+    if not complete and not partial:
+        last = max((m.tick for m in messages), default=0)
+        why = f"unreadable at byte {end}" if error else "no footer"
+        raise RecordingError(f"{path} is truncated ({why}: the recorder stopped before the end; "
+                             f"{len(messages)} messages readable up to run tick {last}); "
+                             "--partial uses what is there")
+    topics = [c.topic for c in channels.values()]
+    return RawRecording(path, meta, attachments, stats,
+                        [c.topic for c in channels.values() if c.message_encoding == "msgpack"],
+                        [t for t in topics if t.endswith(JSON_SUFFIX)], messages, complete, end)

@@ -1,0 +1,231 @@
+"""The Zenoh settings of a secure session (`--secure DIR`): TLS with mutual authentication, the
+session's own certificate, and the access control of its identity (swarm.net.security.roles).
+No torch and no `cryptography` here: a process only reads the files `swarm certs` made
+(swarm.net.security.certs), and every one it needs is checked before a session opens.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from swarm.net.keys import Keys
+from swarm.net.security.roles import CA_CERT, RELAYS, ROSTER, acl, identities, roles
+from world.config import ConfigError
+
+
+@dataclass(frozen=True)
+class Secure:
+    """The credentials and roster one session of a secure run uses."""
+
+    cert_dir: Path
+    """Directory made by `swarm certs` (ca.pem, <identity>.pem/.key, roster.json)."""
+    identity: str
+    """This session's identity: the common name of its certificate."""
+    run_id: str
+    """The run whose keys the ACL allows."""
+    robots: int
+    """Robots of the roster (robot-0 .. robot-N-1)."""
+    workers: int = 0
+    """Rollout workers of the roster (worker-0 .. worker-K-1)."""
+    extra_files: tuple[str, ...] = field(default=())
+    """Other identities whose certificate and key must be present (a supervisor's children)."""
+
+    @classmethod
+    def load(cls, cert_dir: str | Path, identity: str, run_id: str, robots: int | None = None,
+             need: tuple[str, ...] = ()) -> Secure:
+        """Read the roster of `cert_dir` and check every file the session (and `need`, the
+        identities it will start) reads: one line naming the first file missing or unsafe."""
+        d = Path(cert_dir).expanduser().resolve()
+        if not d.is_dir():
+            raise ConfigError(f"--secure {cert_dir}: no such directory (make it with "
+                              f"`swarm certs --out {cert_dir} --robots N`)")
+        roster: dict[str, Any] = {}
+        if (d / ROSTER).exists():
+            try:
+                roster = json.loads((d / ROSTER).read_text())
+                int(roster.get("robots", 0)), int(roster.get("workers", 0))
+            except (OSError, ValueError, TypeError, AttributeError) as exc:
+                raise ConfigError(f"{d / ROSTER}: {exc}") from None
+        n = robots if robots is not None else int(roster.get("robots", 0))
+        workers = int(roster.get("workers", 0))
+        kind, _, num = identity.partition("-")
+        if not roster and num.isdigit():  # a host given only its own files: room for its own id
+            if kind == "robot":
+                n = max(n, int(num) + 1)
+            else:
+                workers = max(workers, int(num) + 1)
+        sec = cls(d, identity, Keys(run_id).run, max(n, 1), workers, tuple(need))
+        if identity not in roles(Keys(run_id), sec.robots, sec.workers):
+            raise ConfigError(f"--secure: identity {identity!r} is not in the roster of {d} "
+                              f"({sec.robots} robots, {sec.workers} workers)")
+        sec.check()
+        return sec
+
+    def files(self, identity: str | None = None) -> tuple[Path, Path]:
+        """(certificate, key) of `identity` (default: this session's)."""
+        who = identity or self.identity
+        return self.cert_dir / f"{who}.pem", self.cert_dir / f"{who}.key"
+
+    def check(self) -> None:
+        """Every file present, readable, PEM, and every key private to its owner."""
+        paths = [self.cert_dir / CA_CERT]
+        for who in (self.identity, *self.extra_files):
+            paths += self.files(who)
+        for p in paths:
+            try:
+                head = p.read_bytes()[:64]
+            except FileNotFoundError:
+                raise ConfigError(f"--secure: {p} is missing (run `swarm certs --out "
+                                  f"{self.cert_dir} --robots N`)") from None
+            except OSError as exc:
+                raise ConfigError(f"--secure: cannot read {p}: {exc.strerror}") from None
+            if not head.startswith(b"-----BEGIN "):
+                raise ConfigError(f"--secure: {p} is not a PEM file")
+            if p.suffix == ".key" and os.stat(p).st_mode & 0o077:
+                raise ConfigError(f"--secure: {p} is readable by others (chmod 600 {p})")
+
+    def tls(self, identity: str | None = None) -> dict[str, Any]:
+        """`transport/link/tls`: this CA, this identity's certificate for both directions,
+        client certificates required, the server's name checked against the endpoint."""
+        cert, key = (str(p) for p in self.files(identity))
+        return {"root_ca_certificate": str(self.cert_dir / CA_CERT),
+                "listen_certificate": cert, "listen_private_key": key,
+                "connect_certificate": cert, "connect_private_key": key,
+                "enable_mtls": True, "verify_name_on_connect": True}
+
+    def settings(self, identity: str | None = None) -> dict[str, Any]:
+        """The Zenoh settings (`path -> value`) that make a session secure."""
+        who = identity or self.identity
+        return {"transport/link/protocols": ["tls"],
+                "transport/link/tls": self.tls(who),
+                "access_control": acl(who, Keys(self.run_id), self.robots, self.workers)}
+
+    def cfg(self) -> list[str]:
+        """The settings as `--cfg KEY:JSON5` items (swarm.net.zconfig.ZenohOptions.cfg)."""
+        return [f"{k}:{json.dumps(v)}" for k, v in self.settings().items()]
+
+    def session_config(self, identity: str, mode: str, listen: list[str],
+                       connect: list[str]) -> dict[str, Any]:
+        """A complete Zenoh configuration (what `--zenoh-config FILE` loads) for `identity`."""
+        conf: dict[str, Any] = {
+            "mode": mode, "listen": {"endpoints": listen}, "connect": {"endpoints": connect},
+            "scouting": {"multicast": {"enabled": False}},
+            "transport": {"link": {"protocols": ["tls"], "tx": {"lease": 1000},
+                                   "tls": self.tls(identity)},
+                          "shared_memory": {"enabled": False}},
+            "access_control": acl(identity, Keys(self.run_id), self.robots, self.workers),
+        }
+        return conf
+
+
+def check_endpoints(endpoints: list[str], flag: str) -> None:
+    """A secure session uses TLS endpoints only."""
+    for e in endpoints:
+        if not e.startswith("tls/"):
+            raise ConfigError(f"--secure: {flag} {e} is not a TLS endpoint (use tls/HOST:PORT)")
+
+
+def dumps(conf: dict[str, Any]) -> str:
+    """A session configuration as JSON5 a person can read: one ACL rule, subject, policy a line."""
+    acl_ = conf.get("access_control")
+    rest = {k: v for k, v in conf.items() if k != "access_control"}
+    text = json.dumps(rest, indent=2)[:-2]
+    if acl_:
+        lines = ['  "access_control": {']
+        lines += [f'    "{k}": {json.dumps(acl_[k])},' for k in ("enabled", "default_permission")]
+        for k in ("rules", "subjects", "policies"):
+            lines += [f'    "{k}": [', *(f"      {json.dumps(x)}," for x in acl_[k]), "    ],"]
+        text += ",\n" + "\n".join([*lines, "  },"])
+    return text + "\n}\n"
+
+
+def write_config(path: str | Path, conf: dict[str, Any], header: str) -> Path:
+    """Write a session configuration as JSON5 with a comment header, 0644."""
+    from swarm.common.atomic import write_text
+
+    lines = "".join(f"// {line}\n" for line in header.splitlines())
+    return write_text(path, lines + dumps(conf))
+
+
+def identity_of(process: str) -> str:
+    """The identity of a supervisor's child by its log name (`robot3` -> `robot-3`)."""
+    if process.startswith("robot") and process[5:].isdigit():
+        return f"robot-{process[5:]}"
+    if process.startswith("worker") and process[6:].isdigit():
+        return f"worker-{process[6:]}"
+    return process
+
+
+def write_run_configs(sec: Secure, out_dir: str | Path, hub: str) -> dict[str, Path]:
+    """The configuration of every session of a `swarm run` (the world listening on `hub` as the
+    router, everyone else a client of it), written to `out_dir/<identity>.json5` for the user to
+    read and for each process to load; identity -> path."""
+    out: dict[str, Path] = {}
+    for who in identities(sec.robots, sec.workers):
+        world = who in RELAYS
+        conf = sec.session_config(who, "router" if world else "client",
+                                  [hub] if world else [], [] if world else [hub])
+        out[who] = write_config(Path(out_dir) / f"{who}.json5", conf, (
+            f"Zenoh session of {who} in secure run {sec.run_id}, generated by swarm run "
+            f"--secure {sec.cert_dir}.\nTLS with mutual authentication; access_control: "
+            "what each neighbour (by certificate common name) may send\nto this session "
+            "(ingress) and be sent by it (egress); see swarm/net/security/roles.py."))
+    return out
+
+
+def run_configs(cert_dir: str | Path, run_id: str, robots: int, port: int, out_dir: Path,
+                learner: bool = False) -> tuple[str, dict[str, Path]]:
+    """(hub endpoint, identity -> config file) of a `swarm run --secure` whose world listens on
+    127.0.0.1:`port`; every certificate the run's processes read is checked first."""
+    need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()))
+    sec = Secure.load(cert_dir, "supervisor", run_id, robots, need=need)
+    hub = f"tls/127.0.0.1:{port}"
+    return hub, write_run_configs(sec, out_dir, hub)
+
+
+def apply(opts: Any, sec: Secure) -> Any:
+    """`ZenohOptions` made secure: TLS endpoints only (a listening session defaults to
+    tls/127.0.0.1:0), this identity's TLS settings and ACL applied before any `--cfg`."""
+    import dataclasses
+
+    check_endpoints(opts.connect, "--connect")
+    check_endpoints(opts.listen, "--listen")
+    listen = opts.listen or ([] if opts.mode == "client" or opts.config_file
+                             else ["tls/127.0.0.1:0"])
+    new = dataclasses.replace(opts, listen=listen, cfg=[*sec.cfg(), *opts.cfg])
+    new.to_config()
+    return new
+
+
+TEMPLATE_HEADER = """{what}, as `--secure` generates it
+(run id RUN, 3 robots, certificates in /etc/swarm/certs; the world at WORLD_HOST:7448).
+Do not edit by hand: `swarm run --secure DIR` writes one per process into LOG_DIR/zenoh/, and
+`swarm world|robot|learner|rollout-worker|fault --secure DIR` build theirs in memory.
+Regenerate: python -c 'from swarm.net.security.tls import write_templates; write_templates()'
+(tests/test_secure.py fails when this file and the generator disagree).
+Make the certificates with `swarm certs --out /etc/swarm/certs --robots 3 --host WORLD_HOST`."""
+
+
+def templates() -> dict[str, str]:
+    """deploy/ file name -> text of the example configs of a 3-robot run on real hosts."""
+    sec = Secure(Path("/etc/swarm/certs"), "world", "RUN", 3)
+    hub = "tls/WORLD_HOST:7448"
+    out = {}
+    for name, who, mode, listen, connect, what in (
+            ("tls-acl.json5", "world", "router", ["tls/0.0.0.0:7448"], [],
+             "The world (the router every other process connects to) of a secure run"),
+            ("tls-acl-robot.json5", "robot-0", "client", [], [hub],
+             "Robot 0 of a secure run, on its own host")):
+        text = "".join(f"// {line}\n" for line in TEMPLATE_HEADER.format(what=what).splitlines())
+        out[name] = text + dumps(sec.session_config(who, mode, listen, connect))
+    return out
+
+
+def write_templates(deploy: str | Path = "deploy") -> None:
+    """Rewrite the deploy/ examples from the generator."""
+    for name, text in templates().items():
+        (Path(deploy) / name).write_text(text)

@@ -1,0 +1,176 @@
+"""`swarm replay FILE`: a recording (`swarm.net.recording`) checked against its own run and played
+back through the live dashboard (`swarm.procs.dashboard`), with no network.
+
+`load` turns a file into a `Recording`: the run's `RunRecord` from its attachment, every raw
+message with its kind and robot id, and the result when the recording finished. A file whose
+channels are not all keys of its run (another run's keys, robots outside the team), or without
+a readable run record, is a one-line `RecordingError`. `replay` feeds the world and robot
+status records to a `SwarmView` at the recorded pace (scaled by `speed`; 0: as fast as it
+goes), fast-forwarding to `from_tick`; every record is validated as the supervisor would, and
+one that does not fit is dropped and counted.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+
+from swarm.net.keys import Keys
+from swarm.net.messages import (
+    K_CONTROL,
+    K_RSTATUS,
+    K_STATUS,
+    BadMessage,
+    check_robot_status,
+    unpack_record,
+)
+from swarm.net.recording import JSON_SUFFIX, RESULT, RUN_RECORD, RawRecording, RecordingError
+from swarm.net.recording import read as read_file
+from swarm.procs.dashboard import SwarmView, render
+from swarm.procs.runconfig import RunRecord
+from world.config import ConfigError
+
+
+@dataclass
+class Msg:
+    """One recorded payload: receipt wall time and virtual time (ns), run tick, key, kind."""
+
+    wall_ns: int
+    vtime_ns: int
+    tick: int
+    key: str
+    kind: str
+    robot: int | None
+    payload: bytes
+
+
+@dataclass
+class Recording:
+    path: str
+    raw: RawRecording
+    record: RunRecord
+    result: dict[str, Any] | None
+    messages: list[Msg]
+
+    @property
+    def last_tick(self) -> int:
+        return max((m.tick for m in self.messages), default=0)
+
+    def of(self, *kinds: str) -> list[Msg]:
+        return [m for m in self.messages if m.kind in kinds]
+
+
+def load(path: str | Path, partial: bool = False) -> Recording:
+    """Read and check a recording against its own run (see the module docstring)."""
+    raw = read_file(path, partial)
+    where = f"{raw.path}: run record"
+    rec_obj = raw.attachment(RUN_RECORD)
+    if rec_obj is None:
+        raise RecordingError(f"{raw.path} has no {RUN_RECORD} attachment")
+    try:
+        record = RunRecord.from_record(rec_obj, where)
+    except ConfigError as exc:
+        raise RecordingError(str(exc)) from None
+    run_id = raw.meta.get("run_id", "")
+    if run_id != record.run.run_id:
+        raise RecordingError(f"{raw.path}: metadata names run {run_id!r}, its run record "
+                             f"{record.run.run_id!r}")
+    keys, n = Keys(run_id), record.world.n_robots
+    owned: dict[str, tuple[str, int | None]] = {}
+    for topic in [*raw.keys, *(t[:-len(JSON_SUFFIX)] for t in raw.json_topics)]:
+        kind, robot = keys.kind_of(topic)
+        if not kind or (robot is not None and robot >= n):
+            raise RecordingError(f"{raw.path}: channel {topic!r} is not a key of run {run_id} "
+                                 f"({n} robots)")
+        owned[topic] = (kind, robot)
+    result = raw.attachment(RESULT)
+    if result is not None and not isinstance(result, dict):
+        raise RecordingError(f"{raw.path}: {RESULT} is not a record")
+    msgs = [Msg(m.wall_ns, m.vtime_ns, m.tick, m.key, *owned[m.key], m.payload)
+            for m in raw.messages]
+    return Recording(raw.path, raw, record, result, msgs)
+
+
+@dataclass
+class ReplayStats:
+    messages: int = 0
+    statuses: int = 0
+    bad: int = 0  # records that did not fit their schema, dropped
+    first_tick: int = 0
+    last_tick: int = 0
+
+
+def view_of(rec: Recording, attention: int | None = -1) -> SwarmView:
+    w, r = rec.record.world, rec.record.run
+    return SwarmView(r.run_id, r.policy, w.height, w.width, w.n_robots, w.comm_range, r.episodes,
+                     attention_focus=attention)
+
+
+def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
+    """One recorded message onto the view (records validated as the supervisor does)."""
+    try:
+        if m.kind == "status":
+            st = unpack_record(m.payload, K_STATUS)
+            v.apply_status(st, now=m.wall_ns / 1e9)
+            for i, alive in enumerate(st.get("alive", [])[: v.n_robots]):
+                v.robots[i].alive = bool(alive)
+                v.robots[i].state = "acting" if alive else "lost"
+            v.world_alive = True
+            stats.statuses += 1
+        elif m.kind == "rstatus":
+            w = rec.record.world
+            v.apply_robot(check_robot_status(unpack_record(m.payload, K_RSTATUS), w.n_robots,
+                                             w.horizon))
+        elif m.kind == "control":
+            ctl = unpack_record(m.payload, K_CONTROL)
+            for text in ctl.get("process", [])[:16]:
+                v.events = v.events[-5:] + [f"{text}@{v.ticks_done}"]
+        elif m.kind == "end":
+            v.world_alive = False
+    except (BadMessage, TypeError, ValueError, KeyError, AttributeError, IndexError,
+            OverflowError):
+        stats.bad += 1
+        v.bad_records = stats.bad
+
+
+def replay(rec: Recording, console: Console | None = None, speed: float = 1.0,
+           from_tick: int = 0, until_tick: int | None = None, attention: int | None = -1,
+           live: bool = True, sleep: Callable[[float], None] = time.sleep
+           ) -> tuple[SwarmView, ReplayStats]:
+    """Play `rec` on the dashboard; returns the final view and what was replayed."""
+    v = view_of(rec, attention)
+    stats = ReplayStats(first_tick=from_tick)
+    name, total = Path(rec.path).name, rec.last_tick
+    t0: int | None = None
+    w0 = 0.0
+    screen = Live(get_renderable=lambda: render(v), console=console or Console(),
+                  refresh_per_second=4, transient=False) if live else None
+    if screen is not None:
+        screen.start()
+    try:
+        for m in rec.messages:
+            if until_tick is not None and m.tick > until_tick:
+                break
+            if m.tick >= from_tick and speed > 0:
+                if t0 is None:
+                    t0, w0 = m.wall_ns, time.monotonic()
+                wait = w0 + (m.wall_ns - t0) / 1e9 / speed - time.monotonic()
+                if wait > 1e-3:
+                    sleep(min(wait, 5.0))  # a long silence in the recording is cut short
+            apply(v, m, stats, rec)
+            v.elapsed_s = (m.wall_ns - rec.messages[0].wall_ns) / 1e9
+            stats.messages += 1
+            stats.last_tick = max(stats.last_tick, m.tick)
+            pace = "as fast as it goes" if speed <= 0 else f"x{speed:g}"
+            v.replay = f"{name}  {pace}  tick {m.tick}/{total}" + (
+                "" if rec.raw.complete else "  (partial)")
+    finally:
+        if screen is not None:
+            screen.stop()
+    return v, stats

@@ -1,0 +1,257 @@
+"""`swarm trace FILE --out DIR`: what a recording says about the network and the robots, as CSV
+and PNG.
+
+- `links.csv`, `links.png`: per (sender, receiver) the trajectory and hidden-state copies
+  delivered (counted in the recorded bundles and forwards), and the copies the radio dropped
+  (lost, cut or over the bandwidth cap), found late or queued (its own cumulative per-link
+  counters, from the last world status); the heatmaps are delivered copies and the share of
+  copies in range that arrived.
+- `robots.csv`, `latency.png`: per robot, the wall time from its observation to its action as
+  the recorder heard them (its decision latency, waits included) and the compute time it
+  reported per decision (`planning_ms`), as quantiles and histograms.
+- `kinds.csv`: messages and bytes per message kind.
+- `elratio.csv`, `elratio.png`: elratio after every tick, one line per episode.
+- `attention.csv`, `attention.png` (CommAttn robots that report attention): mean attention
+  weight per (receiver, distance to the sender in cells, rounded), over the members it heard.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarm.common import atomic
+from swarm.common.report import csv_text, save_png
+from swarm.net.messages import (
+    K_RSTATUS,
+    K_STATUS,
+    Action,
+    BadMessage,
+    Bundle,
+    Hidden,
+    Obs,
+    Traj,
+    check_robot_status,
+    unpack_record,
+)
+from swarm.studies.replay import Recording
+
+ATTN_FLOOR = 1e-6  # attention weights are drawn on a log scale down to this
+
+
+def _q(xs: list[float], q: float) -> float:
+    return float(np.quantile(xs, q)) if xs else math.nan
+
+
+class Trace:
+    """Everything `swarm trace` draws, gathered in one pass over the recording."""
+
+    def __init__(self, rec: Recording) -> None:
+        self.rec, self.cfg = rec, rec.record.world
+        n = self.cfg.n_robots
+        self.delivered = np.zeros((2, n, n), dtype=np.int64)  # [traj|hidden, sender, receiver]
+        self.hidden_missed = np.zeros((n, n), dtype=np.int64)
+        self.links: dict[str, list[int]] = {}
+        self.kinds: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+        self.obs_at: dict[tuple[int, int, int], int] = {}  # (ep, t, robot) -> wall ns
+        self.pos: dict[tuple[int, int, int], tuple[int, int]] = {}
+        self.heard: dict[tuple[int, int, int], list[int]] = {}
+        self.latency: dict[int, list[float]] = defaultdict(list)
+        self.compute: dict[int, list[float]] = defaultdict(list)
+        self.elratio: list[tuple[int, int, int, float]] = []
+        self.attn: list[tuple[int, int, int, list[float]]] = []  # (ep, t, robot, weights)
+        self.bad = 0
+        for m in rec.messages:
+            self.kinds[m.kind][0] += 1
+            self.kinds[m.kind][1] += len(m.payload)
+            try:
+                self._take(m)
+            except (BadMessage, KeyError, TypeError, ValueError, IndexError, OverflowError):
+                self.bad += 1
+
+    def _take(self, m: Any) -> None:
+        cfg = self.cfg
+        if m.kind == "obs":
+            o = Obs.unpack(m.payload, cfg)
+            self.obs_at.setdefault((o.ep, o.t, o.robot), m.wall_ns)
+            self.pos[(o.ep, o.t, o.robot)] = (o.y, o.x)
+        elif m.kind == "action":
+            a = Action.unpack(m.payload, cfg)
+            self.compute[a.robot].append(a.planning_ms)
+            t0 = self.obs_at.get((a.ep, a.t, a.robot))
+            if t0 is not None:
+                self.latency[a.robot].append((m.wall_ns - t0) / 1e6)
+        elif m.kind == "bundle":
+            b = Bundle.unpack(m.payload, cfg)
+            senders = [Traj.unpack(p, cfg).robot for p in b.trajs]
+            self.heard[(b.ep, b.t, b.robot)] = senders
+            for j in senders:
+                if j != b.robot:
+                    self.delivered[0, j, b.robot] += 1
+        elif m.kind == "radio_hidden" and m.robot is not None:
+            h = Hidden.unpack(m.payload, cfg)
+            (self.hidden_missed[h.robot] if h.is_miss else self.delivered[1, h.robot])[
+                m.robot] += 1
+        elif m.kind == "status":
+            st = unpack_record(m.payload, K_STATUS)
+            self.elratio.append((int(st["run_tick"]), int(st["ep"]), int(st["t"]),
+                                 float(st["elratio"])))
+            if isinstance(st.get("links"), dict):
+                self.links = {str(k): [int(x) for x in v][:4] for k, v in st["links"].items()}
+        elif m.kind == "rstatus":
+            rs = check_robot_status(unpack_record(m.payload, K_RSTATUS), cfg.n_robots,
+                                    cfg.horizon)
+            if "attn" in rs:
+                self.attn.append((int(rs["ep"]), int(rs["attn_t"]), int(rs["robot"]),
+                                  [float(x) for x in rs["attn"]]))
+
+    # ------------------------------------------------------------------------------- tables
+    def link_rows(self) -> list[dict[str, Any]]:
+        rows, n = [], self.cfg.n_robots
+        for j in range(n):
+            for i in range(n):
+                faults = self.links.get(f"{j}-{i}", [0, 0, 0, 0])
+                dt, dh = int(self.delivered[0, j, i]), int(self.delivered[1, j, i])
+                if i == j or not (dt or dh or any(faults)):
+                    continue
+                tried = dt + faults[1] + faults[2]
+                rows.append({"sender": j, "receiver": i, "delivered_traj": dt,
+                             "delivered_hidden": dh, "hidden_missed": int(self.hidden_missed[j, i]),
+                             "dropped": faults[1], "late": faults[2], "queued": faults[3],
+                             "delivery_ratio": round(dt / tried, 4) if tried else ""})
+        return rows
+
+    def robot_rows(self) -> list[dict[str, Any]]:
+        rows = []
+        for i in range(self.cfg.n_robots):
+            lat, comp = self.latency.get(i, []), self.compute.get(i, [])
+            rows.append({"robot": i, "decisions": len(comp),
+                         **{f"latency_ms_{k}": round(f(lat), 3) for k, f in _STATS.items()},
+                         **{f"compute_ms_{k}": round(f(comp), 3) for k, f in _STATS.items()}})
+        return rows
+
+    def kind_rows(self) -> list[dict[str, Any]]:
+        return [{"kind": k, "messages": c, "bytes": b, "mean_bytes": round(b / max(c, 1), 1)}
+                for k, (c, b) in sorted(self.kinds.items(), key=lambda kv: -kv[1][1])]
+
+    def attention_rows(self) -> list[dict[str, Any]]:
+        acc: dict[tuple[int, int], list[float]] = defaultdict(list)
+        for ep, t, i, w in self.attn:
+            heard, me = self.heard.get((ep, t, i)), self.pos.get((ep, t, i))
+            if heard is None or me is None:
+                continue
+            for j in heard:
+                pj = self.pos.get((ep, t, j))
+                if pj is not None and 0 <= j < len(w):
+                    d = round(math.hypot(pj[0] - me[0], pj[1] - me[1]))
+                    acc[(i, d)].append(w[j])
+        return [{"receiver": i, "distance": d, "mean_attention": round(float(np.mean(v)), 5),
+                 "samples": len(v)} for (i, d), v in sorted(acc.items())]
+
+
+_STATS = {"p50": lambda x: _q(x, 0.5), "p90": lambda x: _q(x, 0.9),
+          "mean": lambda x: float(np.mean(x)) if x else math.nan,
+          "max": lambda x: max(x) if x else math.nan}
+
+
+def _write_csv(path: Path, rows: list[dict[str, Any]], empty: str) -> None:
+    atomic.write_text(path, csv_text(rows) if rows else empty + "\n")
+
+
+def trace(rec: Recording, out: str | Path) -> dict[str, Any]:
+    """Write the CSVs and PNGs of the module docstring into `out`; returns what was written."""
+    out = Path(out)
+    tr = Trace(rec)
+    n = tr.cfg.n_robots
+    files: list[Path] = []
+    links, robots, kinds = tr.link_rows(), tr.robot_rows(), tr.kind_rows()
+    elr = [{"run_tick": r, "ep": e, "t": t, "elratio": x} for r, e, t, x in tr.elratio]
+    attn = tr.attention_rows()
+    for name, rows, empty in (("links", links, "sender,receiver"), ("robots", robots, "robot"),
+                              ("kinds", kinds, "kind"), ("elratio", elr, "run_tick"),
+                              ("attention", attn, "receiver,distance,mean_attention,samples")):
+        _write_csv(out / f"{name}.csv", rows, empty)
+        files.append(out / f"{name}.csv")
+
+    def draw_links(axes: Any) -> None:
+        tried = tr.delivered[0].copy()
+        for k, v in tr.links.items():
+            a, _, b = k.partition("-")
+            if a.isdigit() and b.isdigit() and int(a) < n and int(b) < n:
+                tried[int(a), int(b)] += v[1] + v[2]
+        ratio = np.where(tried > 0, tr.delivered[0] / np.maximum(tried, 1), np.nan)
+        for ax, mat, title, cmap in ((axes[0], tr.delivered[0], "trajectory copies delivered",
+                                      "viridis"),
+                                     (axes[1], ratio, "share of copies in range delivered",
+                                      "RdYlGn")):
+            im = ax.imshow(mat, cmap=cmap, vmin=0 if cmap != "RdYlGn" else 0.0,
+                           vmax=None if cmap != "RdYlGn" else 1.0)
+            ax.set_xlabel("receiver")
+            ax.set_ylabel("sender")
+            ax.set_title(title, fontsize=9)
+            ax.set_xticks(range(n))
+            ax.set_yticks(range(n))
+            ax.figure.colorbar(im, ax=ax, fraction=0.046)
+
+    def draw_latency(axes: Any) -> None:
+        for ax, data, what in ((axes[0], tr.latency, "observation -> action (ms, wall)"),
+                               (axes[1], tr.compute, "compute per decision (ms)")):
+            series = [(i, v) for i, v in sorted(data.items()) if v]
+            if series:
+                ax.hist([v for _, v in series], bins=30, histtype="step",
+                        label=[f"robot {i}" for i, _ in series])
+                ax.legend(fontsize=6, ncol=2)
+            ax.set_xlabel(what)
+            ax.set_ylabel("decisions")
+
+    def draw_elratio(ax: Any) -> None:
+        for ep in sorted({e for _, e, _, _ in tr.elratio}):
+            pts = sorted((t, x) for _, e, t, x in tr.elratio if e == ep)
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=".", label=f"episode {ep}")
+        ax.set_xlabel("tick")
+        ax.set_ylabel("elratio")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+
+    save_png(out / "links.png", draw_links, ncols=2)
+    save_png(out / "latency.png", draw_latency, ncols=2)
+    save_png(out / "elratio.png", draw_elratio)
+    files += [out / "links.png", out / "latency.png", out / "elratio.png"]
+    if attn:
+        def draw_attention(axes: Any) -> None:
+            from matplotlib import colormaps
+            from matplotlib.colors import LogNorm
+
+            dmax = max(r["distance"] for r in attn)
+            mat = np.full((n, dmax + 1), np.nan)
+            for r in attn:
+                mat[r["receiver"], r["distance"]] = max(r["mean_attention"], ATTN_FLOOR)
+            cmap = colormaps["magma"].copy()
+            cmap.set_bad("lightgrey")  # no member heard at that distance
+            im = axes[0].imshow(mat, aspect="auto", cmap=cmap, norm=LogNorm(ATTN_FLOOR, 1.0))
+            axes[0].set_xlabel("distance to the sender (cells; 0: itself)")
+            axes[0].set_ylabel("receiver")
+            axes[0].set_title("mean attention per (receiver, distance); grey: none heard",
+                              fontsize=9)
+            axes[0].figure.colorbar(im, ax=axes[0], fraction=0.046)
+            by_d: dict[int, list[float]] = defaultdict(list)
+            for r in attn:
+                by_d[r["distance"]] += [r["mean_attention"]] * r["samples"]
+            ds = sorted(by_d)
+            axes[1].plot(ds, [max(float(np.mean(by_d[d])), ATTN_FLOOR) for d in ds], marker="o")
+            axes[1].set_yscale("log")
+            axes[1].set_ylim(ATTN_FLOOR / 2, 2.0)
+            axes[1].set_xlabel("distance to the sender (cells; 0: itself)")
+            axes[1].set_ylabel(f"mean attention weight (floor {ATTN_FLOOR:g})")
+            axes[1].set_title(f"{len(tr.attn)} robot-ticks", fontsize=9)
+            axes[1].grid(alpha=0.3)
+
+        save_png(out / "attention.png", draw_attention, ncols=2)
+        files.append(out / "attention.png")
+    return {"files": [str(f) for f in files], "links": len(links), "robots": n,
+            "kinds": {r["kind"]: r["bytes"] for r in kinds}, "attention_samples": len(tr.attn),
+            "bad": tr.bad, "messages": len(rec.messages)}

@@ -1,0 +1,407 @@
+"""`swarm replay FILE --verify`: audit a recording by recomputing it.
+
+The world is re-stepped from the recorded run record with the recorded actions, by the world
+process's own functions (`world.core.reset/step/patches/metrics`, `EvalResult.of` for the
+result): every observation, every status and the result must be what they compute. A recording
+made in virtual time also re-runs the radio (`swarm.net.radio.Radio` with its `VirtualChannel`,
+live fault changes included) on the recorded trajectory and hidden-state messages: every
+bundle, every forwarded hidden-state message (or miss marker) and the radio's counters must
+match. The first divergence is reported as (episode, tick, field, recorded, recomputed).
+
+Which actions the world applied, and which messages its radio saw, cannot be read from the
+order the recorder heard them in: the world, the run's router, may step and publish its status
+before it forwards the last action to the recorder. So: the world applied every recorded action
+of tick t from a robot that its status does not list as timed out (the status is checked to
+list exactly the live robots without one); its radio saw the trajectory message of every robot
+it sent a bundle to (it always hands a sender its own message back) and the hidden-state
+message of every robot that did not time out. Bad payloads are skipped, as the world drops
+them. A partial recording (`--partial`) is checked up to the tick before its last status: the
+cut may have lost messages of that last tick.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from swarm.learn.evaluate import EvalResult
+from swarm.net.faults import plan_from_table
+from swarm.net.messages import (
+    K_CONTROL,
+    K_STATUS,
+    Action,
+    BadMessage,
+    Bundle,
+    Hidden,
+    Obs,
+    Traj,
+    unpack_record,
+)
+from swarm.net.radio import Radio
+from swarm.studies.replay import Recording
+from world import core
+from world.config import ConfigError
+
+SUMMARY_KEYS = ("elratio_mean", "elratio_std", "reward_mean", "reward_std", "collisions_mean",
+                "block_collisions_mean", "robot_collisions_mean", "success_rate",
+                "repeat_ratio_mean")
+RADIO_KEYS = ("out_of_range", "lost", "cut", "late", "queued", "dropped_bw", "traj_delivered",
+              "hidden_delivered", "bytes_out")
+UNPACK = {"obs": Obs, "traj": Traj, "bundle": Bundle, "hidden": Hidden, "radio_hidden": Hidden,
+          "action": Action}
+
+
+@dataclass
+class Divergence:
+    ep: int
+    t: int
+    run_tick: int
+    field: str
+    recorded: Any
+    recomputed: Any
+
+    def line(self) -> str:
+        short = lambda x: (s if len(s := repr(x)) <= 120 else s[:117] + "...")  # noqa: E731
+        return (f"divergence at episode {self.ep} tick {self.t} (run tick {self.run_tick}): "
+                f"{self.field}: recorded {short(self.recorded)}, recomputed "
+                f"{short(self.recomputed)}")
+
+
+@dataclass
+class VerifyReport:
+    checked: dict[str, int] = field(default_factory=dict)
+    divergence: Divergence | None = None
+    notes: list[str] = field(default_factory=list)
+    ticks: int = 0
+
+    def count(self, what: str, n: int = 1) -> None:
+        self.checked[what] = self.checked.get(what, 0) + n
+
+
+class _Diverged(Exception):
+    pass
+
+
+@dataclass
+class _Tick:
+    """The recorded messages of one (episode, tick), with their position in the recording."""
+
+    obs: list[tuple[int, Obs]] = field(default_factory=list)
+    traj: list[tuple[int, Traj, bytes]] = field(default_factory=list)
+    bundle: list[tuple[int, Bundle]] = field(default_factory=list)
+    hidden: list[tuple[int, Hidden, bytes]] = field(default_factory=list)
+    radio_hidden: list[tuple[int, Hidden, bytes]] = field(default_factory=list)
+    action: list[tuple[int, Action]] = field(default_factory=list)
+
+
+def _index(rec: Recording, report: VerifyReport) -> tuple[dict[tuple[int, int], _Tick],
+                                                           dict[tuple[int, int], tuple[int, dict]],
+                                                           list[tuple[int, dict]]]:
+    cfg = rec.record.world
+    ticks: dict[tuple[int, int], _Tick] = {}
+    status: dict[tuple[int, int], tuple[int, dict]] = {}
+    control: list[tuple[int, dict]] = []
+    for idx, m in enumerate(rec.messages):
+        try:
+            if m.kind == "status":
+                st = unpack_record(m.payload, K_STATUS)
+                key = (int(st["ep"]), int(st["t"]))
+                status.setdefault(key, (idx, st))
+                continue
+            if m.kind == "control":
+                control.append((idx, unpack_record(m.payload, K_CONTROL)))
+                continue
+            if m.kind not in UNPACK:
+                continue
+            msg = UNPACK[m.kind].unpack(m.payload, cfg)
+            if m.kind not in ("bundle", "radio_hidden", "obs") and msg.robot != m.robot:
+                raise BadMessage("robot id does not match the key")
+        except (BadMessage, KeyError, TypeError, ValueError, OverflowError):
+            report.count("bad payloads skipped")
+            continue
+        bucket = ticks.setdefault((msg.ep, msg.t), _Tick())
+        if m.kind in ("traj", "hidden", "radio_hidden"):
+            getattr(bucket, m.kind).append((idx, msg, m.payload))
+        elif m.kind == "bundle" and msg.robot == m.robot:
+            bucket.bundle.append((idx, msg))
+        elif m.kind == "obs" and msg.robot == m.robot:
+            bucket.obs.append((idx, msg))
+        elif m.kind == "action":
+            bucket.action.append((idx, msg))
+    return ticks, status, control
+
+
+class Auditor:
+    """Re-steps one recording; `run()` returns the report (stops at the first divergence)."""
+
+    def __init__(self, rec: Recording) -> None:
+        self.rec, self.cfg, self.run = rec, rec.record.world, rec.record.run
+        self.report = VerifyReport()
+        self.virtual = self.run.clock == "virtual"
+        # direct delivery: robots decide their copies' fates themselves, the world's radio does
+        # not run, so only the world is re-stepped (deliveries are not re-run yet)
+        self.radio_run = self.virtual and getattr(self.run, "delivery", "radio") == "radio"
+        self.table = dict(rec.record.faults)
+        self.radio = Radio(self.cfg, plan_from_table(self.table, self.run.seed, self.cfg.n_robots))
+        if self.virtual:
+            self.radio.use_virtual_clock(self.run.tick_timeout)
+        self.hidden_delivered = 0
+        self.where = (0, 0, 0)
+
+    def fail(self, what: str, recorded: Any, recomputed: Any) -> None:
+        self.report.divergence = Divergence(*self.where, what, recorded, recomputed)
+        raise _Diverged
+
+    def same(self, what: str, recorded: Any, recomputed: Any) -> None:
+        ok = (math.isclose(recorded, recomputed, rel_tol=1e-9, abs_tol=1e-12)
+              if isinstance(recorded, float) and isinstance(recomputed, float)
+              and not isinstance(recorded, bool) else recorded == recomputed)
+        if not ok:
+            if isinstance(recorded, list) and isinstance(recomputed, list) and \
+                    len(recorded) == len(recomputed):  # name the first element that differs
+                k = next(k for k, (a, b) in enumerate(zip(recorded, recomputed, strict=True))
+                         if a != b)
+                self.fail(f"{what}[{k}]", recorded[k], recomputed[k])
+            self.fail(what, recorded, recomputed)
+
+    def run_audit(self) -> VerifyReport:
+        ticks, status, control = _index(self.rec, self.report)
+        if not self.rec.raw.complete and status:  # the cut may have lost the last tick's messages
+            last = max(status, key=lambda k: status[k][0])
+            del status[last]
+            self.report.notes.append(f"partial recording: episode {last[0]} tick {last[1] - 1}, "
+                                     "the last with a status, is not checked (the cut may have "
+                                     "lost some of its messages)")
+        self.ticks, self.status, self.control = ticks, status, control
+        self.pending: list[tuple[int, dict]] = list(control)
+        if not self.virtual:
+            self.report.notes.append("real clock: deliveries depend on wall time; the radio is "
+                                     "not re-run, the world is")
+        elif not self.radio_run:
+            self.report.notes.append("direct delivery: the robots' own fault draws are not "
+                                     "re-run, the world is")
+        try:
+            self._episodes()
+            self._result()
+        except _Diverged:
+            pass
+        return self.report
+
+    def _episodes(self) -> None:
+        r = self.run
+        self.parts: list[core.EpisodeMetrics] = []
+        self.curves: list[np.ndarray] = []
+        self.actions: list[list[list[int]]] = []
+        self.timeouts = 0
+        run_tick = 0
+        for ep in range(r.first_episode, r.first_episode + r.episodes):
+            if (ep, 1) not in self.status:
+                break  # the run (or the recording) ended before this episode
+            state = core.reset(self.cfg, r.seed, [ep])
+            self.radio.new_episode()
+            acts_log = []
+            while not state.done and (ep, state.t + 1) in self.status:
+                self.where = (ep, state.t, run_tick)
+                acts_log.append(self._tick(ep, state, run_tick))
+                run_tick += 1
+                self.report.ticks += 1
+            if state.done:
+                self.where = (ep, state.t, run_tick)
+                self._observations(ep, state)
+                self.parts.append(core.metrics(self.cfg, state))
+                self.curves.append(state.elratio)
+                self.actions.append(acts_log)
+
+    def _apply_fault_changes(self, run_tick: int, ep: int, t: int) -> None:
+        """Live `swarm fault` changes: from their `at_tick`, or (without one) from the tick whose
+        recorded status first shows the new plan, as the world applied it."""
+        st = self.status.get((ep, t + 1), (0, {}))[1]
+        for item in list(self.pending):
+            _, ctl = item
+            if not isinstance(ctl.get("faults_table"), dict):
+                self.pending.remove(item)
+                continue
+            table = ctl["faults_table"] if ctl.get("replace") else {**self.table,
+                                                                    **ctl["faults_table"]}
+            table = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
+            try:
+                plan = plan_from_table(table, self.run.seed, self.cfg.n_robots)
+            except ConfigError:
+                self.pending.remove(item)  # the world rejected it too
+                continue
+            at = ctl.get("at_tick", -1)
+            due = run_tick >= at if isinstance(at, int) and at >= 0 else \
+                st.get("faults") == plan.describe()
+            if due:
+                self.pending.remove(item)
+                self.table = table
+                self.radio.set_plan(plan)
+
+    def _observations(self, ep: int, state: core.WorldState) -> None:
+        lay = core.Layout.of(self.cfg)
+        yx = lay.to_yx(state.pos[0])
+        patch = core.patches(self.cfg, state)[0]
+        for _, o in self.ticks.get((ep, state.t), _Tick()).obs:
+            i = o.robot
+            self.same(f"obs[{i}].pos", [o.y, o.x], yx[i].tolist())
+            self.same(f"obs[{i}].patch", list(o.patch), patch[i].ravel().tolist())
+            self.same(f"obs[{i}].reward", o.reward, float(state.last_reward[0, i]))
+            self.same(f"obs[{i}].done", o.done, bool(state.done))
+            self.report.count("observations")
+
+    def _tick(self, ep: int, state: core.WorldState, run_tick: int) -> list[int]:
+        cfg, t = self.cfg, state.t
+        self._apply_fault_changes(run_tick, ep, t)
+        st = self.status[(ep, t + 1)][1]
+        bucket = self.ticks.get((ep, t), _Tick())
+        self._observations(ep, state)
+        late = st.get("timeouts")
+        if not isinstance(late, list) or not all(isinstance(i, int) and 0 <= i < cfg.n_robots
+                                                 for i in late):
+            self.fail("status.timeouts", late, "a list of robot ids")
+        if self.radio_run:
+            self._radio(ep, t, state, bucket, set(late))
+        alive = np.zeros(cfg.n_robots, dtype=bool)
+        rec_alive = st.get("alive")
+        if not isinstance(rec_alive, list) or len(rec_alive) != cfg.n_robots:
+            self.fail("status.alive", rec_alive, f"{cfg.n_robots} flags")
+        alive[:] = [bool(a) for a in rec_alive]
+        acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
+        got = set()
+        for _, a in bucket.action:  # a timed-out robot's action came after the deadline
+            if a.robot not in late:
+                acts[0, a.robot] = a.action
+                got.add(a.robot)
+        missing = [int(i) for i in np.flatnonzero(alive) if i not in got]
+        self.same("status.timeouts (alive robots without a recorded action)", late, missing)
+        self.timeouts += len(missing)
+        self.report.count("actions", len(got))
+        state.alive[0] = alive
+        core.step(cfg, state, acts)
+        self._status(st, state)
+        return acts[0].tolist()
+
+    def _status(self, st: dict, state: core.WorldState) -> None:
+        lay = core.Layout.of(self.cfg)
+        self.same("status.pos", st.get("pos"), lay.to_yx(state.pos[0]).tolist())
+        self.same("status.elratio", st.get("elratio"), float(state.elratio[0, state.t]))
+        self.same("status.block_coll", st.get("block_coll"), int(state.block_coll.sum()))
+        self.same("status.robot_coll", st.get("robot_coll"), int(state.robot_coll.sum()))
+        self.same("status.dyn", st.get("dyn"),
+                  lay.to_yx(state.dyn_cells[0][state.dyn_active[0]]).tolist())
+        if state.t == 1:
+            self.same("status.static", st.get("static"),
+                      np.argwhere(lay.inner(state.grid[0]) == core.STATIC).tolist())
+        if self.radio_run:
+            self.same("status.heard_links", st.get("heard_links"), self.radio.heard_links())
+            radio = st.get("radio") if isinstance(st.get("radio"), dict) else {}
+            for k, v in self._radio_totals().items():
+                self.same(f"status.radio.{k}", radio.get(k), v)
+            self.same("status.links", st.get("links"), self._links())
+        self.report.count("statuses")
+
+    def _radio_totals(self) -> dict[str, Any]:
+        tot = self.radio.counters.totals()
+        tot["hidden_delivered"] = self.hidden_delivered
+        return {k: tot[k] for k in RADIO_KEYS} | {"by_kind": tot["by_kind"]}
+
+    def _links(self) -> dict[str, list[int]]:
+        return self.radio.counters.faulted_links()
+
+    def _radio(self, ep: int, t: int, state: core.WorldState, bucket: _Tick,
+               late: set[int]) -> None:
+        """The radio's decisions of this tick from the messages it saw, against what it sent."""
+        lay = core.Layout.of(self.cfg)
+        trajs = {tr.robot: payload for _, tr, payload in bucket.traj}
+        senders: dict[int, bytes] = {}
+        for i in sorted({b.robot for _, b in bucket.bundle}):
+            if i not in trajs:
+                self.fail(f"trajectory message of robot {i}", None, "the one its bundle holds")
+            senders[i] = trajs[i]
+        if not senders:
+            return
+        want = self.radio.virtual_bundles(ep, t, lay.to_yx(state.pos[0]), senders)
+        got = {b.robot: b.trajs for _, b in bucket.bundle}
+        for i in sorted(set(want) | set(got)):
+            self.same(f"bundle to robot {i} (senders)",
+                      _senders(got.get(i), self.cfg), _senders(want.get(i), self.cfg))
+            self.same(f"bundle to robot {i}", got.get(i), want.get(i))
+            self.report.count("bundles")
+            self.report.count("deliveries", len(want.get(i) or []))
+        expect: list[tuple[int, bytes]] = []
+        for _, h, payload in bucket.hidden:
+            if h.robot not in late:
+                for i, on_time in self.radio.virtual_hidden(ep, t, h.robot, len(payload)):
+                    expect.append((i, payload if on_time else Hidden.miss(ep, t, h.robot).pack()))
+                    self.hidden_delivered += on_time
+        forwarded = sorted((self._receiver(idx), p) for idx, _, p in bucket.radio_hidden)
+        self.same("hidden-state messages forwarded (receiver, sender:state digest)",
+                  [(i, _hid(p, self.cfg)) for i, p in forwarded],
+                  [(i, _hid(p, self.cfg)) for i, p in sorted(expect)])
+        self.report.count("hidden forwarded", len(expect))
+
+    def _receiver(self, idx: int) -> int:
+        robot = self.rec.messages[idx].robot
+        return -1 if robot is None else robot
+
+    def _result(self) -> None:
+        res = self.rec.result
+        if res is None:
+            self.report.notes.append("no result recorded (the recording ended before the run)")
+            return
+        r = self.run
+        n = len(self.parts)
+        self.where = (r.first_episode + max(n - 1, 0), self.cfg.horizon, self.report.ticks)
+        self.same("result.completed", res.get("completed"), n)
+        self.same("result.ticks", res.get("ticks"), self.report.ticks)
+        self.same("result.timeouts", res.get("timeouts"), self.timeouts)
+        rec_actions = res.get("actions")
+        for e, acts in enumerate(self.actions):
+            for t, row in enumerate(acts):
+                try:
+                    recorded = rec_actions[e][t]  # type: ignore[index]
+                except (TypeError, IndexError, KeyError):
+                    recorded = None
+                if recorded != row:
+                    self.where = (r.first_episode + e, t, e * self.cfg.horizon + t)
+                    self.fail("result.actions (the action messages)", recorded, row)
+        if n:
+            summ = EvalResult.of(r.policy, r.seed, np.arange(r.first_episode, r.first_episode + n),
+                                 self.parts, self.curves).summary(self.cfg)
+            for k in SUMMARY_KEYS:
+                self.same(f"result.{k}", res.get(k), float(summ[k]))  # type: ignore[arg-type]
+        if self.radio_run:
+            msgs = res.get("messages") if isinstance(res.get("messages"), dict) else {}
+            for k, v in self._radio_totals().items():
+                self.same(f"result.messages.{k}", msgs.get(k), v)
+        self.report.count("results")
+
+
+def _senders(payloads: list[bytes] | None, cfg: Any) -> list[int] | None:
+    if payloads is None:
+        return None
+    out = []
+    for p in payloads:
+        try:
+            out.append(Traj.unpack(p, cfg).robot)
+        except BadMessage:
+            out.append(-1)
+    return out
+
+
+def _hid(payload: bytes, cfg: Any) -> str:
+    """A hidden-state payload as a short label: `sender:miss` or `sender:<digest of all of it>`."""
+    try:
+        h = Hidden.unpack(payload, cfg)
+    except BadMessage:
+        return "bad:" + hashlib.sha1(payload).hexdigest()[:10]
+    return f"{h.robot}:" + ("miss" if h.is_miss else hashlib.sha1(payload).hexdigest()[:10])
+
+
+def verify(rec: Recording) -> VerifyReport:
+    """Audit `rec` (see the module docstring)."""
+    return Auditor(rec).run_audit()

@@ -1,0 +1,279 @@
+"""Direct delivery (`--delivery direct`): robots deliver to one another, each deciding range and
+the seeded faults itself, and decide exactly as with the world's radio; and emulated hosts
+(`--hosts K`: a namespace and a Zenoh router per host)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+from conftest import ROOT, swarm
+
+from swarm.net.direct import DirectLink, DirectTally
+from swarm.net.faults import plan_from_table
+from swarm.net.keys import Keys
+from swarm.net.messages import (
+    DROPPED_Q,
+    K_HIDDEN,
+    K_STAMPED,
+    K_TRAJ,
+    BadMessage,
+    Hidden,
+    Obs,
+    Stamped,
+    Traj,
+)
+from swarm.net.radio import Radio
+from world.config import WorldConfig
+from world.decentral import predecessor
+
+CKPT = str(ROOT / "checkpoints" / "commattn.pt")
+MIX = {"loss": "0.2", "latency": "120ms", "jitter": "60ms", "bandwidth": "1.5kB/s",
+       "partition": "0/1-3"}
+TABLES = [{}, {"loss": 0.3, "latency": "100ms", "jitter": "80ms"},
+          {"bandwidth": "300B/s", "burst": 400, "overflow": "drop", "loss": 0.1},
+          {"bandwidth": "900B/s", "burst": 300, "partition": "0-2/3-5", "latency": "60ms",
+           "compute": "30ms"}]
+
+
+def _traj(cfg: WorldConfig, ep: int, t: int, j: int, pos: np.ndarray,
+          rng: np.random.Generator) -> bytes:
+    recent = [int(c) for c in rng.integers(0, cfg.cells, int(rng.integers(0, 4)))]
+    return Traj(ep, t, j, int(pos[j, 0]), int(pos[j, 1]),
+                np.packbits(rng.random(cfg.cells) < 0.3).tobytes(), recent,
+                bytes(cfg.vision ** 2)).pack()
+
+
+@pytest.mark.parametrize("table", TABLES)
+def test_each_robot_decides_its_copies_as_the_radio_does(table: dict) -> None:
+    """N robots' DirectLinks, fed one another's stamped messages, hear exactly what the radio
+    bundles, agree on every predecessor's hidden-state fate, and count the same copies."""
+    cfg = WorldConfig(n_robots=6, comm_range=7.0)
+    n, keys, tick_s = cfg.n_robots, Keys("u"), 0.2
+    plan = plan_from_table(table, 5, n)
+    radio = Radio(cfg, plan)
+    radio.use_virtual_clock(tick_s)
+    links = [DirectLink(cfg, i, plan, tick_s) for i in range(n)]
+    rng = np.random.default_rng(7)
+    for ep in (3, 4):
+        radio.new_episode()
+        for t in range(12):
+            pos = rng.integers(0, 20, (n, 2))
+            live = np.packbits(np.ones(n, dtype=bool)).tobytes()
+            for i, link in enumerate(links):
+                link.begin(Obs(ep, t, i, int(pos[i, 0]), int(pos[i, 1]), bytes(25), 0.0, False,
+                               1e4, live))
+            trajs = {j: _traj(cfg, ep, t, j, pos, rng) for j in range(n)}
+            stamped = {j: links[j].stamp(K_TRAJ, trajs[j]) for j in range(n)}
+            for link in links:
+                for j in range(n):
+                    link.offer(keys.direct(j), stamped[j])
+                assert link.traj_complete()
+            want = radio.virtual_bundles(ep, t, pos, trajs)
+            heard = {i: links[i].heard() for i in range(n)}
+            assert heard == want
+            ok = np.zeros((1, n, n), dtype=bool)
+            for i in range(n):
+                ok[0, i] = [trajs[j] in heard[i] for j in range(n)]
+            pred = predecessor(ok)[0]
+            hid = {j: Hidden(ep, t, j, int(rng.integers(0, 9)),
+                             rng.random(8).astype("<f4").tobytes()).pack() for j in range(n)}
+            got = {j: dict(radio.virtual_hidden(ep, t, j, len(hid[j]))) for j in range(n)}
+            for j in range(n):
+                st = links[j].stamp(K_HIDDEN, hid[j])
+                for i in range(n):
+                    links[i].offer(keys.direct(j, hidden=True), st)
+            for i in range(n):
+                if pred[i] >= 0:
+                    h = links[i].hidden(int(pred[i]))
+                    assert h is not None and (not h.is_miss) == got[int(pred[i])][i]
+    tally = DirectTally(n)
+    for i, link in enumerate(links):
+        tally.offer({"robot": i, "direct": link.record()})
+    mine, theirs = tally.totals(), radio.counters.totals()
+    for key in theirs:
+        if key not in ("traj_in", "hidden_in", "bytes_in", "hidden_delivered"):
+            assert mine[key] == theirs[key], key
+    assert mine["traj_in"] == 2 * 12 * n  # what robots sent (the world counts what it got)
+    if table:
+        assert sum(mine[k] for k in ("lost", "cut", "late", "dropped_bw")) > 0
+
+
+def test_a_lost_hidden_state_is_known_without_waiting_for_it() -> None:
+    cfg = WorldConfig(n_robots=3)
+    plan = plan_from_table({"loss": 1.0}, 1, 3)
+    link = DirectLink(cfg, 2, plan, 0.2)
+    link.begin(Obs(0, 4, 2, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
+    h = link.hidden(1)  # its predecessor has not even decided yet
+    assert h is not None and h.is_miss and link.counters.kinds["hidden"]["lost"] == 1
+    part = DirectLink(cfg, 2, plan_from_table({"latency": "50ms"}, 1, 3), 0.2)
+    part.begin(Obs(0, 4, 2, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
+    assert part.hidden(1) is None  # on time or late depends on its queue: wait for it
+
+
+def test_hostile_stamped_messages_are_refused() -> None:
+    """Every field of the envelope and of what it carries is checked; nothing is stored from a
+    message that does not fit its key, and a flood is bounded."""
+    cfg = WorldConfig(n_robots=3)
+    keys = Keys("h")
+    link = DirectLink(cfg, 0, plan_from_table({}, 0, 3), 0.2)
+    link.begin(Obs(0, 2, 0, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
+    good = Traj(0, 2, 1, 3, 4, bytes(50), [3], bytes(25)).pack()
+
+    def raw(*fields: object) -> bytes:
+        return msgpack.packb([1, K_STAMPED, *fields], use_bin_type=True)
+
+    bad = [
+        (keys.direct(1), raw(K_TRAJ, 0, 2, 1, -0.5, good)),  # queue neither >= 0 nor dropped
+        (keys.direct(1), raw(K_TRAJ, 0, 2, 1, float("nan"), good)),
+        (keys.direct(1), raw(K_TRAJ, 0, 2, 1, 1e300, good)),
+        (keys.direct(1), raw(7, 0, 2, 1, 0.0, good)),  # neither trajectory nor hidden
+        (keys.direct(1), raw(K_TRAJ, 0, 2, 9, 0.0, good)),  # not a robot of the team
+        (keys.direct(2), raw(K_TRAJ, 0, 2, 1, 0.0, good)),  # another robot's key
+        (keys.direct(1), raw(K_TRAJ, 0, 3, 1, 0.0, good)),  # envelope and message disagree
+        (keys.direct(1, True), raw(K_HIDDEN, 0, 2, 1, 0.0, good)),  # a trajectory called hidden
+        (keys.direct(1), raw(K_TRAJ, 0, 2, 1, 0.0, b"\x00" * 10**6)),  # oversized
+        (keys.direct(1), raw(K_TRAJ, 0, 2, 1, 0.0)),  # a field missing
+        (keys.direct(1, True), Stamped(K_HIDDEN, 0, 2, 1, 0.0, Hidden.miss(0, 2, 1).pack())
+         .pack()),  # only the radio says "will not come"
+        (keys.direct(1, True), raw(K_TRAJ, 0, 2, 1, 0.0, good)),  # on the hidden-state key
+    ]
+    for key, payload in bad:
+        with pytest.raises(BadMessage):
+            link.offer(key, payload)
+    assert link.store == {}
+    link.offer(keys.direct(1), Stamped(K_TRAJ, 0, 2, 1, DROPPED_Q, good).pack())
+    with pytest.raises(BadMessage, match="second"):
+        link.offer(keys.direct(1), Stamped(K_TRAJ, 0, 2, 1, 0.0, good).pack())
+    for t in range(3, 30):  # a peer flooding future ticks fills a bounded store
+        link.offer(keys.direct(1), Stamped(K_TRAJ, 0, t, 1, 0.0, Traj(
+            0, t, 1, 3, 4, bytes(50), [], bytes(25)).pack()).pack())
+    assert len(link.store) <= 8 * 3 and link.overflow > 0
+    with pytest.raises(BadMessage):
+        DirectTally(3).offer({"robot": 1, "direct": {"done_ep": 0, "counts": {"lost": -1}}})
+
+
+def test_direct_delivery_needs_the_virtual_clock() -> None:
+    r = swarm("run", "--headless", "--robots", "2", "--delivery", "direct", "--clock", "real",
+              "--policy", "random", timeout=60)
+    assert r.returncode == 2 and "virtual clock" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+# ----------------------------------------------------------------------- real processes
+def _run(tmp: Path, name: str, policy: str, faults: dict[str, str], *extra: str,
+         robots: int = 4, timeout: float = 240) -> dict:
+    cfg = tmp / f"{name}.toml"
+    cfg.write_text("[run]\ntick_timeout = 0.2\n[faults]\nseed = 5\n")
+    args = ["run", "--headless", "--robots", str(robots), "--policy", policy, "--seed", "3",
+            "--run-id", name, "--json", str(tmp / f"{name}.json"), "--config", str(cfg),
+            "--log-dir", str(tmp / f"{name}-logs"), *extra]
+    for k, v in faults.items():
+        args += [f"--{k}", v]
+    if policy == "commattn":
+        args += ["--checkpoint", CKPT]
+    r = swarm(*args, timeout=timeout)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads((tmp / f"{name}.json").read_text())
+
+
+METRICS = ("elratio_mean", "reward_mean", "collisions_mean", "success_rate")
+COPIES = ("traj_delivered", "hidden_delivered", "out_of_range", "lost", "cut", "late",
+          "dropped_bw", "queued")
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("policy,faults", [("nearest-frontier", "none"),
+                                           ("nearest-frontier", "mix"), ("commattn", "none"),
+                                           ("commattn", "mix")])
+def test_direct_delivery_decides_as_the_radio(tmp_path: Path, policy: str, faults: str) -> None:
+    table = MIX if faults == "mix" else {}
+    tag = f"{policy[:4]}{faults}"
+    radio = _run(tmp_path, f"r{tag}", policy, table, "--episodes", "2")
+    direct = _run(tmp_path, f"d{tag}", policy, table, "--episodes", "2", "--delivery", "direct")
+    assert direct["delivery"] == "direct" and radio["delivery"] == "radio"
+    assert direct["actions"] == radio["actions"]
+    for key in METRICS:
+        assert direct[key] == radio[key], key
+    assert direct["timeouts"] == radio["timeouts"] == 0
+    dm, rm = direct["messages"], radio["messages"]
+    for key in COPIES:  # every copy in the same counter on both sides
+        assert dm[key] == rm[key], key
+    assert dm["by_kind"] == rm["by_kind"] and dm["reported"] == [0, 1, 2, 3]
+    assert dm["bad"] == 0 and all(s["bad"] == 0 for s in direct["robot_status"].values())
+    if faults == "mix":
+        assert dm["lost"] > 0 and dm["cut"] > 0 and dm["late"] + dm["queued"] > 0
+
+
+# ----------------------------------------------------------------------- emulated hosts
+def _hosts_reason() -> str | None:
+    from swarm.net.hosts import hosts_reason
+
+    reason = hosts_reason()
+    if reason is None:  # the kernel may still refuse a bridge (no bridge module, no CAP_NET_ADMIN)
+        name = f"swprobe{os.getpid() % 100000}"
+        p = subprocess.run(["ip", "link", "add", name, "type", "bridge"], capture_output=True,
+                           text=True)
+        if p.returncode != 0:
+            return f"the kernel refuses a bridge: {p.stderr.strip()}"
+        subprocess.run(["ip", "link", "del", name], capture_output=True)
+    return reason
+
+
+HOSTS_REASON = _hosts_reason() if shutil.which("ip") else "`ip` (iproute2) is not installed"
+needs_hosts = pytest.mark.skipif(HOSTS_REASON is not None, reason=HOSTS_REASON or "")
+
+
+def _ours(run_id: str) -> list[str]:
+    from swarm.net.netns import namespaces
+
+    return [ns for ns in namespaces() if ns.startswith(f"swarm-{run_id}-")]
+
+
+@pytest.mark.procs
+@needs_hosts
+def test_hosts_come_up_on_a_bridge_and_leave_nothing_behind() -> None:
+    from swarm.net.hosts import Hosts
+
+    hosts = Hosts("hup", 5, 3)
+    with hosts:
+        assert sorted(_ours("hup")) == ["swarm-hup-h0", "swarm-hup-h1", "swarm-hup-h2"]
+        assert hosts.robot_ns == [hosts.host_ns[i % 3] for i in range(5)]
+        assert len(set(hosts.addr)) == 3 and hosts.robot_endpoint(4, 7000).endswith(
+            f"{hosts.addr[1]}:7000")
+        routers = hosts.routers(7000)
+        assert [r[0] for r in routers] == ["router1", "router2"]
+        assert routers[1][1].count("--connect") == 2  # to the world and to host 1's router
+        addr = subprocess.run(["ip", "-n", hosts.host_ns[2], "-4", "addr"], capture_output=True,
+                              text=True).stdout
+        assert hosts.addr[2] in addr
+    assert _ours("hup") == []
+    assert subprocess.run(["ip", "link", "show", hosts.bridge], capture_output=True).returncode
+
+
+@pytest.mark.procs
+@needs_hosts
+def test_three_hosts_with_direct_delivery_act_as_one_host_with_the_radio(tmp_path: Path) -> None:
+    """10 robots over 3 emulated hosts, a router each, robots delivering to one another:
+    the single-host radio run's actions, tick for tick."""
+    radio = _run(tmp_path, "hradio", "commattn", {}, "--episodes", "2", "--horizon", "10",
+                 robots=10)
+    hosts = _run(tmp_path, "hthree", "commattn", {}, "--episodes", "2", "--horizon", "10",
+                 "--delivery", "direct", "--hosts", "3", robots=10)
+    assert hosts["actions"] == radio["actions"] and hosts["timeouts"] == 0
+    for key in METRICS:
+        assert hosts[key] == radio[key], key
+    for key in COPIES:
+        assert hosts["messages"][key] == radio["messages"][key], key
+    assert hosts["netns"]["hosts"] == 3 and hosts["netns"]["robot_host"] == [i % 3
+                                                                             for i in range(10)]
+    assert hosts["netns"]["never_joined"] == 0
+    logs = tmp_path / "hthree-logs"
+    assert (logs / "router1.log").exists() and (logs / "router2.log").exists()
+    assert _ours("hthree") == []  # every namespace removed at the end

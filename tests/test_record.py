@@ -1,0 +1,456 @@
+"""Recordings (issue 15): a real run recorded into MCAP, read back with the `mcap` reader,
+verified, tampered with, replayed into a capture console, traced; a SIGKILLed recorder; bad
+files; the attention field."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import pytest
+from conftest import ROOT, swarm
+
+mcap = pytest.importorskip("mcap")  # the `record` extra (in `test` too)
+
+from rich.console import Console  # noqa: E402
+
+from swarm.net import msgjson  # noqa: E402
+from swarm.net.keys import Keys  # noqa: E402
+from swarm.net.messages import (  # noqa: E402
+    K_RSTATUS,
+    Action,
+    BadMessage,
+    Bundle,
+    Hidden,
+    Obs,
+    Traj,
+    check_robot_status,
+    pack_record,
+)
+from swarm.net.recording import RecordingWriter  # noqa: E402
+from swarm.procs.dashboard import SwarmView, render  # noqa: E402
+from swarm.procs.runconfig import RunConfig, RunRecord  # noqa: E402
+from world.config import WorldConfig  # noqa: E402
+
+CKPT = str(ROOT / "checkpoints" / "commattn.pt")
+ROBOTS, HORIZON = 3, 8
+
+
+# ------------------------------------------------------------------------------------ helpers
+def check_schema(obj: Any, schema: dict[str, Any], where: str = "$") -> None:
+    """A tiny JSON Schema validator: type, properties, required, additionalProperties, items."""
+    t = schema.get("type")
+    types = {"object": dict, "array": list, "string": str, "boolean": bool}
+    if t in types:
+        assert isinstance(obj, types[t]), f"{where}: {obj!r} is not {t}"
+    elif t == "integer":
+        assert isinstance(obj, int) and not isinstance(obj, bool), f"{where}: not an integer"
+    elif t == "number":
+        assert isinstance(obj, (int, float)) and not isinstance(obj, bool), f"{where}: not a number"
+    if t == "object":
+        for key in schema.get("required", []):
+            assert key in obj, f"{where}: missing {key}"
+        props, extra = schema.get("properties", {}), schema.get("additionalProperties", True)
+        for key, value in obj.items():
+            if key in props:
+                check_schema(value, props[key], f"{where}.{key}")
+            elif isinstance(extra, dict):
+                check_schema(value, extra, f"{where}.{key}")
+            else:
+                assert extra, f"{where}: unexpected {key}"
+    if t == "array" and "items" in schema:
+        for k, value in enumerate(obj):
+            check_schema(value, schema["items"], f"{where}[{k}]")
+
+
+def read_mcap(path: Path) -> tuple[dict[str, Any], list[tuple[str, str, bytes, Any]]]:
+    """With the `mcap` package alone: summary, metadata, (topic, encoding, data, schema)s."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        msgs = [(ch.topic, ch.message_encoding, bytes(m.data), sc)
+                for sc, ch, m in reader.iter_messages(log_time_order=False)]
+        fh.seek(0)
+        meta = {md.name: dict(md.metadata) for md in make_reader(fh).iter_metadata()}
+    return {"summary": summary, "meta": meta}, msgs
+
+
+def rewrite(src: Path, dst: Path, edit_msg: Any = None, edit_meta: Any = None,
+            rename: Any = None) -> None:
+    """Copy a recording with the mcap reader and writer, editing messages, metadata or topics."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as fh, open(dst, "wb") as out:
+        reader = make_reader(fh)
+        summ = reader.get_summary()
+        w = Writer(out)
+        w.start(profile=reader.get_header().profile, library="test")
+        fh.seek(0)
+        for md in make_reader(fh).iter_metadata():
+            w.add_metadata(md.name, (edit_meta or (lambda n, d: d))(md.name, dict(md.metadata)))
+        fh.seek(0)
+        for a in make_reader(fh).iter_attachments():
+            w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
+        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summ.schemas.items()}
+        cids = {i: w.register_channel((rename or (lambda t: t))(c.topic), c.message_encoding,
+                                      sids.get(c.schema_id, 0), c.metadata)
+                for i, c in summ.channels.items()}
+        fh.seek(0)
+        for _, ch, m in make_reader(fh).iter_messages(log_time_order=False):
+            data = (edit_msg or (lambda t, d: d))(ch.topic, bytes(m.data))
+            w.add_message(cids[m.channel_id], m.log_time, data, m.publish_time, m.sequence)
+        w.finish()
+
+
+def synthetic(path: Path, run_id: str = "syn", robots: int = 2) -> None:
+    """A small well-formed recording written in-process (no swarm run)."""
+    cfg = WorldConfig(n_robots=robots, horizon=4)
+    rec = RunRecord(cfg, RunConfig(run_id=run_id, episodes=1)).to_record()
+    w = RecordingWriter(path, run_id, rec, cfg, "virtual", 2.0)
+    keys = Keys(run_id)
+    for t in range(3):
+        for i in range(robots):
+            p = Obs(0, t, i, 1, i, bytes(cfg.vision ** 2), 0.0, False, 100.0).pack()
+            w.message(keys.obs(i), "obs", p, w.decode(keys.obs(i), "obs", p)[1], 10**18 + t, t, 0)
+    w.finish(None, {})
+
+
+def swarm_main(*args: str, capsys: Any) -> tuple[int, str]:
+    """`swarm ARGS` in-process (fast): exit status and stderr; pytest's SIGTERM handler kept."""
+    from swarm.cli import main
+
+    handler = signal.getsignal(signal.SIGTERM)
+    try:
+        code = main(list(args))
+    finally:
+        signal.signal(signal.SIGTERM, handler)
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+# ---------------------------------------------------------------- a recorded CommAttn run
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    d = tmp_path_factory.mktemp("rec")
+    f, res = d / "run.mcap", d / "run.json"
+    r = swarm("run", "--headless", "--robots", str(ROBOTS), "--policy", "commattn",
+              "--checkpoint", CKPT, "--episodes", "1", "--horizon", str(HORIZON), "--seed", "7",
+              "--loss", "0.3", "--comm-range", "6", "--run-id", "rec15", "--record", str(f),
+              "--json", str(res), "--log-dir", str(d / "logs"), timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return {"dir": d, "file": f, "result": json.loads(res.read_text())}
+
+
+@pytest.mark.procs
+def test_a_recorded_run_reads_back_with_the_mcap_reader(recorded: dict[str, Any]) -> None:
+    info, msgs = read_mcap(recorded["file"])
+    res, keys = recorded["result"], Keys("rec15")
+    assert res["recording"]["exit"] == 0
+    assert info["meta"]["swarm.recording"]["run_id"] == "rec15"
+    assert info["meta"]["swarm.recorder"]["ended"] == "end"
+    raw = Counter(keys.kind_of(t)[0] for t, enc, _, _ in msgs if enc == "msgpack")
+    # every key kind of a chained run, raw and as JSON
+    for kind in ("obs", "traj", "bundle", "hidden", "radio_hidden", "action", "status",
+                 "rstatus", "result", "end"):
+        assert raw[kind] > 0, kind
+    topics = {c.topic for c in info["summary"].channels.values()}
+    for i in range(ROBOTS):
+        for key in (keys.obs(i), keys.traj(i), keys.hidden(i), keys.action(i), keys.inbox(i),
+                    keys.robot_status(i)):
+            assert key in topics and key + "/json" in topics
+    # message counts are the run's own counters
+    ticks, m = res["ticks"], res["messages"]
+    assert raw["status"] == ticks and raw["action"] == ticks * ROBOTS
+    assert raw["traj"] == m["traj_in"] and raw["hidden"] == m["hidden_in"]
+    assert raw["bundle"] == ticks * ROBOTS and raw["obs"] == (ticks + 1) * ROBOTS
+    cfg = WorldConfig(n_robots=ROBOTS, horizon=HORIZON, comm_range=6)
+    bundles = [Bundle.unpack(d, cfg) for t, e, d, _ in msgs
+               if e == "msgpack" and keys.kind_of(t)[0] == "bundle"]
+    assert sum(len(b.trajs) for b in bundles) == m["traj_delivered"]
+    hiddens = [Hidden.unpack(d, cfg) for t, e, d, _ in msgs
+               if e == "msgpack" and keys.kind_of(t)[0] == "radio_hidden"]
+    assert sum(not h.is_miss for h in hiddens) == m["hidden_delivered"]
+    # each robot's own counters (its final status) against what was recorded from and to it:
+    # what it sent exactly; what it received at most what was sent to it (Zenoh's default
+    # congestion control drops a put on a congested link, and the recorder has a link of its own)
+    last: dict[int, dict[str, Any]] = {}
+    for t, e, d, _ in msgs:
+        if e == "json" and keys.kind_of(t.removesuffix("/json"))[0] == "rstatus":
+            rec = json.loads(d)
+            if rec["msgs_out"] >= last.get(rec["robot"], {}).get("msgs_out", -1):
+                last[rec["robot"]] = rec
+    per = Counter(keys.kind_of(t) for t, e, _, _ in msgs if e == "msgpack")
+    for i in range(ROBOTS):
+        assert last[i]["msgs_out"] == per[("traj", i)] + per[("hidden", i)] + per[("action", i)]
+        sent_to = per[("obs", i)] + per[("bundle", i)] + per[("radio_hidden", i)]
+        assert sent_to - 2 <= last[i]["msgs_in"] <= sent_to
+    # raw payloads are bit-exact: every trajectory message is inside the bundles verbatim
+    in_bundles = {p for b in bundles for p in b.trajs}
+    trajs = [d for t, e, d, _ in msgs if e == "msgpack" and keys.kind_of(t)[0] == "traj"]
+    assert in_bundles <= set(trajs) and len(in_bundles) == len(trajs)
+
+
+@pytest.mark.procs
+def test_json_channels_validate_against_their_schemas(recorded: dict[str, Any]) -> None:
+    _, msgs = read_mcap(recorded["file"])
+    n = 0
+    for topic, enc, data, schema in msgs:
+        if enc != "json":
+            continue
+        assert schema is not None and schema.encoding == "jsonschema", topic
+        check_schema(json.loads(data), json.loads(schema.data), topic)
+        n += 1
+    assert n > 100
+
+
+@pytest.mark.procs
+def test_commattn_statuses_carry_attention_over_the_members_heard(recorded: dict) -> None:
+    """Checked whenever the policy reports `last_attention` (CommAttn does): weights over the
+    members each robot heard at that tick, zero elsewhere, summing to 1."""
+    from swarm.common import policy_spec
+
+    cfg = WorldConfig(n_robots=ROBOTS, horizon=HORIZON, comm_range=6)
+    build = getattr(policy_spec, "build_inference", policy_spec.build_policy)
+    reports = hasattr(build("commattn", cfg, CKPT), "last_attention")
+    _, msgs = read_mcap(recorded["file"])
+    keys = Keys("rec15")
+    heard = {}
+    attn = []
+    for topic, enc, data, _ in msgs:
+        kind = keys.kind_of(topic.removesuffix("/json"))[0]
+        if enc == "json" and kind == "bundle":
+            b = json.loads(data)
+            heard[(b["ep"], b["t"], b["robot"])] = set(b["senders"])
+        elif enc == "json" and kind == "rstatus" and "attn" in (s := json.loads(data)):
+            attn.append(s)
+    if not reports:
+        pytest.skip("this build's CommAttn does not report last_attention yet")
+    assert len(attn) >= 2 * ROBOTS  # headless: with the counters every 5 ticks, and at the end
+    for s in attn:
+        w = s["attn"]
+        assert sum(w) == pytest.approx(1.0, abs=1e-3)
+        members = heard[(s["ep"], s["attn_t"], s["robot"])]
+        assert all(x == 0 for j, x in enumerate(w) if j not in members), s
+        assert s["robot"] in members
+
+
+@pytest.mark.procs
+def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[str, Any],
+                                                                tmp_path: Path) -> None:
+    r = swarm("replay", str(recorded["file"]), "--verify", "--json", str(tmp_path / "v.json"))
+    assert r.returncode == 0, r.stderr
+    v = json.loads((tmp_path / "v.json").read_text())
+    assert v["ok"] and v["checked"]["statuses"] == HORIZON and v["checked"]["bundles"] > 0
+    assert v["checked"]["hidden forwarded"] > 0 and v["checked"]["results"] == 1
+    cfg = WorldConfig(n_robots=ROBOTS, horizon=HORIZON)
+    target = ("swarm/rec15/robot/1/action", 4)
+
+    def alter(topic: str, data: bytes) -> bytes:
+        if topic == target[0]:
+            a = Action.unpack(data, cfg)
+            if a.t == target[1]:
+                return Action(a.ep, a.t, a.robot, (a.action + 4) % 9, a.planning_ms).pack()
+        return data
+
+    bad = tmp_path / "altered.mcap"
+    rewrite(recorded["file"], bad, edit_msg=alter)
+    r = swarm("replay", str(bad), "--verify")
+    assert r.returncode == 1
+    line = r.stderr.strip().splitlines()[-1]
+    assert "divergence at episode 0 tick 4 (run tick 4)" in line and "recorded" in line, line
+
+
+@pytest.mark.procs
+def test_replay_renders_the_run_into_a_capture_console(recorded: dict[str, Any]) -> None:
+    from swarm.studies.replay import load, replay
+
+    console = Console(file=io.StringIO(), width=180, record=True, color_system=None)
+    view, stats = replay(load(recorded["file"]), console, speed=0)
+    text = console.export_text()
+    assert "map 20x20" in text and "rec15" in text and "commattn" in text
+    assert f"{recorded['result']['elratio_mean']:.3f}" in text  # the last status's elratio
+    assert stats.statuses == HORIZON and stats.bad == 0
+    if view.attention:  # CommAttn robots reported attention: the table and the map show it
+        assert "attention (strongest)" in text
+    r = swarm("replay", str(recorded["file"]), "--speed", "0", "--from", "3", "--until", "5")
+    assert r.returncode == 0 and "replayed" in r.stdout and "ticks 3..5" in r.stdout
+
+
+@pytest.mark.procs
+def test_trace_writes_tables_and_figures(recorded: dict[str, Any]) -> None:
+    out = recorded["dir"] / "trace"
+    r = swarm("trace", str(recorded["file"]), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    for name in ("links.csv", "robots.csv", "kinds.csv", "elratio.csv", "links.png",
+                 "latency.png", "elratio.png"):
+        assert (out / name).stat().st_size > 0, name
+    import csv
+
+    links = list(csv.DictReader(open(out / "links.csv")))
+    m = recorded["result"]["messages"]
+    own = recorded["result"]["ticks"] * ROBOTS  # each robot's own message, in every bundle
+    assert sum(int(x["delivered_traj"]) for x in links) == m["traj_delivered"] - own
+    assert sum(int(x["dropped"]) for x in links) == m["lost"]
+    robots = list(csv.DictReader(open(out / "robots.csv")))
+    assert [int(x["decisions"]) for x in robots] == [HORIZON] * ROBOTS
+    assert all(float(x["latency_ms_p50"]) > 0 for x in robots)
+    if (out / "attention.png").exists():
+        rows = list(csv.DictReader(open(out / "attention.csv")))
+        assert any(x["distance"] == "0" for x in rows)
+
+
+# ------------------------------------------------------------------------ a killed recorder
+@pytest.mark.procs
+def test_a_sigkilled_recorder_leaves_a_readable_file(tmp_path: Path) -> None:
+    f = tmp_path / "cut.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "2", "--episodes",
+         "2", "--pace", "25", "--run-id", "rec15kill", "--record", str(f), "--log-dir",
+         str(tmp_path / "logs")], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True)
+    try:
+        assert proc.stdout is not None
+        proc.stdout.readline()  # the first tick's status: the robots run, the recorder writes
+        size, deadline = f.stat().st_size, time.monotonic() + 30
+        while f.stat().st_size <= size and time.monotonic() < deadline:
+            time.sleep(0.05)  # until a chunk of messages is flushed
+        pids = [int(p) for p in os.listdir("/proc") if p.isdigit() and
+                b"record\0--run-id\0rec15kill" in _cmdline(int(p))]
+        assert pids, "no recorder process"
+        os.kill(pids[0], signal.SIGKILL)
+        rest, err = proc.communicate(timeout=90)
+        assert proc.returncode == 0, err[-1500:]  # the run went on without its recorder
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    res = json.loads(rest.strip().splitlines()[-1])["result"]
+    assert res["recording"]["exit"] == -signal.SIGKILL
+    # the mcap package's own stream reader reads every record up to the cut
+    from mcap.stream_reader import StreamReader
+
+    seen = 0
+    with pytest.raises(Exception), open(f, "rb") as fh:  # noqa: B017 (it ends mid-file)
+        for rec in StreamReader(fh).records:
+            seen += type(rec).__name__ == "Message"
+    assert seen > 0
+    r = swarm("replay", str(f), "--verify")
+    assert r.returncode == 2 and "truncated" in r.stderr and "--partial" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    r = swarm("replay", str(f), "--verify", "--partial")
+    assert r.returncode == 0, r.stderr
+    r = swarm("trace", str(f), "--partial", "--out", str(tmp_path / "trace"))
+    assert r.returncode == 0, r.stderr
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+# ---------------------------------------------------------------------------- bad files
+@pytest.mark.procs  # one CLI subprocess at the end
+def test_bad_files_are_one_line_errors_with_status_2(tmp_path: Path, capsys: Any) -> None:
+    good = tmp_path / "good.mcap"
+    synthetic(good)
+    assert swarm_main("replay", str(good), "--speed", "0", capsys=capsys)[0] == 0
+    capsys.readouterr()
+    (tmp_path / "text.mcap").write_text("hello, not a recording\n" * 10)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    other_schema = tmp_path / "schema.mcap"
+    rewrite(good, other_schema, edit_meta=lambda n, d: {**d, "schema": "99"}
+            if n == "swarm.recording" else d)
+    foreign = tmp_path / "foreign.mcap"
+    rewrite(good, foreign, rename=lambda t: t.replace("swarm/syn/world/obs/1",
+                                                      "swarm/other/world/obs/1"))
+    outside = tmp_path / "outside.mcap"
+    rewrite(good, outside, rename=lambda t: t.replace("obs/1", "obs/7"))
+    cases = {"text.mcap": "not an MCAP file", "cut.mcap": "truncated",
+             "schema.mcap": "schema version '99'", "foreign.mcap": "not a key of run syn",
+             "outside.mcap": "not a key of run syn", "missing.mcap": "cannot read"}
+    for name, why in cases.items():
+        for command in (["replay", "--verify"], ["replay"], ["trace", "--out", str(tmp_path)]):
+            code, err = swarm_main(command[0], str(tmp_path / name), *command[1:],
+                                   capsys=capsys)
+            assert code == 2, (name, command, err)
+            assert len(err.splitlines()) == 1 and why in err, (name, err)
+    r = swarm("replay", str(tmp_path / "cut.mcap"))  # and no traceback from the real CLI
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+# ----------------------------------------------------------------------- units, no processes
+def test_every_kind_has_a_json_form_that_fits_its_schema() -> None:
+    cfg = WorldConfig(n_robots=3)
+    traj = Traj(0, 2, 1, 3, 4, bytes(50), [3, 4], bytes(25)).pack()
+    hidden = Hidden(0, 2, 1, 5, bytes(16)).pack()
+    samples = {
+        "obs": Obs(0, 2, 1, 3, 4, bytes(25), -10.0, False, 12.5).pack(),
+        "traj": traj, "bundle": Bundle(0, 2, 1, [traj]).pack(), "hidden": hidden,
+        "radio_hidden": Hidden.miss(0, 2, 1).pack(), "action": Action(0, 2, 1, 7, 0.5).pack(),
+        "rstatus": pack_record(K_RSTATUS, {"robot": 1, "ep": 0, "attn": [0.25, 0.75, 0.0],
+                                           "attn_t": 2, "bytes": b"\x00"}),
+    }
+    for kind, payload in samples.items():
+        obj = msgjson.to_json(kind, payload, cfg)
+        check_schema(obj, msgjson.SCHEMAS[kind], kind)
+        json.dumps(obj, allow_nan=False)
+    assert msgjson.to_json("bundle", samples["bundle"], cfg)["senders"] == [1]
+    assert msgjson.to_json("radio_hidden", samples["radio_hidden"], cfg)["miss"] is True
+    assert set(msgjson.SCHEMAS) >= {Keys("r").kind_of(k)[0] for k in (
+        Keys("r").status, Keys("r").result, Keys("r").end, Keys("r").control,
+        Keys("r").weights, Keys("r").learner_status, Keys("r").episode,
+        Keys("r").worker_episodes, Keys("r").rollout(0))}
+
+
+def test_the_attention_field_is_range_checked() -> None:
+    ok = {"robot": 1, "attn": [0.2, 0.8, 0.0], "attn_t": 3}
+    assert check_robot_status(dict(ok), 3, 30) == ok
+    assert check_robot_status({"robot": 2, "msgs_in": 4}, 3, 30)  # optional
+    for bad in ({"attn": [0.2, 0.8]}, {"attn": [0.2, 0.9, 0.0]}, {"attn": [-0.1, 1.1, 0.0]},
+                {"attn": [0.2, 0.8, float("nan")]}, {"attn_t": 31}, {"attn_t": None},
+                {"attn": "x"}, {"robot": 3}):
+        with pytest.raises(BadMessage):
+            check_robot_status({**ok, **bad}, 3, 30)
+    with pytest.raises(BadMessage):
+        check_robot_status({"robot": 0, "attn_t": 1}, 3, 30)  # both or neither
+
+
+def test_keys_know_which_run_and_kind_a_key_belongs_to() -> None:
+    k = Keys("r1")
+    assert k.kind_of(k.inbox(2)) == ("bundle", 2) and k.kind_of(k.status) == ("status", None)
+    assert k.kind_of(k.inbox_hidden(0)) == ("radio_hidden", 0)
+    for key in ("swarm/r2/world/status", "swarm/r1/robot/x/traj", "swarm/r1/robot/1/foo",
+                "swarm/r1/world/obs/1/2", "swarm/r1/robot/9999999/traj", "swarm/r1"):
+        assert k.kind_of(key) == ("", None), key
+
+
+def test_the_map_draws_whom_each_robot_attends_to_most() -> None:
+    v = SwarmView("att", "commattn", 6, 12, 3, 10.0, episodes=1)
+    v.apply_status({"ep": 0, "t": 1, "pos": [[0, 0], [0, 6], [5, 11]],
+                    "alive": [True, True, True], "elratio": 0.1, "timeouts": []}, now=0.0)
+    for i in range(3):
+        v.set_alive(i, True)
+    v.apply_robot({"robot": 0, "attn": [0.5, 0.4, 0.1], "attn_t": 1})
+    console = Console(file=io.StringIO(), width=160, record=True, color_system=None)
+    console.print(render(v))
+    text = console.export_text()
+    assert "attention (strongest)" in text
+    grid = [line for line in text.splitlines() if "∙∙" in line]
+    assert grid and "0 ∙∙∙∙∙∙∙∙∙∙1" in grid[0].replace(" ", " ")  # robot 0 -> robot 1 (y 0)
+    v.attention_focus = None
+    console = Console(file=io.StringIO(), width=160, record=True, color_system=None)
+    console.print(render(v))
+    assert "∙∙" not in console.export_text() and "attention" not in console.export_text()

@@ -1,0 +1,227 @@
+"""A secure run (`--secure DIR`): certificates, the generated access control, and the proof
+against a foreign peer, with real Zenoh sessions and processes on loopback (scouting off)."""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+from conftest import ROOT, swarm
+
+from swarm.net.keys import Keys
+from swarm.net.security.certs import make_certs
+from swarm.net.security.roles import acl, identities, roles
+from swarm.net.security.tls import Secure
+from swarm.net.zconfig import free_port
+
+pytest.importorskip("cryptography")
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("secure") / "certs"
+    make_certs(d, robots=5, workers=1)
+    return d
+
+
+def test_certs_are_private_and_a_rerun_never_overwrites_a_key(tmp_path: Path) -> None:
+    from cryptography import x509
+
+    d = tmp_path / "certs"
+    r = swarm("certs", "--out", str(d), "--robots", "2", "--json", str(tmp_path / "c.json"))
+    assert r.returncode == 0, r.stderr
+    assert stat.S_IMODE(d.stat().st_mode) == 0o700
+    keys = sorted(d.glob("*.key"))
+    assert {k.stem for k in keys} == {"ca", *identities(2)}
+    assert all(stat.S_IMODE(k.stat().st_mode) == 0o600 for k in keys)
+    before = {k.name: k.read_bytes() for k in keys}
+    (d / "robot-1.pem").unlink()  # a lost certificate is issued again for the same key
+
+    rep = make_certs(d, robots=3, workers=1, hosts=["10.1.2.3", "swarm-world.lan"])
+    assert {k.name: k.read_bytes() for k in keys} == before  # no key overwritten
+    assert {"robot-2.key", "worker-0.key"} <= set(rep.made)
+    assert "robot-1.pem" in rep.reissued + rep.made and "world.pem" in rep.reissued  # new hosts
+    assert json.loads((d / "roster.json").read_text())["robots"] == 3
+
+    cert = x509.load_pem_x509_certificate((d / "robot-1.pem").read_bytes())
+    ca = x509.load_pem_x509_certificate((d / "ca.pem").read_bytes())
+    cert.verify_directly_issued_by(ca)
+    assert cert.subject.get_attributes_for_oid(x509.NameOID.COMMON_NAME)[0].value == "robot-1"
+    alt = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert {"localhost", "swarm-world.lan"} <= set(alt.get_values_for_type(x509.DNSName))
+    assert {"127.0.0.1", "10.1.2.3"} <= {str(a) for a in alt.get_values_for_type(x509.IPAddress)}
+    assert ca.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
+    assert make_certs(d, robots=3, workers=1).made == []  # nothing left to add
+
+
+def test_acl_lets_each_identity_put_only_what_its_role_owns() -> None:
+    keys, n = Keys("acl1"), 4
+    table = roles(keys, n, workers=1)
+    world = acl("world", keys, n, 1)
+    allowed: dict[str, set[str]] = {}  # identity -> keys it may put (checked at the router)
+    for rule in world["rules"]:
+        who, flow, msgs = rule["id"].split("/")
+        assert all(k.startswith(keys.base + "/") for k in rule["key_exprs"])
+        if flow == "ingress" and "put" in msgs.split("+"):
+            allowed.setdefault(who, set()).update(rule["key_exprs"])
+    for i in range(n):
+        assert allowed[f"robot-{i}"] == {keys.traj(i), keys.hidden(i), keys.direct(i),
+                                        keys.action(i), keys.robot_status(i), keys.rollout(i)}
+    assert allowed["learner"] == {keys.weights, keys.learner_status}
+    assert {w for w, ks in allowed.items() if keys.control in ks} == {"supervisor", "operator"}
+    assert "world" not in allowed and "recorder" not in allowed  # the router itself; read-only
+    assert world["default_permission"] == "deny"
+    # a robot's session lets only the world (the relay) deliver, and only what it may receive
+    # and what it sends to anyone is what its own role originates
+    r3 = acl("robot-3", keys, n, 1)
+    for rule in r3["rules"]:
+        who, flow, msgs = rule["id"].split("/")
+        if msgs != "put":
+            continue
+        mine = table["robot-3"].subscribe if who == "world" else table[who].put
+        expected = table["robot-3"].put if flow == "egress" else mine
+        assert set(rule["key_exprs"]) == set(expected), rule
+    for who in table:  # every generated session config is one zenoh accepts
+        conf = zenoh.Config()
+        conf.insert_json5("access_control", json.dumps(acl(who, keys, n, 1)))
+
+
+def _session(sec: Secure, who: str, mode: str, listen: list[str], connect: list[str],
+             access: bool = True) -> zenoh.Session:
+    conf = sec.session_config(who, mode, listen, connect)
+    if not access:
+        del conf["access_control"]
+    return zenoh.open(zenoh.Config.from_json5(json.dumps(conf)))
+
+
+def _collect(session: zenoh.Session, key: str) -> tuple[list[str], object]:
+    got: list[str] = []
+    sub = session.declare_subscriber(key, lambda s: got.append(str(s.key_expr)))
+    return got, sub
+
+
+@pytest.mark.procs
+def test_the_router_checks_the_originator_and_each_client_what_it_receives(certs: Path) -> None:
+    k = Keys("acl2")
+    sec = Secure.load(certs, "world", k.run, robots=5)
+    hub = f"tls/127.0.0.1:{free_port()}"
+    with _session(sec, "world", "router", [hub], []) as world:
+        got, _sub = _collect(world, "**")
+        r3 = _session(sec, "robot-3", "client", [], [hub], access=False)  # only the router's ACL
+        sup = _session(sec, "supervisor", "client", [], [hub])
+        learner = _session(sec, "learner", "client", [], [hub])
+        time.sleep(0.5)
+        for key in (k.action(3), k.action(4), k.weights, k.control, "elsewhere/x"):
+            r3.put(key, b"x")
+        sup.put(k.control, b"x")
+        learner.put(k.weights, b"x")
+        time.sleep(0.5)
+        for s in (r3, sup, learner):
+            s.close()
+    assert sorted(got) == sorted([k.action(3), k.control, k.weights])
+
+    # A router without an ACL: each client's own ACL still holds. Robot 3 sends only its own
+    # keys, and takes observations only from the world's identity, not from another of the run.
+    for router_id, delivers in (("world", True), ("recorder", False)):
+        hub = f"tls/127.0.0.1:{free_port()}"
+        with _session(sec, router_id, "router", [hub], [], access=False) as router:
+            got, _sub = _collect(router, f"{k.base}/robot/**")
+            with _session(sec, "robot-3", "client", [], [hub]) as r3:
+                heard, _sub3 = _collect(r3, k.obs(3))
+                time.sleep(0.5)
+                r3.put(k.action(3), b"x")
+                r3.put(k.action(4), b"x")
+                router.put(k.obs(3), b"x")
+                time.sleep(0.5)
+        assert got == [k.action(3)]
+        assert heard == ([k.obs(3)] if delivers else [])
+
+
+def test_a_missing_certificate_is_one_line_before_any_process(certs: Path, tmp_path: Path) -> None:
+    d = tmp_path / "incomplete"
+    d.mkdir(mode=0o700)
+    for f in certs.iterdir():
+        if f.name != "robot-2.key":
+            (d / f.name).write_bytes(f.read_bytes())
+            os.chmod(d / f.name, stat.S_IMODE(f.stat().st_mode))
+    r = swarm("run", "--secure", str(d), "--robots", "4", "--headless", "--run-id", "nocert")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert str(d / "robot-2.key") in r.stderr
+    r = swarm("run", "--secure", str(d), "--robots", "8", "--headless")  # beyond the roster
+    assert r.returncode == 2 and "robot-2.key" in r.stderr
+    # a robot's host holds the CA and its own pair only (no roster.json): enough for robot 3
+    host = tmp_path / "robot3"
+    host.mkdir(mode=0o700)
+    for name in ("ca.pem", "robot-3.pem", "robot-3.key"):
+        (host / name).write_bytes((certs / name).read_bytes())
+    os.chmod(host / "robot-3.key", 0o600)
+    assert Secure.load(host, "robot-3", "x").robots == 4
+    r = swarm("robot", "--secure", str(host), "--id", "2", "--run-id", "x", "--connect",
+              "tls/127.0.0.1:1")
+    assert r.returncode == 2 and str(host / "robot-2.pem") in r.stderr
+
+
+def _metrics(res: dict) -> dict:
+    keys = ("elratio_mean", "reward_mean", "collisions_mean", "block_collisions_mean",
+            "success_rate", "ticks", "timeouts", "robots_lost", "actions")
+    return {k: res[k] for k in keys}
+
+
+@pytest.mark.procs
+def test_foreign_peers_get_nothing_into_a_secure_run(certs: Path, tmp_path: Path) -> None:
+    """A plain-TCP, a certificate-less and a wrong-CA session cannot join; robot 3's valid
+    certificate cannot put robot 4's action, weights or control; the run's metrics equal the
+    same run without --secure, and no process counted a forged message."""
+    run = ["run", "--robots", "5", "--episodes", "4", "--seed", "5", "--headless"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", *run, "--secure", str(certs), "--pace", "12",
+         "--run-id", "secaudit", "--json", str(tmp_path / "secure.json")],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # the first tick's status: the run is on
+            if line.startswith('{"status"'):
+                break
+        audit = swarm("audit", "--run", "secaudit", "--secure", str(certs), "--duration", "2",
+                      "--json", str(tmp_path / "audit.json"), timeout=60)
+        proc.stdout.read()
+        assert proc.wait(timeout=60) == 0, proc.stderr.read() if proc.stderr else ""
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    rep = json.loads((tmp_path / "audit.json").read_text())
+    assert audit.returncode == 0 and rep["verdict"] == "pass", audit.stdout
+    assert rep["accepted"] == 0 and rep["connected"] == ["valid_robot-3"]
+    s = rep["sessions"]
+    assert set(s) == {"plain_tcp", "tls_without_certificate", "wrong_ca", "valid_robot-3"}
+    valid = s["valid_robot-3"]
+    assert valid["ticks_seen"] > 0 and valid["sent"]["action"] >= valid["ticks_seen"]
+    assert valid["delivered"] == {"action": 0, "weights": 0, "control": 0, "own_key": 1}
+
+    secure = json.loads((tmp_path / "secure.json").read_text())
+    r = swarm(*run, "--run-id", "secplain", "--json", str(tmp_path / "plain.json"))
+    assert r.returncode == 0, r.stderr
+    plain = json.loads((tmp_path / "plain.json").read_text())
+    assert _metrics(secure) == _metrics(plain)
+    assert secure["messages"]["bad"] == 0 and secure["messages"]["stale"] == \
+        plain["messages"]["stale"]
+    assert all(st["bad"] == 0 and st["weights_bad"] == 0
+               for st in secure["robot_status"].values())
+    assert secure["secure"]["hub"].startswith("tls/127.0.0.1:")
+    configs = Path(secure["secure"]["configs"])
+    assert {p.stem for p in configs.glob("*.json5")} >= {"world", "supervisor", "robot-4"}
+
+
+def test_deploy_templates_are_what_the_generator_makes() -> None:
+    from swarm.net.security.tls import templates
+
+    for name, text in templates().items():
+        assert (ROOT / "deploy" / name).read_text() == text, f"deploy/{name} is stale"
+        zenoh.Config.from_file(str(ROOT / "deploy" / name))
