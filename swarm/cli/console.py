@@ -159,31 +159,38 @@ def files_table(paths: Mapping[str, Sequence[str]]) -> Table:
     return table
 
 
-def swarm_bench_table(result: Mapping[str, Any]) -> Table:
-    """Rows of `bench_swarm`: one real swarm run per (policy, team size)."""
-    table = Table(title=f"Swarm benchmark ({result['episodes']} episodes per run; ms per tick: "
-                        "wall time in the world by phase, and CPU by process kind)",
-                  title_justify="left")
-    table.add_column("policy", style="bold")
-    cols = ("robots", "map", "ticks/s", "1st tick s", "RSS/PSS MB robot", "RSS/PSS MB world",
-            "obs", "collect", "radio", "decide", "step", "CPU world", "CPU robots", "elratio",
-            "lost")
-    for col in cols:
-        table.add_column(col, justify="right")
+def swarm_bench_table(result: Mapping[str, Any]) -> Any:
+    """Rows of `bench_swarm` (one real swarm run per policy and team size) as two tables: the
+    figures, then where a tick goes (wall ms in the world by phase, CPU ms by process kind)."""
+    from rich.console import Group
 
     def f(x: Any, fmt: str = ".1f") -> str:
         return "-" if x is None else format(x, fmt)
 
+    main = Table(title=f"Swarm benchmark ({result['episodes']} episodes per run)",
+                 title_justify="left")
+    main.add_column("policy", style="bold")
+    for col in ("robots", "map", "ticks/s", "1st tick s", "RSS/PSS MB robot",
+                "RSS/PSS MB world", "elratio", "lost"):
+        main.add_column(col, justify="right")
+    ticks = Table(title="Where a tick goes (ms per tick: wall time in the world by phase; CPU by "
+                        "process kind)", title_justify="left")
+    ticks.add_column("policy", style="bold")
+    for col in ("robots", "obs", "collect", "radio", "decide", "step", "CPU world",
+                "CPU robots"):
+        ticks.add_column(col, justify="right")
     for r in result["rows"]:
         ph, cpu = r.get("tick_ms") or {}, r.get("cpu_ms_per_tick") or {}
-        table.add_row(r["policy"], str(r["robots"]), r.get("size", "-"), f(r["ticks_per_s"]),
-                      f(r["startup_s"], ".2f"),
-                      f"{f(r['rss_mb_per_robot'], '.0f')}/{f(r.get('pss_mb_per_robot'), '.0f')}",
-                      f"{f(r['rss_mb_world'], '.0f')}/{f(r.get('pss_mb_world'), '.0f')}",
+        main.add_row(r["policy"], str(r["robots"]), r.get("size", "-"), f(r["ticks_per_s"]),
+                     f(r["startup_s"], ".2f"),
+                     f"{f(r['rss_mb_per_robot'], '.0f')}/{f(r.get('pss_mb_per_robot'), '.0f')}",
+                     f"{f(r['rss_mb_world'], '.0f')}/{f(r.get('pss_mb_world'), '.0f')}",
+                     f(r["elratio_mean"], ".3f"),
+                     str(r["timeouts"] + (r.get("robots_lost") or 0)))
+        ticks.add_row(r["policy"], str(r["robots"]),
                       *(f(ph.get(k)) for k in ("obs", "collect", "radio", "decide", "step")),
-                      f(cpu.get("world")), f(cpu.get("robots")), f(r["elratio_mean"], ".3f"),
-                      str(r["timeouts"] + (r.get("robots_lost") or 0)))
-    return table
+                      f(cpu.get("world")), f(cpu.get("robots")))
+    return Group(main, ticks)
 
 
 def kv_table(title: str, record: Mapping[str, Any]) -> Table:

@@ -287,17 +287,25 @@ class RobotProcess:
         trajectory message of the bundle's tick, from distinct senders, its own among them (the
         radio always hands a robot its own message back)."""
         m = TrajMessages.empty(self.cfg)
+        cfg, ids, bits, patches = self.cfg, [], [], []
         for payload in bundle.trajs:
-            tr = Traj.unpack(payload, self.cfg)
+            tr = Traj.unpack(payload, cfg)
             j = tr.robot
             if (tr.ep, tr.t) != (bundle.ep, bundle.t) or m.present[0, j]:
                 raise BadMessage(f"bundle holds a message of robot {j} that does not fit")
             m.present[0, j] = True
             m.pos[0, j] = (tr.y, tr.x)
-            m.visited[0, j] = tr.visited_bits(self.cfg.cells)
-            rec = tr.recent[-self.cfg.recent_len:]
-            m.recent[0, j, self.cfg.recent_len - len(rec):] = rec
-            m.patch[0, j] = np.frombuffer(tr.patch, dtype=np.uint8).reshape(self.cfg.vision, -1)
+            rec = tr.recent[-cfg.recent_len:]
+            if rec:
+                m.recent[0, j, cfg.recent_len - len(rec):] = rec
+            ids.append(j)
+            bits.append(tr.visited)
+            patches.append(tr.patch)
+        if ids:  # every bitmap and patch in one call each (a bundle holds tens of messages)
+            packed = np.frombuffer(b"".join(bits), dtype=np.uint8).reshape(len(ids), -1)
+            m.visited[0, ids] = np.unpackbits(packed, axis=1, count=cfg.cells).astype(bool)
+            m.patch[0, ids] = np.frombuffer(b"".join(patches), dtype=np.uint8).reshape(
+                len(ids), cfg.vision, cfg.vision)
         if not m.present[0, self.robot]:
             raise BadMessage("bundle without the robot's own message")
         return m
