@@ -159,11 +159,30 @@ def test_hostile_stamped_messages_are_refused() -> None:
         DirectTally(3).offer({"robot": 1, "direct": {"done_ep": 0, "counts": {"lost": -1}}})
 
 
-def test_direct_delivery_needs_the_virtual_clock() -> None:
-    r = swarm("run", "--headless", "--robots", "2", "--delivery", "direct", "--clock", "real",
-              "--policy", "random", timeout=60)
-    assert r.returncode == 2 and "virtual clock" in r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1
+@pytest.mark.parametrize("flags,why", [
+    (["--delivery", "direct", "--clock", "real"], "virtual clock"),
+    (["--delivery", "sideways"], "invalid choice"),
+    (["--hosts", "0"], "--hosts must lie in"),
+    (["--hosts", "2", "--netns"], "two topologies"),
+])
+def test_bad_delivery_and_hosts_flags_are_one_line_errors(flags: list[str], why: str) -> None:
+    r = swarm("run", "--headless", "--robots", "2", "--policy", "random", *flags, timeout=60)
+    assert r.returncode == 2 and why in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) <= 2 and "Traceback" not in r.stderr
+
+
+def test_a_stamped_message_has_a_json_form_for_recordings() -> None:
+    from swarm.net.record import msgjson
+
+    cfg = WorldConfig(n_robots=3)
+    traj = Traj(0, 2, 1, 3, 4, bytes(50), [3], bytes(25)).pack()
+    payload = Stamped(K_TRAJ, 0, 2, 1, 12.5, traj).pack()
+    assert Keys("r").kind_of(Keys("r").direct(1, hidden=True)) == ("direct", 1)
+    obj = msgjson.to_json("direct", payload, cfg)
+    assert obj == {"ep": 0, "t": 2, "robot": 1, "queue_ms": 12.5, "kind": "traj",
+                   "size": len(traj)}
+    assert set(obj) == set(msgjson.SCHEMAS["direct"]["properties"])
+    json.dumps(obj, allow_nan=False)
 
 
 # ----------------------------------------------------------------------- real processes
@@ -213,7 +232,7 @@ def test_direct_delivery_decides_as_the_radio(tmp_path: Path, policy: str, fault
 
 # ----------------------------------------------------------------------- emulated hosts
 def _hosts_reason() -> str | None:
-    from swarm.net.hosts import hosts_reason
+    from swarm.net.kernel.hosts import hosts_reason
 
     reason = hosts_reason()
     if reason is None:  # the kernel may still refuse a bridge (no bridge module, no CAP_NET_ADMIN)
@@ -231,7 +250,7 @@ needs_hosts = pytest.mark.skipif(HOSTS_REASON is not None, reason=HOSTS_REASON o
 
 
 def _ours(run_id: str) -> list[str]:
-    from swarm.net.netns import namespaces
+    from swarm.net.kernel.netns import namespaces
 
     return [ns for ns in namespaces() if ns.startswith(f"swarm-{run_id}-")]
 
@@ -239,7 +258,7 @@ def _ours(run_id: str) -> list[str]:
 @pytest.mark.procs
 @needs_hosts
 def test_hosts_come_up_on_a_bridge_and_leave_nothing_behind() -> None:
-    from swarm.net.hosts import Hosts
+    from swarm.net.kernel.hosts import Hosts
 
     hosts = Hosts("hup", 5, 3)
     with hosts:
@@ -260,11 +279,12 @@ def test_hosts_come_up_on_a_bridge_and_leave_nothing_behind() -> None:
 @pytest.mark.procs
 @needs_hosts
 def test_three_hosts_with_direct_delivery_act_as_one_host_with_the_radio(tmp_path: Path) -> None:
-    """10 robots over 3 emulated hosts, a router each, robots delivering to one another:
-    the single-host radio run's actions, tick for tick."""
-    radio = _run(tmp_path, "hradio", "commattn", {}, "--episodes", "2", "--horizon", "10",
+    """10 robots over 3 emulated hosts, a router each, robots delivering to one another under
+    loss, latency, a bandwidth cap and a partition: the single-host radio run, tick for tick."""
+    faults = {**MIX, "partition": "0-3/4-9"}
+    radio = _run(tmp_path, "hradio", "commattn", faults, "--episodes", "2", "--horizon", "10",
                  robots=10)
-    hosts = _run(tmp_path, "hthree", "commattn", {}, "--episodes", "2", "--horizon", "10",
+    hosts = _run(tmp_path, "hthree", "commattn", faults, "--episodes", "2", "--horizon", "10",
                  "--delivery", "direct", "--hosts", "3", robots=10)
     assert hosts["actions"] == radio["actions"] and hosts["timeouts"] == 0
     for key in METRICS:
@@ -277,3 +297,4 @@ def test_three_hosts_with_direct_delivery_act_as_one_host_with_the_radio(tmp_pat
     logs = tmp_path / "hthree-logs"
     assert (logs / "router1.log").exists() and (logs / "router2.log").exists()
     assert _ours("hthree") == []  # every namespace removed at the end
+    assert hosts["messages"]["lost"] > 0 and hosts["messages"]["cut"] > 0

@@ -18,6 +18,7 @@ import pytest
 import zenoh
 from conftest import ROOT, swarm
 
+from swarm.common.spawn import registry
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_CONTROL,
@@ -36,7 +37,6 @@ from swarm.net.messages import (
     pack_record,
 )
 from swarm.net.zconfig import ZenohOptions
-from swarm.procs.spawn import registry
 
 TINY = """[world]
 height = 10

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT
 from torch import nn
 
-from conftest import ROOT
 from policies import LEARNED, make_policy, policy_class
 from policies.checkpoint import CheckpointError, read_checkpoint
 from policies.features import Members, TokenEmbed, bigru

@@ -161,7 +161,7 @@ def _listening(hub: str, timeout: float = 60.0) -> None:
 
 def _hub(run_id: str, timeout: float = 60.0) -> str:
     """The hub endpoint a `swarm run` notes in its registry, once it listens."""
-    from swarm.procs.spawn import registry as _registry
+    from swarm.common.spawn import registry as _registry
 
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from conftest import swarm
 
-from swarm.net.netns import NetnsConfig, Topology, namespaces
+from swarm.net.kernel.netns import NetnsConfig, Topology, namespaces
 from world.config import ConfigError
 
 

@@ -22,7 +22,6 @@ mcap = pytest.importorskip("mcap")  # the `record` extra (in `test` too)
 
 from rich.console import Console  # noqa: E402
 
-from swarm.net import msgjson  # noqa: E402
 from swarm.net.keys import Keys  # noqa: E402
 from swarm.net.messages import (  # noqa: E402
     K_RSTATUS,
@@ -35,7 +34,8 @@ from swarm.net.messages import (  # noqa: E402
     check_robot_status,
     pack_record,
 )
-from swarm.net.recording import RecordingWriter  # noqa: E402
+from swarm.net.record import msgjson  # noqa: E402
+from swarm.net.record.recording import RecordingWriter  # noqa: E402
 from swarm.procs.dashboard import SwarmView, render  # noqa: E402
 from swarm.procs.runconfig import RunConfig, RunRecord  # noqa: E402
 from world.config import WorldConfig  # noqa: E402

@@ -73,7 +73,8 @@ def test_acl_lets_each_identity_put_only_what_its_role_owns() -> None:
             allowed.setdefault(who, set()).update(rule["key_exprs"])
     for i in range(n):
         assert allowed[f"robot-{i}"] == {keys.traj(i), keys.hidden(i), keys.direct(i),
-                                        keys.action(i), keys.robot_status(i), keys.rollout(i)}
+                                        keys.direct(i, hidden=True), keys.action(i),
+                                        keys.robot_status(i), keys.rollout(i)}
     assert allowed["learner"] == {keys.weights, keys.learner_status}
     assert {w for w, ks in allowed.items() if keys.control in ks} == {"supervisor", "operator"}
     assert "world" not in allowed and "recorder" not in allowed  # the router itself; read-only

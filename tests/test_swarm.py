@@ -266,7 +266,7 @@ def _run_killing_robot(run_id: str, robot: int, out: Path, *extra: str,
 def test_a_world_that_fails_is_reported_with_its_own_error(tmp_path: Path) -> None:
     """When the world ends without a result, the supervisor's one error names the world's own
     last exception (from its log), not only the exit code."""
-    from swarm.procs.spawn import last_error
+    from swarm.common.spawn import last_error
 
     log = tmp_path / "world.log"
     log.write_text("Traceback (most recent call last):\n  File \"x.py\", line 1, in <module>\n"

@@ -21,10 +21,10 @@ from typing import Any
 import zenoh
 
 from swarm.bench.micro import int_list
+from swarm.common.spawn import child_env, cli_args, wait_port
 from swarm.net.keys import Keys
 from swarm.net.messages import K_LSTATUS, BadMessage, unpack_record
 from swarm.net.zconfig import ZenohOptions, free_port
-from swarm.procs.spawn import child_env, cli_args, wait_port
 from world.config import ConfigError
 
 

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from swarm.cli import batch, hosts, learn, record, run, secure
 from swarm.cli.common import _Parser
-from swarm.procs.spawn import die_with_parent, terminate_as_interrupt
+from swarm.common.spawn import die_with_parent, terminate_as_interrupt
 from world.config import ConfigError
 
 

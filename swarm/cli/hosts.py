@@ -1,5 +1,5 @@
 """`swarm router` (a Zenoh router process) and `swarm run --hosts K` (emulated hosts, see
-swarm/net/hosts.py)."""
+swarm/net/kernel/hosts.py)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def hosts_option(args: argparse.Namespace) -> int:
     k = getattr(args, "hosts", None)
     if k is None:
         return 0
-    from swarm.net.hosts import MAX_HOSTS, hosts_reason
+    from swarm.net.kernel.hosts import MAX_HOSTS, hosts_reason
 
     if not 1 <= k <= MAX_HOSTS:
         raise ConfigError(f"--hosts must lie in [1, {MAX_HOSTS}], got {k}")
@@ -40,7 +40,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     import logging
     import sys
 
-    from swarm.net.hosts import route
+    from swarm.net.kernel.hosts import route
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         stream=sys.stderr, format="%(asctime)s %(name)s %(levelname)s %(message)s")

@@ -44,7 +44,7 @@ def _output_json(path: str | None, obj: dict[str, Any]) -> None:
 def cmd_record(args: argparse.Namespace) -> int:
     import logging
 
-    from swarm.net.recording import need_mcap
+    from swarm.net.record.recording import need_mcap
     from swarm.procs.recorder import main as record_main
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,

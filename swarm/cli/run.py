@@ -75,7 +75,7 @@ def _add_train_flags(p: argparse.ArgumentParser) -> None:
 
 
 def _add_netns_flags(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("kernel-level realism (root; see swarm/net/netns.py)")
+    g = p.add_argument_group("kernel-level realism (root; see swarm/net/kernel/netns.py)")
     g.add_argument("--netns", action="store_true",
                    help="world and robots in network namespaces joined by veth pairs")
     g.add_argument("--kernel-loss", metavar="P",
@@ -92,7 +92,7 @@ def _add_netns_flags(p: argparse.ArgumentParser) -> None:
 
 def netns_faults(args: argparse.Namespace) -> Any:
     """The NetnsConfig of `--netns` (None without it); kernel flags need --netns."""
-    from swarm.net.netns import NetnsConfig, check_tools
+    from swarm.net.kernel.netns import NetnsConfig, check_tools
 
     given = [getattr(args, k, None) for k in ("kernel_loss", "kernel_bandwidth", "netns_lease",
                                               "netns_transport")]
@@ -171,7 +171,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")
     if args.record:  # the file and the package, before any spawn
-        from swarm.net.recording import need_mcap
+        from swarm.net.record.recording import need_mcap
 
         need_mcap()
         output_file(args.record, "--record")
@@ -267,9 +267,9 @@ def cmd_fault(args: argparse.Namespace) -> int:
     """Change the faults of a running swarm: link faults go to the world (applied from the next
     tick), process faults to the supervisor (applied at once)."""
 
+    from swarm.common.spawn import lookup_run
     from swarm.net.keys import Keys
     from swarm.net.messages import K_CONTROL, pack_record
-    from swarm.procs.spawn import lookup_run
 
     if args.at_tick is not None and not 0 <= args.at_tick < 2**40:
         raise ConfigError(f"--at-tick must be a run tick >= 0, got {args.at_tick}")

@@ -55,10 +55,10 @@ def cmd_certs(args: argparse.Namespace) -> int:
 
 
 def cmd_audit(args: argparse.Namespace) -> int:
+    from swarm.common.spawn import lookup_run
     from swarm.net.keys import Keys
     from swarm.net.security.audit import main as audit_main
     from swarm.net.security.tls import Secure
-    from swarm.procs.spawn import lookup_run
 
     Keys(args.run)
     if not 0 <= args.attacker < 4096 or not 0 <= args.victim < 4096 or \

@@ -45,6 +45,17 @@ WAIT_FRAC = 0.5  # a robot waits for the tick's trajectory messages up to this p
 BIG = 2**53  # counters a status record may report
 
 
+def carried(st: Stamped, cfg: WorldConfig) -> Traj | Hidden:
+    """The message a stamped envelope carries, checked against it (kind, episode, tick, sender);
+    BadMessage otherwise."""
+    msg: Traj | Hidden = (Traj if st.kind == K_TRAJ else Hidden).unpack(st.payload, cfg)
+    if (msg.ep, msg.t, msg.robot) != (st.ep, st.t, st.robot):
+        raise BadMessage("the carried message does not match its envelope")
+    if isinstance(msg, Hidden) and msg.is_miss:
+        raise BadMessage("a miss marker is the radio's, never a robot's")
+    return msg
+
+
 class DirectLink:
     """Robot `robot`'s direct delivery (see the module docstring)."""
 
@@ -117,7 +128,7 @@ class DirectLink:
             raise BadMessage(f"robot id {st.robot} does not match key")
         if key.endswith("/dhidden") != (st.kind == K_HIDDEN):
             raise BadMessage("message kind does not match key")
-        msg = st.message(self.cfg)
+        msg = carried(st, self.cfg)
         if st.robot == self.robot or (st.kind == K_HIDDEN and st.robot > self.robot):
             return  # its own copy is kept when it is sent; a later id is never its predecessor
         if (st.ep, st.t) < (self.ep, self.t):

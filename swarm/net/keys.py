@@ -134,7 +134,7 @@ class Keys:
         """What a key of this run carries: (kind, robot id or None); ("", None) for a key that
         is not one of this run's (another run's, or made up). Kinds: obs, status, end, result,
         episode, traj, hidden, action, rstatus, rollout, direct, bundle, radio_hidden, control,
-        weights, lstatus, worker_episodes (the names `swarm.net.msgjson` maps to schemas)."""
+        weights, lstatus, worker_episodes (the names `swarm.net.record.msgjson` maps to schemas)."""
         prefix = self.base + "/"
         if not str(key).startswith(prefix):
             return "", None

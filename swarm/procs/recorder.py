@@ -1,5 +1,5 @@
 """The recorder process (`swarm record`, spawned by `swarm run --record FILE`): every message of
-a run into an MCAP file (`swarm.net.recording`), from a Zenoh session of its own.
+a run into an MCAP file (`swarm.net.record.recording`), from a Zenoh session of its own.
 
 It subscribes to `swarm/<run>/**` before anything else (messages that arrive while it fetches
 the run's record from the world are queued, not lost), opens the file, then declares its
@@ -29,7 +29,7 @@ import zenoh
 from swarm.net.inbox import DEFAULT_MAX_BYTES, DEFAULT_MAX_EVENTS, Inbox, query, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import K_RESULT, K_STATUS, BadMessage, unpack_record
-from swarm.net.recording import RecordingWriter
+from swarm.net.record.recording import RecordingWriter
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunRecord
 

@@ -3,7 +3,7 @@
 Every child is a fresh interpreter (subprocess, never fork: a forked Zenoh session hangs). The
 world listens on a free loopback port; robots and the supervisor's own session connect to it.
 Ctrl-C (or any exit) sends SIGINT to every child, then SIGKILL to whatever is left after 2 s,
-so no process of the run outlives it. With `--netns` (swarm/net/netns.py) the world and each
+so no process of the run outlives it. With `--netns` (swarm/net/kernel/netns.py) the world and each
 robot run in network namespaces of their own, joined by veth pairs, and the kernel applies the
 link faults.
 """
@@ -26,9 +26,12 @@ from rich.console import Console
 from rich.live import Live
 
 from swarm.common.atomic import write_json
+from swarm.common.procstat import ProcSampler, process_age
+from swarm.common.spawn import child_env, cli_args, last_error, registry, wait_port
 from swarm.net.faults import ProcessFault, parse_process, plan_from_table
-from swarm.net.hosts import topology
 from swarm.net.inbox import Inbox
+from swarm.net.kernel.hosts import topology
+from swarm.net.kernel.netns import NetnsConfig
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_CONTROL,
@@ -40,13 +43,10 @@ from swarm.net.messages import (
     pack_record,
     unpack_record,
 )
-from swarm.net.netns import NetnsConfig
 from swarm.net.security.tls import identity_of, run_configs
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
-from swarm.procs.procstat import ProcSampler, process_age
 from swarm.procs.runconfig import RunConfig, RunRecord
-from swarm.procs.spawn import child_env, cli_args, last_error, registry, wait_port
 from world.config import WorldConfig
 
 log = logging.getLogger("swarm.supervisor")
@@ -65,7 +65,7 @@ class SuperviseOptions:
     log_dir: str | None = None
     """Children's stderr goes to files here (default: a temporary directory)."""
     netns: NetnsConfig | None = None
-    """Kernel-level realism (swarm/net/netns.py): world and robots in network namespaces joined by
+    """Kernel-level realism (swarm/net/kernel/netns.py): world and robots in network namespaces joined by
     veth pairs, with these kernel faults on the robot links; None: everything on loopback."""
     secure: str | None = None
     """Certificate directory (`swarm certs`): every session on TLS with its own identity and the
@@ -75,7 +75,7 @@ class SuperviseOptions:
     attention: int | None = -1
     """Whose strongest attention the dashboard's map draws: -1 all, k robot k, None nobody."""
     hosts: int = 0
-    """Emulated hosts (swarm/net/hosts.py): K namespaces on a bridge, a Zenoh router each."""
+    """Emulated hosts (swarm/net/kernel/hosts.py): K namespaces on a bridge, a Zenoh router each."""
 
 
 class Supervisor:

@@ -8,7 +8,7 @@ rewritten atomically, so a killed sweep keeps every finished point and `--resume
 Outputs: `<name>.csv` (one row per run), `<name>.md` and `<name>.png` (elratio, collisions,
 success and ticks/s against the fault level, one line per policy, error bars = std over seeds).
 With `kernel = true` every run is `swarm run --netns` and the swept loss or bandwidth is applied
-by the kernel (swarm/net/netns.py) instead of the radio; `compare = "other.csv"` then also draws
+by the kernel (swarm/net/kernel/netns.py) instead of the radio; `compare = "other.csv"` then also draws
 `<name>_compare.png` against another sweep of the same parameter (e.g. the radio's). With
 `record = true` every run's traffic is also recorded into `<name>-<k>.mcap` beside the CSV.
 """
@@ -29,7 +29,7 @@ from typing import Any
 
 from swarm.common import atomic
 from swarm.net.faults import parse_rate, plan_from_table
-from swarm.net.netns import NetnsConfig, check_tools
+from swarm.net.kernel.netns import NetnsConfig, check_tools
 from swarm.procs.runconfig import RunConfig
 from swarm.procs.supervisor import SuperviseOptions, Supervisor
 from world.config import ConfigError, WorldConfig, from_dict, load_toml
@@ -136,7 +136,7 @@ def run_experiment(path: str, resume: bool = False, out: str | None = None,
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
     if exp.record:
-        from swarm.net.recording import need_mcap
+        from swarm.net.record.recording import need_mcap
 
         need_mcap()
         columns = columns + ("recording",)

@@ -1,4 +1,4 @@
-"""`swarm replay FILE`: a recording (`swarm.net.recording`) checked against its own run and played
+"""`swarm replay FILE`: a recording (`swarm.net.record.recording`) checked against its own run and played
 back through the live dashboard (`swarm.procs.dashboard`), with no network.
 
 `load` turns a file into a `Recording`: the run's `RunRecord` from its attachment, every raw
@@ -30,8 +30,8 @@ from swarm.net.messages import (
     check_robot_status,
     unpack_record,
 )
-from swarm.net.recording import JSON_SUFFIX, RESULT, RUN_RECORD, RawRecording, RecordingError
-from swarm.net.recording import read as read_file
+from swarm.net.record.recording import JSON_SUFFIX, RESULT, RUN_RECORD, RawRecording, RecordingError
+from swarm.net.record.recording import read as read_file
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError

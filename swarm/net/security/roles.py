@@ -95,14 +95,14 @@ def roles(keys: Keys, robots: int, workers: int = 0) -> dict[str, Role]:
                          query=(k.config, k.learner_config),
                          token=(k.alive_recorder,)),
     }
-    for i in range(robots):  # radio delivery (traj, hidden, bundles) or direct (robot/*/direct)
+    for i in range(robots):  # radio delivery (traj, hidden, bundles) or direct (dtraj, dhidden)
         out[f"robot-{i}"] = Role(
-            put=(k.traj(i), k.hidden(i), k.direct(i), k.action(i), k.robot_status(i),
-                 k.rollout(i)),
+            put=(k.traj(i), k.hidden(i), k.direct(i), k.direct(i, hidden=True), k.action(i),
+                 k.robot_status(i), k.rollout(i)),
             query=(k.config, k.weights), token=(k.alive_robot(i),),
             watch=(k.alive_world, k.alive_robot("*")),
-            subscribe=(k.obs(i), k.inbox(i), k.inbox_hidden(i), k.direct("*"), k.end,
-                       k.weights))
+            subscribe=(k.obs(i), k.inbox(i), k.inbox_hidden(i), k.direct("*"),
+                       k.direct("*", hidden=True), k.end, k.weights))
     for w in range(workers):
         out[f"worker-{w}"] = Role(put=(k.worker_episodes,), query=(k.learner_config, k.weights),
                                   subscribe=(k.weights,), watch=(k.alive_learner,))

@@ -155,8 +155,10 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
                 "senders": [_sender(p, b, cfg) for p in b.trajs],
                 "sizes": [len(p) for p in b.trajs]}
     if kind == "direct":
+        from swarm.net.direct import carried
+
         st = m.Stamped.unpack(payload, cfg)
-        st.message(cfg)
+        carried(st, cfg)
         return {"ep": st.ep, "t": st.t, "robot": st.robot, "queue_ms": st.queue_ms,
                 "kind": "traj" if st.kind == m.K_TRAJ else "hidden", "size": len(st.payload)}
     if kind in ("hidden", "radio_hidden"):

@@ -158,7 +158,7 @@ class Topology:
                                                  for i in range(self.n))]
 
     def routers(self, port: int) -> list[tuple[str, list[str], str, str]]:
-        """Router processes to start (swarm.net.hosts has some): none, the world routes."""
+        """Router processes to start (swarm.net.kernel.hosts has some): none, the world routes."""
         return []
 
     def describe(self) -> dict[str, Any]:

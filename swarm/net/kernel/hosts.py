@@ -13,7 +13,7 @@ virtual clock a run is still a function of its seed and plan, and `--delivery di
 the radio out of the path, so robot-to-robot messages go router to router, not through the
 world.
 
-`Hosts` has the interface the supervisor uses for `--netns` (`swarm.net.netns.Topology`):
+`Hosts` has the interface the supervisor uses for `--netns` (`swarm.net.kernel.netns.Topology`):
 `up`/`down` (idempotent, at exit and on SIGTERM too; `remove` cleans up after a SIGKILLed
 supervisor), `exec_prefix`, `world_ns`, `robot_ns`, `hub_addr`, `world_listen`,
 `robot_endpoint`, `routers`, `describe`.
@@ -31,8 +31,8 @@ import subprocess
 import time
 from typing import Any
 
+from swarm.net.kernel.netns import _exit_on_term, _link_exists, _run, _tag, check_tools, namespaces
 from swarm.net.keys import Keys
-from swarm.net.netns import _exit_on_term, _link_exists, _run, _tag, check_tools, namespaces
 from swarm.net.zconfig import ZenohOptions, open_session
 from world.config import ConfigError
 
@@ -209,7 +209,7 @@ def topology(run_id: str, n_robots: int, netns: Any = None, hosts: int = 0) -> A
     if hosts:
         return Hosts(run_id, n_robots, hosts)
     if netns is not None:
-        from swarm.net.netns import Topology
+        from swarm.net.kernel.netns import Topology
 
         return Topology(run_id, n_robots, netns)
     return None

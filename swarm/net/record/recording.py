@@ -7,7 +7,7 @@ Layout of a recording (format FORMAT):
   metadata `swarm.recorder`: what the recorder counted (messages, bad, dropped);
 - per Zenoh key two channels: topic = the key, message encoding `msgpack`, no schema: the
   payload bit-exact as it was on the wire; topic = key + `/json`, encoding `json` with a
-  `jsonschema` schema per message kind (`swarm.net.msgjson`): the validated, decoded message;
+  `jsonschema` schema per message kind (`swarm.net.record.msgjson`): the validated, decoded message;
 - every message: log time = wall clock at receipt (ns since the epoch), publish time = the
   run's virtual time at its tick (ns), sequence = the run tick.
 
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from swarm.net import msgjson
 from swarm.net.messages import SCHEMA, BadMessage
+from swarm.net.record import msgjson
 from world.config import ConfigError, WorldConfig
 
 FORMAT = 1
