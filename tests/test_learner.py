@@ -198,7 +198,9 @@ def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path)
     tc = TrainConfig(batch=4)
     update(pol, torch.optim.Adam(pol.net.parameters(), lr=tc.lr), roll, tc)
     for k, v in pol.net.state_dict().items():
-        torch.testing.assert_close(field["state_dict"][k], v, rtol=1e-4, atol=1e-6)
+        # one Adam step moves a weight by up to lr (3e-3): 1e-5 is 0.3% of it (float noise in a
+        # near-zero gradient can move a weight by ~1e-6)
+        torch.testing.assert_close(field["state_dict"][k], v, rtol=1e-4, atol=1e-5)
     row = next(csv.DictReader((out / "curve.csv").open()))
     assert float(row["elratio"]) == pytest.approx(float(roll.metrics.elratio.mean()))
 

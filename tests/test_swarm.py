@@ -274,3 +274,23 @@ def test_a_world_that_fails_is_reported_with_its_own_error(tmp_path: Path) -> No
     assert last_error(log) == "RuntimeError: no robot came alive within 15 s"
     log.write_text("a warning\n")
     assert last_error(log) == "" and last_error(tmp_path / "missing.log") == ""
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("name", ["commnet", "vain", "bicnet"])
+@pytest.mark.parametrize("sample", [False, True])
+def test_every_learned_policy_swarm_matches_batched_eval(tmp_path: Path, name: str,
+                                                          sample: bool) -> None:
+    """The shipped checkpoints of the other learned policies, acted in numpy by torch-free
+    robot processes, against the batched evaluator: the same actions, greedy and sampled."""
+    out = tmp_path / "run.json"
+    r = swarm("run", "--headless", "--robots", "4", "--policy", name, "--episodes", "1",
+              "--seed", "8", "--run-id", f"eq{name}{int(sample)}", "--json", str(out),
+              *(["--sample"] if sample else []), timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(out.read_text())
+    cfg = WorldConfig(n_robots=4)
+    ev = evaluate(cfg, make_policy(name, cfg, checkpoint=str(ROOT / "checkpoints" / f"{name}.pt")),
+                  8, 1, record_actions=True, greedy=not sample)
+    assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
+    assert res["rss_mb_per_robot"] < 120  # numpy, no torch
