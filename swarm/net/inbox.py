@@ -127,3 +127,12 @@ def tally(counts: dict[str, int], key: str, cap: int = 64) -> bool:
         key = "(other keys)"
     n = counts[key] = counts.get(key, 0) + 1
     return n <= 3 or n & (n - 1) == 0
+
+
+def publisher(session: zenoh.Session, key: str, express: bool = False) -> zenoh.Publisher:
+    """The run's publishers: congestion control BLOCK, never Zenoh's default DROP, which drops a
+    message silently when the receiver's link stays congested past 1 ms (a busy 2-core machine
+    does that: a lost status or action would be a silent loss). `express` sends at once,
+    unbatched (the hidden-state chain: each hop waits for the message)."""
+    return session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                     express=express)

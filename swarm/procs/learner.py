@@ -48,7 +48,7 @@ from swarm.learn.curves import CurveLog
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
 from swarm.learn.weights import weights_of
-from swarm.net.inbox import Inbox, tally
+from swarm.net.inbox import Inbox, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_LSTATUS,
@@ -167,8 +167,8 @@ class Learner:
     # --- network ----------------------------------------------------------------------------
     def _declare(self) -> Inbox:
         k, s = self.keys, self.session
-        self.weights_pub = s.declare_publisher(k.weights)
-        self.status_pub = s.declare_publisher(k.learner_status)
+        self.weights_pub = publisher(s, k.weights)
+        self.status_pub = publisher(s, k.learner_status)
         return (Inbox(s).subscribe(k.rollout("*"), "robot").subscribe(k.episode, "world")
                 .subscribe(k.worker_episodes, "worker")
                 .queryable(k.weights, lambda: self.weights_payload)

@@ -20,7 +20,7 @@ import zenoh
 
 from policies.base import Policy
 from swarm.common.policy_spec import build_inference
-from swarm.net.inbox import Inbox, query, tally
+from swarm.net.inbox import Inbox, publisher, query, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_RESULT,
@@ -131,16 +131,16 @@ class RobotProcess:
         self.recent: list[int] = []
         self._bundles: dict[tuple[int, int], Bundle] = {}
         self._hidden: dict[tuple[int, int], Hidden] = {}
-        self.traj_pub = session.declare_publisher(self.keys.traj(robot))
-        self.act_pub = session.declare_publisher(self.keys.action(robot))
-        self.hid_pub = session.declare_publisher(self.keys.hidden(robot))
-        self.status_pub = session.declare_publisher(self.keys.robot_status(robot))
+        self.traj_pub = publisher(session, self.keys.traj(robot))
+        self.act_pub = publisher(session, self.keys.action(robot))
+        self.hid_pub = publisher(session, self.keys.hidden(robot), express=True)
+        self.status_pub = publisher(session, self.keys.robot_status(robot))
         # learning in the field (run.train): weights version in use, the next one, the record
         self.train = run.train and getattr(policy, "learned", False)
         self.version = 0
         self.next_weights: Any = None
         self.record: list[RolloutTick] = []
-        self.roll_pub = session.declare_publisher(self.keys.rollout(robot)) if self.train else None
+        self.roll_pub = publisher(session, self.keys.rollout(robot)) if self.train else None
 
     @property
     def last_stall(self) -> float:

@@ -18,7 +18,7 @@ import zenoh
 
 from swarm.net.direct import WAIT_FRAC, DirectLink
 from swarm.net.faults import plan_from_table
-from swarm.net.inbox import Event, Inbox
+from swarm.net.inbox import Event, Inbox, publisher
 from swarm.net.messages import (
     K_HIDDEN,
     K_RSTATUS,
@@ -103,9 +103,10 @@ class DirectDelivery:
         self.link = DirectLink(cfg, proc.robot, plan, run.tick_timeout)
         for old in (proc.traj_pub, proc.hid_pub):
             old.undeclare()
-        k, r, decl = proc.keys, proc.robot, proc.session.declare_publisher
-        proc.traj_pub = _StampingPublisher(decl(k.direct(r)), self.link, K_TRAJ)
-        proc.hid_pub = _StampingPublisher(decl(k.direct(r, hidden=True)), self.link, K_HIDDEN)
+        k, r, s = proc.keys, proc.robot, proc.session
+        proc.traj_pub = _StampingPublisher(publisher(s, k.direct(r)), self.link, K_TRAJ)
+        proc.hid_pub = _StampingPublisher(publisher(s, k.direct(r, hidden=True), express=True),
+                                          self.link, K_HIDDEN)
         proc.status_pub = _StatusPublisher(proc.status_pub, self.link)  # type: ignore[assignment]
         self.t_begin = 0.0
         self.budget_s = 0.0

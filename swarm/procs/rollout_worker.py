@@ -24,7 +24,7 @@ from swarm.learn.config import TrainConfig
 from swarm.learn.join import episodes_of
 from swarm.learn.rollout import collect
 from swarm.learn.weights import adopt
-from swarm.net.inbox import Event, Inbox, query
+from swarm.net.inbox import Event, Inbox, publisher, query
 from swarm.net.keys import Keys
 from swarm.net.messages import BadMessage, Weights
 from swarm.net.zconfig import ZenohOptions, open_session
@@ -50,7 +50,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         policy = cls(cfg, model=from_dict(cls.config_cls, rec.model, "learner model"))
         inbox = Inbox(session).subscribe(keys.weights, "w").liveliness(keys.alive_learner,
                                                                          "learner")
-        pub = session.declare_publisher(keys.worker_episodes)
+        pub = publisher(session, keys.worker_episodes)
         for reply in session.get(keys.weights, timeout=2.0):
             if reply.ok is not None:
                 inbox.q.put(Event("w", keys.weights, reply.ok.payload.to_bytes()))

@@ -65,8 +65,9 @@ class SuperviseOptions:
     log_dir: str | None = None
     """Children's stderr goes to files here (default: a temporary directory)."""
     netns: NetnsConfig | None = None
-    """Kernel-level realism (swarm/net/kernel/netns.py): world and robots in network namespaces joined by
-    veth pairs, with these kernel faults on the robot links; None: everything on loopback."""
+    """Kernel-level realism (swarm/net/kernel/netns.py): world and robots in network namespaces
+    joined by veth pairs, with these kernel faults on the robot links; None: everything on
+    loopback."""
     secure: str | None = None
     """Certificate directory (`swarm certs`): every session on TLS with its own identity and the
     run's access control (swarm/net/security/); configs in LOG_DIR/zenoh/. None: plain TCP."""

@@ -25,7 +25,7 @@ from policies import CHAINED
 from swarm.learn.evaluate import EvalResult
 from swarm.net.direct import DirectTally
 from swarm.net.faults import FaultPlan, plan_from_table
-from swarm.net.inbox import Inbox, tally
+from swarm.net.inbox import Inbox, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_CONTROL,
@@ -119,7 +119,9 @@ class WorldProcess:
     def _put(self, key: str, payload: bytes) -> None:
         pub = self._pubs.get(key)
         if pub is None:
-            pub = self._pubs[key] = self.session.declare_publisher(key)
+            # hidden-state forwards go out at once: each hop of the chain waits for one
+            pub = self._pubs[key] = publisher(self.session, key,
+                                              express=key.startswith(self.keys.inbox_hidden(0)[:-1]))
         pub.put(payload)
 
     def _count_bad(self, key: str, why: str) -> None:

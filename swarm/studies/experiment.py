@@ -8,8 +8,9 @@ rewritten atomically, so a killed sweep keeps every finished point and `--resume
 Outputs: `<name>.csv` (one row per run), `<name>.md` and `<name>.png` (elratio, collisions,
 success and ticks/s against the fault level, one line per policy, error bars = std over seeds).
 With `kernel = true` every run is `swarm run --netns` and the swept loss or bandwidth is applied
-by the kernel (swarm/net/kernel/netns.py) instead of the radio; `compare = "other.csv"` then also draws
-`<name>_compare.png` against another sweep of the same parameter (e.g. the radio's). With
+by the kernel (swarm/net/kernel/netns.py) instead of the radio; `compare = "other.csv"` then
+also draws `<name>_compare.png` against another sweep of the same parameter (e.g. the radio's).
+With
 `record = true` every run's traffic is also recorded into `<name>-<k>.mcap` beside the CSV.
 """
 

@@ -1,5 +1,5 @@
-"""`swarm replay FILE`: a recording (`swarm.net.record.recording`) checked against its own run and played
-back through the live dashboard (`swarm.procs.dashboard`), with no network.
+"""`swarm replay FILE`: a recording (`swarm.net.record.recording`) checked against its own run and
+played back through the live dashboard (`swarm.procs.dashboard`), with no network.
 
 `load` turns a file into a `Recording`: the run's `RunRecord` from its attachment, every raw
 message with its kind and robot id, and the result when the recording finished. A file whose
