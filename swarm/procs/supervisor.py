@@ -333,6 +333,7 @@ class Supervisor:
                     if self.world is not None and self.world.poll() is not None and \
                             inbox.q.empty():
                         break
+                self._late_status()
                 self._drain_learner()
                 if self.learner is not None:
                     session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
@@ -433,6 +434,14 @@ class Supervisor:
             self.recorder.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             log.warning("the recorder did not finish within %g s; stopping it", timeout)
+
+    def _late_status(self, grace: float = 2.0) -> None:
+        """The last tick's status can reach us after the result on a loaded machine: wait for
+        every tick the result counts (up to `grace` seconds), so none goes unshown."""
+        want = int((self.result or {}).get("ticks", 0))
+        deadline = time.monotonic() + grace
+        while self.view.ticks_done < want and time.monotonic() < deadline:
+            self._pump_inbox(0.05)
 
     def _pump_inbox(self, seconds: float) -> None:
         end = time.monotonic() + seconds
