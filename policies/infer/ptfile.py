@@ -36,13 +36,18 @@ class _Storage:
 
 def _rebuild_tensor(storage: np.ndarray, offset: int, size: tuple[int, ...],
                     stride: tuple[int, ...], *_: Any) -> np.ndarray:
+    if not (isinstance(offset, int) and offset >= 0 and all(
+            isinstance(n, int) and n >= 0 for n in (*size, *stride))):
+        raise PtFileError("a tensor has a negative or non-integer offset, size or stride")
     if not size:
+        if offset >= len(storage):
+            raise PtFileError("a tensor reaches past its storage")
         return storage[offset:offset + 1].reshape(()).copy()
     item = storage.itemsize
     need = offset + 1 + sum((n - 1) * s for n, s in zip(size, stride, strict=True) if n > 0)
     if any(n == 0 for n in size):
         return np.zeros(size, dtype=storage.dtype)
-    if need > len(storage) or min(stride) < 0:
+    if need > len(storage):
         raise PtFileError("a tensor reaches past its storage")
     view = np.lib.stride_tricks.as_strided(storage[offset:], shape=size,
                                            strides=tuple(s * item for s in stride))

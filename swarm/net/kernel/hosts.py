@@ -31,7 +31,7 @@ import subprocess
 import time
 from typing import Any
 
-from swarm.net.kernel.netns import _exit_on_term, _link_exists, _run, _tag, check_tools, namespaces
+from swarm.net.kernel.netns import _link_exists, _run, _tag, bring_up, check_tools, namespaces
 from swarm.net.keys import Keys
 from swarm.net.zconfig import ZenohOptions, open_session
 from world.config import ConfigError
@@ -128,21 +128,8 @@ class Hosts:
         if self.is_up:
             return self
         clash = set(namespaces()) & set(self.host_ns)
-        if clash or _link_exists(self.bridge):  # not ours: never torn down by us
-            raise ConfigError(f"--hosts: {sorted(clash)[0] if clash else self.bridge} exists "
-                              f"already (another run with id {self.run_id!r}?)")
-        atexit.register(self.down)
-        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-            try:  # SIGTERM unwinds (finally: down) instead of killing with the namespaces left
-                self._old_term = signal.signal(signal.SIGTERM, _exit_on_term)
-            except ValueError:  # not the main thread
-                pass
-        self.is_up = True
-        try:
-            self._make()
-        except BaseException:
-            self.down()
-            raise
+        bring_up(self, sorted(clash)[0] if clash else
+                 self.bridge if _link_exists(self.bridge) else None, "--hosts")
         return self
 
     def _make(self) -> None:

@@ -190,21 +190,8 @@ class Topology:
         if self.is_up:
             return self
         clash = set(namespaces()) & {self.world_ns, *self.robot_ns}
-        if clash or _link_exists(self.host_if):  # not ours: never torn down by us
-            raise ConfigError(f"netns: {sorted(clash)[0] if clash else self.host_if} exists "
-                              f"already (another run with id {self.run_id!r}?)")
-        atexit.register(self.down)
-        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-            try:  # SIGTERM unwinds (finally: down) instead of killing with the namespaces left
-                self._old_term = signal.signal(signal.SIGTERM, _exit_on_term)
-            except ValueError:  # not the main thread
-                pass
-        self.is_up = True
-        try:
-            self._make()
-        except BaseException:
-            self.down()
-            raise
+        bring_up(self, sorted(clash)[0] if clash else
+                 self.host_if if _link_exists(self.host_if) else None, "netns")
         return self
 
     def _make(self) -> None:
@@ -273,6 +260,27 @@ class Topology:
     def __exit__(self, et: type[BaseException] | None, e: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.down()
+
+
+def bring_up(topo: Any, clash: str | None, label: str) -> None:
+    """Create `topo`'s namespaces and links (`topo._make()`) so that they are torn down however
+    the process ends: at exit, on SIGTERM, and at once if making them fails. `clash` names a
+    namespace or link that exists already (not ours: never touched); a one-line ConfigError."""
+    if clash:
+        raise ConfigError(f"{label}: {clash} exists already (another run with id "
+                          f"{topo.run_id!r}?)")
+    atexit.register(topo.down)
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        try:  # SIGTERM unwinds (finally: down) instead of killing with the namespaces left
+            topo._old_term = signal.signal(signal.SIGTERM, _exit_on_term)
+        except ValueError:  # not the main thread
+            pass
+    topo.is_up = True
+    try:
+        topo._make()
+    except BaseException:
+        topo.down()
+        raise
 
 
 def _exit_on_term(signum: int, frame: FrameType | None) -> None:
