@@ -31,6 +31,9 @@ BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility
 CHAINED = frozenset({"commattn"})
 # Learned policies (a torch network to train, a numpy twin in policies.infer.nets to act with).
 LEARNED = frozenset({"commattn", "commnet", "vain", "bicnet"})
+# Policies `swarm train --imitate` can learn from: they act on a View alone (the oracle reads the
+# episode's future from the world, so it cannot label states a learner visits).
+TEACHERS = ("central", "coordinated-frontier", "nearest-frontier", "cost-utility")
 
 
 def policy_class(name: str) -> type[Policy]:

@@ -40,6 +40,7 @@ class Evaluation:
     tick: np.ndarray  # [R] index into the `views` list
     group: np.ndarray  # [R]
     robot: np.ndarray  # [R]
+    agree: np.ndarray | None = None  # [R] greedy action == target (evaluated with targets)
 
 
 class LearnedPolicy(InferencePolicy):
@@ -69,9 +70,12 @@ class LearnedPolicy(InferencePolicy):
 
     # --------------------------------------------------------------- training
     def evaluate(self, views: Sequence[View], actions: Sequence[np.ndarray],
-                 inputs: Sequence[Tokens] | None = None) -> Evaluation:
+                 inputs: Sequence[Tokens] | None = None,
+                 targets: Sequence[np.ndarray] | None = None) -> Evaluation:
         """Log-probs of the recorded actions [G, N] per view, values and entropies, with grad.
-        `inputs` are the views' features kept at acting time (recomputed when None)."""
+        `inputs` are the views' features kept at acting time (recomputed when None). With
+        `targets` (a teacher's actions), the log-probs are of the targets, while a chained
+        network still conditions on the actions taken (what the predecessors sent)."""
         parts = list(inputs) if inputs is not None else [self.features(v) for v in views]
         groups = np.cumsum([0] + [v.receivers.shape[0] for v in views])
         tokens = Tokens.cat(parts)
@@ -89,9 +93,14 @@ class LearnedPolicy(InferencePolicy):
         else:
             logits, value = self.net(members)
         logp_all = torch.log_softmax(logits, dim=-1)
-        logp = logp_all.gather(1, taken[:, None])[:, 0]
+        target, agree = taken, None
+        if targets is not None:
+            flat_t = np.concatenate([a.reshape(-1) for a in targets])
+            target = torch.from_numpy(flat_t[members.group * n + members.robot].astype(np.int64))
+            agree = (logits.detach().argmax(-1) == target).numpy()
+        logp = logp_all.gather(1, target[:, None])[:, 0]
         entropy = -(logp_all.exp() * logp_all).sum(-1)
-        return Evaluation(logp, value, entropy, tick, group, members.robot)
+        return Evaluation(logp, value, entropy, tick, group, members.robot, agree)
 
     def torch_logits(self, view: View) -> tuple[torch.Tensor, torch.Tensor]:
         """Greedy logits [R, 9] and values [R] of every receiver of a view from the torch network

@@ -15,7 +15,7 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -132,8 +132,9 @@ class InferencePolicy(Policy):
             model, weights = check_checkpoint(data, Path(checkpoint), self.name, cfg,
                                               self.config_cls, self.numpy_cls)
             self.meta = dict(data.get("meta", {}))
-        self.last_probs: np.ndarray | None = None  # [G, N, 9] of the last decision
-        self.last_attention: np.ndarray | None = None  # see act_with_chain
+        self._after: tuple[View, Tokens, Any] | None = None  # act_with_chain's extras, lazily
+        self.last_probs = None  # [G, N, 9] of the last decision
+        self.last_attention = None  # see act_with_chain
         self.model_cfg: ModelConfig = model if model is not None else self.config_cls()
         self.features = featurizer(cfg, self.model_cfg)
         self.np = self.numpy_cls(self.model_cfg, self.build(weights))
@@ -243,38 +244,76 @@ class InferencePolicy(Policy):
         return Decision(actions, probs, value, state, context, kept,
                         attention_by_id(view, tokens, out.alpha))
 
-    def prepare_chain(self, view: View) -> tuple[View, Tokens, Encoded]:
-        """The part of `act_with_chain` that needs no predecessor (features and the encoder),
-        so a robot process computes it while it waits for its predecessor's message."""
+    # The probabilities and attention of a robot's chained decision are computed when first read,
+    # after its hidden-state message has gone out (they are off the chain's critical path).
+    @property
+    def last_probs(self) -> np.ndarray | None:
+        self._finish()
+        return self._last_probs
+
+    @last_probs.setter
+    def last_probs(self, value: np.ndarray | None) -> None:
+        self._finish()
+        self._last_probs = value
+
+    @property
+    def last_attention(self) -> np.ndarray | None:
+        self._finish()
+        return self._last_attention
+
+    @last_attention.setter
+    def last_attention(self, value: np.ndarray | None) -> None:
+        self._finish()
+        self._last_attention = value
+
+    def _finish(self) -> None:
+        if self._after is None:
+            return
+        (view, tokens, out), self._after = self._after, None
+        self._last_probs = np.zeros(view.receivers.shape + (N_ACTIONS,), dtype=np.float32)
+        self._last_probs[tokens.group, tokens.robot] = softmax(out.logits)
+        order = np.argsort(tokens.group)
+        att = attention_by_id(view, tokens, out.alpha)[tokens.group, tokens.robot][order]
+        self._last_attention = att[0] if view.groups == 1 else att
+
+    def prepare_chain(self, view: View, greedy: bool = True) -> Prepared:
+        """The part of `act_with_chain` that needs no predecessor (features, the encoder, each
+        receiver's predecessor and its sampling noise), so a robot process computes it while it
+        waits for its predecessor's message."""
         if not self.chained:
             raise TypeError(f"{self.name} is not a chained policy")
         if (view.receivers.sum(1) != 1).any():
             raise ValueError("act_with_chain needs exactly one receiver per group")
         self.remember(view)
         tokens = self.features(view)
-        return view, tokens, self.np.encode(tokens)  # type: ignore[attr-defined]
+        pred = view.predecessor()[tokens.group, tokens.robot]
+        noise = None if greedy else gumbel(view, tokens.group, tokens.robot)
+        return Prepared(view, tokens, self.np.encode(tokens), pred,  # type: ignore[attr-defined]
+                        greedy, noise)
 
     def act_with_chain(self, view: View, pred_state: np.ndarray | None,
                        pred_action: np.ndarray | None, greedy: bool = True,
-                       prepared: tuple[View, Tokens, Encoded] | None = None,
+                       prepared: Prepared | None = None,
                        ) -> tuple[np.ndarray, np.ndarray]:
         """One receiver per group given its predecessor's hidden-state message.
 
         pred_state [G, S] float32 and pred_action [G] int (rows of receivers without a
         predecessor are ignored; pass None when no receiver has one). Returns actions [G, N]
         and the receivers' new states [G, S] (their own hidden-state messages). `prepared` is
-        `prepare_chain(view)` computed earlier (the same view; its chain_ok may be set since).
-        Sets `last_probs` [G, N, 9] and `last_attention`, each group's receiver's attention
-        over robot ids ([G, N]; [N] when there is one group, as in a robot process).
+        `prepare_chain(view, greedy)` computed earlier (the same view; its chain_ok may be set
+        since). Sets `last_probs` [G, N, 9] and `last_attention`, each group's receiver's
+        attention over robot ids ([G, N]; [N] when there is one group, as in a robot process).
         """
-        if prepared is None:
-            prepared = self.prepare_chain(view)
-        elif prepared[0] is not view:
+        if prepared is None or prepared.greedy != greedy:
+            if prepared is not None and prepared.view is not view:
+                raise ValueError("prepared for another view")
+            prepared = self.prepare_chain(view, greedy) if prepared is None else \
+                prepared._replace(greedy=greedy, noise=None if greedy else gumbel(
+                    view, prepared.tokens.group, prepared.tokens.robot))
+        elif prepared.view is not view:
             raise ValueError("prepared for another view")
-        _, tokens, encoded = prepared
+        tokens, p = prepared.tokens, prepared.pred
         net: NumpyCommAttn = self.np  # type: ignore[assignment]
-        order = np.argsort(tokens.group)  # group g's receiver is row order[g]
-        p = view.predecessor()[tokens.group, tokens.robot]
         if view.chain_ok is not None:  # lost or late hidden-state message: no predecessor
             p = np.where(view.chain_ok[tokens.group, tokens.robot], p, -1)
         has = p >= 0
@@ -293,16 +332,24 @@ class InferencePolicy(Policy):
                                  f"expected {s_prev.shape[1]}")
             s_prev = np.where(has[:, None], ps, s_prev)
             a_prev = np.where(has, pa, a_prev)
-        noise = None if greedy else gumbel(view, tokens.group, tokens.robot)
-        out = net.decode(encoded, s_prev, a_prev)
-        a = chooser(noise)(slice(None), out.logits)
+        out = net.decode(prepared.encoded, s_prev, a_prev)
+        a = chooser(prepared.noise)(slice(None), out.logits)
         actions = np.zeros(view.receivers.shape, dtype=np.int64)
         actions[tokens.group, tokens.robot] = a
-        self.last_probs = np.zeros(view.receivers.shape + (N_ACTIONS,), dtype=np.float32)
-        self.last_probs[tokens.group, tokens.robot] = softmax(out.logits)
-        att = attention_by_id(view, tokens, out.alpha)[tokens.group, tokens.robot][order]
-        self.last_attention = att[0] if view.groups == 1 else att
-        return actions, out.state[order].copy()
+        self._after = (view, tokens, out)
+        state = out.state if view.groups == 1 else out.state[np.argsort(tokens.group)]
+        return actions, state.copy()
+
+
+class Prepared(NamedTuple):
+    """`prepare_chain`'s output: what a chained decision needs before the predecessor speaks."""
+
+    view: View
+    tokens: Tokens
+    encoded: Encoded
+    pred: np.ndarray  # [R] each receiver's predecessor id (-1: none), chain_ok not applied
+    greedy: bool
+    noise: np.ndarray | None  # [R, 9] Gumbel noise when sampling
 
 
 def attention_by_id(view: View, tokens: Tokens, alpha: np.ndarray) -> np.ndarray:

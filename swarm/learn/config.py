@@ -83,6 +83,11 @@ class TrainConfig:
     """Processes that collect and backpropagate the episodes of each update in parallel (this
     one plus workers - 1 spawned ones, see swarm.train_parallel); the update is the same for
     any count up to float rounding. On 2 cores, --workers 2 --threads 1 is fastest."""
+    imitate: str = ""
+    """Teacher (ours, not the paper's): a non-learned policy, e.g. `central`, whose action at
+    every state the learner visits is the target (DAgger: the learner's own sampled actions
+    drive the episodes, the loss is the cross-entropy to the teacher's action plus the
+    baseline's); empty: REINFORCE."""
     chunk_ticks: int = 3
     """Ticks per backward pass: bounds memory and keeps tensors cache-sized (3 is fastest here);
     the gradient is the same for any value."""
@@ -101,6 +106,12 @@ class TrainConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and lo <= v <= hi):  # also NaN
                 raise ConfigError(f"train {name} must lie in [{lo}, {hi}], got {v!r}")
+        if self.imitate:
+            from policies import TEACHERS
+
+            if self.imitate not in TEACHERS:
+                raise ConfigError(f"train imitate must name a teacher "
+                                  f"({', '.join(TEACHERS)}), got {self.imitate!r}")
 
 
 # ------------------------------------------------------------------------------------ rollout

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from policies import make_policy
 from policies.infer.tokens import Tokens
 from policies.learned import LearnedPolicy
 from swarm.learn.config import TrainConfig
@@ -31,6 +32,7 @@ class Rollout:
     metrics: core.EpisodeMetrics
     logp: np.ndarray | None = None  # log pi(a) under the weights that acted (0 off receivers)
     stale: np.ndarray | None = None  # [B] bool: acted by older weights than the learner's now
+    labels: list[np.ndarray] | None = None  # T of [B, N]: a teacher's actions (--imitate)
 
 
 def frozen(view: View) -> View:
@@ -55,18 +57,25 @@ def train_faults(cfg: TrainConfig) -> FaultPlan | None:
 
 
 def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.ndarray,
-            faults: FaultPlan | None = None, tick_s: float = 2.0) -> Rollout:
+            faults: FaultPlan | None = None, tick_s: float = 2.0, teacher: str = "") -> Rollout:
     """Run `episodes` of `seed` to the horizon with sampled actions (under the radio's `faults`
-    in virtual time, ticks of `tick_s`)."""
+    in virtual time, ticks of `tick_s`); with a `teacher` policy, its action at every view is
+    recorded as the label (the learner's actions still drive the episodes)."""
     channel = channel_for(faults, world, policy, tick_s)
     state = core.reset(world, seed, episodes)
     policy.reset(len(episodes))
+    guide = make_policy(teacher, world) if teacher else None
+    if guide is not None:
+        guide.reset(len(episodes))
+    labels: list[np.ndarray] = []
     views, actions, inputs, values, rewards, logp = [], [], [], [], [], []
     while not state.done:
         view = frozen(batch_view(world, state))
         if channel is not None:
             channel.apply(view)  # the swarm radio's message faults, during training
         d = policy.decide(view, greedy=False, keep_inputs=True)
+        if guide is not None:
+            labels.append(guide.act(view, greedy=True))
         rewards.append(core.step(world, state, d.actions))
         views.append(view)
         actions.append(d.actions)
@@ -75,5 +84,6 @@ def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.n
         p = np.take_along_axis(d.probs, d.actions[..., None], -1)[..., 0]
         logp.append(np.log(np.maximum(p, 1e-30), dtype=np.float32) * view.receivers)
     return Rollout(views, actions, inputs, np.stack(values), np.stack(rewards),
-                   core.metrics(world, state), np.stack(logp))
+                   core.metrics(world, state), np.stack(logp),
+                   labels=labels if guide is not None else None)
 

@@ -69,15 +69,23 @@ def backward(policy: LearnedPolicy, roll: Rollout, adv: Advantages, cfg: TrainCo
     `decisions` counts the whole batch's decisions and (mean, std) are its advantages' moments,
     so the parts of a batch split across processes add up to the gradient of the whole.
     """
+    imitate = roll.labels is not None  # DAgger: every decision weighs 1 on the teacher's action
     a_all = (adv.adv - mean) / (std + 1e-8) if cfg.adv_norm else adv.adv
+    if imitate:
+        a_all = np.ones_like(adv.adv)
     totals = {"loss": 0.0, "pg": 0.0, "baseline": 0.0, "entropy": 0.0}
+    if imitate:
+        totals["agree"] = 0.0  # decisions where the learner's greedy action is the teacher's
     for t0 in range(0, len(roll.views), cfg.chunk_ticks):
         span = slice(t0, t0 + cfg.chunk_ticks)
-        ev = policy.evaluate(roll.views[span], roll.actions[span], roll.inputs[span])
+        ev = policy.evaluate(roll.views[span], roll.actions[span], roll.inputs[span],
+                             targets=roll.labels[span] if roll.labels is not None else None)
         at = (t0 + ev.tick, ev.group, ev.robot)
         a = torch.from_numpy(a_all[at].astype(np.float32))
+        if imitate and ev.agree is not None:
+            totals["agree"] += float(ev.agree.sum()) / decisions
         g = torch.from_numpy(adv.ret[at].astype(np.float32))
-        if roll.stale is not None and roll.logp is not None and cfg.is_clip > 0:
+        if not imitate and roll.stale is not None and roll.logp is not None and cfg.is_clip > 0:
             stale = torch.from_numpy(roll.stale[ev.group])  # their decisions: truncated IS weight
             if bool(stale.any()):
                 acted = torch.from_numpy(roll.logp[at].astype(np.float32))

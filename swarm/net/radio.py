@@ -297,11 +297,14 @@ class Radio:
         """(successor, on time) for the hidden-state message `sender` sent at tick t; charged
         to its bucket whether or not anyone's predecessor it is."""
         assert self.channel is not None
+        successors = np.flatnonzero(self.pred == sender).tolist()
+        if self.channel.plan.zero:  # no loss, delay, cap or cut: every copy on time
+            return [(i, True) for i in successors]
         fates = self.channel.hidden_from(ep, t, sender, size)  # O(N): per message
         out = []
-        for i in np.flatnonzero(self.pred == sender):
+        for i in successors:
             fate = int(fates[i])
             if fate != OK:
-                self.counters.miss("hidden", FATES[fate], sender, int(i))
-            out.append((int(i), fate == OK))
+                self.counters.miss("hidden", FATES[fate], sender, i)
+            out.append((i, fate == OK))
         return out

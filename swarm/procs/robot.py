@@ -394,9 +394,10 @@ class RobotProcess:
         view = robot_view(cfg, self.run_cfg.seed, obs.ep, obs.t, r, heard, obs.reward)
         chain_ok = True
         if self.policy.chained:
-            pred = int(view.predecessor()[0, r])
-            prepared = self.policy.prepare_chain(view)  # type: ignore[attr-defined]
-            hidden = None  # ... computed before waiting: only decoding waits for the predecessor
+            prepared = self.policy.prepare_chain(  # type: ignore[attr-defined]
+                view, self.run_cfg.greedy)  # before waiting: only decoding needs the predecessor
+            pred = int(prepared.pred[0])
+            hidden = None
             if pred >= 0:
                 w0 = time.perf_counter()
                 hidden = self._wait("hidden", obs.ep, obs.t, pred,

@@ -1,0 +1,87 @@
+"""`swarm train --imitate TEACHER`: DAgger toward a non-learned planner (the learner's sampled
+actions drive the episodes; the teacher's action at each visited view is the target)."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from rich.console import Console
+
+from policies import make_policy
+from policies.checkpoint import load_checkpoint
+from swarm.learn.config import TrainConfig
+from swarm.learn.rollout import collect
+from swarm.learn.trainer import main
+from swarm.learn.update import update
+from world import core
+from world.config import ConfigError, WorldConfig
+from world.decentral import batch_view
+
+SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=4, horizon=8, add_every=2,
+                    vision=3, comm_range=3.0, recent_len=4)
+
+
+def fresh(name: str = "commattn", seed: int = 0):
+    torch.manual_seed(seed)
+    return make_policy(name, SMALL)
+
+
+def test_labels_are_the_teachers_actions_on_the_views_the_learner_visited() -> None:
+    roll = collect(fresh(), SMALL, 5, np.arange(6), teacher="central")
+    assert roll.labels is not None and len(roll.labels) == len(roll.views) == SMALL.horizon
+    teacher = make_policy("central", SMALL)
+    teacher.reset(6)
+    for view, label in zip(roll.views, roll.labels, strict=True):
+        np.testing.assert_array_equal(teacher.act(view), label)
+    # the learner, not the teacher, drove the episodes: the actions taken differ from the labels
+    taken = np.stack(roll.actions)[np.stack([v.receivers for v in roll.views])]
+    labels = np.stack(roll.labels)[np.stack([v.receivers for v in roll.views])]
+    assert (taken != labels).mean() > 0.3
+    assert collect(fresh(), SMALL, 5, np.arange(2)).labels is None
+
+
+@pytest.mark.parametrize("name", ["commattn", "commnet"])
+def test_targets_are_scored_while_the_chain_conditions_on_the_actions_taken(name: str) -> None:
+    """evaluate(targets=...) gives log p(target | s) with each CommAttn decoder step fed the
+    predecessor's action as sent (the one taken), exactly what acting computed."""
+    pol = fresh(name)
+    state = core.reset(SMALL, 11, np.arange(5))
+    core.step(SMALL, state, np.random.default_rng(0).integers(0, 9, (5, SMALL.n_robots)))
+    view = batch_view(SMALL, state)
+    d = pol.decide(view, greedy=False, keep_inputs=True)
+    targets = np.random.default_rng(1).integers(0, 9, d.actions.shape)
+    ev = pol.evaluate([view], [d.actions], [d.inputs], targets=[targets])
+    for k, (g, i) in enumerate(zip(ev.group, ev.robot, strict=True)):
+        assert ev.logp[k].item() == pytest.approx(np.log(d.probs[g, i, targets[g, i]]), abs=1e-5)
+        assert ev.agree[k] == (d.probs[g, i].argmax() == targets[g, i])
+
+
+def test_imitation_fits_the_teacher_on_the_states_it_saw() -> None:
+    """Steps on one batch of DAgger data raise the learner's agreement with the teacher."""
+    cfg = TrainConfig(policy="commattn", batch=8, imitate="central", lr=1e-2)
+    pol = fresh()
+    roll = collect(pol, SMALL, 5, np.arange(8), teacher="central")
+    opt = torch.optim.Adam(pol.net.parameters(), lr=cfg.lr)
+    parts = [update(pol, opt, roll, cfg) for _ in range(25)]
+    assert parts[-1]["pg"] < 0.6 * parts[0]["pg"], (parts[0], parts[-1])
+    assert parts[-1]["agree"] > parts[0]["agree"] + 0.2, (parts[0], parts[-1])
+
+
+def test_train_imitate_runs_and_records_the_teacher(tmp_path: Path) -> None:
+    cfg = TrainConfig(policy="commattn", epochs=1, updates=2, batch=4, threads=1,
+                      val_episodes=2, curriculum_step=0, imitate="central")
+    row = main(cfg, SMALL, tmp_path, console=Console(file=io.StringIO()))
+    assert 0 <= row["agree"] <= 1
+    assert load_checkpoint(tmp_path / "checkpoint.pt")["train"]["config"]["imitate"] == "central"
+
+
+@pytest.mark.parametrize("teacher", ["oracle", "commnet", "bogus"])
+def test_a_teacher_that_cannot_label_is_refused_in_one_line(teacher: str) -> None:
+    with pytest.raises(ConfigError, match="imitate must name a teacher") as err:
+        dataclasses.replace(TrainConfig(), imitate=teacher)
+    assert "\n" not in str(err.value)
