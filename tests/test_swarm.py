@@ -239,6 +239,9 @@ def test_commattn_swarm_matches_batched_eval_tick_by_tick(tmp_path: Path, sample
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
     assert res["messages"]["hidden_delivered"] > 0 and res["timeouts"] == 0
     assert res["elratio_mean"] == pytest.approx(ev.summary(cfg)["elratio_mean"])
+    # where the chain's time goes: a message k hops down waits for the k before it
+    depth = res["chain_ms_by_depth"]
+    assert len(depth) >= 3 and min(depth) > 0 and depth[-1] > depth[0]
 
 
 def _run_killing_robot(run_id: str, robot: int, out: Path, *extra: str,

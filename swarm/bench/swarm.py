@@ -52,7 +52,9 @@ def bench_swarm(world: WorldConfig, cfg: SwarmBenchConfig, progress: Any = None)
                          "rss_mb_world": res["rss_mb_world"],
                          "pss_mb_world": res.get("pss_mb_world"),
                          "cpu_ms_per_tick": res.get("cpu_ms_per_tick", {}),
-                         "tick_ms": res.get("tick_ms", {}), "elratio_mean": res["elratio_mean"],
+                         "tick_ms": res.get("tick_ms", {}),
+                         "chain_ms_by_depth": res.get("chain_ms_by_depth"),
+                         "elratio_mean": res["elratio_mean"],
                          "timeouts": res["timeouts"], "ticks": res["ticks"],
                          "completed": res.get("completed"), "robots_lost": res.get("robots_lost"),
                          "bad": res.get("messages", {}).get("bad")})

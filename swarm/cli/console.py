@@ -177,7 +177,7 @@ def swarm_bench_table(result: Mapping[str, Any]) -> Any:
                         "process kind)", title_justify="left")
     ticks.add_column("policy", style="bold")
     for col in ("robots", "obs", "collect", "radio", "decide", "step", "CPU world",
-                "CPU robots"):
+                "CPU robots", "chain head", "per hop"):
         ticks.add_column(col, justify="right")
     for r in result["rows"]:
         ph, cpu = r.get("tick_ms") or {}, r.get("cpu_ms_per_tick") or {}
@@ -189,8 +189,19 @@ def swarm_bench_table(result: Mapping[str, Any]) -> Any:
                      str(r["timeouts"] + (r.get("robots_lost") or 0)))
         ticks.add_row(r["policy"], str(r["robots"]),
                       *(f(ph.get(k)) for k in ("obs", "collect", "radio", "decide", "step")),
-                      f(cpu.get("world")), f(cpu.get("robots")))
+                      f(cpu.get("world")), f(cpu.get("robots")), *chain_figures(r))
     return Group(main, ticks)
+
+
+def chain_figures(row: Mapping[str, Any]) -> tuple[str, str]:
+    """(chain head, per hop) in ms of a chained policy's run: when the first hidden-state
+    messages reached the world after the bundles went out, and the mean step per chain position
+    from there to the deepest position ('-' for policies without a chain)."""
+    depth = row.get("chain_ms_by_depth") or []
+    if not depth:
+        return "-", "-"
+    hop = (depth[-1] - depth[0]) / (len(depth) - 1) if len(depth) > 1 else None
+    return format(depth[0], ".1f"), "-" if hop is None else format(hop, ".2f")
 
 
 def kv_table(title: str, record: Mapping[str, Any]) -> Table:

@@ -74,6 +74,8 @@ class TickInbox:
     """Robots whose hidden-state message of this tick arrived (chained policies)."""
     delivered: bool = False
     """The bundles of this tick have been handed to the radio."""
+    hidden_at: dict[int, float] = field(default_factory=dict)
+    """Robot -> perf_counter time its hidden-state message reached the world's loop."""
 
 
 class WorldProcess:
@@ -106,6 +108,7 @@ class WorldProcess:
         # collecting trajectories, the radio (bundles and hidden-state forwarding), waiting for
         # the decisions (the chain of hidden-state messages included), stepping and status
         self.phase_ms = dict.fromkeys(PHASES, 0.0)
+        self.chain_ms: list[list[float]] = []  # per chain depth: [sum of ms, messages]
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.bad: dict[str, int] = {}
@@ -218,6 +221,7 @@ class WorldProcess:
         elif kind == "hidden":
             self.radio.counters.hidden_in += 1
             tick.sent_hidden.add(msg.robot)
+            tick.hidden_at.setdefault(msg.robot, time.perf_counter())
             if tick.delivered:
                 self._forward_hidden(msg, payload or b"", tick)
             else:
@@ -351,6 +355,7 @@ class WorldProcess:
             radio = self.phase_ms["radio"] - radio0  # this tick's bundles and forwarding
             self.phase_ms["collect"] += 1e3 * (t_delivered - t_sent)
             self.phase_ms["decide"] += max(0.0, 1e3 * (t_acted - t_delivered) - radio)
+            self._time_chain(tick, t_delivered)
             acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
             for i, msg in tick.action.items():
                 acts[0, i] = msg.action
@@ -369,6 +374,22 @@ class WorldProcess:
             self.run_tick += 1
             self._status(state, ep, missing)
             self.phase_ms["step"] += 1e3 * (time.perf_counter() - t_acted)
+
+    def _time_chain(self, tick: TickInbox, t_delivered: float) -> None:
+        """Sum, per position in the chain (0: no predecessor, k: k hops down), when hidden-state
+        messages reached the world after the bundles began to go out: where the chain's time
+        goes (`chain_ms_by_depth` in the result)."""
+        if not tick.hidden_at:
+            return
+        depth: list[int] = []
+        for p in self.radio.pred.tolist():
+            depth.append(0 if p < 0 else depth[p] + 1)  # a predecessor has a lower id
+        for i, at in tick.hidden_at.items():
+            d = depth[i]
+            while len(self.chain_ms) <= d:
+                self.chain_ms.append([0.0, 0])
+            self.chain_ms[d][0] += 1e3 * (at - t_delivered)
+            self.chain_ms[d][1] += 1
 
     def _status(self, state: core.WorldState, ep: int, missing: list[int]) -> None:
         lay = core.Layout.of(self.cfg)
@@ -438,6 +459,8 @@ class WorldProcess:
             # parallel processes, so this is CPU work, not latency)
             out["planning_ms_per_decision"] = self.planning_ms / max(self.run_tick, 1)
             out["tick_ms"] = {k: v / max(self.run_tick, 1) for k, v in self.phase_ms.items()}
+            if self.chain_ms:  # mean ms from the bundles going out to each depth's message
+                out["chain_ms_by_depth"] = [s / max(n, 1) for s, n in self.chain_ms]
         c = self.radio.counters
         messages = c.totals() if self.direct is None else self.direct.totals()
         if self.virtual:  # wall-clock arrivals after their tick changed nothing: apart
