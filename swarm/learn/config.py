@@ -61,6 +61,16 @@ class TrainConfig:
     """Learner only: a stale episode (acted by an older weights version) weights each decision's
     policy-gradient term by the truncated importance ratio min(is_clip, pi_now(a) / pi_acted(a))
     (V-trace's rho-bar); 0 turns the correction off. Fresh episodes always weigh 1."""
+    algo: str = "reinforce"
+    """`reinforce` (the paper's estimator: G_t - b(s_t), one step per batch) or `ppo` (ours, not
+    the paper's: GAE(gamma, gae_lambda) advantages, `ppo_epochs` steps per batch on the clipped
+    surrogate of Schulman et al. 2017, the baseline fit to the GAE returns)."""
+    gae_lambda: float = 0.95
+    """PPO: the lambda of the generalized advantage estimate (1: returns minus the baseline)."""
+    ppo_epochs: int = 4
+    """PPO: optimizer steps on each batch (each over the whole batch)."""
+    ppo_clip: float = 0.2
+    """PPO: the probability ratio is clipped to [1 - clip, 1 + clip] in the surrogate."""
     curriculum_step: int = 10
     """Dynamic blocks added per curriculum level (levels 0, step, 2 step, .. up to the world's
     n_dynamic); 0 trains on the full world from the start."""
@@ -101,11 +111,16 @@ class TrainConfig:
                   "curriculum_min_updates": (0, 10**6), "curriculum_max_updates": (0, 10**6),
                   "curriculum_ema": (0, 1), "train_seed_offset": (0, 2**40),
                   "val_episodes": (0, 10**7), "threads": (1, 256), "workers": (1, 256),
-                  "chunk_ticks": (1, 10**6), "tick_s": (1e-3, 3600)}
+                  "chunk_ticks": (1, 10**6), "tick_s": (1e-3, 3600), "gae_lambda": (0, 1),
+                  "ppo_epochs": (1, 1000), "ppo_clip": (1e-6, 10)}
         for name, (lo, hi) in ranges.items():
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and lo <= v <= hi):  # also NaN
                 raise ConfigError(f"train {name} must lie in [{lo}, {hi}], got {v!r}")
+        if self.algo not in ("reinforce", "ppo"):
+            raise ConfigError(f"train algo must be reinforce or ppo, got {self.algo!r}")
+        if self.imitate and self.algo == "ppo":
+            raise ConfigError("train imitate needs algo reinforce (its loss is not a surrogate)")
         if self.imitate:
             from policies import TEACHERS
 

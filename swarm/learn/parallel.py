@@ -58,11 +58,20 @@ def _worker(conn: Connection, policy_name: str, world: dict[str, Any], model: di
     wcfg = from_dict(WorldConfig, world, where="worker world")
     cls = policy_class(policy_name)
     pol = cls(wcfg, model=from_dict(cls.config_cls, model, where="worker model"))
+    last: tuple[Any, ...] | None = None  # the batch of the last request (PPO passes reuse it)
     try:
         while True:
             msg = conn.recv()
             if msg is None:
                 return
+            if msg[0] == "again":  # another PPO pass over the same batch with new weights
+                if last is None:
+                    raise RuntimeError("a PPO pass before any batch")
+                pol.net.load_state_dict(msg[1])
+                pol.net.zero_grad(set_to_none=True)
+                totals = train.backward(pol, *last)
+                conn.send(([p.grad for p in pol.net.parameters()], totals, None))
+                continue
             state, level_world, seed, episodes, cfg_d, faults = msg
             cfg = TrainConfig(**cfg_d)
             pol.net.load_state_dict(state)
@@ -72,7 +81,8 @@ def _worker(conn: Connection, policy_name: str, world: dict[str, Any], model: di
             conn.send(adv.moments())
             mean, std, decisions = conn.recv()
             pol.net.zero_grad(set_to_none=True)
-            totals = train.backward(pol, roll, adv, cfg, mean, std, decisions)
+            last = (roll, adv, cfg, mean, std, decisions)
+            totals = train.backward(pol, *last)
             grads = [None if p.grad is None else p.grad for p in pol.net.parameters()]
             m = roll.metrics
             conn.send((grads, totals, {k: getattr(m, k) for k in core.METRIC_NAMES}))
@@ -131,7 +141,7 @@ class ParallelUpdater:
     def update(self, policy: LearnedPolicy, opt: torch.optim.Optimizer,
                level_world: WorldConfig, seed: int, episodes: np.ndarray, cfg: TrainConfig,
                faults: Any = None) -> tuple[core.EpisodeMetrics, dict[str, float]]:
-        """Collect `episodes` across the processes and take one REINFORCE step."""
+        """Collect `episodes` across the processes and take one REINFORCE step (PPO: its passes)."""
         from swarm.learn import update as train
         from swarm.learn.rollout import collect
         from world.config import to_dict
@@ -155,14 +165,31 @@ class ParallelUpdater:
         params = list(policy.net.parameters())
         for k in range(len(theirs)):
             grads, part, met = self._recv(k)
-            for p, g in zip(params, grads, strict=True):
-                if g is None:
-                    continue
-                p.grad = g.clone() if p.grad is None else p.grad.add_(g)
+            self._add(params, grads)
             for key, val in part.items():
-                totals[key] += val
+                totals[key] = totals.get(key, 0.0) + val
             for key in core.METRIC_NAMES:
                 metrics[key].append(met[key])
         totals["grad_norm"] = train.step(policy, opt, cfg)
+        passes = [totals]
+        for _ in range(cfg.ppo_epochs - 1 if cfg.algo == "ppo" else 0):
+            state = {k: v.detach().clone() for k, v in policy.net.state_dict().items()}
+            for conn in self.conns[:len(theirs)]:
+                conn.send(("again", state))
+            opt.zero_grad(set_to_none=True)
+            again = train.backward(policy, roll, adv, cfg, mean, std, decisions)
+            for k in range(len(theirs)):
+                grads, part, _ = self._recv(k)
+                self._add(params, grads)
+                for key, val in part.items():
+                    again[key] = again.get(key, 0.0) + val
+            again["grad_norm"] = train.step(policy, opt, cfg)
+            passes.append(again)
         joined = core.EpisodeMetrics(**{k: np.concatenate(v) for k, v in metrics.items()})
-        return joined, totals
+        return joined, train.merge_passes(passes)
+
+    @staticmethod
+    def _add(params: list[torch.nn.Parameter], grads: list[torch.Tensor | None]) -> None:
+        for p, g in zip(params, grads, strict=True):
+            if g is not None:
+                p.grad = g.clone() if p.grad is None else p.grad.add_(g)

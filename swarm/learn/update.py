@@ -1,4 +1,4 @@
-"""The REINFORCE update with the state-specific baseline (paper sections 3 and 4.3).
+"""The REINFORCE update with the state-specific baseline (paper sections 3 and 4.3), and PPO.
 
 Per robot j and tick t the return G_t = sum_{k >= t} gamma^(k - t) r_k; the loss is the paper's
 
@@ -7,6 +7,10 @@ Per robot j and tick t the return G_t = sum_{k >= t} gamma^(k - t) r_k; the loss
 summed over robots and averaged over decisions, with b detached in the first term, plus an
 optional entropy bonus; stale episodes (acted by older weights) are weighted by truncated
 importance ratios. `backward` is split from `step` so data-parallel parts add up exactly.
+
+With `algo = "ppo"` (ours, not the paper's) the advantages are GAE's, the policy term is the
+clipped surrogate -min(rho A, clip(rho) A) with rho = pi(a) / pi_acted(a), and `ppo_epochs`
+steps are taken on each batch.
 """
 
 from __future__ import annotations
@@ -48,9 +52,28 @@ class Advantages:
         return float(a.sum()), float((a * a).sum()), int(a.size)
 
 
+def gae(reward: np.ndarray, value: np.ndarray, gamma: float, lam: float) -> np.ndarray:
+    """Generalized advantage estimates along axis 0 (Schulman et al. 2016): A_t = sum_k
+    (gamma lam)^k delta_{t+k}, delta_t = r_t + gamma V(s_{t+1}) - V(s_t), V = 0 after the last
+    tick (episodes end at the horizon). lam = 1 gives G_t - V(s_t), lam = 0 the TD error."""
+    out = np.zeros_like(reward, dtype=np.float64)
+    acc = np.zeros(reward.shape[1:])
+    next_v = np.zeros(reward.shape[1:])
+    for t in range(reward.shape[0] - 1, -1, -1):
+        acc = reward[t] + gamma * next_v - value[t] + gamma * lam * acc
+        out[t] = acc
+        next_v = value[t]
+    return out
+
+
 def advantages(roll: Rollout, cfg: TrainConfig) -> Advantages:
+    live = np.stack([v.receivers for v in roll.views])
+    if cfg.algo == "ppo":  # the baseline fits the GAE returns A + V
+        adv = gae(roll.reward * cfg.reward_scale, roll.value.astype(np.float64), cfg.gamma,
+                  cfg.gae_lambda)
+        return Advantages(adv + roll.value, adv, live)
     ret = returns(roll.reward * cfg.reward_scale, cfg.gamma)
-    return Advantages(ret, ret - roll.value, np.stack([v.receivers for v in roll.views]))
+    return Advantages(ret, ret - roll.value, live)
 
 
 def normaliser(moments: list[tuple[float, float, int]]) -> tuple[float, float, int]:
@@ -85,7 +108,18 @@ def backward(policy: LearnedPolicy, roll: Rollout, adv: Advantages, cfg: TrainCo
         if imitate and ev.agree is not None:
             totals["agree"] += float(ev.agree.sum()) / decisions
         g = torch.from_numpy(adv.ret[at].astype(np.float32))
-        if not imitate and roll.stale is not None and roll.logp is not None and cfg.is_clip > 0:
+        if cfg.algo == "ppo":  # clipped surrogate on the ratio to the weights that acted
+            if roll.logp is None:
+                raise ValueError("PPO needs the log-probabilities recorded while acting")
+            acted = torch.from_numpy(roll.logp[at].astype(np.float32))
+            rho = torch.exp(ev.logp - acted)
+            lo, hi = 1.0 - cfg.ppo_clip, 1.0 + cfg.ppo_clip
+            surr = torch.minimum(rho * a, rho.clamp(lo, hi) * a)
+            clipped = ((rho.detach() < lo) & (a < 0)) | ((rho.detach() > hi) & (a > 0))
+            totals["clip_frac"] = totals.get("clip_frac", 0.0) + float(clipped.sum()) / decisions
+            pg = -surr.sum() / decisions
+        elif not imitate and roll.stale is not None and roll.logp is not None and \
+                cfg.is_clip > 0:
             stale = torch.from_numpy(roll.stale[ev.group])  # their decisions: truncated IS weight
             if bool(stale.any()):
                 acted = torch.from_numpy(roll.logp[at].astype(np.float32))
@@ -95,7 +129,9 @@ def backward(policy: LearnedPolicy, roll: Rollout, adv: Advantages, cfg: TrainCo
                 totals["is_weight"] = totals.get("is_weight", 0.0) + float(w[stale].sum())
                 totals["stale_decisions"] = totals.get("stale_decisions", 0.0) + float(
                     stale.sum())
-        pg = -(ev.logp * a).sum() / decisions
+            pg = -(ev.logp * a).sum() / decisions
+        else:
+            pg = -(ev.logp * a).sum() / decisions
         base = cfg.alpha * ((g - ev.value) ** 2).sum() / decisions
         ent = ev.entropy.sum() / decisions
         loss = pg + base - cfg.ent_coef * ent
@@ -123,10 +159,23 @@ def update(policy: LearnedPolicy, opt: torch.optim.Optimizer, roll: Rollout,
     """
     adv = advantages(roll, cfg)
     mean, std, decisions = normaliser([adv.moments()])
-    opt.zero_grad(set_to_none=True)
-    totals = backward(policy, roll, adv, cfg, mean, std, decisions)
+    passes = []
+    for _ in range(cfg.ppo_epochs if cfg.algo == "ppo" else 1):
+        opt.zero_grad(set_to_none=True)
+        totals = backward(policy, roll, adv, cfg, mean, std, decisions)
+        totals["grad_norm"] = step(policy, opt, cfg)
+        passes.append(totals)
     if totals.get("stale_decisions"):  # the mean importance weight of the stale decisions
         totals["is_weight"] /= totals["stale_decisions"]
-    totals["grad_norm"] = step(policy, opt, cfg)
-    return totals
+    return merge_passes(passes)
+
+
+def merge_passes(passes: list[dict[str, float]]) -> dict[str, float]:
+    """One row for the log from PPO's passes over a batch: the first pass's losses (those of
+    the weights that acted), the last pass's clipped fraction (how far the steps went)."""
+    out = dict(passes[0])
+    if len(passes) > 1:
+        out["clip_frac"] = passes[-1].get("clip_frac", 0.0)
+        out["grad_norm"] = float(np.mean([p["grad_norm"] for p in passes]))
+    return out
 
