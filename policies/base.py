@@ -30,7 +30,7 @@ class Policy(ABC):
     def __init__(self, cfg: WorldConfig) -> None:
         self.cfg = cfg
 
-    def reset(self, groups: int) -> None:
+    def reset(self, groups: int) -> None:  # noqa: B027 (a no-op unless the policy remembers)
         """Start new episodes for `groups` groups: forget every receiver's memory."""
 
     @abstractmethod

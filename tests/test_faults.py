@@ -1,4 +1,5 @@
-"""Fault models: parsing, seeded statistics, the radio's decisions, and the real swarm under faults."""
+"""Fault models: parsing, seeded statistics, the radio's decisions, and the real swarm under
+faults."""
 
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ from world.config import ConfigError, WorldConfig
 def test_parsing_of_human_units() -> None:
     assert parse_duration_ms("50ms") == 50 and parse_duration_ms("0.2s") == 200
     assert parse_duration_ms("300") == 300
-    assert parse_rate("2kB/s") == 2000 and parse_rate("500B/s") == 500 and parse_rate("1MB/s") == 1e6
+    assert parse_rate("2kB/s") == 2000 and parse_rate("500B/s") == 500
+    assert parse_rate("1MB/s") == 1e6
     assert parse_partition("0-4/5-9") == ((0, 1, 2, 3, 4), (5, 6, 7, 8, 9))
     p = parse_process("crash", "3@20")
     assert (p.kind, p.robot, p.tick) == ("crash", 3, 20)
@@ -87,7 +89,8 @@ def test_latency_budget_and_jitter_distribution() -> None:
                           for t in range(20)])
     frac = within_60[..., ~np.eye(8, dtype=bool)].mean()
     assert frac == pytest.approx(0.5, abs=0.03)  # P(50 + 20 U <= 60) = 0.5
-    assert not delivery_mask(plan, np.arange(4), 0, 8, budget_ms=49.0)[:, ~np.eye(8, dtype=bool)].any()
+    off_diagonal = ~np.eye(8, dtype=bool)
+    assert not delivery_mask(plan, np.arange(4), 0, 8, budget_ms=49.0)[:, off_diagonal].any()
 
 
 def test_token_bucket_queues_and_drops_at_the_configured_rate() -> None:
@@ -106,7 +109,7 @@ def test_radio_bundles_arrive_after_latency_and_late_copies_are_cut() -> None:
     pos = np.array([[0, 0], [0, 1], [0, 2]])
     senders = {i: (bytes([i]) * 10, 1.0) for i in range(3)}
     out = radio.bundles(0, 0, pos, senders, deadline=1.5)
-    for i, (when, payloads) in out.items():
+    for when, payloads in out.values():
         assert when == pytest.approx(1.1) and len(payloads) == 3
     radio2 = Radio(cfg, plan_from_table({"latency": "100ms"}))
     out2 = radio2.bundles(0, 0, pos, senders, deadline=1.05)

@@ -188,7 +188,8 @@ def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path)
               "--tick-timeout", "10")  # no faults: a long deadline changes nothing but load
     assert r.returncode == 0, r.stderr
     res = json.loads((tmp_path / "r.json").read_text())
-    assert res["learner"]["version"] == 1 and res["learner"]["episodes"] == 4, json.dumps(res["learner"])
+    learner = res["learner"]
+    assert learner["version"] == 1 and learner["episodes"] == 4, json.dumps(learner)
     assert res["learner"]["incomplete"] == 0 and res["learner"]["bad"] == 0
     field = load_checkpoint(out / "checkpoint.pt")
     assert field["learner"]["version"] == 1

@@ -1,4 +1,5 @@
-"""Typed world configuration (SPEC section 2) and the TOML/CLI loading shared by every entry point."""
+"""Typed world configuration (SPEC section 2) and the TOML/CLI loading shared by every entry
+point."""
 
 from __future__ import annotations
 
@@ -31,11 +32,13 @@ class WorldConfig:
     dynamic: bool = True
     """Whether dynamic blocks are activated at all."""
     add_every: int = 3
-    """Steps between dynamic-block batches (`m`); batch size is ceil(n_dynamic / floor(0.9 T / m))."""
+    """Steps between dynamic-block batches (`m`); batch size is
+    ceil(n_dynamic / floor(0.9 T / m))."""
     n_robots: int = 10
     """Robots N."""
     spawn: str = "random"
-    """Start cells: `random` (distinct random free cells) or `corner` (free cells nearest the top-left)."""
+    """Start cells: `random` (distinct random free cells) or `corner` (free cells nearest the
+    top-left)."""
     vision: int = 5
     """Side v of the square v x v patch each robot sees (odd)."""
     comm_range: float = 10.0
@@ -43,7 +46,8 @@ class WorldConfig:
     horizon: int = 30
     """Mission length T in steps; every episode runs exactly T steps."""
     explore_mode: str = "visit"
-    """`visit`: a cell is explored once a robot stood on it; `sense`: every cell seen is explored."""
+    """`visit`: a cell is explored once a robot stood on it; `sense`: every cell seen is
+    explored."""
     r_back: float = -10.0
     """Reward for standing on an already explored cell (visit) or revealing nothing new (sense)."""
     r_coll: float = -10.0
@@ -85,7 +89,8 @@ class WorldConfig:
         need = self.n_static + self.n_robots + (self.n_dynamic if self.dynamic else 0)
         if need > cells:
             bad(f"{need} blocks and robots do not fit on {cells} cells")
-        if self.dynamic and self.n_dynamic > 0 and math.floor(0.9 * self.horizon / self.add_every) < 1:
+        if self.dynamic and self.n_dynamic > 0 and \
+                math.floor(0.9 * self.horizon / self.add_every) < 1:
             bad(f"add_every={self.add_every} leaves no batch before 90% of horizon={self.horizon}")
         if self.recent_len < 1:
             bad(f"recent_len must be >= 1, got {self.recent_len}")
@@ -141,7 +146,8 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
     known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
     unknown = sorted(set(data) - set(known))
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(known)}")
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; "
+                          f"known: {', '.join(known)}")
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         ftype = known[key].type

@@ -115,7 +115,8 @@ class WorldState:
 
 
 def episode_rng(seed: int, episode: int) -> np.random.Generator:
-    """The generator of one episode's map, spawn and schedule: same key, same episode, any machine."""
+    """The generator of one episode's map, spawn and schedule: same key, same episode, any
+    machine."""
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), int(episode)])))
 
 
@@ -127,7 +128,8 @@ def dynamic_due(cfg: WorldConfig) -> np.ndarray:
     return (np.arange(k) // cfg.batch_size + 1) * cfg.add_every
 
 
-def generate_episode(cfg: WorldConfig, seed: int, episode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def generate_episode(cfg: WorldConfig, seed: int,
+                     episode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One episode's static map [H, W] bool, start cells [N, 2] (y, x) and dynamic cells [K, 2]."""
     rng = episode_rng(seed, episode)
     blocks = generate_static(cfg.height, cfg.width, cfg.n_static, rng)
@@ -168,7 +170,8 @@ def from_layout(cfg: WorldConfig, blocks: np.ndarray, starts: np.ndarray, dynami
     if episodes is None:
         episodes = np.arange(b)
     grid = np.full((b, lay.hp, lay.wp), WALL, dtype=np.uint8)
-    grid[:, lay.pad:lay.pad + cfg.height, lay.pad:lay.pad + cfg.width] = np.where(blocks, STATIC, FREE)
+    inner = (slice(None), slice(lay.pad, lay.pad + cfg.height), slice(lay.pad, lay.pad + cfg.width))
+    grid[inner] = np.where(blocks, STATIC, FREE)
     grid = grid.reshape(b, p)
     pos = lay.from_yx(starts).astype(np.int64)
     if (grid[np.arange(b)[:, None], pos] != FREE).any():
@@ -225,7 +228,8 @@ def elratio(cfg: WorldConfig, state: WorldState) -> np.ndarray:
 
 
 def step(cfg: WorldConfig, state: WorldState, actions: np.ndarray) -> np.ndarray:
-    """Advance every episode one step with actions [B, N] in 0..8; returns rewards [B, N] float32."""
+    """Advance every episode one step with actions [B, N] in 0..8; returns rewards [B, N]
+    float32."""
     if state.done:
         raise RuntimeError("episode already ran its horizon; call reset")
     lay = Layout.of(cfg)

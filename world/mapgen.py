@@ -1,4 +1,5 @@
-"""Seeded maze-like map generator: static walls with bifurcations and loops, free space kept connected.
+"""Seeded maze-like map generator: static walls with bifurcations and loops, free space kept
+connected.
 
 Walls are grown as short random segments. A cell may become a block only if it is a *simple
 point*: its free 8-neighbours form a single 8-connected arc around it, so removing it cannot
@@ -51,7 +52,8 @@ def _ring_pattern(free: np.ndarray, y: int, x: int) -> int:
 
 
 def generate_static(height: int, width: int, n_blocks: int, rng: np.random.Generator) -> np.ndarray:
-    """Return a bool [H, W] array of exactly `n_blocks` static blocks; all free cells 8-connected."""
+    """Return a bool [H, W] array of exactly `n_blocks` static blocks; all free cells
+    8-connected."""
     free = np.ones((height, width), dtype=bool)
     placed = 0
     attempts = 0
@@ -82,7 +84,8 @@ def generate_static(height: int, width: int, n_blocks: int, rng: np.random.Gener
 
 
 def is_connected(free: np.ndarray) -> bool:
-    """True when every free cell of the bool [H, W] map reaches every other with 8-connected moves."""
+    """True when every free cell of the bool [H, W] map reaches every other with 8-connected
+    moves."""
     h, w = free.shape
     total = int(free.sum())
     if total == 0:
