@@ -1,10 +1,18 @@
-"""`.venv/bin/python results/scale/finetuned.py checkpoints/scale/commattn_40x40_n20.pt results/scale/finetuned_n20_t60.json`:
-paired held-out comparison on 40 x 40, 20 robots, 60 steps (seed 0, 100 episodes): the
-40x40 fine-tuned CommAttn against the shipped one and nearest frontier."""
-import json, sys, numpy as np
-from world.config import WorldConfig, scaled_blocks
+"""Paired held-out comparison on 40 x 40, 20 robots, 60 steps (seed 0, 100 episodes): the
+40x40 fine-tuned CommAttn against the shipped one and nearest frontier:
+
+    .venv/bin/python results/scale/finetuned.py checkpoints/scale/commattn_40x40_n20.pt \\
+        results/scale/finetuned_n20_t60.json
+"""
+import json
+import sys
+
+import numpy as np
+
 from policies import make_policy
 from swarm.learn.evaluate import evaluate
+from world.config import WorldConfig, scaled_blocks
+
 cfg = WorldConfig(height=40, width=40, n_robots=20, horizon=60, **scaled_blocks(40, 40))
 ckpt = sys.argv[1]
 runs = {"commattn-40x40": make_policy("commattn", cfg, checkpoint=ckpt),
