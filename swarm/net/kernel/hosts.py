@@ -21,17 +21,22 @@ supervisor), `exec_prefix`, `world_ns`, `robot_ns`, `hub_addr`, `world_listen`,
 
 from __future__ import annotations
 
-import atexit
 import ipaddress
-import json
 import logging
 import shutil
-import signal
 import subprocess
 import time
 from typing import Any
 
-from swarm.net.kernel.netns import _link_exists, _run, _tag, bring_up, check_tools, namespaces
+from swarm.net.kernel.netns import (
+    Namespaced,
+    _link_exists,
+    _run,
+    _tag,
+    check_tools,
+    free_subnet,
+    namespaces,
+)
 from swarm.net.keys import Keys
 from swarm.net.zconfig import ZenohOptions, open_session
 from world.config import ConfigError
@@ -52,7 +57,7 @@ def hosts_reason() -> str | None:
     return None
 
 
-class Hosts:
+class Hosts(Namespaced):
     """The namespaces, bridge and veths of one run's K emulated hosts."""
 
     def __init__(self, run_id: str, n_robots: int, k: int) -> None:
@@ -68,8 +73,6 @@ class Hosts:
         self.robot_ns = [self.host_ns[self.host_of(i)] for i in range(n_robots)]
         self.addr: list[str] = []
         self.hub_addr = ""
-        self.is_up = False
-        self._old_term: Any = None
 
     def host_of(self, robot: int) -> int:
         """The host robot `robot` runs on (round robin)."""
@@ -104,23 +107,6 @@ class Hosts:
                 "robot_host": [self.host_of(i) for i in range(self.n)]}
 
     # --- life cycle ---------------------------------------------------------------------------
-    def _subnet(self) -> ipaddress.IPv4Network:
-        """A /24 of HOST_NET that overlaps no route of the root namespace."""
-        routes = json.loads(_run(["ip", "-j", "-4", "route", "show", "table", "all"]) or "[]")
-        used = []
-        for r in routes:
-            dst = r.get("dst", "default")
-            if dst != "default" and r.get("type", "unicast") in ("unicast", "local"):
-                used.append(ipaddress.ip_network(dst if "/" in dst else f"{dst}/32", strict=False))
-        slots = HOST_NET.num_addresses // 256
-        start = int(_tag(self.run_id), 16) % slots
-        for s in range(slots):
-            net = ipaddress.ip_network(
-                (int(HOST_NET.network_address) + 256 * ((start + s) % slots), 24))
-            if not any(net.overlaps(u) for u in used):
-                return net
-        raise ConfigError(f"--hosts: no free /24 in {HOST_NET} for the hosts' bridge")
-
     def up(self) -> Hosts:
         reason = hosts_reason()
         if reason:
@@ -128,12 +114,12 @@ class Hosts:
         if self.is_up:
             return self
         clash = set(namespaces()) & set(self.host_ns)
-        bring_up(self, sorted(clash)[0] if clash else
-                 self.bridge if _link_exists(self.bridge) else None, "--hosts")
+        self._bring_up(sorted(clash)[0] if clash else
+                       self.bridge if _link_exists(self.bridge) else None, "--hosts")
         return self
 
     def _make(self) -> None:
-        net = self._subnet()
+        net = free_subnet(HOST_NET, 24, self.run_id, "--hosts (the hosts' bridge)")
         self.hub_bridge = str(net[1])
         self.addr = [str(net[h + 2]) for h in range(self.k)]
         self.hub_addr = self.addr[0]
@@ -152,28 +138,8 @@ class Hosts:
                 "link set lo up", f"addr add {self.addr[h]}/24 dev {b}",
                 f"link set {b} addrgenmode none", f"link set {b} up"]) + "\n")
 
-    def down(self) -> None:
-        """Delete every namespace, veth and the bridge `up()` made (idempotent)."""
-        if self._old_term is not None:
-            try:
-                signal.signal(signal.SIGTERM, self._old_term)
-            except ValueError:
-                pass
-            self._old_term = None
-        atexit.unregister(self.down)
-        if self.is_up:
-            self.is_up = False
-            remove(self.run_id, self.k)
-
-    def exec_prefix(self, ns: str) -> list[str]:
-        """The command prefix that runs a child on host namespace `ns` (exec: same pid)."""
-        return ["ip", "netns", "exec", ns]
-
-    def __enter__(self) -> Hosts:
-        return self.up()
-
-    def __exit__(self, *exc: object) -> None:
-        self.down()
+    def _remove(self) -> None:
+        remove(self.run_id, self.k)
 
 
 def remove(run_id: str, k: int) -> None:

@@ -123,7 +123,92 @@ def namespaces() -> list[str]:
     return [line.split()[0] for line in _run(["ip", "netns", "list"]).splitlines() if line.strip()]
 
 
-class Topology:
+def free_subnet(pool: ipaddress.IPv4Network, prefix: int, run_id: str,
+                what: str) -> ipaddress.IPv4Network:
+    """A /`prefix` of `pool` that overlaps no route of the root namespace, searched from a slot
+    keyed by the run id (so concurrent runs pick different ones); a one-line ConfigError when
+    none is free."""
+    routes = json.loads(_run(["ip", "-j", "-4", "route", "show", "table", "all"]) or "[]")
+    used = []
+    for r in routes:
+        dst = r.get("dst", "default")
+        if dst != "default" and r.get("type", "unicast") in ("unicast", "local"):
+            used.append(ipaddress.ip_network(dst if "/" in dst else f"{dst}/32", strict=False))
+    size = 2 ** (32 - prefix)
+    slots = pool.num_addresses // size
+    start = int(_tag(run_id), 16) % slots
+    for k in range(slots):
+        net = ipaddress.ip_network(
+            (int(pool.network_address) + size * ((start + k) % slots), prefix))
+        if not any(net.overlaps(u) for u in used):
+            return net
+    raise ConfigError(f"{what}: no free /{prefix} in {pool}")
+
+
+class Namespaced:
+    """What a run's set of network namespaces (`Topology`, `hosts.Hosts`) shares: made so that
+    it is torn down however the process ends (at exit, on SIGTERM, at once if making it
+    fails), removed by `down()` (idempotent), entered with `ip netns exec`, a context manager.
+    Subclasses give `up()` (checks, then `_bring_up`), `_make()` and `_remove()`."""
+
+    run_id: str
+    is_up = False
+    _old_term: Any = None
+
+    def up(self) -> Any:
+        raise NotImplementedError
+
+    def _make(self) -> None:
+        raise NotImplementedError
+
+    def _remove(self) -> None:
+        raise NotImplementedError
+
+    def _bring_up(self, clash: str | None, label: str) -> None:
+        """`_make()` under the teardown guarantees; `clash` names a namespace or link that
+        exists already (not ours: never touched): a one-line ConfigError."""
+        if clash:
+            raise ConfigError(f"{label}: {clash} exists already (another run with id "
+                              f"{self.run_id!r}?)")
+        atexit.register(self.down)
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            try:  # SIGTERM unwinds (finally: down) instead of killing with the namespaces left
+                self._old_term = signal.signal(signal.SIGTERM, _exit_on_term)
+            except ValueError:  # not the main thread
+                pass
+        self.is_up = True
+        try:
+            self._make()
+        except BaseException:
+            self.down()
+            raise
+
+    def down(self) -> None:
+        """Delete what `up()` made (idempotent; errors are ignored)."""
+        if self._old_term is not None:
+            try:
+                signal.signal(signal.SIGTERM, self._old_term)
+            except ValueError:
+                pass
+            self._old_term = None
+        atexit.unregister(self.down)
+        if self.is_up:
+            self.is_up = False
+            self._remove()
+
+    def exec_prefix(self, ns: str) -> list[str]:
+        """The command prefix that runs a child inside namespace `ns` (exec: same pid)."""
+        return ["ip", "netns", "exec", ns]
+
+    def __enter__(self) -> Any:
+        return self.up()
+
+    def __exit__(self, et: type[BaseException] | None, e: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.down()
+
+
+class Topology(Namespaced):
     """The namespaces, veths and kernel faults of one run; `up()` makes them, `down()` removes."""
 
     def __init__(self, run_id: str, n_robots: int, faults: NetnsConfig = NetnsConfig()) -> None:
@@ -137,8 +222,6 @@ class Topology:
         if len(self.world_if[-1] if n_robots else "") > 15:
             raise ConfigError(f"--netns supports at most 999999 robots, got {n_robots}")
         self.host_addr = self.hub_addr = ""
-        self.is_up = False
-        self._old_term: Any = None
 
     # --- addresses the processes use ------------------------------------------------------
     def world_addr(self, i: int) -> str:
@@ -168,34 +251,17 @@ class Topology:
                 "lease_ms": f.lease_ms or 1000.0, "transport": f.transport}
 
     # --- life cycle ---------------------------------------------------------------------------
-    def _root_subnet(self) -> ipaddress.IPv4Network:
-        """A /30 of ROOT_NET for the root link that overlaps no route of the root namespace."""
-        routes = json.loads(_run(["ip", "-j", "-4", "route", "show", "table", "all"]) or "[]")
-        used = []
-        for r in routes:
-            dst = r.get("dst", "default")
-            if dst != "default" and r.get("type", "unicast") in ("unicast", "local"):
-                used.append(ipaddress.ip_network(dst if "/" in dst else f"{dst}/32", strict=False))
-        n_slots = ROOT_NET.num_addresses // 4
-        start = int(_tag(self.run_id), 16) % n_slots
-        for k in range(n_slots):
-            net = ipaddress.ip_network(
-                (int(ROOT_NET.network_address) + 4 * ((start + k) % n_slots), 30))
-            if not any(net.overlaps(u) for u in used):
-                return net
-        raise ConfigError(f"netns: no free /30 in {ROOT_NET} for the supervisor's link")
-
     def up(self) -> Topology:
         check_tools(self.faults)
         if self.is_up:
             return self
         clash = set(namespaces()) & {self.world_ns, *self.robot_ns}
-        bring_up(self, sorted(clash)[0] if clash else
-                 self.host_if if _link_exists(self.host_if) else None, "netns")
+        self._bring_up(sorted(clash)[0] if clash else
+                       self.host_if if _link_exists(self.host_if) else None, "netns")
         return self
 
     def _make(self) -> None:
-        net = self._root_subnet()
+        net = free_subnet(ROOT_NET, 30, self.run_id, "netns (the supervisor's link)")
         self.host_addr, self.hub_addr = str(net[1]), str(net[2])
         w = self.world_ns
         cmds = [f"netns add {ns}" for ns in (w, *self.robot_ns)]
@@ -237,50 +303,8 @@ class Topology:
                 _run(["ip", "netns", "exec", ns, "iptables-restore", "--noflush"],
                      "\n".join([*rules, "COMMIT"]) + "\n")
 
-    def down(self) -> None:
-        """Delete every namespace and veth `up()` made (idempotent; errors are ignored)."""
-        if self._old_term is not None:
-            try:
-                signal.signal(signal.SIGTERM, self._old_term)
-            except ValueError:
-                pass
-            self._old_term = None
-        atexit.unregister(self.down)
-        if self.is_up:
-            self.is_up = False
-            remove(self.run_id, self.n)
-
-    def exec_prefix(self, ns: str) -> list[str]:
-        """The command prefix that runs a child inside namespace `ns` (exec: same pid)."""
-        return ["ip", "netns", "exec", ns]
-
-    def __enter__(self) -> Topology:
-        return self.up()
-
-    def __exit__(self, et: type[BaseException] | None, e: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.down()
-
-
-def bring_up(topo: Any, clash: str | None, label: str) -> None:
-    """Create `topo`'s namespaces and links (`topo._make()`) so that they are torn down however
-    the process ends: at exit, on SIGTERM, and at once if making them fails. `clash` names a
-    namespace or link that exists already (not ours: never touched); a one-line ConfigError."""
-    if clash:
-        raise ConfigError(f"{label}: {clash} exists already (another run with id "
-                          f"{topo.run_id!r}?)")
-    atexit.register(topo.down)
-    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-        try:  # SIGTERM unwinds (finally: down) instead of killing with the namespaces left
-            topo._old_term = signal.signal(signal.SIGTERM, _exit_on_term)
-        except ValueError:  # not the main thread
-            pass
-    topo.is_up = True
-    try:
-        topo._make()
-    except BaseException:
-        topo.down()
-        raise
+    def _remove(self) -> None:
+        remove(self.run_id, self.n)
 
 
 def _exit_on_term(signum: int, frame: FrameType | None) -> None:
