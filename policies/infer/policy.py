@@ -114,6 +114,24 @@ def check_shapes(weights: dict[str, Any], expected: Shapes, what: str, name: str
         raise BadWeights(f"{what} has unexpected weights {', '.join(extra[:3])}")
 
 
+class _Finished:
+    """An attribute of an `InferencePolicy` that a pending chained decision fills in when it is
+    first read (`_finish`); setting it drops the pending one."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.slot = f"_{name}"
+
+    def __get__(self, obj: Any, owner: type | None = None) -> Any:
+        if obj is None:
+            return self
+        obj._finish()
+        return getattr(obj, self.slot, None)
+
+    def __set__(self, obj: Any, value: np.ndarray | None) -> None:
+        obj._finish()
+        setattr(obj, self.slot, value)
+
+
 class InferencePolicy(Policy):
     """A learned network behind the Policy interface, acting in numpy. Subclasses set `name`;
     `config_cls` and `numpy_cls` come from policies.infer.nets.NETS."""
@@ -246,25 +264,8 @@ class InferencePolicy(Policy):
 
     # The probabilities and attention of a robot's chained decision are computed when first read,
     # after its hidden-state message has gone out (they are off the chain's critical path).
-    @property
-    def last_probs(self) -> np.ndarray | None:
-        self._finish()
-        return self._last_probs
-
-    @last_probs.setter
-    def last_probs(self, value: np.ndarray | None) -> None:
-        self._finish()
-        self._last_probs = value
-
-    @property
-    def last_attention(self) -> np.ndarray | None:
-        self._finish()
-        return self._last_attention
-
-    @last_attention.setter
-    def last_attention(self, value: np.ndarray | None) -> None:
-        self._finish()
-        self._last_attention = value
+    last_probs = _Finished()
+    last_attention = _Finished()
 
     def _finish(self) -> None:
         if self._after is None:

@@ -93,9 +93,10 @@ def backward(policy: LearnedPolicy, roll: Rollout, adv: Advantages, cfg: TrainCo
     so the parts of a batch split across processes add up to the gradient of the whole.
     """
     imitate = roll.labels is not None  # DAgger: every decision weighs 1 on the teacher's action
-    a_all = (adv.adv - mean) / (std + 1e-8) if cfg.adv_norm else adv.adv
     if imitate:
         a_all = np.ones_like(adv.adv)
+    else:
+        a_all = (adv.adv - mean) / (std + 1e-8) if cfg.adv_norm else adv.adv
     totals = {"loss": 0.0, "pg": 0.0, "baseline": 0.0, "entropy": 0.0}
     if imitate:
         totals["agree"] = 0.0  # decisions where the learner's greedy action is the teacher's
