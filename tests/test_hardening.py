@@ -127,6 +127,34 @@ def hostile_payloads(keys: Keys) -> list[tuple[str, bytes]]:
     return out
 
 
+def test_a_bundles_messages_are_checked_together_as_strictly_as_one_by_one() -> None:
+    """`Traj.unpack_many` (a robot's bundle, checked column by column) accepts what per-message
+    `unpack` accepts, refuses any bundle with one bad message, and names that message's fault."""
+    from world.config import WorldConfig
+
+    from swarm.net.messages import BadMessage
+
+    cfg = WorldConfig(height=10, width=10, n_static=12, n_dynamic=8, n_robots=3, horizon=12)
+    v5, bits = bytes(25), bytes(13)
+    good = [Traj(0, 1, r, r, 2, bits, [3, 4, 99][:r + 1], v5).pack() for r in range(3)]
+    assert Traj.unpack_many(good, cfg, 0, 1) == [Traj.unpack(p, cfg) for p in good]
+    assert Traj.unpack_many([], cfg, 0, 1) == []
+    bad = {"y=10": Traj(0, 1, 2, 10, 1, bits, [], v5), "x=-1": Traj(0, 1, 2, 1, -1, bits, [], v5),
+           "recent cell=100": Traj(0, 1, 2, 1, 1, bits, [100], v5),
+           "robot=3": Traj(0, 1, 3, 1, 1, bits, [], v5),
+           "robot=True": Traj(0, 1, True, 1, 1, bits, [], v5),  # type: ignore[arg-type]
+           "visited": Traj(0, 1, 2, 1, 1, bits[:-1], [], v5),
+           "patch": Traj(0, 1, 2, 1, 1, bits, [], v5 + b"x"),
+           "recent must be": Traj(0, 1, 2, 1, 1, bits, [1] * (cfg.recent_len + 1), v5),
+           "robot 2 that does not fit": Traj(0, 2, 2, 1, 1, bits, [], v5),
+           "robot 1 that does not fit": Traj(0, 1, 1, 1, 1, bits, [], v5)}
+    for why, msg in bad.items():
+        with pytest.raises(BadMessage, match=why):
+            Traj.unpack_many(good[:2] + [msg.pack()], cfg, 0, 1)
+    with pytest.raises(BadMessage, match="not msgpack|schema"):
+        Traj.unpack_many(good[:2] + [b"\x93"], cfg, 0, 1)
+
+
 @pytest.mark.procs
 def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Path) -> None:
     """Every process stays alive and counts what it refused; the run completes."""

@@ -24,9 +24,10 @@ from policies.infer import layers
 from policies.infer.nets import NETS
 from policies.infer.policy import inference_class, pred_rows
 from policies.infer.ptfile import PtFileError, load_pt
+from policies.infer.tokens import Featurizer
 from world import core
 from world.config import WorldConfig
-from world.decentral import batch_view, heard_by, robot_view
+from world.decentral import TeamMemory, batch_view, heard_by, robot_view
 
 CHECKPOINTS = sorted((ROOT / "checkpoints").rglob("*.pt"))
 SMALL = WorldConfig(height=10, width=10, n_robots=5, n_static=15, n_dynamic=10, horizon=30,
@@ -136,6 +137,32 @@ def midgame(cfg: WorldConfig, groups: int, ticks: int, seed: int = 4) -> core.Wo
     for _ in range(ticks):
         core.step(cfg, state, rng.integers(0, 9, (groups, cfg.n_robots)))
     return state
+
+
+@pytest.mark.parametrize("robots,comm", [(10, 10.0), (30, 4.0)])
+def test_a_robots_tokens_are_its_rows_of_the_batch_tokens(robots: int, comm: float) -> None:
+    """Features of one robot's view (the member parts of the few rows it heard only, its own
+    team map) equal its rows of the batched features, exactly, with and without team memory."""
+    cfg = WorldConfig(n_robots=robots, comm_range=comm)
+    state = midgame(cfg, 1, 12)
+    view = batch_view(cfg, state)
+    for memory in (False, True):
+        feats = Featurizer(cfg, crop=9, team_pool=3, memory=memory)
+        if memory:  # (one tick of memory: the union of this tick's messages, both ways)
+            view.team_visited = TeamMemory(cfg).update(view)
+        t = feats(view)
+        for k, i in enumerate(t.robot.tolist()):
+            rv = robot_view(cfg, view.seed, 0, view.tick, i, heard_by(cfg, view, 0, i), 0.0)
+            if memory:
+                rv.team_visited = TeamMemory(cfg).update(rv)
+            r = feats(rv)
+            assert r.robot.tolist() == [i] and r.lens[0] == t.lens[k]
+            assert r.self_pos[0] == t.self_pos[k]
+            rows = slice(t.start[k], t.start[k] + t.lens[k])
+            np.testing.assert_array_equal(r.member_feats[r.pair_member],
+                                          t.member_feats[t.pair_member[rows]])
+            np.testing.assert_array_equal(r.pair_feats, t.pair_feats[rows])
+            np.testing.assert_array_equal(r.own_feats[0], t.own_feats[k])
 
 
 @pytest.mark.parametrize("name", sorted(LEARNED))

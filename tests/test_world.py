@@ -17,7 +17,15 @@ from hypothesis import strategies as st
 
 from world import core
 from world.config import WorldConfig
-from world.decentral import batch_view, heard_by, neighbourhood, predecessor, robot_view
+from world.decentral import (
+    TeamMemory,
+    batch_view,
+    heard_by,
+    neighbourhood,
+    predecessor,
+    predecessor_of,
+    robot_view,
+)
 from world.noise import uniform
 
 Cell = tuple[int, int]
@@ -668,6 +676,7 @@ def test_robot_view_of_heard_messages_matches_the_batch_view(seed: int, comm: fl
                 [j == i for j in range(n)]]
             np.testing.assert_array_equal(rv.hears[0, i], view.hears[g, i])
             assert rv.predecessor()[0, i] == view.predecessor()[g, i]
+            assert predecessor_of(rv.hears[0, [i]], np.array([i]))[0] == view.predecessor()[g, i]
             mask = view.hears[g, i]
             assert mask[i]
             np.testing.assert_array_equal(heard.pos[0, mask], view.msgs.pos[g, mask])
@@ -675,6 +684,28 @@ def test_robot_view_of_heard_messages_matches_the_batch_view(seed: int, comm: fl
             np.testing.assert_array_equal(heard.patch[0, mask], view.msgs.patch[g, mask])
             assert not heard.visited[0, ~mask].any() and (heard.recent[0, ~mask] == -1).all()
             assert rv.last_reward[0, i] == state.last_reward[g, i]
+
+
+def test_a_robots_team_memory_equals_its_row_of_the_batch_memory() -> None:
+    """TeamMemory of one receiver (a robot process: its own rows only) equals that receiver's row
+    of the batched memory (every receiver at once) tick after tick, across an episode start."""
+    cfg = WorldConfig(height=10, width=10, n_static=10, n_dynamic=8, n_robots=6, horizon=6,
+                      comm_range=3.0)
+    batch = TeamMemory(cfg)
+    mine = {(g, i): TeamMemory(cfg) for g in range(2) for i in range(cfg.n_robots)}
+    rng = np.random.default_rng(5)
+    for episode in range(2):
+        state = core.reset(cfg, 11, [2 * episode, 2 * episode + 1])
+        for _ in range(cfg.horizon):
+            view = batch_view(cfg, state)
+            full = batch.update(view)
+            for (g, i), memory in mine.items():
+                rv = robot_view(cfg, view.seed, int(view.episodes[g]), view.tick, i,
+                                heard_by(cfg, view, g, i), 0.0)
+                row = memory.update(rv)
+                np.testing.assert_array_equal(row[0, i], full[g, i])
+                assert not np.delete(row[0], i, axis=0).any()  # no other row is ever touched
+            core.step(cfg, state, rng.integers(0, 9, size=(2, cfg.n_robots)))
 
 
 # ---------------------------------------------------------------- counter-based noise

@@ -95,6 +95,13 @@ def predecessor(hears: np.ndarray) -> np.ndarray:
     return np.where(lower.any(-1), last, -1)
 
 
+def predecessor_of(heard: np.ndarray, robot: np.ndarray) -> np.ndarray:
+    """`predecessor` of a few receivers only: their rows of `hears` [R, N] and ids [R] -> [R]."""
+    n = heard.shape[-1]
+    lower = heard & (np.arange(n)[None, :] < robot[:, None])
+    return np.where(lower.any(-1), n - 1 - lower[:, ::-1].argmax(-1), -1)
+
+
 @dataclass
 class View:
     """What the receivers know at one tick; the single input of every policy's `act`."""
@@ -148,6 +155,14 @@ class TeamMemory:
         if self.visited.shape[0] != view.groups:
             self.reset(view.groups)
         old = self.visited
+        g, i = np.nonzero(view.receivers)
+        if 4 * len(g) < old.shape[0] * old.shape[1]:  # few receivers (a robot process): their rows
+            new = old.copy()
+            for gg, ii in zip(g.tolist(), i.tolist(), strict=True):
+                row = view.msgs.visited[gg, view.hears[gg, ii]].any(0)
+                new[gg, ii] = row if view.tick == 0 else row | old[gg, ii]
+            self.visited = new
+            return new
         if view.tick == 0:  # a new episode, even if nobody called reset
             old = old & ~view.receivers[:, :, None]
         self.visited = old | heard_union(view)

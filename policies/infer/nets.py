@@ -155,8 +155,10 @@ class NumpyCommAttn(NumpyNet):
     def decode(self, enc: Encoded, s_prev: np.ndarray, a_prev: np.ndarray) -> Step:
         """One decoder step given the predecessors' (s_{p(i)}, a_{p(i)})."""
         w = self.w
-        energy = linear(w, "match_v", np.tanh(enc.keys + linear(w, "match_s", s_prev)[:, None]))
-        alpha = softmax(np.where(enc.mask, energy[..., 0], -np.inf), axis=1)
+        keys = np.tanh(enc.keys + linear(w, "match_s", s_prev)[:, None])
+        energy = linear(w, "match_v", keys)[..., 0]
+        alpha = softmax(energy, axis=1, finite=True) if enc.mask.all() else \
+            softmax(np.where(enc.mask, energy, -np.inf), axis=1)
         context = (alpha[:, None, :] @ enc.h)[:, 0]
         emb = embedding(w, "action", a_prev)
         own = [enc.mine] if self.cfg.self_input else []

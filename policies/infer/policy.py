@@ -26,7 +26,7 @@ from policies.infer.nets import NETS, Encoded, NumpyCommAttn, NumpyNet, Shapes
 from policies.infer.tokens import Featurizer, ModelConfig, Tokens
 from world.config import ConfigError, WorldConfig, from_dict
 from world.core import N_ACTIONS
-from world.decentral import TeamMemory, View
+from world.decentral import TeamMemory, View, predecessor_of
 from world.noise import uniform
 
 NO_ACTION = N_ACTIONS
@@ -287,7 +287,7 @@ class InferencePolicy(Policy):
             raise ValueError("act_with_chain needs exactly one receiver per group")
         self.remember(view)
         tokens = self.features(view)
-        pred = view.predecessor()[tokens.group, tokens.robot]
+        pred = predecessor_of(view.hears[tokens.group, tokens.robot], tokens.robot)
         noise = None if greedy else gumbel(view, tokens.group, tokens.robot)
         return Prepared(view, tokens, self.np.encode(tokens), pred,  # type: ignore[attr-defined]
                         greedy, noise)

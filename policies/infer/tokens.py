@@ -148,9 +148,8 @@ class Featurizer:
         self.cfg = cfg
         self.crop = crop
         c = crop // 2
-        self.hc, self.wc = cfg.height + 2 * c, cfg.width + 2 * c
         dy, dx = np.meshgrid(np.arange(crop), np.arange(crop), indexing="ij")
-        self.window = (dy * self.wc + dx).ravel()  # from the window's corner
+        self.window_dy, self.window_dx = dy.ravel(), dx.ravel()  # from the window's corner
         self.member_dim = 3 * cfg.vision * cfg.vision + 2
         self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
         self.team_pool = team_pool
@@ -184,26 +183,42 @@ class Featurizer:
         lens = heard.sum(1).astype(np.int64)
         g, i = g_np[r_np], i_np[r_np]
 
-        code = msgs.patch.reshape(groups * n, -1)
-        low = code & 3
+        mrow = (g * n + j).astype(np.int64)  # member's row
         pos = msgs.pos.reshape(groups * n, 2).astype(np.int64)
+        # member parts of the rows some receiver heard (all of them in a batch; a robot process
+        # hears a few of N): the same values, zero in rows no pair reads
+        used: np.ndarray | slice = slice(None)
+        if 2 * len(mrow) < groups * n:
+            seen = np.zeros(groups * n, dtype=bool)
+            seen[mrow] = True
+            used = np.flatnonzero(seen)
+        code = msgs.patch.reshape(groups * n, -1)[used]
+        low = code & 3
         norm = np.array([max(h - 1, 1), max(w - 1, 1)], dtype=f32)
-        member = np.concatenate([low == 1, low == 2, (code & 4) != 0], axis=1).astype(f32)
-        member = np.concatenate([member, pos.astype(f32) / norm], axis=1)
+        feats = np.concatenate([low == 1, low == 2, (code & 4) != 0], axis=1).astype(f32)
+        feats = np.concatenate([feats, pos[used].astype(f32) / norm], axis=1)
+        if isinstance(used, slice):
+            member = feats
+        else:
+            member = np.zeros((groups * n, feats.shape[1]), dtype=f32)
+            member[used] = feats
 
         scale = np.array([h, w], dtype=f32)
-        mrow = (g * n + j).astype(np.int64)  # member's row
         rpos = pos[g * n + i]  # receiver's cell [P, 2]
         rel = (pos[mrow] - rpos).astype(f32) / scale
-        vpad = np.full((groups * n, self.hc, self.wc), -1, dtype=np.int8)
-        vpad[:, c:c + h, c:c + w] = msgs.visited.reshape(groups * n, h, w)
-        corner = mrow * (self.hc * self.wc) + rpos[:, 0] * self.wc + rpos[:, 1]
-        crop = vpad.reshape(-1)[corner[:, None] + self.window[None, :]].astype(f32)
+        # the member's visited bitmap in the crop x crop window on the receiver (-1 off-grid)
+        cy = rpos[:, 0:1] + (self.window_dy - c)[None, :]
+        cx = rpos[:, 1:2] + (self.window_dx - c)[None, :]
+        inside = (cy >= 0) & (cy < h) & (cx >= 0) & (cx < w)
+        cell = np.minimum(np.maximum(cy, 0), h - 1) * w + np.minimum(np.maximum(cx, 0), w - 1)
+        bits = msgs.visited.reshape(groups * n, h * w)[mrow[:, None], cell]
+        crop = np.where(inside, bits, -1).astype(f32)
         recent = msgs.recent.reshape(groups * n, -1)[mrow].astype(np.int64)  # [P, L]
         valid = recent >= 0
         ry = recent // w
-        ryx = (np.stack([ry, recent - ry * w], axis=-1) - rpos[:, None, :]).astype(f32) / scale
-        ryx = (ryx * valid[..., None]).reshape(len(j), -1)
+        ryx = np.empty(recent.shape + (2,), dtype=f32)
+        ryx[..., 0], ryx[..., 1] = ry - rpos[:, 0:1], recent - ry * w - rpos[:, 1:2]
+        ryx = (ryx / scale * valid[..., None]).reshape(len(j), -1)
         pair = np.concatenate([crop, ryx, valid.astype(f32), rel, (i == j).astype(f32)[:, None],
                                np.full((len(j), 1), view.tick / cfg.horizon, dtype=f32)], axis=1)
         self_pos = (heard & (np.arange(n)[None, :] < i_np[:, None])).sum(1).astype(np.int64)
@@ -233,16 +248,18 @@ class Featurizer:
         h, w = self.cfg.height, self.cfg.width
         p, k = self.block, self.team_k
         r = len(union)
+        rows = np.arange(r)[:, None]
         y, x = where[:, 0:1], where[:, 1:2]
         cy, cx = y + self.dy[None, :], x + self.dx[None, :]
         inside = (cy >= 0) & (cy < h) & (cx >= 0) & (cx < w)
-        cell = np.clip(cy, 0, h - 1) * w + np.clip(cx, 0, w - 1)
-        crop = np.where(inside, np.take_along_axis(union, cell, 1), -1).astype(np.float32)
+        # (np.minimum/np.maximum: np.clip's dispatch costs more than the work at this size)
+        cell = np.minimum(np.maximum(cy, 0), h - 1) * w + np.minimum(np.maximum(cx, 0), w - 1)
+        crop = np.where(inside, union[rows, cell], -1).astype(np.float32)
         sat = np.zeros((r, h + 1, w + 1), dtype=np.float32)
         sat[:, 1:, 1:] = (~union).reshape(r, h, w).astype(np.float32).cumsum(1).cumsum(2)
-        ey = np.clip(y + self.edges[None, :], 0, h)  # [R, k+1]
-        ex = np.clip(x + self.edges[None, :], 0, w)
+        ey = np.minimum(np.maximum(y + self.edges[None, :], 0), h)  # [R, k+1]
+        ex = np.minimum(np.maximum(x + self.edges[None, :], 0), w)
         at = (ey[:, :, None] * (w + 1) + ex[:, None, :]).reshape(r, -1)
-        s = np.take_along_axis(sat.reshape(r, -1), at, 1).reshape(r, k + 1, k + 1)
+        s = sat.reshape(r, -1)[rows, at].reshape(r, k + 1, k + 1)
         blocks = s[:, 1:, 1:] - s[:, :-1, 1:] - s[:, 1:, :-1] + s[:, :-1, :-1]
         return np.concatenate([crop, blocks.reshape(r, k * k) / np.float32(p * p)], axis=1)

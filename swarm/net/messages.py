@@ -144,6 +144,41 @@ class Traj:
     def visited_bits(self, cells: int) -> np.ndarray:
         return np.unpackbits(np.frombuffer(self.visited, dtype=np.uint8), count=cells).astype(bool)
 
+    @classmethod
+    def unpack_many(cls, payloads: list[bytes], cfg: WorldConfig, ep: int, t: int) -> list[Traj]:
+        """The messages of one bundle (tick (ep, t), distinct senders), every field checked as
+        `unpack` checks it, but column by column: a bundle holds tens of messages and one check
+        per column costs what one message's checks cost. BadMessage names the first bad one."""
+        try:
+            rows = [_unpack(p, K_TRAJ, 8) for p in payloads]
+            columns = zip(*rows, strict=True) if rows else [()] * 8
+            eps, ts, robots, ys, xs, visited, recents, patches = columns
+            ints = [*eps, *ts, *robots, *ys, *xs]
+            vbytes, pbytes = (cfg.cells + 7) // 8, cfg.vision ** 2
+            ok = (all(type(v) is int for v in ints)
+                  and all(v == ep for v in eps) and all(v == t for v in ts)
+                  and len(set(robots)) == len(robots)
+                  and all(0 <= v < cfg.n_robots for v in robots)
+                  and all(0 <= v < cfg.height for v in ys) and all(0 <= v < cfg.width for v in xs)
+                  and all(type(v) is bytes and len(v) == vbytes for v in visited)
+                  and all(type(v) is bytes and len(v) == pbytes for v in patches)
+                  and all(type(v) is list and len(v) <= cfg.recent_len for v in recents))
+            cells = [c for r in recents for c in r] if ok else []
+            ok = ok and all(type(c) is int for c in cells) and (
+                not cells or (0 <= min(cells) and max(cells) < cfg.cells))
+        except BadMessage:
+            ok = False
+        if not ok:  # one message at a time, for the first one's exact complaint
+            seen: set[int] = set()
+            for p in payloads:
+                tr = cls.unpack(p, cfg)
+                if (tr.ep, tr.t) != (ep, t) or tr.robot in seen:
+                    raise BadMessage(f"bundle holds a message of robot {tr.robot} that does "
+                                     "not fit")
+                seen.add(tr.robot)
+            raise BadMessage("bundle does not fit")  # (unreachable: some check above failed)
+        return [cls(*row) for row in rows]
+
 
 @dataclass
 class Bundle:

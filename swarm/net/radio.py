@@ -232,6 +232,25 @@ class Radio:
         c.count_delivered(ok)
         return out
 
+    @property
+    def pred(self) -> np.ndarray:
+        """[N] each robot's predecessor in the last delivery (-1: none)."""
+        return self._pred
+
+    @pred.setter
+    def pred(self, value: np.ndarray) -> None:
+        self._pred, self._succ = value, None
+
+    def successors(self, sender: int) -> list[int]:
+        """The robots whose predecessor is `sender` (one pass over `pred` per tick, not per
+        hidden-state message: 100 robots send 100 of them a tick)."""
+        if self._succ is None:
+            self._succ = [[] for _ in range(len(self._pred))]
+            for i, p in enumerate(self._pred.tolist()):
+                if p >= 0:
+                    self._succ[p].append(i)
+        return list(self._succ[sender]) if 0 <= sender < len(self._succ) else []
+
     def heard_links(self) -> int:
         """Robot pairs that heard each other (either way) in the last tick's delivery, faults and
         partitions included: the links the dashboard shows."""
@@ -242,7 +261,7 @@ class Radio:
                           deadline: float) -> list[tuple[int, float]]:
         """(receiver, delivery time) for a hidden-state message of `sender` received at `now`."""
         c, plan, n = self.counters, self.plan, self.cfg.n_robots
-        receivers = [int(i) for i in np.flatnonzero(self.pred == sender)]
+        receivers = self.successors(sender)
         if plan.zero or not receivers:
             return [(i, now) for i in receivers]
         eps = np.array([ep])
@@ -297,7 +316,7 @@ class Radio:
         """(successor, on time) for the hidden-state message `sender` sent at tick t; charged
         to its bucket whether or not anyone's predecessor it is."""
         assert self.channel is not None
-        successors = np.flatnonzero(self.pred == sender).tolist()
+        successors = self.successors(sender)
         if self.channel.plan.zero:  # no loss, delay, cap or cut: every copy on time
             return [(i, True) for i in successors]
         fates = self.channel.hidden_from(ep, t, sender, size)  # O(N): per message

@@ -287,20 +287,16 @@ class RobotProcess:
         trajectory message of the bundle's tick, from distinct senders, its own among them (the
         radio always hands a robot its own message back)."""
         m = TrajMessages.empty(self.cfg)
-        cfg, ids, bits, patches = self.cfg, [], [], []
-        for payload in bundle.trajs:
-            tr = Traj.unpack(payload, cfg)
-            j = tr.robot
-            if (tr.ep, tr.t) != (bundle.ep, bundle.t) or m.present[0, j]:
-                raise BadMessage(f"bundle holds a message of robot {j} that does not fit")
-            m.present[0, j] = True
-            m.pos[0, j] = (tr.y, tr.x)
-            rec = tr.recent[-cfg.recent_len:]
-            if rec:
-                m.recent[0, j, cfg.recent_len - len(rec):] = rec
-            ids.append(j)
-            bits.append(tr.visited)
-            patches.append(tr.patch)
+        cfg = self.cfg
+        trajs = Traj.unpack_many(bundle.trajs, cfg, bundle.ep, bundle.t)
+        ids = [tr.robot for tr in trajs]
+        bits = [tr.visited for tr in trajs]
+        patches = [tr.patch for tr in trajs]
+        m.present[0, ids] = True
+        m.pos[0, ids] = [(tr.y, tr.x) for tr in trajs]
+        for tr in trajs:
+            if tr.recent:
+                m.recent[0, tr.robot, cfg.recent_len - len(tr.recent):] = tr.recent
         if ids:  # every bitmap and patch in one call each (a bundle holds tens of messages)
             packed = np.frombuffer(b"".join(bits), dtype=np.uint8).reshape(len(ids), -1)
             m.visited[0, ids] = np.unpackbits(packed, axis=1, count=cfg.cells).astype(bool)

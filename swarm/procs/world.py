@@ -78,6 +78,12 @@ class TickInbox:
     """Robot -> perf_counter time its hidden-state message reached the world's loop."""
 
 
+def has_all(got: dict[int, Any] | set[int], live: set[int]) -> bool:
+    """Every live robot is in `got` (the length test first: this runs on every message)."""
+    return len(got) >= len(live) and live <= got.keys() if isinstance(got, dict) else \
+        len(got) >= len(live) and live <= got
+
+
 class WorldProcess:
     """One world of one run; `run()` plays every episode and returns the result record."""
 
@@ -110,6 +116,7 @@ class WorldProcess:
         self.phase_ms = dict.fromkeys(PHASES, 0.0)
         self.chain_ms: list[list[float]] = []  # per chain depth: [sum of ms, messages]
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
+        self._alive_key = object()  # replaced whenever `alive` changes
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.bad: dict[str, int] = {}
         self.timeouts = 0
@@ -147,6 +154,7 @@ class WorldProcess:
         except ValueError:
             return
         if 0 <= robot < self.cfg.n_robots:
+            self._alive_key = object()  # the tick loop's cached live set is stale
             self.alive[robot] = live
             self.ever_alive[robot] |= live
             log.info("robot %d %s", robot, "alive" if live else "gone")
@@ -337,14 +345,16 @@ class WorldProcess:
             radio0 = self.phase_ms["radio"]
             t_sent = t_delivered = time.perf_counter()
             self.phase_ms["obs"] += 1e3 * (t_sent - t_obs)
+            live_of, live = None, set()
             while True:
-                live = set(np.flatnonzero(self.alive).tolist())
-                if not tick.delivered and (live <= set(tick.traj)
+                if live_of is not self._alive_key:  # (recomputed only when liveness changed)
+                    live_of, live = self._alive_key, set(np.flatnonzero(self.alive).tolist())
+                if not tick.delivered and (has_all(tick.traj, live)
                                            or time.monotonic() >= traj_deadline):
                     t_delivered = time.perf_counter()
                     self._deliver(state, tick)
-                if tick.delivered and live <= set(tick.action) and (
-                        not self.chained or live <= tick.sent_hidden):
+                if tick.delivered and has_all(tick.action, live) and (
+                        not self.chained or has_all(tick.sent_hidden, live)):
                     break
                 if self.stop or not self.alive.any():
                     break
