@@ -76,8 +76,9 @@ class Belief:
         if view.tick == 0:  # a new episode, even if nobody called reset
             self.known[view.receivers] = UNKNOWN
         n = self.cfg.n_robots
-        heard = view.hears & view.receivers[:, :, None]  # [G, N(receiver), N(sender)]
-        g, i, j = np.nonzero(heard)
+        g, i = np.nonzero(view.receivers)  # the receivers' rows only, in (g, i, j) order
+        r, j = np.nonzero(view.hears[g, i])
+        g, i = g[r], i[r]
         pos = view.msgs.pos[g, j]
         centre = ((g * n + i) * self.hp + pos[:, 0] + self.pad) * self.wp + pos[:, 1] + self.pad
         code = view.msgs.patch[g, j].reshape(len(g), -1) & 3

@@ -127,12 +127,31 @@ def hostile_payloads(keys: Keys) -> list[tuple[str, bytes]]:
     return out
 
 
+def test_an_inbox_flood_is_cut_at_its_bound_and_counted() -> None:
+    """Past `max_events` queued events an inbox drops the newest and counts each (a real
+    session delivering its own puts); what it kept comes out in order."""
+    from swarm.net.inbox import Inbox
+
+    with zenoh.open(ZenohOptions().to_config()) as s:
+        inbox = Inbox(s, max_events=5).subscribe("flood/x", "x")
+        pub = s.declare_publisher("flood/x")
+        for k in range(20):
+            pub.put(bytes([k]))
+        deadline = time.monotonic() + 10
+        while inbox.overflow + inbox.q.qsize() < 20 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        kept = []
+        while (ev := inbox.next(0.05)) is not None:
+            kept.append(ev.payload)
+        inbox.close()
+    assert kept == [bytes([k]) for k in range(5)] and inbox.overflow == 15
+
+
 def test_a_bundles_messages_are_checked_together_as_strictly_as_one_by_one() -> None:
     """`Traj.unpack_many` (a robot's bundle, checked column by column) accepts what per-message
     `unpack` accepts, refuses any bundle with one bad message, and names that message's fault."""
-    from world.config import WorldConfig
-
     from swarm.net.messages import BadMessage
+    from world.config import WorldConfig
 
     cfg = WorldConfig(height=10, width=10, n_static=12, n_dynamic=8, n_robots=3, horizon=12)
     v5, bits = bytes(25), bytes(13)

@@ -720,6 +720,44 @@ def test_noise_same_key_same_numbers_in_unit_interval() -> None:
     np.testing.assert_array_equal(uniform(7, 2, 3, 4, 9), a[2, 4])
 
 
+def _hash64_reference(*words: object) -> np.ndarray:
+    """hash64 as first written: every word through numpy uint64 (the definition of the key)."""
+    m1, m2, golden = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB), \
+        np.uint64(0x9E3779B97F4A7C15)
+    with np.errstate(over="ignore"):
+        h = np.uint64(0x243F6A8885A308D3)
+        for w in words:
+            z = h + golden + np.asarray(w).astype(np.int64).astype(np.uint64)
+            z = (z ^ (z >> np.uint64(30))) * m1
+            z = (z ^ (z >> np.uint64(27))) * m2
+            h = z ^ (z >> np.uint64(31))
+        return np.asarray(h, dtype=np.uint64)
+
+
+def test_noise_scalar_shortcuts_draw_the_reference_numbers() -> None:
+    """Folding scalar key words in Python integers, and one robot's key as scalars, give the
+    very numbers of the all-numpy definition (negative, large and numpy-scalar words too)."""
+    from world.noise import hash64
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        seed, stream = int(rng.integers(-2**62, 2**62)), int(rng.integers(0, 10))
+        ep, tk, rb = (int(v) for v in rng.integers(-5, 2**40, size=3))
+        k = np.arange(9)
+        want = _hash64_reference(seed, stream, ep, tk, rb, k)
+        for key in [(seed, stream, ep, tk, rb, k), (seed, stream, ep, tk, rb, k[None, :]),
+                    (np.int64(seed), stream, np.array(ep), tk, rb, k)]:
+            np.testing.assert_array_equal(hash64(*key).reshape(-1), want)
+        assert hash64(seed, stream, ep) == _hash64_reference(seed, stream, ep)
+        for e, t, r in [(ep, tk, rb), (np.array([ep]), tk, np.array([[rb]])),
+                        (np.array([ep, ep + 1]), tk, rb)]:
+            got = uniform(seed, e, t, r, 9, stream)
+            ref = _hash64_reference(seed, stream, np.asarray(e)[..., None],
+                                    np.asarray(t)[..., None], np.asarray(r)[..., None], k)
+            np.testing.assert_array_equal(
+                got, (ref >> np.uint64(11)).astype(np.float64) / 9007199254740992.0)
+
+
 def test_noise_different_keys_differ() -> None:
     base = uniform(1, 2, 3, 4, 16)
     for other in (uniform(0, 2, 3, 4, 16), uniform(1, 0, 3, 4, 16), uniform(1, 2, 0, 4, 16),
