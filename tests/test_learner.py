@@ -176,16 +176,20 @@ def _hub(run_id: str, timeout: float = 60.0) -> str:
 
 
 @pytest.mark.procs
-def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path) -> None:
+@pytest.mark.parametrize("algo", ["reinforce", "ppo"])
+def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path,
+                                                                 algo: str) -> None:
     """`swarm run --train`: the learner's first update from the robots' records equals the
-    batched trainer's update on the same episodes (same seed, initial weights, no faults)."""
+    batched trainer's update on the same episodes (same seed, initial weights, no faults), with
+    the paper's REINFORCE and with PPO (whose ratios use the log-probabilities robots recorded)."""
     cfg = WorldConfig(n_robots=3)
     init = initial(tmp_path, cfg, seed=1)
     out = tmp_path / "learner"
+    ppo = ["--train-algo", "ppo", "--train-ppo-epochs", "2"] if algo == "ppo" else []
     r = swarm("run", "--train", "--headless", "--robots", "3", "--policy", "commattn",
               "--checkpoint", str(init), "--episodes", "4", "--train-batch", "4", "--seed", "6",
               "--learner-out", str(out), "--run-id", "geq", "--json", str(tmp_path / "r.json"),
-              "--tick-timeout", "10")  # no faults: a long deadline changes nothing but load
+              "--tick-timeout", "10", *ppo)  # no faults: a long deadline changes nothing but load
     assert r.returncode == 0, r.stderr
     res = json.loads((tmp_path / "r.json").read_text())
     learner = res["learner"]
@@ -196,7 +200,8 @@ def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path)
     pol = make_policy("commattn", cfg, checkpoint=init)
     roll = collect(pol, cfg, 6, np.arange(4))
     assert np.array_equal(np.array(res["actions"]), np.stack(roll.actions, 1))
-    tc = TrainConfig(batch=4)
+    tc = TrainConfig(batch=4, algo=algo, ppo_epochs=2)
+    assert field["learner"]["train"]["algo"] == algo
     update(pol, torch.optim.Adam(pol.net.parameters(), lr=tc.lr), roll, tc)
     for k, v in pol.net.state_dict().items():
         # one Adam step moves a weight by up to lr (3e-3): 1e-5 is 0.3% of it (float noise in a

@@ -98,6 +98,10 @@ def add_parsers(sub: Any) -> None:
     g.add_argument("--gamma", dest="train_gamma", type=float, help="discount")
     g.add_argument("--ent-coef", dest="train_ent_coef", type=float, help="entropy bonus")
     g.add_argument("--threads", dest="train_threads", type=int, help="torch threads")
+    g.add_argument("--algo", dest="train_algo", choices=["reinforce", "ppo"],
+                   help="estimator (default reinforce, the paper's; ppo is ours)")
+    g.add_argument("--ppo-epochs", dest="train_ppo_epochs", type=int, metavar="K",
+                   help="with --algo ppo: passes over each batch (default 4)")
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)

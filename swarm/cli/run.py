@@ -68,6 +68,10 @@ def _add_train_flags(p: argparse.ArgumentParser) -> None:
                         "its weights at episode boundaries")
     g.add_argument("--train-batch", type=int, metavar="B",
                    help="episodes per learner update (default 10 with --train)")
+    g.add_argument("--train-algo", choices=["reinforce", "ppo"],
+                   help="the learner's estimator (default reinforce, the paper's; ppo is ours)")
+    g.add_argument("--train-ppo-epochs", type=int, metavar="K",
+                   help="with --train-algo ppo: passes over each batch (default 4)")
     g.add_argument("--learner-out", metavar="DIR",
                    help="the learner's checkpoint and curve (default: LOG_DIR/learner)")
     g.add_argument("--rollout-loss", type=float, metavar="P",
@@ -130,7 +134,7 @@ def _logging(verbose: bool) -> None:
 
 
 LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_norm", "ent_coef",
-                        "max_grad_norm", "threads", "chunk_ticks")
+                        "max_grad_norm", "threads", "chunk_ticks", "algo", "ppo_epochs")
 
 
 def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[Any, Any]:
@@ -198,7 +202,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         if not policy_class(run.policy).learned:
             raise ConfigError(f"--train needs a learned policy, not {run.policy!r}")
         tables = {**tables, "train": {"batch": 10, **tables.get("train", {})}}
-        lc, tc = learner_configs(argparse.Namespace(train_batch=args.train_batch), tables)
+        lc, tc = learner_configs(argparse.Namespace(
+            train_batch=args.train_batch, train_algo=args.train_algo,
+            train_ppo_epochs=args.train_ppo_epochs), tables)
         learning = {"learner": {**dataclasses.asdict(lc), "out": args.learner_out},
                     "train": dataclasses.asdict(tc)}
     try:
