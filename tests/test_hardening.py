@@ -20,6 +20,7 @@ from conftest import ROOT, swarm
 
 from swarm.common.spawn import registry
 from swarm.net.keys import Keys
+from swarm.net.learning import EpisodeRecord, RobotRollout, RolloutTick, Weights
 from swarm.net.messages import (
     K_CONTROL,
     K_RESULT,
@@ -27,13 +28,9 @@ from swarm.net.messages import (
     K_STATUS,
     Action,
     Bundle,
-    EpisodeRecord,
     Hidden,
     Obs,
-    RobotRollout,
-    RolloutTick,
     Traj,
-    Weights,
     pack_record,
 )
 from swarm.net.zconfig import ZenohOptions

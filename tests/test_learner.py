@@ -28,7 +28,8 @@ from swarm.learn.rollout import collect
 from swarm.learn.update import advantages, backward, normaliser, update
 from swarm.learn.weights import adopt, weights_of
 from swarm.net.keys import Keys
-from swarm.net.messages import BadMessage, EpisodeRollout, RobotRollout, Weights
+from swarm.net.learning import EpisodeRollout, RobotRollout, Weights
+from swarm.net.messages import BadMessage
 from swarm.net.zconfig import ZenohOptions, free_port
 from world.config import WorldConfig
 

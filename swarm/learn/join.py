@@ -13,13 +13,8 @@ import torch
 
 from policies.learned import LearnedPolicy
 from swarm.learn.rollout import Rollout
-from swarm.net.messages import (
-    BadMessage,
-    EpisodeRecord,
-    EpisodeRollout,
-    RobotRollout,
-    Traj,
-)
+from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
+from swarm.net.messages import BadMessage, Traj
 from world import core
 from world.config import WorldConfig
 from world.decentral import TrajMessages, View, remember

@@ -12,7 +12,8 @@ import dataclasses
 import numpy as np
 
 from policies.infer.policy import BadWeights, InferencePolicy
-from swarm.net.messages import BadMessage, Weights
+from swarm.net.learning import Weights
+from swarm.net.messages import BadMessage
 
 
 def weights_of(policy: InferencePolicy, version: int) -> Weights:

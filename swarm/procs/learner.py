@@ -50,14 +50,8 @@ from swarm.learn.update import update
 from swarm.learn.weights import weights_of
 from swarm.net.inbox import Inbox, publisher, tally
 from swarm.net.keys import Keys
-from swarm.net.messages import (
-    K_LSTATUS,
-    BadMessage,
-    EpisodeRecord,
-    EpisodeRollout,
-    RobotRollout,
-    pack_record,
-)
+from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
+from swarm.net.messages import K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig, from_dict

@@ -22,6 +22,7 @@ from policies.base import Policy
 from swarm.common.policy_spec import build_inference
 from swarm.net.inbox import Inbox, publisher, query, tally
 from swarm.net.keys import Keys
+from swarm.net.learning import RolloutTick
 from swarm.net.messages import (
     K_RESULT,
     K_RSTATUS,
@@ -30,7 +31,6 @@ from swarm.net.messages import (
     Bundle,
     Hidden,
     Obs,
-    RolloutTick,
     Traj,
     pack_record,
     unpack_record,
@@ -248,7 +248,7 @@ class RobotProcess:
     def offer_weights(self, payload: bytes, key: str) -> None:
         """Keep a newer weights version for the next episode boundary; reject bad ones."""
         from swarm.learn.weights import check_weights
-        from swarm.net.messages import Weights
+        from swarm.net.learning import Weights
 
         try:
             w = Weights.unpack(payload)
@@ -323,7 +323,7 @@ class RobotProcess:
         self.recent = (self.recent + [cell])[-cfg.recent_len:]
         if obs.done:
             if self.train and self.record and self.roll_pub is not None:
-                from swarm.net.messages import RobotRollout
+                from swarm.net.learning import RobotRollout
                 from world.noise import uniform
 
                 lost = self.run_cfg.rollout_loss > 0 and float(uniform(

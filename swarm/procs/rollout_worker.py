@@ -26,7 +26,8 @@ from swarm.learn.rollout import collect
 from swarm.learn.weights import adopt
 from swarm.net.inbox import Event, Inbox, publisher, query
 from swarm.net.keys import Keys
-from swarm.net.messages import BadMessage, Weights
+from swarm.net.learning import Weights
+from swarm.net.messages import BadMessage
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError, from_dict

@@ -27,6 +27,7 @@ from swarm.net.direct import DirectTally
 from swarm.net.faults import FaultPlan, plan_from_table
 from swarm.net.inbox import Inbox, publisher, tally
 from swarm.net.keys import Keys
+from swarm.net.learning import EpisodeRecord
 from swarm.net.messages import (
     K_CONTROL,
     K_RESULT,
@@ -35,7 +36,6 @@ from swarm.net.messages import (
     Action,
     BadMessage,
     Bundle,
-    EpisodeRecord,
     Hidden,
     Obs,
     Traj,

@@ -19,6 +19,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from swarm.net import learning
 from swarm.net import messages as m
 from world.config import WorldConfig
 
@@ -173,21 +174,21 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
             m.check_robot_status(rec, cfg.n_robots, cfg.horizon)
         return safe(rec)
     if kind == "weights":
-        w = m.Weights.unpack(payload)
+        w = learning.Weights.unpack(payload)
         return {"policy": w.policy, "version": w.version, "model": safe(w.model),
                 "shapes": {k: list(a.shape) for k, a in w.tensors.items()}}
     if kind == "rollout":
-        r = m.RobotRollout.unpack(payload, cfg)
+        r = learning.RobotRollout.unpack(payload, cfg)
         return {"ep": r.ep, "robot": r.robot, "actions": [t.action for t in r.ticks],
                 "heard": [t.heard for t in r.ticks], "chain_ok": [t.chain_ok for t in r.ticks],
                 "logp": [t.logp for t in r.ticks], "last_reward": [t.last_reward for t in r.ticks],
                 "version": [t.version for t in r.ticks]}
     if kind == "episode":
-        e = m.EpisodeRecord.unpack(payload, cfg)
+        e = learning.EpisodeRecord.unpack(payload, cfg)
         return {"ep": e.ep, "reward": np.asarray(e.reward, float).tolist(),
                 "acted": e.acted.tolist(), "metrics": e.metrics}
     if kind == "worker_episodes":
-        w2 = m.EpisodeRollout.unpack(payload, cfg)
+        w2 = learning.EpisodeRollout.unpack(payload, cfg)
         return {"ep": w2.ep, "seed": w2.seed, "version": w2.version,
                 "actions": w2.actions.tolist(), "metrics": w2.metrics}
     raise m.BadMessage(f"no JSON form for kind {kind!r}")

@@ -35,7 +35,8 @@ import numpy as np
 import zenoh
 
 from swarm.net.keys import Keys
-from swarm.net.messages import K_CONTROL, Action, Weights, pack_record
+from swarm.net.learning import Weights
+from swarm.net.messages import K_CONTROL, Action, pack_record
 from swarm.net.security.tls import Secure
 from swarm.net.zconfig import zenoh_reason
 

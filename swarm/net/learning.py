@@ -1,0 +1,228 @@
+"""The learning messages of a run (weights, robots' episode records, the world's rewards,
+rollout workers' episodes), with the same conventions as swarm.net.messages: msgpack arrays
+`[SCHEMA, kind, ...]`, every field checked on unpack, `BadMessage` (one line) otherwise."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from swarm.net.messages import (
+    BIG,
+    K_EPISODE,
+    K_EROLLOUT,
+    K_RROLLOUT,
+    K_WEIGHTS,
+    BadMessage,
+    _bytes,
+    _float,
+    _int,
+    _pack,
+    _unpack,
+)
+from world.config import WorldConfig
+from world.core import METRIC_NAMES
+
+
+def _array(v: Any, name: str, dtype: str, shape: tuple[int, ...]) -> np.ndarray:
+    """A fixed-size little-endian array from bytes (copied: the result is writable)."""
+    size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    return np.frombuffer(_bytes(v, name, size), dtype=dtype).reshape(shape).copy()
+
+
+def _bits(v: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """A bool array packed with np.packbits along its last axis."""
+    *lead, last = shape
+    packed = _array(v, name, "u1", (*lead, (last + 7) // 8))
+    return np.unpackbits(packed, axis=-1, count=last).astype(bool)
+
+
+
+def _metrics(v: Any) -> dict[str, float]:
+    if not isinstance(v, dict) or set(v) != set(METRIC_NAMES):
+        raise BadMessage(f"metrics must be a map of {', '.join(METRIC_NAMES)}")
+    return {k: _float(v[k], f"metrics.{k}") for k in METRIC_NAMES}
+
+
+@dataclass
+class Weights:
+    """Learner -> robots and workers: version `version` of the shared weights of `policy`."""
+
+    policy: str
+    version: int
+    model: dict[str, Any]  # the network's config dataclass as a dict
+    tensors: dict[str, np.ndarray]  # float32 state_dict
+
+    def pack(self) -> bytes:
+        data = {k: [list(a.shape), np.ascontiguousarray(a, "<f4").tobytes()]
+                for k, a in self.tensors.items()}
+        return _pack(K_WEIGHTS, self.policy, self.version, self.model, data)
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> Weights:
+        policy, version, model, data = _unpack(payload, K_WEIGHTS, 4)
+        if not isinstance(policy, str) or not isinstance(model, dict) or not isinstance(data, dict):
+            raise BadMessage("weights need a policy name, a model map and a tensor map")
+        tensors = {}
+        for k, v in data.items():
+            if not (isinstance(k, str) and isinstance(v, list) and len(v) == 2
+                    and isinstance(v[0], list) and all(isinstance(d, int) and 0 <= d < 2**20
+                                                       for d in v[0])):
+                raise BadMessage(f"tensor {k!r} must be [shape, float32 bytes]")
+            tensors[k] = _array(v[1], f"tensor {k}", "<f4", tuple(v[0]))
+        return cls(policy, _int(version, "version", 0, BIG), model, tensors)
+
+
+class RolloutTick(NamedTuple):
+    """One tick of a robot's episode record (see RobotRollout)."""
+
+    traj: bytes  # the trajectory payload it published (as every receiver got it)
+    heard: int  # bit mask of the ids whose messages it heard
+    chain_ok: bool  # its predecessor's hidden-state message arrived
+    action: int
+    logp: float  # log-probability of the action under the weights that acted
+    last_reward: float  # reward of the previous step
+    version: int  # weights version that acted
+
+
+@dataclass
+class RobotRollout:
+    """Robot -> learner, at the end of an episode: what it observed, heard and did, per tick.
+
+    Each tick is `[traj, heard, chain_ok, action, logp, last_reward, version]`: the trajectory
+    payload it published (its own message, as every receiver got it), the ids whose messages it
+    heard as a bit mask, whether its predecessor's hidden-state message arrived, the action it
+    sent, its log-probability, the reward of the previous step and the weights version used."""
+
+    ep: int
+    robot: int
+    ticks: list[RolloutTick]
+
+    def pack(self) -> bytes:
+        return _pack(K_RROLLOUT, self.ep, self.robot, [list(t) for t in self.ticks])
+
+    @classmethod
+    def unpack(cls, payload: bytes, cfg: WorldConfig) -> RobotRollout:
+        ep, robot, ticks = _unpack(payload, K_RROLLOUT, 3)
+        if not isinstance(ticks, list) or len(ticks) > cfg.horizon:
+            raise BadMessage(f"ticks must be a list of at most {cfg.horizon} records")
+        out = []
+        for rec in ticks:
+            if not isinstance(rec, list) or len(rec) != 7 or not isinstance(rec[2], bool):
+                raise BadMessage("a tick record is [traj, heard, chain_ok, action, logp, "
+                                 "last_reward, version]")
+            if not isinstance(rec[0], bytes):
+                raise BadMessage("traj must be bytes")
+            out.append(RolloutTick(
+                rec[0], _int(rec[1], "heard", 0, 2 ** cfg.n_robots - 1), rec[2],
+                _int(rec[3], "action", 0, 8), _float(rec[4], "logp", -1e4, 0.0),
+                _float(rec[5], "last_reward"), _int(rec[6], "version", 0, BIG)))
+        return cls(_int(ep, "ep", 0, BIG), _int(robot, "robot", 0, cfg.n_robots - 1), out)
+
+
+@dataclass
+class EpisodeRecord:
+    """World -> learner, at the end of an episode: each robot's reward per tick, which robots
+    acted in time (their action was applied), and the episode's metrics."""
+
+    ep: int
+    reward: np.ndarray  # [T, N] float32
+    acted: np.ndarray  # [T, N] bool
+    metrics: dict[str, float]
+
+    def pack(self) -> bytes:
+        return _pack(K_EPISODE, self.ep, int(self.reward.shape[0]),
+                     np.ascontiguousarray(self.reward, "<f4").tobytes(),
+                     np.packbits(self.acted, axis=-1).tobytes(), self.metrics)
+
+    @classmethod
+    def unpack(cls, payload: bytes, cfg: WorldConfig) -> EpisodeRecord:
+        ep, t, reward, acted, metrics = _unpack(payload, K_EPISODE, 5)
+        t = _int(t, "ticks", 1, cfg.horizon)
+        n = cfg.n_robots
+        return cls(_int(ep, "ep", 0, BIG), _array(reward, "reward", "<f4", (t, n)),
+                   _bits(acted, "acted", (t, n)), _metrics(metrics))
+
+
+@dataclass
+class EpisodeRollout:
+    """One whole episode in the batched trainer's terms (what `swarm.learn.rollout.collect` records
+    for one group), from the swarm's joined records or from a rollout worker. Arrays [T, N, ...]."""
+
+    ep: int
+    seed: int
+    version: int
+    pos: np.ndarray  # [T, N, 2] int64
+    visited: np.ndarray  # [T, N, H*W] bool
+    recent: np.ndarray  # [T, N, L] int64 (-1 none)
+    patch: np.ndarray  # [T, N, v, v] uint8
+    present: np.ndarray  # [T, N] bool
+    hears: np.ndarray  # [T, N, N] bool
+    receivers: np.ndarray  # [T, N] bool
+    chain_ok: np.ndarray  # [T, N] bool
+    last_reward: np.ndarray  # [T, N] float32
+    actions: np.ndarray  # [T, N] int64
+    reward: np.ndarray  # [T, N] float32
+    metrics: dict[str, float]
+    logp: np.ndarray | None = None  # [T, N] float32 log pi(a) of the acting weights (0 off
+    # receivers); None from senders that did not record it (no importance correction then)
+
+    def pack(self) -> bytes:
+        a = {
+            "pos": np.ascontiguousarray(self.pos, "<i2").tobytes(),
+            "visited": np.packbits(self.visited, axis=-1).tobytes(),
+            "recent": np.ascontiguousarray(self.recent, "<i2").tobytes(),
+            "patch": np.ascontiguousarray(self.patch, "u1").tobytes(),
+            "present": np.packbits(self.present, axis=-1).tobytes(),
+            "hears": np.packbits(self.hears, axis=-1).tobytes(),
+            "receivers": np.packbits(self.receivers, axis=-1).tobytes(),
+            "chain_ok": np.packbits(self.chain_ok, axis=-1).tobytes(),
+            "last_reward": np.ascontiguousarray(self.last_reward, "<f4").tobytes(),
+            "actions": np.ascontiguousarray(self.actions, "u1").tobytes(),
+            "reward": np.ascontiguousarray(self.reward, "<f4").tobytes(),
+        }
+        if self.logp is not None:
+            a["logp"] = np.ascontiguousarray(self.logp, "<f4").tobytes()
+        return _pack(K_EROLLOUT, self.ep, self.seed, self.version, int(self.pos.shape[0]), a,
+                     self.metrics)
+
+    @classmethod
+    def unpack(cls, payload: bytes, cfg: WorldConfig) -> EpisodeRollout:
+        ep, seed, version, t, a, metrics = _unpack(payload, K_EROLLOUT, 6)
+        t = _int(t, "ticks", 1, cfg.horizon)
+        if not isinstance(a, dict):
+            raise BadMessage("arrays must be a map")
+        n, v, ll = cfg.n_robots, cfg.vision, cfg.recent_len
+        get = a.get
+        out = cls(
+            _int(ep, "ep", 0, BIG), _int(seed, "seed", -BIG, BIG), _int(version, "version", 0, BIG),
+            pos=_array(get("pos"), "pos", "<i2", (t, n, 2)).astype(np.int64),
+            visited=_bits(get("visited"), "visited", (t, n, cfg.cells)),
+            recent=_array(get("recent"), "recent", "<i2", (t, n, ll)).astype(np.int64),
+            patch=_array(get("patch"), "patch", "u1", (t, n, v, v)),
+            present=_bits(get("present"), "present", (t, n)),
+            hears=_bits(get("hears"), "hears", (t, n, n)),
+            receivers=_bits(get("receivers"), "receivers", (t, n)),
+            chain_ok=_bits(get("chain_ok"), "chain_ok", (t, n)),
+            last_reward=_array(get("last_reward"), "last_reward", "<f4", (t, n)),
+            actions=_array(get("actions"), "actions", "u1", (t, n)).astype(np.int64),
+            reward=_array(get("reward"), "reward", "<f4", (t, n)),
+            metrics=_metrics(metrics),
+            logp=None if get("logp") is None else _array(get("logp"), "logp", "<f4", (t, n)),
+        )
+        lim = np.array([cfg.height, cfg.width])
+        if (out.pos < 0).any() or (out.pos >= lim).any():
+            raise BadMessage("pos off the grid")
+        if (out.recent < -1).any() or (out.recent >= cfg.cells).any():
+            raise BadMessage("recent cell off the grid")
+        if (out.actions > 8).any():
+            raise BadMessage("action outside 0..8")
+        if (out.receivers & ~out.present).any() or (out.hears & ~out.present[:, None, :]).any():
+            raise BadMessage("a receiver or a heard member has no message")
+        if not (np.isfinite(out.reward).all() and np.isfinite(out.last_reward).all()):
+            raise BadMessage("rewards must be finite")
+        if out.logp is not None and not (np.isfinite(out.logp).all() and (out.logp <= 0).all()):
+            raise BadMessage("log-probabilities must be finite and <= 0")
+        return out
