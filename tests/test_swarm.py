@@ -220,6 +220,7 @@ def test_bench_swarm_prints_and_writes_figures(tmp_path: Path) -> None:
     for row in rows:
         assert row["ticks_per_s"] > 0 and row["startup_s"] > 0
         assert 5 < row["rss_mb_per_robot"] < 250  # a frontier robot never imports torch
+        assert row["pss_mb_world"] is not None and 0 < row["pss_mb_world"] <= row["rss_mb_world"]
 
 
 @pytest.mark.procs

@@ -43,9 +43,10 @@ class ProcSampler:
         """RSS and CPU of every child; PSS of `pss_per_call` of them in turn (the kernel walks
         a process's page tables for it: for hundreds of robots, every one every call would be
         most of the supervisor's time)."""
-        names = sorted(procs)
+        names = sorted(n for n in procs if n != "world")
         pss_for = {names[(self._turn + k) % len(names)]
                    for k in range(min(pss_per_call, len(names)))} if names else set()
+        pss_for.add("world")  # one process, sampled every call (robots take turns)
         self._turn += pss_per_call
         for name, p in procs.items():
             if p is None or p.poll() is not None:
