@@ -163,6 +163,20 @@ def test_bench_policy_tiny(tmp_path: Path) -> None:
 
 
 @pytest.mark.procs
+def test_bench_policy_one_robot_times_a_robots_decision(tmp_path: Path) -> None:
+    """`--one-robot`: a chained learned policy and a planner, each robot with its own policy."""
+    out = tmp_path / "one.json"
+    r = swarm("bench", "policy", "--policies", "commattn,nearest-frontier", "--decisions", "12",
+              "--warmup", "0", "--robots", "3", "--one-robot", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    data = json.loads(out.read_text())
+    assert data["one_robot"] is True and "one robot" in r.stdout
+    for row in data["rows"]:
+        assert row["decisions"] == 12 and row["bar_ms"] is None
+        assert 0 < row["min_ms"] <= row["median_ms"] <= row["max_ms"]
+
+
+@pytest.mark.procs
 def test_repro_all_tiny_writes_every_file(tmp_path: Path) -> None:
     out = tmp_path / "repro"
     r = swarm("repro", "all", "--out", str(out), "--policies", "random", "--episodes", "3",

@@ -17,10 +17,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from policies import REGISTRY
-from swarm.common.policy_spec import build_policy, resolve_policies
+from swarm.common.policy_spec import build_inference, build_policy, resolve_policies
 from world import core
 from world.config import ConfigError, WorldConfig
-from world.decentral import batch_view
+from world.decentral import batch_view, heard_by, robot_view
 
 # Project bars for `bench policy` (median ms per team decision, 10 robots).
 POLICY_BARS_MS: dict[str, float] = {
@@ -103,6 +103,10 @@ class PolicyBenchConfig:
     """Untimed warm-up episodes per policy."""
     seed: int = 0
     """Seed of the maps."""
+    one_robot: bool = False
+    """Time one robot's decision as a robot process makes it (numpy networks; its own view of
+    what it heard; a chained policy prepares, then decodes with its predecessor's message)
+    instead of the team's."""
     json: str | None = None
     """Write the figures to this JSON file."""
 
@@ -178,13 +182,15 @@ def _episode_loop(world: WorldConfig, state: core.WorldState,
 
 
 def time_decisions(world: WorldConfig, name: str, decisions: int, seed: int, warmup: int = 1,
-                   checkpoint: str | None = None,
-                   progress: ProgressSink | None = None) -> np.ndarray:
+                   checkpoint: str | None = None, progress: ProgressSink | None = None,
+                   one_robot: bool = False) -> np.ndarray:
     """Wall ms of `decisions` team decisions of policy `name`, one episode (G = 1) at a time.
 
     The policy plays seeded episodes from tick 0 so its memory (maps built from what it heard)
     is what it would be mid-mission; every tick's `act` is timed, warm-up episodes are not.
     """
+    if one_robot:
+        return time_robot_decisions(world, name, decisions, seed, warmup, checkpoint, progress)
     policy = build_policy(name, world, checkpoint)
     progress = progress or NullProgress()
     samples: list[float] = []
@@ -201,6 +207,49 @@ def time_decisions(world: WorldConfig, name: str, decisions: int, seed: int, war
             if timed and len(samples) < decisions:
                 samples.append(1e3 * dt)
                 progress.advance(1)
+            core.step(world, state, actions)
+        episode += 1
+    return np.asarray(samples)
+
+
+def time_robot_decisions(world: WorldConfig, name: str, decisions: int, seed: int,
+                         warmup: int = 1, checkpoint: str | None = None,
+                         progress: ProgressSink | None = None) -> np.ndarray:
+    """Wall ms of `decisions` single-robot decisions of policy `name` as robot processes make
+    them: every robot keeps its own policy (its memory), decides on `robot_view` of what it
+    heard, and a chained policy runs `prepare_chain` then `act_with_chain` with its
+    predecessor's state and action from the team's decision (what its message would carry).
+    The episode is driven by the team's decision (G = 1), untimed."""
+    team = build_inference(name, world, checkpoint)
+    robots = [build_inference(name, world, checkpoint) for _ in range(world.n_robots)]
+    progress = progress or NullProgress()
+    samples: list[float] = []
+    episode = 0
+    while len(samples) < decisions:
+        state = core.reset(world, seed, [episode])
+        for p in (team, *robots):
+            p.reset(1)
+        timed = episode >= warmup
+        while not state.done:
+            view = batch_view(world, state)
+            d = team.decide(view) if team.chained else None  # type: ignore[attr-defined]
+            actions = d.actions if d is not None else team.act(view)
+            for i in np.flatnonzero(view.receivers[0]).tolist():
+                rv = robot_view(world, view.seed, int(view.episodes[0]), view.tick, i,
+                                heard_by(world, view, 0, i), float(view.last_reward[0, i]))
+                t0 = time.perf_counter()
+                if d is not None:
+                    prepared = robots[i].prepare_chain(rv)  # type: ignore[attr-defined]
+                    p = int(prepared.pred[0])
+                    robots[i].act_with_chain(  # type: ignore[attr-defined]
+                        rv, None if p < 0 else d.state[0, p][None],
+                        None if p < 0 else d.actions[0, p:p + 1], prepared=prepared)
+                else:
+                    robots[i].act(rv)
+                dt = time.perf_counter() - t0
+                if timed and len(samples) < decisions:
+                    samples.append(1e3 * dt)
+                    progress.advance(1)
             core.step(world, state, actions)
         episode += 1
     return np.asarray(samples)
@@ -224,10 +273,11 @@ def bench_policy(world: WorldConfig, cfg: PolicyBenchConfig, progress: ProgressS
     for name in cfg.policies:
         progress.start(f"plan {name}", cfg.decisions)
         ms = time_decisions(world, name, cfg.decisions, cfg.seed, cfg.warmup,
-                            checkpoints.get(name), progress)
+                            checkpoints.get(name), progress, cfg.one_robot)
         row: dict[str, Any] = {"policy": name, **timing_stats(ms)}
-        bar = POLICY_BARS_MS.get(name)
+        bar = None if cfg.one_robot else POLICY_BARS_MS.get(name)
         row["bar_ms"] = bar
         row["meets_bar"] = None if bar is None else row["median_ms"] <= bar
         rows.append(row)
-    return {"robots": world.n_robots, "seed": cfg.seed, "decisions": cfg.decisions, "rows": rows}
+    return {"robots": world.n_robots, "seed": cfg.seed, "decisions": cfg.decisions,
+            "one_robot": cfg.one_robot, "rows": rows}

@@ -217,7 +217,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     else:
         cfg = merged(bench.PolicyBenchConfig, table,
                      {"policies": args.policies, "decisions": args.decisions,
-                      "warmup": args.warmup, "seed": args.seed, "json": args.json}, where)
+                      "warmup": args.warmup, "seed": args.seed, "json": args.json,
+                      "one_robot": args.one_robot}, where)
         for name in cfg.policies:  # fail on an unloadable policy before timing anything
             build_policy(name, world)
         with RichProgress(err) as progress:
@@ -302,6 +303,10 @@ def add_parsers(sub: Any) -> None:
     b.add_argument("--decisions", type=int, metavar="K",
                    help="timed decisions per policy (default 150)")
     b.add_argument("--warmup", type=int, metavar="E", help="untimed warm-up episodes (default 1)")
+    b.add_argument("--one-robot", action="store_true", default=None,
+                   help="time one robot's decision as a robot process makes it (numpy networks, "
+                        "its own view; chained: prepare, then decode with its predecessor's "
+                        "message) instead of the team's")
     add_common(b)
     add_world(b)
     b.set_defaults(func=cmd_bench)

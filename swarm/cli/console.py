@@ -69,7 +69,8 @@ def env_bench_table(result: Mapping[str, Any]) -> Table:
 
 def policy_bench_table(result: Mapping[str, Any]) -> Table:
     """Rows of `bench_policy`: planning ms per team decision of N robots."""
-    table = Table(title=f"Planning time per decision, {result['robots']} robots, G=1 "
+    who = "one robot as a robot process makes it" if result.get("one_robot") else "G=1"
+    table = Table(title=f"Planning time per decision, {result['robots']} robots, {who} "
                         f"({result['decisions']} decisions each)", title_justify="left")
     table.add_column("policy", style="bold")
     for col in ("median ms", "p90 ms", "mean ± std ms", "bar ms", "meets bar"):
