@@ -152,8 +152,11 @@ class NumpyCommAttn(NumpyNet):
         keys, _ = t.padded(linear(w, "match_h", flat))
         return Encoded(h=h, keys=keys, mask=mask, mine=mine)
 
-    def decode(self, enc: Encoded, s_prev: np.ndarray, a_prev: np.ndarray) -> Step:
-        """One decoder step given the predecessors' (s_{p(i)}, a_{p(i)})."""
+    def decode(self, enc: Encoded, s_prev: np.ndarray, a_prev: np.ndarray,
+               value: bool = True) -> Step:
+        """One decoder step given the predecessors' (s_{p(i)}, a_{p(i)}); without `value` the
+        baseline head is skipped (zeros: a robot acting needs no baseline, and the decode is
+        on the chain's critical path)."""
         w = self.w
         keys = np.tanh(enc.keys + linear(w, "match_s", s_prev)[:, None])
         energy = linear(w, "match_v", keys)[..., 0]
@@ -164,8 +167,9 @@ class NumpyCommAttn(NumpyNet):
         own = [enc.mine] if self.cfg.self_input else []
         state = gru_cell(w, "cell", np.concatenate([emb, context], axis=-1), s_prev)
         logits = mlp(w, "policy", np.concatenate([emb, state, context, *own], axis=-1))
-        value = mlp(w, "value", np.concatenate([state, context, *own], axis=-1))[:, 0]
-        return Step(logits, value, state, context, alpha)
+        b = mlp(w, "value", np.concatenate([state, context, *own], axis=-1))[:, 0] if value else \
+            np.zeros(len(state), dtype=np.float32)
+        return Step(logits, b, state, context, alpha)
 
     def chain(self, enc: Encoded, robot: np.ndarray, pred: np.ndarray,
               choose: Callable[[slice, np.ndarray], np.ndarray]) -> tuple[Step, np.ndarray]:

@@ -333,7 +333,7 @@ class InferencePolicy(Policy):
                                  f"expected {s_prev.shape[1]}")
             s_prev = np.where(has[:, None], ps, s_prev)
             a_prev = np.where(has, pa, a_prev)
-        out = net.decode(prepared.encoded, s_prev, a_prev)
+        out = net.decode(prepared.encoded, s_prev, a_prev, value=False)  # (acting: no baseline)
         a = chooser(prepared.noise)(slice(None), out.logits)
         actions = np.zeros(view.receivers.shape, dtype=np.int64)
         actions[tokens.group, tokens.robot] = a
