@@ -9,6 +9,10 @@ Not decentralized, not a shipped policy: a reference point between `central` (a 
 and `oracle` (knows the future).
 
     .venv/bin/python results/planners/replan.py FIRST COUNT OUT.json   # episodes of seed 0
+    .venv/bin/python results/planners/replan.py FIRST COUNT OUT.json --decentralized
+
+`--decentralized`: every robot plans alone from what it heard (range 10, its own memory), the
+question being whether decentralized planning alone can reach 0.95.
 """
 import json
 import sys
@@ -17,7 +21,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from policies.belief import BLOCK
+from policies.base import Policy
+from policies.belief import BLOCK, Belief
 from policies.central import CentralPolicy
 from policies.oracle import Episode, _beam, _cover, _pick_team, to_actions
 from swarm.learn.evaluate import evaluate
@@ -88,11 +93,42 @@ class Replan(CentralPolicy):
         return np.where(view.receivers, out, 0)
 
 
+class DecentralizedReplan(Policy):
+    """`replan` by every robot alone: its own belief (the blocks it saw or heard of, its team
+    memory of visited cells, as nearest frontier keeps them), the robots it hears this tick as
+    the team; it plans all of them and takes its own first move."""
+
+    name = "replan-decentralized"
+
+    def __init__(self, cfg: WorldConfig) -> None:
+        super().__init__(cfg)
+        self.belief = Belief(cfg)
+
+    def reset(self, groups: int) -> None:
+        self.belief.reset(groups)
+
+    def act(self, view: View, greedy: bool = True) -> np.ndarray:
+        snap = self.belief.snapshot(view)
+        cfg = self.cfg
+        out = np.zeros(view.receivers.shape, dtype=np.int64)
+        for k in range(snap.size):
+            g, i = int(snap.g[k]), int(snap.i[k])
+            team = np.flatnonzero(view.hears[g, i])
+            cells = view.msgs.pos[g, team, 0] * cfg.width + view.msgs.pos[g, team, 1]
+            rng = np.random.default_rng([int(view.seed), int(view.episodes[g]), view.tick, i, 29])
+            moves = plan_first_moves(cfg, snap.known[k].ravel().copy(),
+                                     snap.explored[k].ravel(), cells, view.tick, rng)
+            out[g, i] = moves[int(np.flatnonzero(team == i)[0])]
+        return out
+
+
 if __name__ == "__main__":
     first, count, path = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
     cfg = WorldConfig()
     t0 = time.time()
     runs = {"replan": Replan(cfg), "central": CentralPolicy(cfg)}
+    if len(sys.argv) > 4 and sys.argv[4] == "--decentralized":
+        runs = {"replan-decentralized": DecentralizedReplan(cfg)}
     res = {k: evaluate(cfg, p, 0, count, first_episode=first, batch=count)
            for k, p in runs.items()}
     out = {k: {"elratio": r.elratio.tolist(), "summary": r.summary(cfg)} for k, r in res.items()}
