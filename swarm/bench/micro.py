@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -20,7 +21,7 @@ from policies import REGISTRY
 from swarm.common.policy_spec import build_inference, build_policy, resolve_policies
 from world import core
 from world.config import ConfigError, WorldConfig
-from world.decentral import batch_view, heard_by, robot_view
+from world.decentral import View, batch_view, heard_by, robot_view
 
 # Project bars for `bench policy` (median ms per team decision, 10 robots).
 POLICY_BARS_MS: dict[str, float] = {
@@ -184,27 +185,23 @@ def _episode_loop(world: WorldConfig, state: core.WorldState,
 def time_decisions(world: WorldConfig, name: str, decisions: int, seed: int, warmup: int = 1,
                    checkpoint: str | None = None, progress: ProgressSink | None = None,
                    one_robot: bool = False) -> np.ndarray:
-    """Wall ms of `decisions` team decisions of policy `name`, one episode (G = 1) at a time.
+    """Wall ms of `decisions` team decisions of policy `name`, one episode (G = 1) at a time
+    (`one_robot`: single-robot decisions, see `robot_decider`).
 
     The policy plays seeded episodes from tick 0 so its memory (maps built from what it heard)
-    is what it would be mid-mission; every tick's `act` is timed, warm-up episodes are not.
+    is what it would be mid-mission; every tick's decisions are timed, warm-up episodes' not.
     """
-    if one_robot:
-        return time_robot_decisions(world, name, decisions, seed, warmup, checkpoint, progress)
-    policy = build_policy(name, world, checkpoint)
+    reset, decide = (robot_decider if one_robot else team_decider)(world, name, checkpoint)
     progress = progress or NullProgress()
     samples: list[float] = []
     episode = 0
     while len(samples) < decisions:
         state = core.reset(world, seed, [episode])
-        policy.reset(1)
+        reset()
         timed = episode >= warmup
         while not state.done:
-            view = batch_view(world, state)
-            t0 = time.perf_counter()
-            actions = policy.act(view)
-            dt = time.perf_counter() - t0
-            if timed and len(samples) < decisions:
+            actions, seconds = decide(batch_view(world, state))
+            for dt in (seconds[:decisions - len(samples)] if timed else []):
                 samples.append(1e3 * dt)
                 progress.advance(1)
             core.step(world, state, actions)
@@ -212,47 +209,54 @@ def time_decisions(world: WorldConfig, name: str, decisions: int, seed: int, war
     return np.asarray(samples)
 
 
-def time_robot_decisions(world: WorldConfig, name: str, decisions: int, seed: int,
-                         warmup: int = 1, checkpoint: str | None = None,
-                         progress: ProgressSink | None = None) -> np.ndarray:
-    """Wall ms of `decisions` single-robot decisions of policy `name` as robot processes make
-    them: every robot keeps its own policy (its memory), decides on `robot_view` of what it
-    heard, and a chained policy runs `prepare_chain` then `act_with_chain` with its
-    predecessor's state and action from the team's decision (what its message would carry).
-    The episode is driven by the team's decision (G = 1), untimed."""
+Decider = tuple[Callable[[], None], Callable[[View], tuple[np.ndarray, list[float]]]]
+
+
+def team_decider(world: WorldConfig, name: str, checkpoint: str | None) -> Decider:
+    """(reset, decide) timing one team decision (every robot a receiver) per tick."""
+    policy = build_policy(name, world, checkpoint)
+
+    def decide(view: View) -> tuple[np.ndarray, list[float]]:
+        t0 = time.perf_counter()
+        actions = policy.act(view)
+        return actions, [time.perf_counter() - t0]
+
+    return lambda: policy.reset(1), decide
+
+
+def robot_decider(world: WorldConfig, name: str, checkpoint: str | None) -> Decider:
+    """(reset, decide) timing single-robot decisions as robot processes make them: every robot
+    keeps its own policy (its memory), decides on `robot_view` of what it heard, and a chained
+    policy runs `prepare_chain` then `act_with_chain` with its predecessor's state and action
+    from the team's decision (what its message would carry). The team's decision, untimed,
+    drives the episode."""
     team = build_inference(name, world, checkpoint)
     robots = [build_inference(name, world, checkpoint) for _ in range(world.n_robots)]
-    progress = progress or NullProgress()
-    samples: list[float] = []
-    episode = 0
-    while len(samples) < decisions:
-        state = core.reset(world, seed, [episode])
+
+    def reset() -> None:
         for p in (team, *robots):
             p.reset(1)
-        timed = episode >= warmup
-        while not state.done:
-            view = batch_view(world, state)
-            d = team.decide(view) if team.chained else None  # type: ignore[attr-defined]
-            actions = d.actions if d is not None else team.act(view)
-            for i in np.flatnonzero(view.receivers[0]).tolist():
-                rv = robot_view(world, view.seed, int(view.episodes[0]), view.tick, i,
-                                heard_by(world, view, 0, i), float(view.last_reward[0, i]))
-                t0 = time.perf_counter()
-                if d is not None:
-                    prepared = robots[i].prepare_chain(rv)  # type: ignore[attr-defined]
-                    p = int(prepared.pred[0])
-                    robots[i].act_with_chain(  # type: ignore[attr-defined]
-                        rv, None if p < 0 else d.state[0, p][None],
-                        None if p < 0 else d.actions[0, p:p + 1], prepared=prepared)
-                else:
-                    robots[i].act(rv)
-                dt = time.perf_counter() - t0
-                if timed and len(samples) < decisions:
-                    samples.append(1e3 * dt)
-                    progress.advance(1)
-            core.step(world, state, actions)
-        episode += 1
-    return np.asarray(samples)
+
+    def decide(view: View) -> tuple[np.ndarray, list[float]]:
+        d = team.decide(view) if team.chained else None  # type: ignore[attr-defined]
+        actions = d.actions if d is not None else team.act(view)
+        seconds = []
+        for i in np.flatnonzero(view.receivers[0]).tolist():
+            rv = robot_view(world, view.seed, int(view.episodes[0]), view.tick, i,
+                            heard_by(world, view, 0, i), float(view.last_reward[0, i]))
+            t0 = time.perf_counter()
+            if d is not None:
+                prepared = robots[i].prepare_chain(rv)  # type: ignore[attr-defined]
+                p = int(prepared.pred[0])
+                robots[i].act_with_chain(  # type: ignore[attr-defined]
+                    rv, None if p < 0 else d.state[0, p][None],
+                    None if p < 0 else d.actions[0, p:p + 1], prepared=prepared)
+            else:
+                robots[i].act(rv)
+            seconds.append(time.perf_counter() - t0)
+        return actions, seconds
+
+    return reset, decide
 
 
 def timing_stats(ms: np.ndarray) -> dict[str, float]:
