@@ -79,9 +79,9 @@ class TickInbox:
 
 
 def has_all(got: dict[int, Any] | set[int], live: set[int]) -> bool:
-    """Every live robot is in `got` (the length test first: this runs on every message)."""
-    return len(got) >= len(live) and live <= got.keys() if isinstance(got, dict) else \
-        len(got) >= len(live) and live <= got
+    """Every live robot is in `got` (a set, or a dict's keys; the length test first: this runs
+    on every message)."""
+    return len(got) >= len(live) and live.issubset(got)
 
 
 class WorldProcess:
@@ -116,7 +116,7 @@ class WorldProcess:
         self.phase_ms = dict.fromkeys(PHASES, 0.0)
         self.chain_ms: list[list[float]] = []  # per chain depth: [sum of ms, messages]
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
-        self._alive_key = object()  # replaced whenever `alive` changes
+        self.live: set[int] = set()  # the ids where `alive` is set (kept with it in _liveness)
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.bad: dict[str, int] = {}
         self.timeouts = 0
@@ -154,8 +154,8 @@ class WorldProcess:
         except ValueError:
             return
         if 0 <= robot < self.cfg.n_robots:
-            self._alive_key = object()  # the tick loop's cached live set is stale
             self.alive[robot] = live
+            (self.live.add if live else self.live.discard)(robot)
             self.ever_alive[robot] |= live
             log.info("robot %d %s", robot, "alive" if live else "gone")
 
@@ -345,10 +345,8 @@ class WorldProcess:
             radio0 = self.phase_ms["radio"]
             t_sent = t_delivered = time.perf_counter()
             self.phase_ms["obs"] += 1e3 * (t_sent - t_obs)
-            live_of, live = None, set()
+            live = self.live  # (changes only with a liveness event, in _liveness)
             while True:
-                if live_of is not self._alive_key:  # (recomputed only when liveness changed)
-                    live_of, live = self._alive_key, set(np.flatnonzero(self.alive).tolist())
                 if not tick.delivered and (has_all(tick.traj, live)
                                            or time.monotonic() >= traj_deadline):
                     t_delivered = time.perf_counter()
