@@ -85,6 +85,8 @@ def test_eval_is_deterministic_and_frontier_beats_random(tmp_path: Path) -> None
     ["eval", "--policy", "random", "--config", "{tmp}/malformed.toml"],
     ["bench", "env", "--batch", "0,4"],
     ["bench", "policy", "--policies", "random,bogus"],
+    ["bench", "swarm", "--repeats", "0"],
+    ["bench", "swarm", "--repeats", "2", "--delivery", "radio", "--robots", "0"],
     ["repro", "fig99", "--out", "{tmp}/o"],  # fig9 became an item (issue 16)
     ["repro", "fig5", "--out", "{tmp}/o", "--add-every", "40", "--policies", "random"],
     ["frobnicate"],

@@ -212,11 +212,23 @@ def test_restart_crashed_brings_a_killed_robot_back(tmp_path: Path) -> None:
 @pytest.mark.procs
 def test_bench_swarm_prints_and_writes_figures(tmp_path: Path) -> None:
     out = tmp_path / "bench.json"
-    r = swarm("bench", "swarm", "--robots", "2,3", "--episodes", "1", "--json", str(out))
+    r = swarm("bench", "swarm", "--robots", "2,3", "--policy", "nearest-frontier,random",
+              "--episodes", "1", "--repeats", "2", "--json", str(out))
     assert r.returncode == 0, r.stderr[-2000:]
-    assert "ticks/s" in r.stdout
-    rows = json.loads(out.read_text())["rows"]
-    assert [row["robots"] for row in rows] == [2, 3]
+    assert "ticks/s" in r.stdout and "Medians over 2 interleaved rounds" in r.stdout
+    result = json.loads(out.read_text())
+    rows = result["rows"]
+    # rounds interleave: every (policy, team size) once per round
+    assert [(row["round"], row["policy"], row["robots"]) for row in rows] == [
+        (k, p, n) for k in (0, 1) for p in ("nearest-frontier", "random") for n in (2, 3)]
+    speed = {(row["round"], row["policy"], row["robots"]): row["ticks_per_s"] for row in rows}
+    for m in result["summary"]:
+        mine = [speed[(k, m["policy"], m["robots"])] for k in (0, 1)]
+        ratios = [speed[(k, m["policy"], m["robots"])] / speed[(k, "nearest-frontier",
+                                                                m["robots"])] for k in (0, 1)]
+        assert m["ticks_per_s"] == mine and m["vs_first"] == pytest.approx(ratios)
+        assert m["ticks_per_s_median"] == pytest.approx(sum(mine) / 2)
+        assert m["vs_first_median"] == pytest.approx(sum(ratios) / 2)
     for row in rows:
         assert row["ticks_per_s"] > 0 and row["startup_s"] > 0
         assert 5 < row["rss_mb_per_robot"] < 250  # a frontier robot never imports torch

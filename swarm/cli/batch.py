@@ -209,7 +209,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         cfg = merged(SwarmBenchConfig, table,
                      {"robots": _ints(args.robots_list), "policies": _names(args.policy),
                       "episodes": args.episodes, "seed": args.seed,
-                      "checkpoint": args.checkpoint, "json": args.json}, where)
+                      "checkpoint": args.checkpoint, "json": args.json,
+                      "repeats": args.repeats, "delivery": args.delivery}, where)
         for name in cfg.policies:
             build_policy(name, world, cfg.checkpoint)
         result = bench_swarm(world, cfg, lambda row: err.print(f"  {row}"))
@@ -347,6 +348,11 @@ def add_parsers(sub: Any) -> None:
     b.add_argument("--policy", metavar="A,B,..", help="policies (default nearest-frontier)")
     b.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
     b.add_argument("--episodes", type=int, help="episodes per run (default 5)")
+    b.add_argument("--repeats", type=int, metavar="K",
+                   help="interleaved rounds of every run; medians over rounds, and each "
+                        "policy's per-round speed ratio to the first (default 1)")
+    b.add_argument("--delivery", choices=["radio", "direct"],
+                   help="who delivers robot-to-robot messages (default radio)")
     add_common(b)
     add_world(b, robots=False)
     b.set_defaults(func=cmd_bench)

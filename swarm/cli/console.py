@@ -191,7 +191,20 @@ def swarm_bench_table(result: Mapping[str, Any]) -> Any:
         ticks.add_row(r["policy"], str(r["robots"]),
                       *(f(ph.get(k)) for k in ("obs", "collect", "radio", "decide", "step")),
                       f(cpu.get("world")), f(cpu.get("robots")), *chain_figures(r))
-    return Group(main, ticks)
+    if result.get("repeats", 1) < 2:
+        return Group(main, ticks)
+    first = result["rows"][0]["policy"]
+    med = Table(title=f"Medians over {result['repeats']} interleaved rounds",
+                title_justify="left")
+    med.add_column("policy", style="bold")
+    for col in ("robots", "ticks/s median", "ticks/s per round", f"x {first} median",
+                "per round"):
+        med.add_column(col, justify="right")
+    for m in result["summary"]:
+        med.add_row(m["policy"], str(m["robots"]), f(m["ticks_per_s_median"]),
+                    " ".join(f(x) for x in m["ticks_per_s"]), f(m["vs_first_median"], ".3f"),
+                    " ".join(f(x, ".2f") for x in m["vs_first"]))
+    return Group(main, ticks, med)
 
 
 def chain_figures(row: Mapping[str, Any]) -> tuple[str, str]:
