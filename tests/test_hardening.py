@@ -172,6 +172,19 @@ def test_a_bundles_messages_are_checked_together_as_strictly_as_one_by_one() -> 
 
 
 @pytest.mark.procs
+def test_a_lost_result_message_falls_back_to_the_worlds_result_file(tmp_path: Path) -> None:
+    from swarm.common.atomic import write_json
+    from swarm.common.spawn import child_result
+
+    f = tmp_path / "world_result.json"
+    assert child_result(f, "r1") is None  # the world died before writing it
+    write_json(f, {"run_id": "r1", "completed": 3, "elratio_mean": 0.9})
+    assert child_result(f, "r1") == {"run_id": "r1", "completed": 3, "elratio_mean": 0.9}
+    assert child_result(f, "r2") is None  # another run's
+    f.write_text("[1, 2")
+    assert child_result(f, "r1") is None
+
+
 def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Path) -> None:
     """Every process stays alive and counts what it refused; the run completes."""
     run_id = "fuzz1"

@@ -126,3 +126,14 @@ def last_error(log: Path, tail: int = 4096) -> str:
         if line and not line[0].isspace() and head.endswith(("Error", "Exception")):
             return line.strip()
     return ""
+
+
+def child_result(path: Path, run_id: str) -> dict | None:
+    """The result a child wrote to `path` (its `--json`, written atomically before it exits)
+    if it is a result of run `run_id`, else None: the fallback when its result message was lost
+    on the way (a session closed under heavy packet loss)."""
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return rec if isinstance(rec, dict) and rec.get("run_id") == run_id else None

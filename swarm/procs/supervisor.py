@@ -27,7 +27,14 @@ from rich.live import Live
 
 from swarm.common.atomic import write_json
 from swarm.common.procstat import ProcSampler, process_age
-from swarm.common.spawn import child_env, cli_args, last_error, registry, wait_port
+from swarm.common.spawn import (
+    child_env,
+    child_result,
+    cli_args,
+    last_error,
+    registry,
+    wait_port,
+)
 from swarm.net.faults import ProcessFault, parse_process, plan_from_table
 from swarm.net.inbox import Inbox
 from swarm.net.kernel.hosts import topology
@@ -177,6 +184,7 @@ class Supervisor:
         write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
         self.world = self._spawn(["world", "--spec", str(spec),
+                                  "--json", str(self.tmp / "world_result.json"),
                                   *(x for e in listen for x in ("--listen", e)),
                                   "--zenoh-mode", "router"], "world", ns)
         wait_port(host, self.port, self.world, 30.0)
@@ -346,6 +354,11 @@ class Supervisor:
                     live.stop()
                 inbox.close()
                 self.stop_all()
+        lost = self.result is None and self.world is not None and self.world.returncode == 0
+        if lost:  # its result message was lost on the way: the copy it wrote before exiting
+            self.result = child_result(self.tmp / "world_result.json", self.run_cfg.run_id)
+            if self.result is not None:
+                log.warning("the world's result message was lost; read its result file instead")
         if self.result is None:
             code = self.world.returncode if self.world else "?"
             why = last_error(self.log_dir / "world.log")
@@ -358,6 +371,7 @@ class Supervisor:
         if self.child_errors:
             res["child_errors"] = dict(self.child_errors)
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
+        res["result_message_lost"] = lost
         res["robot_restarts"] = self.restarts
         if self.recorder is not None:
             res["recording"] = {"path": self.opts.record, "exit": self.recorder.returncode}
