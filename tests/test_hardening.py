@@ -45,6 +45,13 @@ horizon = 12
 """
 
 
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()[:300]
+    except OSError:
+        return f"{pid} (gone)"
+
+
 def run_pids(run_id: str) -> list[int]:
     """PIDs of live processes whose command line mentions the run id."""
     pids = []
@@ -250,7 +257,8 @@ def test_the_supervisors_death_ends_every_process_of_its_run(tmp_path: Path, sig
         deadline = time.monotonic() + 10
         while run_pids(run_id) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert run_pids(run_id) == []
+        left = run_pids(run_id)
+        assert left == [], [_cmdline(p) for p in left]  # which process outlived its parent
     finally:
         for pid in run_pids(run_id):
             os.kill(pid, signal.SIGKILL)
