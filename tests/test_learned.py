@@ -146,18 +146,21 @@ def test_commattn_decoder_uses_exactly_the_predecessor() -> None:
         pol.act(rv)  # the predecessor is not a receiver of a one-robot view
 
 
-def test_team_map_is_the_union_of_heard_trajectories() -> None:
+@pytest.mark.parametrize("size", [(8, 8), (7, 11)])
+def test_team_map_is_the_union_of_heard_trajectories(size: tuple[int, int]) -> None:
     """The own (team-map) features against a plain loop over cells: the union of the visited
     bitmaps a receiver heard, as a crop (1 / 0 / -1 off-grid) and as the fraction of cells not
-    in it per coarse block of the egocentric window; in the batch and in a one-robot view."""
+    in it per coarse block of the egocentric window; in the batch and in a one-robot view (on
+    a square map and on one that is not)."""
     from policies.features import Featurizer
 
-    feats = Featurizer(SMALL, crop=5, team_pool=3)
-    view = batch_view(SMALL, midgame(ticks=4))
+    cfg = dataclasses.replace(SMALL, height=size[0], width=size[1])
+    feats = Featurizer(cfg, crop=5, team_pool=3)
+    view = batch_view(cfg, midgame(ticks=4, cfg=cfg))
     members = feats(view)
-    k, half, n = feats.team_k, feats.team_half, SMALL.n_robots
-    assert k * 3 >= 2 * SMALL.height - 1 and feats.own_dim == 25 + k * k
-    h, w = SMALL.height, SMALL.width
+    k, half, n = feats.team_k, feats.team_half, cfg.n_robots
+    assert k * 3 >= 2 * max(size) - 1 and feats.own_dim == 25 + k * k
+    h, w = cfg.height, cfg.width
     for r in range(members.receivers):
         g, i = members.group[r], members.robot[r]
         union = np.zeros(h * w, dtype=bool)
@@ -177,10 +180,58 @@ def test_team_map_is_the_union_of_heard_trajectories() -> None:
                             coarse[a, b] += 1 / 9
         want = np.concatenate([np.ravel(crop), coarse.ravel()])
         np.testing.assert_allclose(members.own_feats[r], want, atol=1e-6)
-        rv = robot_view(SMALL, view.seed, int(view.episodes[g]), view.tick, int(i),
-                        heard_by(SMALL, view, g, i), 0.0)
+        rv = robot_view(cfg, view.seed, int(view.episodes[g]), view.tick, int(i),
+                        heard_by(cfg, view, g, i), 0.0)
         np.testing.assert_allclose(feats(rv).own_feats[0], want, atol=1e-6)
     assert not view.hears.all()  # some pairs out of range: the unions differ by receiver
+
+
+def test_pair_crop_is_the_members_bitmap_around_the_receiver() -> None:
+    """Each pair's crop against a plain loop over cells, on a map that is not square: member
+    j's visited bitmap in the crop x crop window centred on receiver i's cell (1 / 0, -1
+    off-grid), the window read through the featurizer's per-cell lookup tables."""
+    from policies.features import Featurizer
+
+    cfg = dataclasses.replace(SMALL, height=7, width=11, comm_range=4.0)
+    feats = Featurizer(cfg, crop=5, team_pool=3)
+    state = core.reset(cfg, 5, [0, 1])
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        core.step(cfg, state, rng.integers(0, core.N_ACTIONS, size=(2, cfg.n_robots)))
+    view = batch_view(cfg, state)
+    tokens = feats(view)
+    h, w = cfg.height, cfg.width
+    for r in range(tokens.receivers):
+        g, i = int(tokens.group[r]), int(tokens.robot[r])
+        y, x = view.msgs.pos[g, i]
+        members = np.flatnonzero(view.hears[g, i])
+        assert tokens.lens[r] == len(members)
+        for k, j in enumerate(members):
+            bits = view.msgs.visited[g, j].reshape(h, w)
+            want = [[-1.0 if not (0 <= y + dy < h and 0 <= x + dx < w)
+                     else float(bits[y + dy, x + dx]) for dx in range(-2, 3)]
+                    for dy in range(-2, 3)]
+            got = tokens.pair_feats[tokens.start[r] + k, :25]
+            np.testing.assert_array_equal(got, np.ravel(want))
+
+
+@pytest.mark.parametrize("size", [(7, 11), (20, 20), (41, 40)])
+def test_cell_tables_full_and_composed_agree(size: tuple[int, int],
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """The featurizer's per-cell windows and block corners: one table per cell on small maps,
+    composed from row and column tables on large ones, give the same indices everywhere."""
+    from policies.infer.tokens import CellTable, Featurizer
+
+    cfg = dataclasses.replace(SMALL, height=size[0], width=size[1])
+    fast = Featurizer(cfg, crop=5, team_pool=3)
+    monkeypatch.setattr(CellTable, "FULL_CELLS", 0)
+    lean = Featurizer(cfg, crop=5, team_pool=3)
+    assert lean.window.full is None and lean.corners.full is None
+    assert (fast.window.full is not None) == (size[0] * size[1] <= 1600)
+    y, x = (a.ravel() for a in np.indices(size))
+    for table in ("window", "corners"):
+        for a, b in zip(getattr(fast, table)(y, x), getattr(lean, table)(y, x), strict=True):
+            np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("name", LEARNED)
