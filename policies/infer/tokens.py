@@ -138,8 +138,8 @@ def team_blocks(team_pool: int) -> int:
 
 class CellTable:
     """Flat indices of the A x B block of cells at offsets (dy_a, dx_b) from a cell (y, x) of an
-    H x W grid, each clamped to [0, y_max] x [0, x_max], as `y_step * y' + x'`, and whether the
-    unclamped cell lies on the grid.
+    H x W grid, each clamped to [0, y_max] x [0, x_max], as `y_step * y' + x'`, and (`on_grid`)
+    whether the unclamped cell lies on the grid.
 
     Looked up in one table per cell [H*W, A*B] on maps of up to FULL_CELLS cells (two gathers a
     call instead of ~15 small array operations: a robot featurizes a handful of pairs a tick);
@@ -148,27 +148,30 @@ class CellTable:
     FULL_CELLS = 1600  # 40 x 40: both of a featurizer's full tables then take 4 MB
 
     def __init__(self, h: int, w: int, dy: np.ndarray, dx: np.ndarray, y_max: int, x_max: int,
-                 y_step: int) -> None:
+                 y_step: int, on_grid: bool = True) -> None:
         ys, xs = np.arange(h)[:, None] + dy[None, :], np.arange(w)[:, None] + dx[None, :]
         self.rows = (np.clip(ys, 0, y_max) * y_step).astype(np.intp)  # [H, A]
         self.cols = np.clip(xs, 0, x_max).astype(np.intp)  # [W, B]
         self.row_in, self.col_in = (ys >= 0) & (ys < h), (xs >= 0) & (xs < w)
-        self.w = w
-        self.full: tuple[np.ndarray, np.ndarray] | None = None
+        self.w, self.on_grid = w, on_grid
+        self.full: tuple[np.ndarray, np.ndarray | None] | None = None
         if h * w <= self.FULL_CELLS:
             cell = self.rows[:, None, :, None] + self.cols[None, :, None, :]
             inside = self.row_in[:, None, :, None] & self.col_in[None, :, None, :]
-            self.full = cell.reshape(h * w, -1), inside.reshape(h * w, -1)
+            self.full = cell.reshape(h * w, -1), inside.reshape(h * w, -1) if on_grid else None
 
-    def __call__(self, y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(indices [R, A*B], on the grid [R, A*B] bool) of the blocks at cells (y, x)."""
+    def __call__(self, y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(indices [R, A*B], on the grid [R, A*B] bool, None without `on_grid`) of the blocks
+        at cells (y, x)."""
         if self.full is not None:
             at = y * self.w + x
-            return self.full[0][at], self.full[1][at]
+            cell, inside = self.full
+            return cell[at], None if inside is None else inside[at]
         r = len(y)
         cell = (self.rows[y][:, :, None] + self.cols[x][:, None, :]).reshape(r, -1)
-        inside = (self.row_in[y][:, :, None] & self.col_in[x][:, None, :]).reshape(r, -1)
-        return cell, inside
+        if not self.on_grid:
+            return cell, None
+        return cell, (self.row_in[y][:, :, None] & self.col_in[x][:, None, :]).reshape(r, -1)
 
 
 class Featurizer:
@@ -182,11 +185,9 @@ class Featurizer:
             raise ConfigError(f"team_pool must be >= 0, got {team_pool}")
         self.cfg = cfg
         self.crop = crop
-        c = crop // 2
-        dy, dx = np.meshgrid(np.arange(crop), np.arange(crop), indexing="ij")
         h, w = cfg.height, cfg.width
         # the crop x crop window on a cell: its flat cells (clamped to the grid), which lie on it
-        offsets = np.arange(crop) - c
+        offsets = np.arange(crop) - crop // 2
         self.window = CellTable(h, w, offsets, offsets, h - 1, w - 1, w)
         self.member_dim = 3 * cfg.vision * cfg.vision + 2
         self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
@@ -203,7 +204,7 @@ class Featurizer:
             self.block, self.team_k, self.team_half = p, k, (k * p) // 2
             edges = np.arange(k + 1) * p - self.team_half  # block edges, from the cell
             # a cell's block corners in the (H+1) x (W+1) summed-area table, clamped to it
-            self.corners = CellTable(h, w, edges, edges, h, w, w + 1)
+            self.corners = CellTable(h, w, edges, edges, h, w, w + 1, on_grid=False)
             self.own_dim = crop * crop + k * k
 
     @property
