@@ -132,6 +132,77 @@ def test_coordinated_splits_robots_that_nearest_sends_to_one_frontier() -> None:
     assert targets[0] != targets[1] and cfg.width * 3 + 3 in targets
 
 
+def full_search_assignment(pol: CoordinatedFrontier, view, snap) -> np.ndarray:  # noqa: ANN001
+    """Burgard et al.'s greedy assignment the plain way: every round scores every (member, cell)
+    pair of every receiver anew, [R, N, H*W] at once."""
+    cfg = pol.cfg
+    r_idx, j_idx = np.nonzero(view.hears[snap.g, snap.i])
+    src = np.zeros((len(r_idx), cfg.height, cfg.width), dtype=bool)
+    src[np.arange(len(r_idx)), *view.msgs.pos[snap.g[r_idx], j_idx].T] = True
+    dist = distance_fields(snap.passable_bits[r_idx], pack(src), cfg.width,
+                           targets=snap.targets_bits[r_idx], extra=4)
+    d = dist.reshape(len(r_idx), -1)
+    cost = np.full((snap.size, view.n, cfg.cells), np.inf, dtype=np.float32)
+    ok = (d != 255) & snap.targets.reshape(snap.size, -1)[r_idx]
+    cost[r_idx, j_idx] = np.where(ok, d.astype(np.float32), np.inf)
+    cols = np.flatnonzero(np.isfinite(cost).any(axis=(0, 1)))
+    from world.noise import uniform
+    groups, gi = np.unique(snap.g, return_inverse=True)
+    noise = uniform(view.seed, view.episodes[groups][:, None], view.tick,
+                    np.arange(view.n)[None], cfg.cells, stream=3)[..., cols]
+    score = -pol.beta * cost[..., cols] + 1e-4 * noise.astype(np.float32)[gi]
+    util = snap.targets.reshape(snap.size, -1)[:, cols].astype(np.float32)
+    taken = np.zeros((snap.size, view.n), dtype=bool)
+    target = np.full(snap.size, -1, dtype=np.int64)
+    for r in range(snap.size):
+        while len(cols):
+            s = score[r] + util[r][None]
+            s[taken[r]] = -np.inf
+            j, c = np.unravel_index(s.argmax(), s.shape)
+            if not np.isfinite(s[j, c]):
+                break
+            taken[r, j] = True
+            y, x = divmod(int(cols[c]), cfg.width)
+            cy, cx = np.divmod(cols, cfg.width)
+            near = np.maximum(abs(cy - y), abs(cx - x))
+            hit = np.clip(1 - near / (pol.reach + 1), 0, None).astype(np.float32)
+            util[r] = np.maximum(util[r] - hit, 0)
+            if j == snap.i[r]:
+                target[r] = cols[c]
+                break
+    return target
+
+
+@pytest.mark.parametrize("size,robots,comm,chunk", [
+    ((20, 20), 10, 10.0, 1 << 22), ((20, 20), 10, 4.0, 900), ((40, 40), 30, 10.0, 1 << 22),
+    ((13, 27), 12, 6.0, 3000)])
+def test_coordinated_assignment_equals_the_full_search(size: tuple[int, int], robots: int,
+                                                       comm: float, chunk: int,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """The incremental, chunked assignment picks what a full search every round picks, for
+    every receiver of several episodes along their first ticks (chunks of a few receivers
+    too)."""
+    import policies.coordinated_frontier as cf
+    monkeypatch.setattr(cf, "CHUNK_FLOATS", chunk)
+    h, w = size
+    cfg = WorldConfig(height=h, width=w, n_robots=robots, comm_range=comm,
+                      n_static=h * w // 5, n_dynamic=h * w // 6, horizon=12)
+    pol = CoordinatedFrontier(cfg)
+    state = core.reset(cfg, 3, [0, 1, 2])
+    checked = assigned = 0
+    while not state.done:
+        view = batch_view(cfg, state)
+        snap = pol.belief.snapshot(view)
+        got = pol.assign(view, snap)
+        np.testing.assert_array_equal(got, full_search_assignment(pol, view, snap))
+        checked += snap.size
+        assigned += int((got >= 0).sum())
+        actions = np.zeros((3, robots), dtype=np.int64)
+        actions[snap.g, snap.i] = pol.pick(view, snap, pol.first_moves(view, snap))
+        core.step(cfg, state, actions)
+    assert checked == 12 * 3 * robots and assigned > checked // 2
+
+
 def test_cost_utility_prefers_gain_over_a_slightly_nearer_cell() -> None:
     cfg = small(1)
     fresh = [(3, 1)] + [(0, x) for x in range(7)]  # one cell 2 steps away, a row 3 steps away
