@@ -296,10 +296,17 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
     r = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg), "--seed", "2")
     assert r.returncode == 0, r.stderr
     rows = list(csv.DictReader((tmp_path / "comm.csv").open()))
-    assert len(rows) == 8 * 3 and {row["policy"] for row in rows} == {
+    assert len(rows) == 10 * 3 and {row["policy"] for row in rows} == {
         "commattn", "coordinated-frontier", "central"}
-    central = {float(row["elratio_mean"]) for row in rows if row["policy"] == "central"}
-    assert len(central) == 1  # a perfect radio: no condition changes it
-    ref = central.pop()
+    small = [row for row in rows if row["size"] == "20x20"]
+    central = {float(row["elratio_mean"]) for row in small if row["policy"] == "central"}
+    assert len(small) == 8 * 3 and len(central) == 1  # a perfect radio: no fault changes it
+    ref = {row["condition"]: float(row["elratio_mean"]) for row in rows
+           if row["policy"] == "central"}
     for row in rows:
-        assert float(row["gap_to_central"]) == pytest.approx(ref - float(row["elratio_mean"]))
+        assert float(row["gap_to_central"]) == pytest.approx(
+            ref[row["condition"]] - float(row["elratio_mean"]))
+    big = [row for row in rows if row["size"] == "40x40"]
+    assert sorted({(row["robots"], row["horizon"]) for row in big}) == [("20", "60"), ("50", "24")]
+    tuned = ROOT / "checkpoints" / "scale" / "commattn_40x40_n20.pt"
+    assert {row["checkpoint"] for row in big if row["policy"] == "commattn"} == {str(tuned)}

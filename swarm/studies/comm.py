@@ -4,7 +4,10 @@ gets scarce: shorter range, message loss, a bandwidth cap (virtual time, the rad
 
 `central` ignores the radio by construction, so its line is the ceiling of what communication
 can buy on this task; the gap between a decentralized policy and it, per condition, is what a
-researcher reads off the figure.
+researcher reads off the figure. Two more conditions make the task harder instead: a 40 x 40
+map (blocks scaled by area) with 20 and 50 robots, the horizon keeping the default's robot-steps
+per cell (10 x 30 / 400); there CommAttn runs the checkpoint fine-tuned on 40 x 40
+(`checkpoints/scale/`) when it is present.
 """
 
 from __future__ import annotations
@@ -14,11 +17,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from swarm.common.policy_spec import build_policy
+from swarm.common.policy_spec import SHIPPED, build_policy
 from swarm.common.report import header, md_table, write_item
 from swarm.learn.evaluate import evaluate
 from swarm.net.faults import plan_from_table
-from world.config import WorldConfig, replace, to_dict
+from world.config import WorldConfig, replace, scaled_blocks, to_dict
 
 # (label, world changes, [faults] table): the conditions, scarcest communication last
 CONDITIONS: tuple[tuple[str, dict[str, Any], dict[str, Any]], ...] = (
@@ -30,8 +33,21 @@ CONDITIONS: tuple[tuple[str, dict[str, Any], dict[str, Any]], ...] = (
     ("loss 50%", {}, {"loss": 0.5}),
     ("cap 60 B/s", {}, {"bandwidth": "60B/s", "burst": 240}),
     ("range 3 + loss 50%", {"comm_range": 3.0}, {"loss": 0.5}),
+    ("40 x 40, 20 robots", {"height": 40, "width": 40, "n_robots": 20, "horizon": 60,
+                            **scaled_blocks(40, 40)}, {}),
+    ("40 x 40, 50 robots", {"height": 40, "width": 40, "n_robots": 50, "horizon": 24,
+                            **scaled_blocks(40, 40)}, {}),
 )
 POLICIES = ("commattn", "coordinated-frontier", "central")
+# checkpoints fine-tuned on a map size (the shipped ones were trained on 20 x 20)
+MAP_CHECKPOINTS = {("commattn", 40, 40): SHIPPED / "scale" / "commattn_40x40_n20.pt"}
+
+
+def checkpoint_for(name: str, wc: WorldConfig, given: str | None) -> str | None:
+    """`given` on the default map size; on another size the checkpoint fine-tuned there, if
+    one is shipped (else `given`, run unchanged: the features are egocentric)."""
+    tuned = MAP_CHECKPOINTS.get((name, wc.height, wc.width))
+    return str(tuned) if tuned is not None and tuned.is_file() else given
 
 
 def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
@@ -43,12 +59,16 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
     rows: list[dict[str, Any]] = []
     for label, changes, faults in CONDITIONS:
         wc = replace(base, **changes)
+        size = f"{wc.height}x{wc.width}"
         for name in policies:
-            policy = build_policy(name, wc, checkpoints.get(name))
+            ckpt = checkpoint_for(name, wc, checkpoints.get(name))
+            policy = build_policy(name, wc, ckpt)
             plan = plan_from_table({**faults, "seed": seed}, seed) if faults else None
             res = evaluate(wc, policy, seed, episodes, batch=batch, faults=plan, tick_s=tick_s)
             s = res.summary(wc)
             rows.append({"condition": label, "policy": name, "episodes": episodes,
+                         "size": size, "robots": wc.n_robots, "horizon": wc.horizon,
+                         "checkpoint": ckpt or "",
                          "comm_range": "inf" if math.isinf(wc.comm_range) else wc.comm_range,
                          "faults": ";".join(f"{k}={v}" for k, v in faults.items()),
                          "elratio_mean": s["elratio_mean"], "elratio_std": s["elratio_std"],
@@ -60,7 +80,10 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                 f"Elratio on {episodes} held-out dynamic-map episodes per point (batched, the "
                 "radio's virtual-time model for loss and the bandwidth cap, ticks of "
                 f"{tick_s:g} s); `central` pools every robot's observations (a perfect radio), "
-                "so it is the same under every condition.")
+                "so it is the same under every fault. The 40 x 40 conditions scale the blocks "
+                "by area and keep the robot-steps per cell (20 robots x 60 steps, 50 x 24); "
+                "CommAttn runs its 40 x 40 fine-tuned checkpoint there (column `checkpoint` "
+                "of the CSV).")
     conds = [c[0] for c in CONDITIONS]
     cell = {(r["policy"], r["condition"]): r for r in rows}
     def fmt(r: dict[str, Any]) -> str:
