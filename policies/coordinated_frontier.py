@@ -97,7 +97,7 @@ class CoordinatedFrontier(NearestFrontier):
 
     def assign(self, view: View, snap: Snapshot) -> np.ndarray:
         """Greedy assignment per receiver; returns its own target cell y*W+x [R] (-1: none).
-        Receivers are independent, so they go in chunks that bound the [R', K, H*W] arrays."""
+        Receivers are independent, so they go in chunks that bound the [R', K, cells] arrays."""
         target = np.full(snap.size, -1, dtype=np.int64)
         heard = int(view.hears[snap.g, snap.i].sum(1).max()) if snap.size else 0
         step = max(1, CHUNK_FLOATS // max(1, heard * self.cfg.cells))

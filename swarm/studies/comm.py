@@ -93,17 +93,22 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                    [[c, *(fmt(cell[p, c]) for p in policies)] for c in conds])
 
     def draw(ax: Any) -> None:
+        ax.figure.set_size_inches(9.5, 4.8)
         xs = range(len(conds))
         width = 0.8 / max(len(policies), 1)
+        values = [r["elratio_mean"] for r in rows]
         for k, p in enumerate(policies):
             ax.bar([x + (k - (len(policies) - 1) / 2) * width for x in xs],
                    [cell[p, c]["elratio_mean"] for c in conds], width, label=p)
+        scarce = sum(1 for c in CONDITIONS if c[1].get("height") is None)
+        if 0 < scarce < len(conds):  # fault conditions | harder tasks
+            ax.axvline(scarce - 0.5, color="0.4", lw=0.8, ls="--")
         ax.set_xticks(list(xs), conds, rotation=25, ha="right")
-        ax.set_ylim(0.8, 0.95)
+        ax.set_ylim(max(0.0, min(values) - 0.02), min(1.0, max(values) + 0.03))  # every bar
         ax.set_ylabel("elratio at the last step")
         ax.set_title("Where communication matters: learned vs frontier vs perfect radio")
         ax.grid(alpha=0.3, axis="y")
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper center", ncol=len(policies))
 
     meta = {"item": "comm", "command": command, "seed": seed, "world": to_dict(base)}
     return {"item": "comm", "rows": rows, "files": write_item(out, "comm", rows, md, draw, meta)}
