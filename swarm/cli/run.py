@@ -29,6 +29,7 @@ from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.common.policy_spec import build_inference
 from swarm.net import zconfig
+from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, from_dict
@@ -308,7 +309,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
 
         time.sleep(0.3)  # let the session join the run's network before the one put
         sent_at = time.time()
-        session.put(keys.control, pack_record(K_CONTROL, rec))
+        put_once(session, keys.control, pack_record(K_CONTROL, rec))
         time.sleep(0.1)
     print(json.dumps({"run": args.run, "sent_at": sent_at, "control": rec}))
     return 0

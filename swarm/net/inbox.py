@@ -139,3 +139,10 @@ def publisher(session: zenoh.Session, key: str, express: bool = False) -> zenoh.
     unbatched (the hidden-state chain: each hop waits for the message)."""
     return session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
                                      express=express)
+
+
+def put_once(session: zenoh.Session, key: str, payload: bytes) -> None:
+    """One put without a publisher (a control record), with `publisher`'s congestion control:
+    `Session.put` defaults to DROP, which would lose a stop or a fault change silently on a
+    congested link."""
+    session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)

@@ -36,7 +36,7 @@ from swarm.common.spawn import (
     wait_port,
 )
 from swarm.net.faults import ProcessFault, parse_process, plan_from_table
-from swarm.net.inbox import Inbox
+from swarm.net.inbox import Inbox, put_once
 from swarm.net.kernel.hosts import topology
 from swarm.net.kernel.netns import NetnsConfig
 from swarm.net.keys import Keys
@@ -344,10 +344,10 @@ class Supervisor:
                 self._late_status()
                 self._drain_learner()
                 if self.learner is not None:
-                    session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
+                    put_once(session, k.control, pack_record(K_CONTROL, {"stop": True}))
                 self._finish_recorder()
             except KeyboardInterrupt:
-                session.put(k.control, pack_record(K_CONTROL, {"stop": True}))
+                put_once(session, k.control, pack_record(K_CONTROL, {"stop": True}))
                 raise
             finally:
                 if live:
