@@ -32,6 +32,7 @@ CONDITIONS: tuple[tuple[str, dict[str, Any], dict[str, Any]], ...] = (
     ("loss 30%", {}, {"loss": 0.3}),
     ("loss 50%", {}, {"loss": 0.5}),
     ("cap 60 B/s", {}, {"bandwidth": "60B/s", "burst": 240}),
+    ("cap 250 B/s", {}, {"bandwidth": "250B/s", "burst": 1000}),
     ("range 3 + loss 50%", {"comm_range": 3.0}, {"loss": 0.5}),
     ("40 x 40, 20 robots", {"height": 40, "width": 40, "n_robots": 20, "horizon": 60,
                             **scaled_blocks(40, 40)}, {}),
