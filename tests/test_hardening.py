@@ -268,6 +268,57 @@ def test_the_supervisors_death_ends_every_process_of_its_run(tmp_path: Path, sig
     assert r.returncode == 2 and "swarm: error:" in r.stderr and "Traceback" not in r.stderr
 
 
+CHILD = """
+import sys, time
+from swarm.common import spawn
+spawn.SHUTDOWN_GRACE_S = 0.5
+assert spawn.die_with_parent()
+print("ready", flush=True)
+try:
+    time.sleep(60)
+except KeyboardInterrupt:  # told to go: a cleanup that never ends (a put blocked on a dead peer)
+    while True:
+        time.sleep(0.05)
+"""
+PARENT = """
+import subprocess, sys
+from swarm.common.spawn import child_env
+child = subprocess.Popen([sys.executable, "-c", sys.argv[1]], env=child_env())
+print(child.pid, flush=True)
+child.wait()
+"""
+
+
+def alive_pid(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def test_a_child_whose_cleanup_hangs_is_ended_after_its_grace() -> None:
+    """The supervisor dies (SIGKILL); its child's unwinding never returns; the child is gone
+    within SHUTDOWN_GRACE_S (0.5 s here) anyway, ended by SIGALRM."""
+    parent = subprocess.Popen([sys.executable, "-c", PARENT, CHILD], cwd=ROOT,
+                              stdout=subprocess.PIPE, text=True)
+    child = 0
+    try:
+        assert parent.stdout is not None
+        child = int(parent.stdout.readline())
+        assert parent.stdout.readline().strip() == "ready"
+        parent.kill()
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while alive_pid(child) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not alive_pid(child), "the child outlived its grace"
+    finally:
+        if child and alive_pid(child):
+            os.kill(child, signal.SIGKILL)
+        if parent.poll() is None:
+            parent.kill()
+
+
 @pytest.mark.procs
 def test_every_played_episode_ends_in_exactly_one_learner_counter(tmp_path: Path) -> None:
     """played = trained + pending + stale_dropped + incomplete + rejected, in the result."""

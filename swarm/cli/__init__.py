@@ -34,8 +34,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `swarm` console script; returns the exit status."""
-    die_with_parent()  # a child of `swarm run` goes when its supervisor goes, SIGKILL included
-    terminate_as_interrupt()  # SIGTERM cleans up like Ctrl-C (children stopped, files closed)
+    # a child of `swarm run` goes when its supervisor goes, SIGKILL included (with a deadline);
+    # SIGTERM cleans up like Ctrl-C (children stopped, files closed)
+    if not die_with_parent():
+        terminate_as_interrupt()
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:

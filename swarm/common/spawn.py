@@ -44,31 +44,48 @@ def child_env(**extra: str) -> dict[str, str]:
                 **{PARENT_ENV: str(os.getpid())}, **extra)
 
 
+SHUTDOWN_GRACE_S = 8.0
+"""How long a supervised child may take to unwind once told to go (SIGTERM, or its supervisor's
+death): then SIGALRM's default action ends it, so a cleanup stuck on a dead peer (a blocking
+put, a session close) never leaves a process of the run behind. What it wrote before is safe:
+result files and checkpoints are written atomically."""
+
+
 def _interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
-def terminate_as_interrupt() -> None:
-    """SIGTERM unwinds like Ctrl-C (sessions closed, final records written), not a hard stop."""
+def _interrupt_within_grace(signum: int, frame: FrameType | None) -> None:
+    if signal.getitimer(signal.ITIMER_REAL)[0] == 0:  # the first SIGTERM starts the clock
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)
+        signal.setitimer(signal.ITIMER_REAL, SHUTDOWN_GRACE_S)
+    raise KeyboardInterrupt
+
+
+def terminate_as_interrupt(grace: bool = False) -> None:
+    """SIGTERM unwinds like Ctrl-C (sessions closed, final records written), not a hard stop;
+    with `grace`, the unwinding has SHUTDOWN_GRACE_S seconds."""
     try:
-        signal.signal(signal.SIGTERM, _interrupt)
+        signal.signal(signal.SIGTERM, _interrupt_within_grace if grace else _interrupt)
     except ValueError:  # not the main thread (main() called from a test's thread)
         pass
 
 
-def die_with_parent() -> None:
-    """In a child started by a supervisor: SIGTERM when the supervisor dies, however it dies."""
+def die_with_parent() -> bool:
+    """In a child started by a supervisor: SIGTERM when the supervisor dies, however it dies,
+    and SHUTDOWN_GRACE_S to unwind. False (nothing done) in a process no supervisor started."""
     parent = os.environ.get(PARENT_ENV)
     if not parent or not parent.isdigit():
-        return
-    terminate_as_interrupt()
+        return False
+    terminate_as_interrupt(grace=True)
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     except (OSError, AttributeError):  # not Linux: the parent's own cleanup still runs
-        return
+        return True
     if os.getppid() != int(parent):  # it died before prctl took effect
         os.kill(os.getpid(), signal.SIGTERM)
+    return True
 
 
 def registry(run_id: str) -> Path:
