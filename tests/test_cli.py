@@ -308,5 +308,10 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
             ref[row["condition"]] - float(row["elratio_mean"]))
     big = [row for row in rows if row["size"] == "40x40"]
     assert sorted({(row["robots"], row["horizon"]) for row in big}) == [("20", "60"), ("50", "24")]
+    mean = {(row["policy"], row["condition"]): float(row["elratio_mean"]) for row in rows}
+    for row in rows:  # CommAttn's paired lead over the same episodes: the difference of means
+        assert float(row["first_minus_elratio"]) == pytest.approx(
+            mean["commattn", row["condition"]] - float(row["elratio_mean"]), abs=1e-9)
+    assert "commattn - central (paired)" in (tmp_path / "comm.md").read_text()
     tuned = ROOT / "checkpoints" / "scale" / "commattn_40x40_n20.pt"
     assert {row["checkpoint"] for row in big if row["policy"] == "commattn"} == {str(tuned)}

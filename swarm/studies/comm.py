@@ -17,6 +17,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from swarm.common.policy_spec import SHIPPED, build_policy
 from swarm.common.report import header, md_table, write_item
 from swarm.learn.evaluate import evaluate
@@ -54,26 +56,33 @@ def checkpoint_for(name: str, wc: WorldConfig, given: str | None) -> str | None:
 def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
          policies: Sequence[str] = POLICIES, checkpoints: dict[str, str | None] | None = None,
          batch: int = 250, tick_s: float = 2.0) -> dict[str, Any]:
-    """Rows per (policy, condition): elratio, success, and the gap to `central`."""
+    """Rows per (policy, condition): elratio, success, the gap to `central`, and the first
+    policy's paired lead over each (mean and standard error over the same episodes)."""
     checkpoints = checkpoints or {}
     base = replace(world, dynamic=True)
     rows: list[dict[str, Any]] = []
     for label, changes, faults in CONDITIONS:
         wc = replace(base, **changes)
         size = f"{wc.height}x{wc.width}"
+        first: np.ndarray | None = None  # the first policy's per-episode elratio (paired ref.)
         for name in policies:
             ckpt = checkpoint_for(name, wc, checkpoints.get(name))
             policy = build_policy(name, wc, ckpt)
             plan = plan_from_table({**faults, "seed": seed}, seed) if faults else None
             res = evaluate(wc, policy, seed, episodes, batch=batch, faults=plan, tick_s=tick_s)
             s = res.summary(wc)
+            first = res.elratio if first is None else first
+            diff = first - res.elratio  # the same episodes: a paired difference
+            se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else math.nan
             rows.append({"condition": label, "policy": name, "episodes": episodes,
                          "size": size, "robots": wc.n_robots, "horizon": wc.horizon,
                          "checkpoint": ckpt or "",
                          "comm_range": "inf" if math.isinf(wc.comm_range) else wc.comm_range,
                          "faults": ";".join(f"{k}={v}" for k, v in faults.items()),
                          "elratio_mean": s["elratio_mean"], "elratio_std": s["elratio_std"],
-                         "success_rate": s["success_rate"]})
+                         "success_rate": s["success_rate"],
+                         "first_minus_elratio": float(diff.mean()),
+                         "first_minus_elratio_se": se})
     ref = {r["condition"]: r["elratio_mean"] for r in rows if r["policy"] == "central"}
     for r in rows:
         r["gap_to_central"] = ref[r["condition"]] - r["elratio_mean"] if ref else None
@@ -84,14 +93,20 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                 "so it is the same under every fault. The 40 x 40 conditions scale the blocks "
                 "by area and keep the robot-steps per cell (20 robots x 60 steps, 50 x 24); "
                 "CommAttn runs its 40 x 40 fine-tuned checkpoint there (column `checkpoint` "
-                "of the CSV).")
+                f"of the CSV). The last columns: {policies[0]}'s elratio minus the other's, "
+                "episode by episode, with the standard error of that paired mean.")
     conds = [c[0] for c in CONDITIONS]
     cell = {(r["policy"], r["condition"]): r for r in rows}
     def fmt(r: dict[str, Any]) -> str:
         return f"{r['elratio_mean']:.3f} ({100 * r['success_rate']:.0f}%)"
 
-    md += md_table(["condition", *policies],
-                   [[c, *(fmt(cell[p, c]) for p in policies)] for c in conds])
+    def paired(r: dict[str, Any]) -> str:
+        return f"{r['first_minus_elratio']:+.4f} ± {r['first_minus_elratio_se']:.4f}"
+
+    others = list(policies[1:])
+    md += md_table(["condition", *policies, *(f"{policies[0]} - {p} (paired)" for p in others)],
+                   [[c, *(fmt(cell[p, c]) for p in policies),
+                     *(paired(cell[p, c]) for p in others)] for c in conds])
 
     def draw(ax: Any) -> None:
         ax.figure.set_size_inches(9.5, 4.8)
