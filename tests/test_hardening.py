@@ -52,6 +52,14 @@ def _cmdline(pid: int) -> str:
         return f"{pid} (gone)"
 
 
+def alive_pid(pid: int) -> bool:
+    """A process that exists and is not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
 def run_pids(run_id: str) -> list[int]:
     """PIDs of live processes whose command line mentions the run id."""
     pids = []
@@ -59,10 +67,9 @@ def run_pids(run_id: str) -> list[int]:
         if d.name.isdigit() and int(d.name) != os.getpid():
             try:
                 cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-                state = (d / "stat").read_text().split()[2]
             except OSError:
                 continue
-            if run_id in cmd and "swarm.cli" in cmd and state != "Z":
+            if run_id in cmd and "swarm.cli" in cmd and alive_pid(int(d.name)):
                 pids.append(int(d.name))
     return pids
 
@@ -287,13 +294,6 @@ child = subprocess.Popen([sys.executable, "-c", sys.argv[1]], env=child_env())
 print(child.pid, flush=True)
 child.wait()
 """
-
-
-def alive_pid(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
-    except OSError:
-        return False
 
 
 def test_a_child_whose_cleanup_hangs_is_ended_after_its_grace() -> None:

@@ -10,6 +10,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from swarm.common import atomic
 
 
@@ -17,6 +19,19 @@ def header(title: str, command: str, seed: int, note: str) -> str:
     """The Markdown heading plus the provenance line every item file starts with."""
     today = dt.date.today().isoformat()
     return f"# {title}\n\nMade by `{command}` (seed {seed}, {today}). {note}\n\n"
+
+
+def paired(first: np.ndarray, other: np.ndarray) -> tuple[float, float]:
+    """Mean of first - other over the same episodes and the standard error of that mean (nan
+    from a single episode)."""
+    diff = np.asarray(first) - np.asarray(other)
+    se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else float("nan")
+    return float(diff.mean()), se
+
+
+def paired_cell(mean: float, se: float) -> str:
+    """A paired difference as a table cell: `+0.0043 ± 0.0018`."""
+    return f"{mean:+.4f} ± {se:.4f}"
 
 
 def md_table(columns: Sequence[str], rows: Sequence[Sequence[str]]) -> str:

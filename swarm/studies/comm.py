@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from swarm.common.policy_spec import SHIPPED, build_policy
-from swarm.common.report import header, md_table, write_item
+from swarm.common.report import header, md_table, paired, paired_cell, write_item
 from swarm.learn.evaluate import evaluate
 from swarm.net.faults import plan_from_table
 from world.config import WorldConfig, replace, scaled_blocks, to_dict
@@ -72,8 +72,7 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
             res = evaluate(wc, policy, seed, episodes, batch=batch, faults=plan, tick_s=tick_s)
             s = res.summary(wc)
             first = res.elratio if first is None else first
-            diff = first - res.elratio  # the same episodes: a paired difference
-            se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else math.nan
+            lead, se = paired(first, res.elratio)  # the same episodes
             rows.append({"condition": label, "policy": name, "episodes": episodes,
                          "size": size, "robots": wc.n_robots, "horizon": wc.horizon,
                          "checkpoint": ckpt or "",
@@ -81,7 +80,7 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                          "faults": ";".join(f"{k}={v}" for k, v in faults.items()),
                          "elratio_mean": s["elratio_mean"], "elratio_std": s["elratio_std"],
                          "success_rate": s["success_rate"],
-                         "first_minus_elratio": float(diff.mean()),
+                         "first_minus_elratio": lead,
                          "first_minus_elratio_se": se})
     ref = {r["condition"]: r["elratio_mean"] for r in rows if r["policy"] == "central"}
     for r in rows:
@@ -100,13 +99,12 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
     def fmt(r: dict[str, Any]) -> str:
         return f"{r['elratio_mean']:.3f} ({100 * r['success_rate']:.0f}%)"
 
-    def paired(r: dict[str, Any]) -> str:
-        return f"{r['first_minus_elratio']:+.4f} ± {r['first_minus_elratio_se']:.4f}"
-
     others = list(policies[1:])
     md += md_table(["condition", *policies, *(f"{policies[0]} - {p} (paired)" for p in others)],
                    [[c, *(fmt(cell[p, c]) for p in policies),
-                     *(paired(cell[p, c]) for p in others)] for c in conds])
+                     *(paired_cell(cell[p, c]["first_minus_elratio"],
+                                   cell[p, c]["first_minus_elratio_se"]) for p in others)]
+                    for c in conds])
 
     def draw(ax: Any) -> None:
         ax.figure.set_size_inches(9.5, 4.8)

@@ -27,7 +27,7 @@ from swarm.bench.micro import (
 )
 from swarm.common import atomic
 from swarm.common.policy_spec import SHIPPED, build_policy
-from swarm.common.report import header, md_table, write_item
+from swarm.common.report import header, md_table, paired, paired_cell, write_item
 from swarm.learn.curves import moving_mean, read_curve
 from swarm.learn.evaluate import evaluate
 from world.config import ConfigError, WorldConfig, replace, to_dict
@@ -249,13 +249,12 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
         paper = PAPER_TABLE2.get(name)
         if first is None:
             first = res.elratio
-        diff = first[:episodes] - res.elratio  # same episodes: a paired difference
-        se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else float("nan")
+        lead, se = paired(first[:episodes], res.elratio)  # same episodes
         rows.append({"policy": name, "robots": wc.n_robots, "episodes": episodes,
                      "decentralized": bool(policy.decentralized),
                      **{k: s[k] for k in SWEEP_KEYS}, "robot_collisions_mean":
                      float(res.robot_collisions.mean()),
-                     "first_minus_elratio": float(diff.mean()), "first_minus_elratio_se": se,
+                     "first_minus_elratio": lead, "first_minus_elratio_se": se,
                      "paper_reward": paper[0] if paper else None,
                      "paper_collisions": paper[1] if paper else None,
                      "paper_elratio_pct": paper[2] if paper else None,
@@ -286,10 +285,10 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
         return (f"{r['paper_reward']:g} / {r['paper_collisions']:g} / "
                 f"{r['paper_elratio_pct']:g}{std} %")
 
-    def paired(r: dict[str, Any]) -> str:
+    def lead(r: dict[str, Any]) -> str:
         if r is rows[0]:
             return "-"
-        return f"{r['first_minus_elratio']:+.4f} ± {r['first_minus_elratio_se']:.4f}"
+        return paired_cell(r["first_minus_elratio"], r["first_minus_elratio_se"])
 
     md += md_table(
         ["policy", "reward / robot", "collisions (block)", "elratio", "success",
@@ -297,7 +296,7 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
         [[r["policy"] + ("" if r["decentralized"] else " *"), f"{r['reward_mean']:.1f}",
           f"{r['collisions_mean']:.2f} ({r['block_collisions_mean']:.2f})",
           f"{r['elratio_mean']:.3f} ± {r['elratio_std']:.3f}", f"{100 * r['success_rate']:.1f}%",
-          paper_cell(r), paired(r),
+          paper_cell(r), lead(r),
           "-" if r["gap_closed"] is None else f"{100 * r['gap_closed']:.1f}%"] for r in rows])
 
     def draw(ax: Any) -> None:
