@@ -60,7 +60,7 @@ def bfs(passable: np.ndarray, sources: list[tuple[int, int]]) -> np.ndarray:
     return dist
 
 
-@pytest.mark.parametrize("shape", [(7, 7), (9, 70)])
+@pytest.mark.parametrize("shape", [(7, 7), (9, 70), (6, 64), (13, 27)])
 def test_grid_search_matches_bfs(shape: tuple[int, int]) -> None:
     rng = np.random.default_rng(1)
     h, w = shape
@@ -84,6 +84,26 @@ def test_grid_search_matches_bfs(shape: tuple[int, int]) -> None:
             assert first[r, a] == (on_path or (a == 0 and dist[r] == 0))
         ref = bfs(passable[r], [(y, x)])
         assert (fields[r] == np.where(ref < 0, 255, ref)).all()
+        # one search alone (a robot process) takes the single-integer path: the same answer
+        one = steps_toward(pack(passable[r:r + 1]), pack(targets[r:r + 1]), cells[r:r + 1])
+        assert one[0].tolist() == [dist[r]] and one[1].tolist() == [first[r].tolist()]
+
+
+def test_one_search_equals_the_batched_search_with_a_step_limit() -> None:
+    rng = np.random.default_rng(5)
+    for h, w in [(20, 20), (40, 40), (6, 64), (5, 130)]:
+        passable = rng.random((40, h, w)) > 0.35
+        targets = rng.random((40, h, w)) > 0.97
+        cells = np.stack([rng.integers(0, h, 40), rng.integers(0, w, 40)], axis=1)
+        passable[np.arange(40), cells[:, 0], cells[:, 1]] = True
+        for limit in (None, 3):
+            dist, first = steps_toward(pack(passable), pack(targets), cells, limit)
+            for r in range(40):
+                one = steps_toward(pack(passable[r:r + 1]), pack(targets[r:r + 1]),
+                                   cells[r:r + 1], limit)
+                assert one[0].tolist() == [dist[r]], (h, w, limit, r)
+                assert one[1].tolist() == [first[r].tolist()], (h, w, limit, r)
+        assert (dist > 1).any() and (dist < 0).any()
 
 
 def test_window_sums() -> None:
