@@ -319,6 +319,38 @@ def test_checkpoint_roundtrip_and_errors(name: str, tmp_path: Path) -> None:
         make_policy(name, SMALL, checkpoint=tmp_path / "junk.pt")
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_fresh_network_of_other_sizes_trains_and_loads(tmp_path: Path, workers: int) -> None:
+    """`--model` widens a fresh network; its checkpoint carries the sizes, so it loads and
+    acts anywhere without being told them (split over workers too)."""
+    cfg = TrainConfig(policy="commattn", epochs=1, updates=2, batch=4, threads=1, val_episodes=0,
+                      workers=workers, model='{"hidden": 12, "state": 20, "self_input": false}')
+    main(cfg, SMALL, tmp_path / "run", console=quiet())
+    pol = make_policy("commattn", SMALL, checkpoint=tmp_path / "run" / "checkpoint.pt")
+    assert (pol.model_cfg.hidden, pol.model_cfg.state, pol.model_cfg.self_input) == (12, 20, False)
+    assert pol.model_cfg.embed == 32  # the fields not given keep their defaults
+    assert pol.weights["s0"].shape == (20,) and np.abs(pol.weights["s0"]).sum() > 0
+    assert pol.act(batch_view(SMALL, midgame())).shape == (6, SMALL.n_robots)
+
+
+@pytest.mark.parametrize(("model", "why"), [
+    ('{"hidden": 0}', "hidden must be an integer in [1, 4096]"),
+    ('{"hidden": 64.5}', "hidden must be int"),
+    ('{"self_input": 3}', "self_input must be bool"),
+    ('{"hiden": 64}', "unknown key(s) hiden"),
+    ('[64]', "must be a JSON object"),
+    ('{hidden: 64}', "must be a JSON object"),
+])
+def test_bad_model_sizes_are_one_line_errors(model: str, why: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        TrainConfig(policy="commattn", model=model)
+    assert why in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(ConfigError, match="brings its own"):
+        TrainConfig(policy="commattn", model='{"hidden": 64}', init="checkpoints/commattn.pt")
+    with pytest.raises(ConfigError, match="learned policy"):
+        TrainConfig(policy="nearest-frontier", model='{"hidden": 64}')
+
+
 def _curve(path: Path) -> list[list[str]]:
     rows = list(csv.reader(path.open()))
     drop = {rows[0].index("episodes_per_s"), rows[0].index("elapsed_s")}

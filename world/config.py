@@ -164,6 +164,8 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
                     if value.lower() not in ("true", "false", "1", "0"):
                         raise ValueError
                     value = value.lower() in ("true", "1")
+                elif not isinstance(value, bool) and value not in (0, 1):
+                    raise ValueError  # 3 or [] is no switch setting, not a truthy one
                 kwargs[key] = bool(value)
             else:
                 kwargs[key] = value

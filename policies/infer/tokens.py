@@ -29,7 +29,7 @@ canonical pair order), so an unheard robot never enters a computation. Receivers
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from world.config import ConfigError, WorldConfig
 from world.decentral import View, heard_union
 
 REFERENCE_SIDE = 20  # the map side the coarse team map's block count is fixed by
+MAX_SIZE = 4096  # the largest layer width or window side a model config may ask for
 
 
 @dataclass
@@ -54,6 +55,20 @@ class ModelConfig:
     (world.decentral.TeamMemory) instead of this tick's messages only, so a lost message costs
     one teammate's latest steps, not its whole map. Changes no weight shape; no effect without
     the team map; checkpoints older than this field load with it off."""
+
+    def __post_init__(self) -> None:
+        """Every size an integer in [1, MAX_SIZE] (`team_pool` may be 0) and every switch a
+        bool, whether it came from a checkpoint, a weights message or `swarm train --model`."""
+        for f in fields(self):
+            v, default = getattr(self, f.name), f.default
+            if isinstance(default, bool):
+                if not isinstance(v, bool):
+                    raise ConfigError(f"model {f.name} must be true or false, got {v!r}")
+            elif isinstance(default, int):
+                lo = 0 if f.name == "team_pool" else 1
+                if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= MAX_SIZE:
+                    raise ConfigError(f"model {f.name} must be an integer in [{lo}, {MAX_SIZE}], "
+                                      f"got {v!r}")
 
 
 @dataclass

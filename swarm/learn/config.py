@@ -4,11 +4,13 @@ subcommand's parser in every process, robots included)."""
 from __future__ import annotations
 
 import argparse
+import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from swarm.common.flags import add_flags, from_flags
-from world.config import ConfigError
+from world.config import ConfigError, from_dict
 
 
 @dataclass
@@ -31,6 +33,10 @@ class TrainConfig:
     """Fault-aware training under any radio fault: the `[faults]` table as JSON, set by the same
     fault flags as `swarm run` (--latency, --jitter, --loss, --bandwidth, --partition,
     --compute-ms); applied by the virtual-time channel model (swarm.net.channel)."""
+    model: str = ""
+    """Sizes of a fresh network, as a JSON object of the policy's model-config fields, e.g.
+    '{"hidden": 64, "state": 128}' for a wider CommAttn (the rest keep their defaults); ""
+    keeps every default. An --init checkpoint brings its own sizes."""
     tick_s: float = 2.0
     """The tick's virtual length under `faults` (as `swarm run --tick-timeout`)."""
     seed: int = 0
@@ -121,12 +127,35 @@ class TrainConfig:
             raise ConfigError(f"train algo must be reinforce or ppo, got {self.algo!r}")
         if self.imitate and self.algo == "ppo":
             raise ConfigError("train imitate needs algo reinforce (its loss is not a surrogate)")
+        if self.model:
+            self.model_config()
         if self.imitate:
             from policies import TEACHERS
 
             if self.imitate not in TEACHERS:
                 raise ConfigError(f"train imitate must name a teacher "
                                   f"({', '.join(TEACHERS)}), got {self.imitate!r}")
+
+
+    def model_config(self) -> Any:
+        """The policy's model config with `model`'s fields set (ConfigError, one line, for
+        anything that is not an object of known fields with sane values)."""
+        from policies import policy_class
+
+        try:
+            changes = json.loads(self.model) if self.model else {}
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"train model must be a JSON object, e.g. '{{\"hidden\": 64}}': "
+                              f"{exc.msg}") from None
+        if not isinstance(changes, dict):
+            raise ConfigError(f"train model must be a JSON object, got {self.model!r}")
+        cls = getattr(policy_class(self.policy), "config_cls", None)
+        if cls is None:
+            raise ConfigError(f"train model needs a learned policy, got {self.policy!r}")
+        if changes and self.init:
+            raise ConfigError("train model sets a fresh network's sizes; an --init checkpoint "
+                              "brings its own")
+        return from_dict(cls, changes, where="train model")
 
 
 # ------------------------------------------------------------------------------------ rollout

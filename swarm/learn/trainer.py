@@ -93,7 +93,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
             raise ConfigError(f"{out} already holds a run; pass --resume or choose another --out")
         torch.set_num_threads(cfg.threads)
         torch.manual_seed(cfg.seed)
-        policy = make_policy(cfg.policy, world)
+        policy = make_policy(cfg.policy, world, **({"model": cfg.model_config()} if cfg.model
+                                                    else {}))
         if not isinstance(policy, LearnedPolicy):
             raise ConfigError(f"policy {cfg.policy!r} is not a learned policy")
         if cfg.init:
