@@ -366,3 +366,33 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("swarm: error: "), r.stderr
     assert run_pids(str(tmp_path)) == []
+
+
+_BLAS_THREADS = """
+import os, sys
+if sys.argv[1] == "swarm":
+    import swarm  # noqa: F401  (what every entry point imports first)
+import numpy as np
+a = np.ones((400, 400))
+a @ a  # OpenBLAS starts its pool on first use
+print(len(os.listdir("/proc/self/task")))
+"""
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2 or not Path("/proc/self/task").exists(),
+                    reason="needs /proc and two cores (OpenBLAS starts one thread per core)")
+def test_every_swarm_process_uses_one_blas_thread_unless_told_otherwise() -> None:
+    """OpenBLAS's spare threads spin between calls: two trainings side by side each lost half
+    their CPU to them. Importing `swarm` sets one thread before numpy loads; a choice already
+    in the environment stands."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+
+    def threads(how: str, **extra: str) -> int:
+        out = subprocess.run([sys.executable, "-c", _BLAS_THREADS, how], env={**env, **extra},
+                             cwd=ROOT, capture_output=True, text=True, check=True)
+        return int(out.stdout)
+
+    assert threads("numpy") > 1  # the default this guards against
+    assert threads("swarm") == 1
+    assert threads("swarm", OPENBLAS_NUM_THREADS="2") == 2
