@@ -136,7 +136,6 @@ class TrainConfig:
                 raise ConfigError(f"train imitate must name a teacher "
                                   f"({', '.join(TEACHERS)}), got {self.imitate!r}")
 
-
     def model_config(self) -> Any:
         """The policy's model config with `model`'s fields set (ConfigError, one line, for
         anything that is not an object of known fields with sane values)."""
