@@ -24,6 +24,8 @@ EPISODES, SEED = 1000, 0
 def main(out: str, named: list[str]) -> None:
     world = WorldConfig()
     rows, first = [], None
+    if not named or any("=" not in item for item in named):
+        sys.exit("usage: paired.py OUT.json NAME=CHECKPOINT [NAME=CHECKPOINT ...]")
     for item in named:
         name, path = item.split("=", 1)
         res = evaluate(world, make_policy("commattn", world, checkpoint=path), SEED, EPISODES)
@@ -41,4 +43,4 @@ def main(out: str, named: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], sys.argv[2:])
+    main(sys.argv[1] if len(sys.argv) > 1 else "", sys.argv[2:])
