@@ -23,6 +23,7 @@ REGISTRY: dict[str, str] = {
     "bicnet": "policies.bicnet:BicNetPolicy",
     "oracle": "policies.oracle:OraclePolicy",
     "central": "policies.central:CentralPolicy",
+    "team-beam": "policies.team_beam:TeamBeam",
 }
 
 BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility")
@@ -33,7 +34,7 @@ CHAINED = frozenset({"commattn"})
 LEARNED = frozenset({"commattn", "commnet", "vain", "bicnet"})
 # Policies `swarm train --imitate` can learn from: they act on a View alone (the oracle reads the
 # episode's future from the world, so it cannot label states a learner visits).
-TEACHERS = ("central", "coordinated-frontier", "nearest-frontier", "cost-utility")
+TEACHERS = ("team-beam", "central", "coordinated-frontier", "nearest-frontier", "cost-utility")
 
 
 def policy_class(name: str) -> type[Policy]:

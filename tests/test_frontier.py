@@ -20,6 +20,7 @@ from world.core import ACTIONS
 from world.decentral import batch_view, heard_by, robot_view
 
 FRONTIER = ("nearest-frontier", "coordinated-frontier", "cost-utility")
+PLANNERS = (*FRONTIER, "team-beam")  # every decentralized planner that keeps a belief
 
 
 def small(n_robots: int, **kw: object) -> WorldConfig:
@@ -254,7 +255,7 @@ def test_belief_is_built_from_heard_messages_only() -> None:
     assert (rows[1] == known[1]).all() and rows[1, 0, 0] == FREE
 
 
-@pytest.mark.parametrize("name", BASELINES)
+@pytest.mark.parametrize("name", (*BASELINES, "team-beam"))
 def test_robot_view_decides_like_the_batched_view(name: str) -> None:
     cfg = WorldConfig(height=12, width=12, n_static=20, n_dynamic=10, n_robots=5, comm_range=4.0,
                       horizon=12, add_every=2)
@@ -276,7 +277,7 @@ def test_robot_view_decides_like_the_batched_view(name: str) -> None:
         core.step(cfg, state, actions)
 
 
-@pytest.mark.parametrize("name", FRONTIER)
+@pytest.mark.parametrize("name", PLANNERS)
 def test_unheard_robot_does_not_change_a_decision(name: str) -> None:
     cfg = WorldConfig(height=12, width=12, n_static=0, dynamic=False, n_robots=3, comm_range=3.0)
     heard = [(1, 1), (2, 3)]

@@ -31,10 +31,11 @@ def fresh(name: str = "commattn", seed: int = 0):
     return make_policy(name, SMALL)
 
 
-def test_labels_are_the_teachers_actions_on_the_views_the_learner_visited() -> None:
-    roll = collect(fresh(), SMALL, 5, np.arange(6), teacher="central")
+@pytest.mark.parametrize("name", ["central", "team-beam"])
+def test_labels_are_the_teachers_actions_on_the_views_the_learner_visited(name: str) -> None:
+    roll = collect(fresh(), SMALL, 5, np.arange(6), teacher=name)
     assert roll.labels is not None and len(roll.labels) == len(roll.views) == SMALL.horizon
-    teacher = make_policy("central", SMALL)
+    teacher = make_policy(name, SMALL)
     teacher.reset(6)
     for view, label in zip(roll.views, roll.labels, strict=True):
         np.testing.assert_array_equal(teacher.act(view), label)

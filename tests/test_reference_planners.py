@@ -105,3 +105,27 @@ def test_central_beats_nearest_frontier() -> None:
     nearest = evaluate(CFG, make_policy("nearest-frontier", CFG), 0, 20, batch=20)
     assert central.elratio.mean() >= nearest.elratio.mean()
     assert central.block_collisions.sum() == 0
+
+
+def test_team_beam_is_central_when_everyone_hears_everyone_and_differs_when_not() -> None:
+    """`team-beam` is `central`'s planner over one robot's belief and heard team: with a radio
+    that reaches the whole map every robot knows what `central` knows and, its beam noise keyed
+    by the planned robot, makes `central`'s joint plan; with a short radio the plans part."""
+    assert policy_class("team-beam").decentralized is True
+    differ = 0
+    for comm_range, same in ((100.0, True), (2.0, False)):
+        cfg = WorldConfig(height=12, width=12, n_static=20, n_dynamic=10, n_robots=5,
+                          comm_range=comm_range, horizon=12, add_every=2)
+        state = core.reset(cfg, seed=1, episodes=list(range(6)))
+        beam, central = make_policy("team-beam", cfg), CentralPolicy(cfg)
+        beam.reset(6)
+        central.reset(6)
+        while not state.done:
+            view = batch_view(cfg, state)
+            mine, theirs = beam.act(view), central.act(view)
+            if same:
+                np.testing.assert_array_equal(mine, theirs, err_msg=f"tick {state.t}")
+            else:
+                differ += int((mine != theirs).sum())
+            core.step(cfg, state, theirs)
+    assert differ > 0

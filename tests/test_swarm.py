@@ -39,14 +39,15 @@ def run_procs(run_id: str) -> list[int]:
 
 
 @pytest.mark.procs
-def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path) -> None:
+@pytest.mark.parametrize("policy", ["nearest-frontier", "team-beam"])
+def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str) -> None:
     out = tmp_path / "run.json"
-    r = swarm("run", "--headless", "--robots", "4", "--policy", "nearest-frontier",
-              "--episodes", "2", "--seed", "11", "--run-id", "eqnf", "--json", str(out))
+    r = swarm("run", "--headless", "--robots", "4", "--policy", policy,
+              "--episodes", "2", "--seed", "11", "--run-id", "eq" + policy[:4], "--json", str(out))
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
     cfg = WorldConfig(n_robots=4)
-    ev = evaluate(cfg, make_policy("nearest-frontier", cfg), 11, 2, record_actions=True)
+    ev = evaluate(cfg, make_policy(policy, cfg), 11, 2, record_actions=True)
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
     summ = ev.summary(cfg)
     for key in ("elratio_mean", "reward_mean", "collisions_mean", "success_rate"):
