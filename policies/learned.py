@@ -24,6 +24,7 @@ from policies.infer.layers import Weights
 from policies.infer.policy import Decision, InferencePolicy, pred_rows
 from policies.infer.tokens import Tokens
 from world.config import to_dict
+from world.core import N_ACTIONS
 from world.decentral import View
 
 __all__ = ["Decision", "Evaluation", "LearnedPolicy"]
@@ -74,8 +75,9 @@ class LearnedPolicy(InferencePolicy):
                  targets: Sequence[np.ndarray] | None = None) -> Evaluation:
         """Log-probs of the recorded actions [G, N] per view, values and entropies, with grad.
         `inputs` are the views' features kept at acting time (recomputed when None). With
-        `targets` (a teacher's actions), the log-probs are of the targets, while a chained
-        network still conditions on the actions taken (what the predecessors sent)."""
+        `targets` (a teacher's label sets [G, N] uint16, bit a for action a), the log-probs are
+        of each set (log of its total probability), while a chained network still conditions on
+        the actions taken (what the predecessors sent); `agree`: the greedy action is in it."""
         parts = list(inputs) if inputs is not None else [self.features(v) for v in views]
         groups = np.cumsum([0] + [v.receivers.shape[0] for v in views])
         tokens = Tokens.cat(parts)
@@ -93,12 +95,18 @@ class LearnedPolicy(InferencePolicy):
         else:
             logits, value = self.net(members)
         logp_all = torch.log_softmax(logits, dim=-1)
-        target, agree = taken, None
-        if targets is not None:
+        agree = None
+        if targets is None:
+            logp = logp_all.gather(1, taken[:, None])[:, 0]
+        else:
             flat_t = np.concatenate([a.reshape(-1) for a in targets])
-            target = torch.from_numpy(flat_t[members.group * n + members.robot].astype(np.int64))
-            agree = (logits.detach().argmax(-1) == target).numpy()
-        logp = logp_all.gather(1, target[:, None])[:, 0]
+            sets = flat_t[members.group * n + members.robot].astype(np.int64)
+            inset = torch.from_numpy((sets[:, None] >> np.arange(N_ACTIONS)) & 1 == 1)
+            if not bool(inset.any(1).all()):
+                raise ValueError("a teacher label set is empty")
+            logp = torch.logsumexp(logp_all.masked_fill(~inset, float("-inf")), dim=1)
+            greedy = logits.detach().argmax(-1, keepdim=True)
+            agree = inset.gather(1, greedy)[:, 0].numpy()
         entropy = -(logp_all.exp() * logp_all).sum(-1)
         return Evaluation(logp, value, entropy, tick, group, members.robot, agree)
 

@@ -12,7 +12,8 @@ receivers at once and a robot process plans its one. The beam's noise is keyed b
 tick and planned robot, not by the receiver: robots that know the same make the same joint plan
 (a convention, not a message), so with a radio that reaches everyone `team-beam` is `central`
 (tested), and with a shorter one each robot's plan is `central`'s over what it heard. It costs
-one `central` team decision per robot (~3 ms on 20 x 20).
+one `central` team decision per robot: 13.8 ms for one robot's decision on 20 x 20 with 10
+robots (`swarm bench policy --policies team-beam --one-robot`), ~4 ms each batched.
 """
 
 from __future__ import annotations

@@ -100,10 +100,14 @@ class TrainConfig:
     one plus workers - 1 spawned ones, see swarm.train_parallel); the update is the same for
     any count up to float rounding. On 2 cores, --workers 2 --threads 1 is fastest."""
     imitate: str = ""
-    """Teacher (ours, not the paper's): a non-learned policy, e.g. `central`, whose action at
+    """Teacher (ours, not the paper's): a non-learned policy, e.g. `team-beam`, whose action at
     every state the learner visits is the target (DAgger: the learner's own sampled actions
     drive the episodes, the loss is the cross-entropy to the teacher's action plus the
     baseline's); empty: REINFORCE."""
+    imitate_samples: int = 1
+    """Teacher draws per state, each under another seed of its tie-break noise; the target is
+    the set of their actions and the loss -log of its total probability (K > 1: a pick among
+    equally good moves stops being noise in the labels)."""
     chunk_ticks: int = 3
     """Ticks per backward pass: bounds memory and keeps tensors cache-sized (3 is fastest here);
     the gradient is the same for any value."""
@@ -118,7 +122,8 @@ class TrainConfig:
                   "curriculum_ema": (0, 1), "train_seed_offset": (0, 2**40),
                   "val_episodes": (0, 10**7), "threads": (1, 256), "workers": (1, 256),
                   "chunk_ticks": (1, 10**6), "tick_s": (1e-3, 3600), "gae_lambda": (0, 1),
-                  "ppo_epochs": (1, 1000), "ppo_clip": (1e-6, 10)}
+                  "ppo_epochs": (1, 1000), "ppo_clip": (1e-6, 10),
+                  "imitate_samples": (1, 16)}
         for name, (lo, hi) in ranges.items():
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and lo <= v <= hi):  # also NaN

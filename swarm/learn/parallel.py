@@ -76,7 +76,7 @@ def _worker(conn: Connection, policy_name: str, world: dict[str, Any], model: di
             cfg = TrainConfig(**cfg_d)
             pol.net.load_state_dict(state)
             roll = collect(pol, from_dict(WorldConfig, level_world, where="level"), seed,
-                           episodes, faults, cfg.tick_s, cfg.imitate)
+                           episodes, faults, cfg.tick_s, cfg.imitate, cfg.imitate_samples)
             adv = train.advantages(roll, cfg)
             conn.send(adv.moments())
             mean, std, decisions = conn.recv()
@@ -152,7 +152,8 @@ class ParallelUpdater:
         cfg_d = dataclasses.asdict(cfg)
         for conn, eps in zip(self.conns, theirs, strict=False):
             conn.send((state, to_dict(level_world), seed, eps, cfg_d, faults))
-        roll = collect(policy, level_world, seed, mine, faults, cfg.tick_s, cfg.imitate)
+        roll = collect(policy, level_world, seed, mine, faults, cfg.tick_s, cfg.imitate,
+                       cfg.imitate_samples)
         adv = train.advantages(roll, cfg)
         moments = [adv.moments()] + [self._recv(k) for k in range(len(theirs))]
         mean, std, decisions = train.normaliser(moments)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from policies import make_policy
+from policies.base import Policy
 from policies.infer.tokens import Tokens
 from policies.learned import LearnedPolicy
 from swarm.learn.config import TrainConfig
@@ -32,7 +33,7 @@ class Rollout:
     metrics: core.EpisodeMetrics
     logp: np.ndarray | None = None  # log pi(a) under the weights that acted (0 off receivers)
     stale: np.ndarray | None = None  # [B] bool: acted by older weights than the learner's now
-    labels: list[np.ndarray] | None = None  # T of [B, N]: a teacher's actions (--imitate)
+    labels: list[np.ndarray] | None = None  # T of [B, N] uint16: bit a set where a teacher chose a
 
 
 def frozen(view: View) -> View:
@@ -56,16 +57,31 @@ def train_faults(cfg: TrainConfig) -> FaultPlan | None:
     return plan_from_table(table)
 
 
+TEACHER_SEED_STEP = 1_000_003  # teacher draw k sees the view's seed + k * this (its noise only)
+
+
+def teacher_labels(guides: list[Policy], view: View) -> np.ndarray:
+    """Label sets [G, N] uint16 of one view: bit a set where a teacher draw chose action a (draw
+    k acts on the view with its seed moved by k steps, so only its tie-break noise differs)."""
+    mask = np.zeros(view.receivers.shape, dtype=np.uint16)
+    for k, guide in enumerate(guides):
+        seen = view if k == 0 else dataclasses.replace(view, seed=view.seed + k * TEACHER_SEED_STEP)
+        mask |= (np.uint16(1) << guide.act(seen, greedy=True).astype(np.uint16))
+    return np.where(view.receivers, mask, np.uint16(0))
+
+
 def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.ndarray,
-            faults: FaultPlan | None = None, tick_s: float = 2.0, teacher: str = "") -> Rollout:
+            faults: FaultPlan | None = None, tick_s: float = 2.0, teacher: str = "",
+            teacher_samples: int = 1) -> Rollout:
     """Run `episodes` of `seed` to the horizon with sampled actions (under the radio's `faults`
-    in virtual time, ticks of `tick_s`); with a `teacher` policy, its action at every view is
-    recorded as the label (the learner's actions still drive the episodes)."""
+    in virtual time, ticks of `tick_s`); with a `teacher` policy, the set of its actions at every
+    view over `teacher_samples` draws is recorded as the label (the learner's actions still
+    drive the episodes)."""
     channel = channel_for(faults, world, policy, tick_s)
     state = core.reset(world, seed, episodes)
     policy.reset(len(episodes))
-    guide = make_policy(teacher, world) if teacher else None
-    if guide is not None:
+    guides = [make_policy(teacher, world) for _ in range(teacher_samples)] if teacher else []
+    for guide in guides:
         guide.reset(len(episodes))
     labels: list[np.ndarray] = []
     views, actions, inputs, values, rewards, logp = [], [], [], [], [], []
@@ -74,8 +90,8 @@ def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.n
         if channel is not None:
             channel.apply(view)  # the swarm radio's message faults, during training
         d = policy.decide(view, greedy=False, keep_inputs=True)
-        if guide is not None:
-            labels.append(guide.act(view, greedy=True))
+        if guides:
+            labels.append(teacher_labels(guides, view))
         rewards.append(core.step(world, state, d.actions))
         views.append(view)
         actions.append(d.actions)
@@ -85,5 +101,5 @@ def collect(policy: LearnedPolicy, world: WorldConfig, seed: int, episodes: np.n
         logp.append(np.log(np.maximum(p, 1e-30), dtype=np.float32) * view.receivers)
     return Rollout(views, actions, inputs, np.stack(values), np.stack(rewards),
                    core.metrics(world, state), np.stack(logp),
-                   labels=labels if guide is not None else None)
+                   labels=labels if guides else None)
 

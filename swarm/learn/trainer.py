@@ -121,7 +121,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                 episodes = upd * cfg.batch + np.arange(cfg.batch)
                 if pool is None:
                     roll = collect(policy, level_world, train_seed, episodes, train_faults(cfg),
-                                   cfg.tick_s, cfg.imitate)
+                                   cfg.tick_s, cfg.imitate, cfg.imitate_samples)
                     m, parts = roll.metrics, update(policy, opt, roll, cfg)
                 else:
                     m, parts = pool.update(policy, opt, level_world, train_seed, episodes, cfg,
