@@ -104,6 +104,14 @@ def test_train_imitate_runs_and_records_the_teacher(tmp_path: Path) -> None:
     assert load_checkpoint(tmp_path / "checkpoint.pt")["train"]["config"]["imitate"] == "central"
 
 
+def test_teacher_draws_without_a_teacher_are_refused_in_one_line() -> None:
+    with pytest.raises(ConfigError, match="imitate_samples needs a teacher"):
+        dataclasses.replace(TrainConfig(), imitate_samples=4)
+    for bad in (0, 17, 2.5, "4"):
+        with pytest.raises(ConfigError, match="imitate_samples must lie in"):
+            dataclasses.replace(TrainConfig(), imitate="team-beam", imitate_samples=bad)
+
+
 @pytest.mark.parametrize("teacher", ["oracle", "commnet", "bogus"])
 def test_a_teacher_that_cannot_label_is_refused_in_one_line(teacher: str) -> None:
     with pytest.raises(ConfigError, match="imitate must name a teacher") as err:

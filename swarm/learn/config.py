@@ -4,6 +4,7 @@ subcommand's parser in every process, robots included)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -124,14 +125,18 @@ class TrainConfig:
                   "chunk_ticks": (1, 10**6), "tick_s": (1e-3, 3600), "gae_lambda": (0, 1),
                   "ppo_epochs": (1, 1000), "ppo_clip": (1e-6, 10),
                   "imitate_samples": (1, 16)}
+        counts = {f.name for f in dataclasses.fields(self) if f.type in ("int", int)}
         for name, (lo, hi) in ranges.items():
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and lo <= v <= hi):  # also NaN
+            kinds = int if name in counts else (int, float)  # a count is never 2.5
+            if isinstance(v, bool) or not (isinstance(v, kinds) and lo <= v <= hi):  # also NaN
                 raise ConfigError(f"train {name} must lie in [{lo}, {hi}], got {v!r}")
         if self.algo not in ("reinforce", "ppo"):
             raise ConfigError(f"train algo must be reinforce or ppo, got {self.algo!r}")
         if self.imitate and self.algo == "ppo":
             raise ConfigError("train imitate needs algo reinforce (its loss is not a surrogate)")
+        if self.imitate_samples > 1 and not self.imitate:
+            raise ConfigError("train imitate_samples needs a teacher (imitate)")
         if self.model:
             self.model_config()
         if self.imitate:
