@@ -9,32 +9,23 @@ decision of every tick counts once.
 """
 import json
 import sys
-from types import SimpleNamespace
+from dataclasses import replace
 
 from policies import make_policy
 from policies.team_beam import TeamBeam
 from swarm.common.atomic import write_json
 from swarm.common.policy_spec import build_policy
+from swarm.learn.rollout import TEACHER_SEED_STEP
 from world import core
 from world.config import WorldConfig
 from world.decentral import batch_view
-
-
-class OtherNoise(TeamBeam):
-    """The same planner with the beam's tie-break noise drawn under another seed."""
-
-    def plan(self, view, groups):  # type: ignore[no-untyped-def]
-        other = SimpleNamespace(msgs=view.msgs, n=view.n, tick=view.tick, seed=view.seed + 777,
-                                episodes=view.episodes)
-        return super().plan(other, groups)
-
 
 if len(sys.argv) != 3:
     sys.exit("usage: agreement.py EPISODES OUT.json")
 count, path = int(sys.argv[1]), sys.argv[2]
 cfg = WorldConfig()
 state = core.reset(cfg, seed=0, episodes=list(range(count)))
-pols = {"team-beam": TeamBeam(cfg), "team-beam, other noise": OtherNoise(cfg),
+pols = {"team-beam": TeamBeam(cfg), "team-beam, other noise": TeamBeam(cfg),
         "commattn": build_policy("commattn", cfg),
         "coordinated-frontier": make_policy("coordinated-frontier", cfg)}
 for p in pols.values():
@@ -43,7 +34,10 @@ same = {k: 0 for k in pols}
 decisions = 0
 while not state.done:
     view = batch_view(cfg, state)
-    acts = {k: p.act(view) for k, p in pols.items()}
+    # the other draw sees the view as `--imitate-samples` draw 1 does: its seed moved, so only
+    # the beam's tie-break noise differs
+    acts = {k: p.act(replace(view, seed=view.seed + TEACHER_SEED_STEP) if "other" in k else view)
+            for k, p in pols.items()}
     for k in pols:
         same[k] += int((acts[k] == acts["team-beam"])[view.receivers].sum())
     decisions += int(view.receivers.sum())
