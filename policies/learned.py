@@ -23,7 +23,7 @@ from policies.features import Members
 from policies.infer.layers import Weights
 from policies.infer.policy import Decision, InferencePolicy, pred_rows
 from policies.infer.tokens import Tokens
-from world.config import to_dict
+from world.config import ConfigError, to_dict
 from world.core import N_ACTIONS
 from world.decentral import View
 
@@ -60,6 +60,34 @@ class LearnedPolicy(InferencePolicy):
         if weights is not None:
             self.net.load_state_dict({k: torch.as_tensor(v) for k, v in weights.items()})
         return {k: v.detach().numpy() for k, v in self.net.state_dict(keep_vars=True).items()}
+
+    def widen(self, **changes: Any) -> None:
+        """Change model-config fields that add inputs to the receiver's own token (`belief`),
+        keeping every weight: the own embedding gains zero columns for the new inputs (they
+        come last), so the network acts exactly as before until training moves them."""
+        import dataclasses
+
+        from policies.infer.policy import featurizer
+
+        model = dataclasses.replace(self.model_cfg, **changes)
+        feats = featurizer(self.cfg, model)
+        if (feats.member_dim, feats.pair_dim) != (self.features.member_dim,
+                                                  self.features.pair_dim) or \
+                feats.own_dim < self.features.own_dim:
+            raise ConfigError(f"{', '.join(changes)} would change more than the own token's "
+                              f"inputs")
+        old = {k: v.detach().clone() for k, v in self.net.state_dict().items()}
+        self.model_cfg, self.features = model, feats
+        self.np = self.numpy_cls(model, self.build(None))
+        for k, v in self.net.state_dict().items():
+            w = old[k]
+            if w.shape != v.shape:  # the own embedding [out, own_dim]: old columns first
+                if w.ndim != 2 or w.shape[0] != v.shape[0] or not k.endswith("own.weight"):
+                    raise ConfigError(f"{', '.join(changes)} would change {k}")
+                v.zero_()
+                v[:, :w.shape[1]] = w
+            else:
+                v.copy_(w)
 
     def payload(self, meta: dict[str, Any] | None = None) -> dict[str, Any]:
         """The checkpoint dict of this policy (see policies.checkpoint)."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -118,6 +119,8 @@ class View:
     # if it had no predecessor, which is what a robot does when that message is lost or late)
     team_visited: np.ndarray | None = None  # [G, N, H*W] bool: each receiver's TeamMemory row
     # after this tick (set by policies that remember; None: not computed)
+    belief: Any = None  # the receivers' belief maps after this tick (policies.belief.Snapshot,
+    # set by learned policies that read them; None: not computed)
 
     @property
     def groups(self) -> int:

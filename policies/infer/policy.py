@@ -20,13 +20,14 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from policies.base import Policy
+from policies.belief import Belief
 from policies.checkpoint import CheckpointError, read_checkpoint
 from policies.infer.layers import Weights, softmax
 from policies.infer.nets import NETS, Encoded, NumpyCommAttn, NumpyNet, Shapes
 from policies.infer.tokens import Featurizer, ModelConfig, Tokens
 from world.config import ConfigError, WorldConfig, from_dict
 from world.core import N_ACTIONS
-from world.decentral import TeamMemory, View, predecessor_of
+from world.decentral import TeamMemory, View, predecessor_of, remember
 from world.noise import uniform
 
 NO_ACTION = N_ACTIONS
@@ -53,7 +54,8 @@ class Decision:
 def featurizer(cfg: WorldConfig, model: Any) -> Featurizer:
     """The features a network of config `model` reads."""
     return Featurizer(cfg, crop=model.crop, team_pool=getattr(model, "team_pool", 0),
-                      memory=getattr(model, "team_memory", False))
+                      memory=getattr(model, "team_memory", False),
+                      belief=getattr(model, "belief", False))
 
 
 def gumbel(view: View, group: np.ndarray, robot: np.ndarray) -> np.ndarray:
@@ -157,6 +159,7 @@ class InferencePolicy(Policy):
         self.features = featurizer(cfg, self.model_cfg)
         self.np = self.numpy_cls(self.model_cfg, self.build(weights))
         self.team = TeamMemory(cfg)
+        self.belief = Belief(cfg)  # folded only for networks that read it (model.belief)
 
     # ------------------------------------------------------------- weights
     def read(self, checkpoint: str | Path) -> dict[str, Any]:
@@ -211,11 +214,29 @@ class InferencePolicy(Policy):
 
     def reset(self, groups: int) -> None:
         self.team.reset(groups)
+        if self.features.belief:
+            self.belief.reset(groups)
 
     def remember(self, view: View) -> None:
-        """Fold the view into the receivers' team memory and attach it (networks that read it)."""
-        if self.features.memory and view.team_visited is None:
+        """Fold the view into the receivers' team memory (and belief maps) and attach them
+        (networks that read them)."""
+        if self.features.belief:
+            if view.belief is None:
+                view.belief = self.belief.snapshot(view)  # its team memory is the same fold
+                view.team_visited = self.belief.visited
+        elif self.features.memory and view.team_visited is None:
             view.team_visited = self.team.update(view)
+
+    def remember_episode(self, views: list[View]) -> None:
+        """Set the memories of a recorded episode batch's views (tick order, the same groups in
+        each) by folding them through fresh ones: what the acting robots computed."""
+        if self.features.belief:
+            belief = Belief(self.cfg)
+            for view in views:
+                view.belief = belief.snapshot(view)
+                view.team_visited = belief.visited
+        elif self.features.memory:
+            remember(views, self.cfg)
 
     @property
     def state_size(self) -> int:

@@ -33,11 +33,14 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from policies.belief import BLOCK
+from policies.grid_search import distance_fields
 from world.config import ConfigError, WorldConfig
 from world.decentral import View, heard_union
 
 REFERENCE_SIDE = 20  # the map side the coarse team map's block count is fixed by
 MAX_SIZE = 4096  # the largest layer width or window side a model config may ask for
+BELIEF_CAP = 16  # path lengths in the belief features are capped here (and scaled by it)
 
 
 @dataclass
@@ -55,6 +58,13 @@ class ModelConfig:
     (world.decentral.TeamMemory) instead of this tick's messages only, so a lost message costs
     one teammate's latest steps, not its whole map. Changes no weight shape; no effect without
     the team map; checkpoints older than this field load with it off."""
+    belief: bool = False
+    """Also give the receiver's own token its belief map (policies.belief.Belief: cells known
+    free or block from every patch heard this episode, the map the frontier baselines plan on)
+    as two egocentric `crop x crop` windows: known blocks, and the path length through cells
+    not known to be blocks to the nearest frontier target (the field nearest frontier descends,
+    capped at BELIEF_CAP). Needs the team map and memory; widens the own part (`swarm train
+    --init CK --belief true` starts the new inputs' weights at zero)."""
 
     def __post_init__(self) -> None:
         """Every size an integer in [1, MAX_SIZE] (`team_pool` may be 0) and every switch a
@@ -193,11 +203,15 @@ class Featurizer:
     """Turns a View into `Tokens` for its receivers; member_dim + pair_dim is the token width."""
 
     def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0,
-                 memory: bool = False) -> None:
+                 memory: bool = False, belief: bool = False) -> None:
         if crop < 1 or crop % 2 == 0:
             raise ConfigError(f"crop must be a positive odd number, got {crop}")
         if team_pool < 0:
             raise ConfigError(f"team_pool must be >= 0, got {team_pool}")
+        if belief and not (team_pool and memory):
+            raise ConfigError("belief features need the team map and its memory (team_pool > 0 "
+                              "and team_memory true)")
+        self.belief = belief
         self.cfg = cfg
         self.crop = crop
         h, w = cfg.height, cfg.width
@@ -220,7 +234,7 @@ class Featurizer:
             edges = np.arange(k + 1) * p - self.team_half  # block edges, from the cell
             # a cell's block corners in the (H+1) x (W+1) summed-area table, clamped to it
             self.corners = CellTable(h, w, edges, edges, h, w, w + 1, on_grid=False)
-            self.own_dim = crop * crop + k * k
+            self.own_dim = crop * crop + k * k + (2 * crop * crop if belief else 0)
 
     @property
     def dim(self) -> int:
@@ -285,6 +299,8 @@ class Featurizer:
             else:
                 union = heard_union(view)[g_np, i_np]
             own = self._team(union, at)
+            if self.belief:
+                own = np.concatenate([own, self._belief(view, g_np, i_np, at)], axis=1)
         return Tokens(member_feats=member, pair_member=mrow, pair_feats=pair, lens=lens,
                       start=np.cumsum(lens) - lens, self_pos=self_pos,
                       group=g_np.astype(np.int64), robot=i_np.astype(np.int64), n=n,
@@ -309,3 +325,28 @@ class Featurizer:
         s = sat.reshape(r, -1)[rows, self.corners(y, x)[0]].reshape(r, k + 1, k + 1)
         blocks = s[:, 1:, 1:] - s[:, :-1, 1:] - s[:, 1:, :-1] + s[:, :-1, :-1]
         return np.concatenate([crop, blocks.reshape(r, k * k) / np.float32(p * p)], axis=1)
+
+    def _belief(self, view: View, g: np.ndarray, i: np.ndarray, where: np.ndarray) -> np.ndarray:
+        """Belief features [R, 2 crop^2] of receivers (g, i) at cells `where` [R, 2]: the window
+        of known blocks (1 / 0, -1 off-grid) and of the path length to the nearest frontier
+        target through cells not known to be blocks, as min(d, BELIEF_CAP) / BELIEF_CAP (1: that
+        far or unreachable, blocks included; -1 off-grid)."""
+        snap = view.belief
+        if snap is None:
+            raise ValueError("this network reads the belief map, but the view has none "
+                             "(the policy's remember() sets it)")
+        n = view.receivers.shape[1]
+        row = np.full(view.groups * n, -1, dtype=np.int64)
+        row[snap.g * n + snap.i] = np.arange(snap.size)
+        idx = row[g * n + i]
+        if (idx < 0).any():
+            raise ValueError("the view's belief lacks a receiver")
+        r = len(idx)
+        rows = np.arange(r)[:, None]
+        cell, inside = self.window(where[:, 0], where[:, 1])
+        block = (snap.known[idx] == BLOCK).reshape(r, -1)[rows, cell]
+        dist = distance_fields(snap.passable_bits[idx], snap.targets_bits[idx], self.cfg.width,
+                               max_steps=BELIEF_CAP).reshape(r, -1)[rows, cell]
+        near = np.minimum(dist, BELIEF_CAP).astype(np.float32) / np.float32(BELIEF_CAP)
+        return np.concatenate([np.where(inside, block, -1).astype(np.float32),
+                               np.where(inside, near, np.float32(-1))], axis=1)

@@ -27,6 +27,11 @@ class TrainConfig:
     """Turn the team memory (the team map from every bitmap heard this episode, see
     policies.features) on for an --init checkpoint trained without it; fresh networks have it
     (the model default), and false keeps a checkpoint's own setting."""
+    belief: bool = False
+    """Turn the belief features (the receiver's belief map as two egocentric windows, see
+    policies.infer.tokens) on for an --init checkpoint trained without them: the new inputs'
+    weights start at zero, so the network first acts as the checkpoint did. A fresh network
+    takes them with --model '{"belief": true}'."""
     train_loss: float = 0.0
     """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
     with this probability, with the swarm radio's seeded loss model (0: no faults)."""
@@ -137,6 +142,9 @@ class TrainConfig:
             raise ConfigError("train imitate needs algo reinforce (its loss is not a surrogate)")
         if self.imitate_samples > 1 and not self.imitate:
             raise ConfigError("train imitate_samples needs a teacher (imitate)")
+        if self.belief and not self.init:
+            raise ConfigError("train belief widens an --init checkpoint; a fresh network takes "
+                              "--model '{\"belief\": true}'")
         if self.model:
             self.model_config()
         if self.imitate:

@@ -17,7 +17,7 @@ from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import BadMessage, Traj
 from world import core
 from world.config import WorldConfig
-from world.decentral import TrajMessages, View, remember
+from world.decentral import TrajMessages, View
 
 
 def episodes_of(roll: Rollout, version: int) -> list[EpisodeRollout]:
@@ -61,8 +61,7 @@ def rollout_of(eps: list[EpisodeRollout], policy: LearnedPolicy,
                   hears=st("hears", t), receivers=st("receivers", t),
                   last_reward=st("last_reward", t), chain_ok=st("chain_ok", t))
              for t in range(ticks)]
-    if policy.features.memory:  # the team memory each robot folded tick by tick
-        remember(views, policy.cfg)
+    policy.remember_episode(views)  # the memories each robot folded tick by tick
     actions, inputs, values = [], [], []
     for t, view in enumerate(views):
         act = st("actions", t)

@@ -1,0 +1,156 @@
+"""The belief features of the learned networks (model field `belief`): the windows of a
+receiver's belief map against a plain search, a robot's rows against the batch's, the learner's
+refold against acting, and a checkpoint widened to read them acting exactly as before."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import pytest
+import torch
+from conftest import ROOT
+
+from policies import make_policy
+from policies.belief import BLOCK, Belief
+from policies.infer.policy import pred_rows
+from policies.infer.tokens import BELIEF_CAP, Featurizer
+from swarm.learn.config import TrainConfig
+from world import core
+from world.config import ConfigError, WorldConfig
+from world.decentral import batch_view, heard_by, robot_view
+
+CKPT = ROOT / "checkpoints" / "commattn.pt"
+
+
+def played(cfg: WorldConfig, groups: int, ticks: int, seed: int = 3) -> list:
+    """Views of `ticks` ticks of random play (a belief needs a history)."""
+    state = core.reset(cfg, seed, np.arange(groups))
+    rng = np.random.default_rng(seed)
+    views = []
+    for _ in range(ticks):
+        views.append(batch_view(cfg, state))
+        core.step(cfg, state, rng.integers(0, 9, (groups, cfg.n_robots)))
+    return views
+
+
+def plain_windows(known: np.ndarray, explored: np.ndarray, cell: tuple[int, int],
+                  crop: int) -> np.ndarray:
+    """The two windows by loops: known blocks, and the 8-neighbour path length from the nearest
+    target (not explored, not a block) through non-block cells, capped and scaled."""
+    h, w = known.shape
+    block = known == BLOCK
+    passable = ~block
+    passable[cell] = True
+    dist = np.full((h, w), 10**6)
+    todo: deque[tuple[int, int]] = deque()
+    for y in range(h):
+        for x in range(w):
+            if not explored[y, x] and not block[y, x]:
+                dist[y, x] = 0
+                todo.append((y, x))
+    while todo:
+        y, x = todo.popleft()
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                v, u = y + dy, x + dx
+                if 0 <= v < h and 0 <= u < w and passable[v, u] and dist[v, u] > dist[y, x] + 1:
+                    dist[v, u] = dist[y, x] + 1
+                    todo.append((v, u))
+    half = crop // 2
+    out = np.full((2, crop, crop), -1.0, dtype=np.float32)
+    for a in range(crop):
+        for b in range(crop):
+            y, x = cell[0] + a - half, cell[1] + b - half
+            if 0 <= y < h and 0 <= x < w:
+                out[0, a, b] = float(block[y, x])
+                out[1, a, b] = min(dist[y, x], BELIEF_CAP) / BELIEF_CAP
+    return out.reshape(-1)
+
+
+@pytest.mark.parametrize("size", [(20, 20), (13, 27)])
+def test_belief_windows_equal_a_plain_search(size: tuple[int, int]) -> None:
+    cfg = WorldConfig(height=size[0], width=size[1], n_robots=6, n_static=40, n_dynamic=30,
+                      comm_range=6.0)
+    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True)
+    belief = Belief(cfg)
+    for view in played(cfg, 2, 14):
+        view.belief = belief.snapshot(view)
+        view.team_visited = belief.visited
+    t = feats(view)
+    snap = view.belief
+    assert t.own_feats.shape[1] == feats.own_dim
+    for k, (g, i) in enumerate(zip(t.group.tolist(), t.robot.tolist(), strict=True)):
+        row = int(np.flatnonzero((snap.g == g) & (snap.i == i))[0])
+        cell = tuple(int(c) for c in view.msgs.pos[g, i])
+        want = plain_windows(snap.known[row], snap.explored[row], cell, 9)
+        np.testing.assert_array_equal(t.own_feats[k, -2 * 81:], want)
+
+
+def test_belief_needs_the_team_map_and_its_memory() -> None:
+    with pytest.raises(ConfigError, match="belief features need"):
+        Featurizer(WorldConfig(), team_pool=3, memory=False, belief=True)
+    with pytest.raises(ConfigError, match="widens an --init"):
+        TrainConfig(belief=True)
+
+
+def test_a_robots_belief_tokens_are_its_rows_of_the_batch() -> None:
+    """Each robot folding only what it heard, tick by tick, computes its rows of the batch."""
+    cfg = WorldConfig(comm_range=5.0)
+    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True)
+    views = played(cfg, 1, 12)
+    batch = Belief(cfg)
+    mine = [Belief(cfg) for _ in range(cfg.n_robots)]
+    for view in views:
+        own = []
+        for i in range(cfg.n_robots):
+            rv = robot_view(cfg, view.seed, 0, view.tick, i, heard_by(cfg, view, 0, i), 0.0)
+            rv.belief = mine[i].snapshot(rv)
+            rv.team_visited = mine[i].visited
+            own.append(feats(rv).own_feats[0])
+        view.belief = batch.snapshot(view)
+        view.team_visited = batch.visited
+        t = feats(view)
+        for k, i in enumerate(t.robot.tolist()):
+            np.testing.assert_array_equal(own[i], t.own_feats[k])
+
+
+def test_a_widened_checkpoint_acts_as_before_and_numpy_equals_torch() -> None:
+    """`widen(belief=True)` adds zero columns: the same actions as the checkpoint; with the new
+    weights moved, the numpy and torch networks still agree, and the learner's refold of a
+    recorded episode gives the features the robots acted on."""
+    from swarm.learn.evaluate import evaluate
+    from swarm.learn.rollout import collect
+
+    cfg = WorldConfig()
+    base = make_policy("commattn", cfg, checkpoint=str(CKPT))
+    wide = make_policy("commattn", cfg, checkpoint=str(CKPT))
+    wide.widen(belief=True)
+    assert wide.features.own_dim == base.features.own_dim + 2 * 81
+    a = evaluate(cfg, base, 0, 6, record_actions=True)
+    b = evaluate(cfg, wide, 0, 6, record_actions=True)
+    assert np.array_equal(a.actions, b.actions)
+    with torch.no_grad():
+        own = wide.net.embed.own.weight
+        own[:, base.features.own_dim:] = 0.05 * torch.randn(  # a trained layer's scale
+            own.shape[0], 162, generator=torch.Generator().manual_seed(0))
+    view = played(cfg, 2, 10)[-1]
+    wide.reset(2)
+    logits_t, _ = wide.torch_logits(view)
+    view = played(cfg, 2, 10)[-1]
+    wide.reset(2)
+    wide.remember(view)
+    tok = wide.features(view)
+    out, _ = wide.np.chain(wide.np.encode(tok), tok.robot, pred_rows([view], tok),
+                           lambda rows, lg: lg.argmax(-1))
+    np.testing.assert_allclose(out.logits, logits_t.numpy(), rtol=1e-5, atol=1e-5)
+    roll = collect(wide, cfg, 7, np.arange(2))
+    with torch.no_grad():
+        ev = wide.evaluate(roll.views, roll.actions, roll.inputs)
+    # (float32 sums in two orders: ~1e-6 typical, the largest of ~600 decisions near 1e-5)
+    assert np.abs(ev.logp.numpy() - roll.logp[ev.tick, ev.group, ev.robot]).max() < 2e-5
+    for view in roll.views:
+        view.belief = view.team_visited = None
+    wide.remember_episode(roll.views)
+    for view, kept in zip(roll.views, roll.inputs, strict=True):
+        np.testing.assert_array_equal(wide.features(view).own_feats, kept.own_feats)
