@@ -67,27 +67,22 @@ class LearnedPolicy(InferencePolicy):
         come last), so the network acts exactly as before until training moves them."""
         import dataclasses
 
-        from policies.infer.policy import featurizer
+        from policies.infer.policy import featurizer, shapes_of
 
         model = dataclasses.replace(self.model_cfg, **changes)
-        feats = featurizer(self.cfg, model)
-        if (feats.member_dim, feats.pair_dim) != (self.features.member_dim,
-                                                  self.features.pair_dim) or \
-                feats.own_dim < self.features.own_dim:
-            raise ConfigError(f"{', '.join(changes)} would change more than the own token's "
-                              f"inputs")
         old = {k: v.detach().clone() for k, v in self.net.state_dict().items()}
-        self.model_cfg, self.features = model, feats
+        for k, shape in shapes_of(self.cfg, model, self.numpy_cls).items():  # check, then change
+            was = tuple(old[k].shape) if k in old else None
+            if was != shape and not (k.endswith("own.weight") and was is not None and
+                                     was[0] == shape[0] and was[1] <= shape[1]):
+                raise ConfigError(f"{', '.join(changes)} would change {k} ({was} -> {shape}), "
+                                  f"not only the own token's inputs")
+        self.model_cfg, self.features = model, featurizer(self.cfg, model)
         self.np = self.numpy_cls(model, self.build(None))
-        for k, v in self.net.state_dict().items():
-            w = old[k]
-            if w.shape != v.shape:  # the own embedding [out, own_dim]: old columns first
-                if w.ndim != 2 or w.shape[0] != v.shape[0] or not k.endswith("own.weight"):
-                    raise ConfigError(f"{', '.join(changes)} would change {k}")
+        with torch.no_grad():
+            for k, v in self.net.state_dict().items():
                 v.zero_()
-                v[:, :w.shape[1]] = w
-            else:
-                v.copy_(w)
+                v[tuple(slice(0, n) for n in old[k].shape)] = old[k]
 
     def payload(self, meta: dict[str, Any] | None = None) -> dict[str, Any]:
         """The checkpoint dict of this policy (see policies.checkpoint)."""

@@ -154,3 +154,14 @@ def test_a_widened_checkpoint_acts_as_before_and_numpy_equals_torch() -> None:
     wide.remember_episode(roll.views)
     for view, kept in zip(roll.views, roll.inputs, strict=True):
         np.testing.assert_array_equal(wide.features(view).own_feats, kept.own_feats)
+
+
+def test_widen_refuses_other_changes_and_leaves_the_network_alone() -> None:
+    cfg = WorldConfig()
+    pol = make_policy("commattn", cfg, checkpoint=str(CKPT))
+    before = {k: v.clone() for k, v in pol.net.state_dict().items()}
+    with pytest.raises(ConfigError, match="would change gru"):
+        pol.widen(hidden=48)
+    assert not pol.model_cfg.belief and pol.model_cfg.hidden == 32
+    for k, v in pol.net.state_dict().items():
+        assert torch.equal(v, before[k])
