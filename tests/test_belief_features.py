@@ -4,12 +4,14 @@ refold against acting, and a checkpoint widened to read them acting exactly as b
 
 from __future__ import annotations
 
+import json
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT
+from conftest import ROOT, swarm
 
 from policies import make_policy
 from policies.belief import BLOCK, Belief
@@ -165,3 +167,35 @@ def test_widen_refuses_other_changes_and_leaves_the_network_alone() -> None:
     assert not pol.model_cfg.belief and pol.model_cfg.hidden == 32
     for k, v in pol.net.state_dict().items():
         assert torch.equal(v, before[k])
+
+
+@pytest.mark.procs
+def test_a_belief_network_in_the_swarm_equals_the_batched_eval(tmp_path: Path) -> None:
+    """Robot processes fold their own belief maps from what they heard: a widened checkpoint
+    whose belief weights matter acts in the swarm exactly as in the batched evaluator (sampled,
+    so every probability counts)."""
+    from policies.checkpoint import save_checkpoint
+    from swarm.learn.evaluate import evaluate
+
+    cfg = WorldConfig(n_robots=6)
+    pol = make_policy("commattn", cfg, checkpoint=str(CKPT))
+    pol.widen(belief=True)
+    with torch.no_grad():
+        own = pol.net.embed.own.weight
+        own[:, -162:] = 0.2 * torch.randn(own.shape[0], 162,
+                                          generator=torch.Generator().manual_seed(1))
+    ckpt = tmp_path / "belief.pt"
+    save_checkpoint(ckpt, pol.payload())
+    out = tmp_path / "run.json"
+    r = swarm("run", "--headless", "--robots", "6", "--policy", "commattn", "--checkpoint",
+              str(ckpt), "--episodes", "1", "--seed", "5", "--sample", "--run-id", "eqbelief",
+              "--json", str(out), timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(out.read_text())
+    ev = evaluate(cfg, make_policy("commattn", cfg, checkpoint=str(ckpt)), 5, 1,
+                  record_actions=True, greedy=False)
+    base = evaluate(cfg, make_policy("commattn", cfg, checkpoint=str(CKPT)), 5, 1,
+                    record_actions=True, greedy=False)
+    assert not np.array_equal(ev.actions, base.actions)  # the belief inputs changed decisions
+    assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
+    assert res["timeouts"] == 0 and res["messages"]["bad"] == 0
