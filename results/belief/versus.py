@@ -1,0 +1,41 @@
+"""The stage-B belief CommAttn against the shipped learned policies and coordinated frontier,
+paired on episodes 0..999 of seed 0 (`team-beam`'s figure is in results/planners/). Usage:
+
+    .venv/bin/python results/belief/versus.py results/belief/versus_1000.json
+"""
+
+from __future__ import annotations
+
+import sys
+
+import torch
+
+from policies import make_policy
+from swarm.common.atomic import write_json
+from swarm.common.report import paired
+from swarm.learn.evaluate import evaluate
+from world.config import WorldConfig
+
+OTHERS = {"commattn (shipped)": ("commattn", "checkpoints/commattn.pt"),
+          "commnet": ("commnet", "checkpoints/commnet.pt"),
+          "coordinated-frontier": ("coordinated-frontier", None)}
+
+
+def main(out: str) -> None:
+    torch.set_num_threads(1)
+    world = WorldConfig()
+    ckpt = "results/belief/belief_b_checkpoint.pt"
+    mine = evaluate(world, make_policy("commattn", world, checkpoint=ckpt), 0, 1000).elratio
+    rows = {}
+    for label, (name, path) in OTHERS.items():
+        kw = {"checkpoint": path} if path else {}
+        theirs = evaluate(world, make_policy(name, world, **kw), 0, 1000).elratio
+        diff, se = paired(mine, theirs)
+        rows[label] = {"elratio_mean": float(theirs.mean()), "belief_minus_this": diff, "se": se}
+        print(label, rows[label], flush=True)
+    write_json(out, {"command": f"results/belief/versus.py {out}", "checkpoint": ckpt,
+                     "elratio_mean": float(mine.mean()), "rows": rows})
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else sys.exit(__doc__))
