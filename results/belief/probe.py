@@ -5,8 +5,8 @@ shipped network to those sets offline, once with its own inputs and once with th
 features (`--belief`), from the same start, and report how often its greedy action falls in
 the set on held-out states. Usage, from the repository root:
 
-    .venv/bin/python results/belief/probe.py label DATA.pkl EPISODES FIRST   # a labelled shard
-    .venv/bin/python results/belief/probe.py fit OUT.json EPOCHS SHARD.pkl ...  # last shard held out
+    .venv/bin/python results/belief/probe.py label DATA.pkl EPISODES FIRST  # a labelled shard
+    .venv/bin/python results/belief/probe.py fit OUT.json EPOCHS SHARD.pkl ...  # last: held out
 
 Labels: episodes FIRST .. FIRST + EPISODES - 1 of seed 3,000,000 (outside training, validation
 and evaluation seeds), the shipped CommAttn acting (sampled), ~4 core-seconds an episode.
@@ -44,6 +44,24 @@ def label(out: str, episodes: int, first: int) -> None:
         pickle.dump(shards, f)
 
 
+def prepared(policy, part):
+    """The features of every view of `part`, memories refolded for this network."""
+    out = []
+    for _, views, actions, labels in part:
+        for v in views:
+            v.belief = v.team_visited = None
+        policy.remember_episode(views)
+        out.append((views, actions, labels, [policy.features(v) for v in views]))
+    return out
+
+
+def agreement(policy, part) -> float:
+    """How often the greedy action is in the teacher's set."""
+    with torch.no_grad():
+        agree = [policy.evaluate(v, a, f, targets=lab).agree for v, a, lab, f in part]
+    return float(np.concatenate(agree).mean())
+
+
 def fit(out: str, epochs: int, paths: list[str]) -> None:
     torch.set_num_threads(1)
     world = WorldConfig()
@@ -60,24 +78,8 @@ def fit(out: str, epochs: int, paths: list[str]) -> None:
         if belief:
             policy.widen(belief=True)
         opt = torch.optim.Adam(policy.net.parameters(), lr=1e-3)
-
-        def prepared(part):  # the features of every view, memories refolded for this network
-            out = []
-            for _, views, actions, labels in part:
-                for v in views:
-                    v.belief = v.team_visited = None
-                policy.remember_episode(views)
-                out.append((views, actions, labels, [policy.features(v) for v in views]))
-            return out
-
-        tr, ho = prepared(train), prepared(held)
-
-        def agreement(part):
-            with torch.no_grad():
-                agree = [policy.evaluate(v, a, f, targets=lab).agree for v, a, lab, f in part]
-            return float(np.concatenate(agree).mean())
-
-        curve = [(0, agreement(tr), agreement(ho))]
+        tr, ho = prepared(policy, train), prepared(policy, held)
+        curve = [(0, agreement(policy, tr), agreement(policy, ho))]
         for epoch in range(1, epochs + 1):
             for v, a, lab, f in tr:
                 for t in range(0, len(v), STEP_TICKS):  # ticks are independent given features
@@ -87,7 +89,7 @@ def fit(out: str, epochs: int, paths: list[str]) -> None:
                     opt.zero_grad()
                     loss.backward()
                     opt.step()
-            curve.append((epoch, agreement(tr), agreement(ho)))
+            curve.append((epoch, agreement(policy, tr), agreement(policy, ho)))
             print(json.dumps({"belief": belief, "epoch": epoch, "train_in_set": curve[-1][1],
                               "held_out_in_set": curve[-1][2]}), flush=True)
         rows.append({"belief": belief, "curve": curve})
