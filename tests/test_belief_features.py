@@ -89,11 +89,22 @@ def test_belief_windows_equal_a_plain_search(size: tuple[int, int]) -> None:
         np.testing.assert_array_equal(t.own_feats[k, -2 * 81:], want)
 
 
-def test_belief_needs_the_team_map_and_its_memory() -> None:
+def test_belief_needs_the_team_map_and_its_memory(tmp_path: Path) -> None:
+    from policies.infer.nets import CommAttnConfig
+
     with pytest.raises(ConfigError, match="belief features need"):
         Featurizer(WorldConfig(), team_pool=3, memory=False, belief=True)
+    with pytest.raises(ConfigError, match="model belief needs"):  # however the config came
+        CommAttnConfig(belief=True, team_pool=0)
     with pytest.raises(ConfigError, match="widens an --init"):
         TrainConfig(belief=True)
+    # a field learner does not widen (nor imitate): one line, exit 2, nothing spawned
+    toml = tmp_path / "run.toml"
+    toml.write_text('[train]\nbelief = true\ninit = "checkpoints/commattn.pt"\n')
+    r = swarm("run", "--train", "--headless", "--policy", "commattn", "--config", str(toml),
+              timeout=60)
+    assert r.returncode == 2 and "only `swarm train`" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
 
 
 def test_a_robots_belief_tokens_are_its_rows_of_the_batch() -> None:

@@ -27,7 +27,7 @@ from policies.infer.nets import NETS, Encoded, NumpyCommAttn, NumpyNet, Shapes
 from policies.infer.tokens import Featurizer, ModelConfig, Tokens
 from world.config import ConfigError, WorldConfig, from_dict
 from world.core import N_ACTIONS
-from world.decentral import TeamMemory, View, predecessor_of, remember
+from world.decentral import View, predecessor_of, remember
 from world.noise import uniform
 
 NO_ACTION = N_ACTIONS
@@ -158,8 +158,8 @@ class InferencePolicy(Policy):
         self.model_cfg: ModelConfig = model if model is not None else self.config_cls()
         self.features = featurizer(cfg, self.model_cfg)
         self.np = self.numpy_cls(self.model_cfg, self.build(weights))
-        self.team = TeamMemory(cfg)
         self.belief = Belief(cfg)  # folded only for networks that read it (model.belief)
+        self.team = self.belief.team  # the team memory alone, for networks without the belief
 
     # ------------------------------------------------------------- weights
     def read(self, checkpoint: str | Path) -> dict[str, Any]:
@@ -213,9 +213,10 @@ class InferencePolicy(Policy):
         self.np.cfg = model
 
     def reset(self, groups: int) -> None:
-        self.team.reset(groups)
         if self.features.belief:
-            self.belief.reset(groups)
+            self.belief.reset(groups)  # (its team memory included)
+        else:
+            self.team.reset(groups)
 
     def remember(self, view: View) -> None:
         """Fold the view into the receivers' team memory (and belief maps) and attach them

@@ -79,6 +79,9 @@ class ModelConfig:
                 if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= MAX_SIZE:
                     raise ConfigError(f"model {f.name} must be an integer in [{lo}, {MAX_SIZE}], "
                                       f"got {v!r}")
+        if getattr(self, "belief", False) and not (self.team_pool and self.team_memory):
+            raise ConfigError("model belief needs the team map and its memory (team_pool > 0 "
+                              "and team_memory true)")
 
 
 @dataclass

@@ -137,6 +137,9 @@ def _logging(verbose: bool) -> None:
 LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_norm", "ent_coef",
                         "max_grad_norm", "threads", "chunk_ticks", "algo", "ppo_epochs")
 
+# TrainConfig fields that only the batched trainer implements
+BATCH_TRAIN_FIELDS = ("init", "team_memory", "belief", "model", "imitate", "imitate_samples")
+
 
 def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[Any, Any]:
     """LearnerConfig and TrainConfig from `[learner]` / `[train]` of the file and the flags."""
@@ -156,6 +159,12 @@ def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[A
     # A learner shares the machine with the world and every robot: on two cores a second torch
     # thread only fights them (updates 50-100x slower under contention), so one by default.
     tdata.setdefault("threads", 1 if (os.cpu_count() or 1) <= 2 else 2)
+    defaults = TrainConfig()
+    batch_only = sorted(k for k in BATCH_TRAIN_FIELDS
+                        if k in tdata and tdata[k] != getattr(defaults, k))
+    if batch_only:  # the learner would ignore them: say so instead of training without them
+        raise ConfigError(f"[train] {', '.join(batch_only)}: only `swarm train` (the batched "
+                          f"trainer) takes these; a field learner starts from --checkpoint")
     try:
         return (from_dict(LearnerConfig, ldata, "[learner]"),
                 from_dict(TrainConfig, tdata, "[train]"))
