@@ -164,8 +164,12 @@ def distance_fields(passable: np.ndarray, sources: np.ndarray, width: int,
     nothing grows; with them, each search stops `extra` layers after it first touches one of
     its targets (cells further than that read UNREACHED, as do unreachable ones). Layer k's new
     cells are ORed into the bit planes of k's set bits, so the distance is decoded once at the
-    end instead of being written per layer.
+    end instead of being written per layer. One search (a robot process deciding for itself)
+    runs on one Python integer, like `steps_toward`'s.
     """
+    if passable.shape[0] == 1:
+        return _distance_field_one(passable[0], sources[0], width,
+                                   None if targets is None else targets[0], extra, max_steps)
     reached = sources & passable
     n_planes = max(1, int(max_steps).bit_length())
     planes = np.zeros((n_planes, *reached.shape), dtype=np.uint64)
@@ -197,6 +201,48 @@ def distance_fields(passable: np.ndarray, sources: np.ndarray, width: int,
         if planes[b].any():
             dist |= unpack(planes[b], width).astype(np.uint8) << b
     dist[~unpack(reached, width)] = UNREACHED
+    return dist
+
+
+def _distance_field_one(passable: np.ndarray, sources: np.ndarray, width: int,
+                        targets: np.ndarray | None, extra: int, max_steps: int) -> np.ndarray:
+    """`distance_fields` for one search, [1, H, width]: each layer is a few shifts and ORs of
+    one integer; layer k's new cells are ORed into the integers of k's set bits, decoded once
+    (tested equal to the batched path)."""
+    h, words = passable.shape
+    stride = 64 * words
+    not_first, not_last = _edge_masks(h, stride)
+    free = _as_int(passable)
+    reached = _as_int(sources) & free
+    goal = 0 if targets is None else _as_int(targets)
+    n_planes = max(1, int(max_steps).bit_length())
+    planes = [0] * n_planes
+    stop_at = extra if reached & goal else max_steps
+    k = 0
+    while k < min(max_steps, stop_at):
+        k += 1
+        grown = reached | (reached << 1 & not_first) | (reached >> 1 & not_last)
+        grown = (grown | grown << stride | grown >> stride) & free
+        new = grown & ~reached
+        if not new:
+            break
+        for b in range(n_planes):
+            if k >> b & 1:
+                planes[b] |= new
+        reached = grown
+        if new & goal and stop_at == max_steps:
+            stop_at = k + extra
+    nbytes = h * words * 8
+
+    def rows(bits: int) -> np.ndarray:
+        return unpack(np.frombuffer(bits.to_bytes(nbytes, "little"), dtype="<u8")
+                      .reshape(1, h, words), width)
+
+    dist = np.zeros((1, h, width), dtype=np.uint8)
+    for b, plane in enumerate(planes):
+        if plane:
+            dist |= rows(plane).astype(np.uint8) << b
+    dist[~rows(reached)] = UNREACHED
     return dist
 
 

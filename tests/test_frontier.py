@@ -107,6 +107,24 @@ def test_one_search_equals_the_batched_search_with_a_step_limit() -> None:
         assert (dist > 1).any() and (dist < 0).any()
 
 
+def test_one_distance_field_equals_the_batched_fields() -> None:
+    """A robot's one search (a Python integer) gives the batch's row, with every stop rule."""
+    rng = np.random.default_rng(6)
+    for h, w in [(20, 20), (40, 40), (6, 64), (5, 130)]:
+        passable = pack(rng.random((30, h, w)) > 0.35)
+        sources = pack(rng.random((30, h, w)) > 0.98)
+        targets = pack(rng.random((30, h, w)) > 0.97)
+        for kw in ({}, {"max_steps": 16}, {"max_steps": 3}, {"targets": targets, "extra": 4},
+                   {"targets": targets, "extra": 0, "max_steps": 9}):
+            batch = distance_fields(passable, sources, w, **kw)
+            for r in range(30):
+                one_kw = {**kw, "targets": targets[r:r + 1]} if "targets" in kw else kw
+                one = distance_fields(passable[r:r + 1], sources[r:r + 1], w, **one_kw)
+                assert np.array_equal(one, batch[r:r + 1]), (h, w, kw.keys(), r)
+            if not kw:  # fields that grow past a step and leave cells unreached
+                assert ((batch > 1) & (batch < 255)).any() and (batch == 255).any()
+
+
 def test_window_sums() -> None:
     mask = np.random.default_rng(2).random((2, 7, 9)) > 0.5
     padded = np.pad(mask, ((0, 0), (2, 2), (2, 2)))
