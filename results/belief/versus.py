@@ -1,7 +1,10 @@
-"""The stage-B belief CommAttn against the shipped learned policies and coordinated frontier,
-paired on episodes 0..999 of seed 0 (`team-beam`'s figure is in results/planners/). Usage:
+"""A belief CommAttn (stage B by default) against the shipped learned policies and coordinated
+frontier, paired on episodes 0..999 of seed 0 (`team-beam`'s figure is in results/planners/).
+Usage:
 
     .venv/bin/python results/belief/versus.py results/belief/versus_1000.json
+    .venv/bin/python results/belief/versus.py results/belief/versus_big_1000.json \
+        results/belief/belief_big_checkpoint.pt
 """
 
 from __future__ import annotations
@@ -21,10 +24,9 @@ OTHERS = {"commattn (shipped)": ("commattn", "checkpoints/commattn.pt"),
           "coordinated-frontier": ("coordinated-frontier", None)}
 
 
-def main(out: str) -> None:
+def main(out: str, ckpt: str = "results/belief/belief_b_checkpoint.pt") -> None:
     torch.set_num_threads(1)
     world = WorldConfig()
-    ckpt = "results/belief/belief_b_checkpoint.pt"
     mine = evaluate(world, make_policy("commattn", world, checkpoint=ckpt), 0, 1000).elratio
     rows = {}
     for label, (name, path) in OTHERS.items():
@@ -33,9 +35,11 @@ def main(out: str) -> None:
         diff, se = paired(mine, theirs)
         rows[label] = {"elratio_mean": float(theirs.mean()), "belief_minus_this": diff, "se": se}
         print(label, rows[label], flush=True)
-    write_json(out, {"command": f"results/belief/versus.py {out}", "checkpoint": ckpt,
+    write_json(out, {"command": f"results/belief/versus.py {out} {ckpt}", "checkpoint": ckpt,
                      "elratio_mean": float(mine.mean()), "rows": rows})
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else sys.exit(__doc__))
+    if len(sys.argv) not in (2, 3):
+        sys.exit(__doc__)
+    main(*sys.argv[1:])
