@@ -319,6 +319,36 @@ def test_a_child_whose_cleanup_hangs_is_ended_after_its_grace() -> None:
             parent.kill()
 
 
+OTHER_THREAD = """
+import signal, threading, time, zenoh
+from swarm.common.spawn import terminate_as_interrupt
+from swarm.net.inbox import Inbox
+from swarm.net.zconfig import ZenohOptions
+terminate_as_interrupt()
+def elsewhere():
+    time.sleep(1.0)
+    signal.pthread_kill(threading.get_ident(), signal.SIGTERM)  # taken here, not by main
+with zenoh.open(ZenohOptions().to_config()) as s, Inbox(s) as inbox:
+    threading.Thread(target=elsewhere, daemon=True).start()
+    t0 = time.monotonic()
+    try:
+        inbox.next(60.0)
+        print("no interrupt")
+    except KeyboardInterrupt:
+        print(time.monotonic() - t0)
+"""
+
+
+def test_a_signal_another_thread_takes_still_ends_a_long_wait() -> None:
+    """A supervisor's death (PDEATHSIG) or Ctrl-C may land on one of Zenoh's threads; the main
+    thread, waiting 60 s for an event, still unwinds within a wait slice, not after 60 s (a
+    world waiting for its robots once outlived its SIGKILLed supervisor that way)."""
+    r = subprocess.run([sys.executable, "-c", OTHER_THREAD], cwd=ROOT, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert float(r.stdout.split()[-1]) < 10.0, r.stdout
+
+
 @pytest.mark.procs
 def test_every_played_episode_ends_in_exactly_one_learner_counter(tmp_path: Path) -> None:
     """played = trained + pending + stale_dropped + incomplete + rejected, in the result."""

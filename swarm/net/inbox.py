@@ -18,6 +18,11 @@ import zenoh
 
 DEFAULT_MAX_BYTES = 4 << 20  # far above any message of a run (weights of the largest net: ~1 MB)
 DEFAULT_MAX_EVENTS = 100_000
+WAIT_SLICE_S = 0.25
+"""The longest a process's main thread sleeps in one piece while waiting for an event. A signal
+(SIGTERM from a supervisor's death, Ctrl-C) may be taken by any thread of the process, most often
+one of Zenoh's; its Python handler then runs only when the main thread next wakes. One long
+wait made a world outlive its supervisor for the whole robot start-up timeout."""
 
 
 class Event(NamedTuple):
@@ -87,10 +92,13 @@ class Inbox:
         """The next event within `timeout` seconds (any finite or infinite value), else None."""
         if not timeout > 0:  # also NaN
             timeout = 0.0
-        try:
-            return self.q.get(timeout=min(timeout, 3600.0))
-        except queue.Empty:
-            return None
+        end = time.monotonic() + min(timeout, 3600.0)
+        while True:
+            try:
+                return self.q.get(timeout=max(0.0, min(end - time.monotonic(), WAIT_SLICE_S)))
+            except queue.Empty:
+                if time.monotonic() >= end:
+                    return None
 
     def close(self) -> None:
         for ent in reversed(self._ents):

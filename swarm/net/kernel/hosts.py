@@ -184,7 +184,7 @@ def route(zopts: ZenohOptions, run_id: str | None = None) -> None:
                                                zopts.connect)
         try:
             while True:
-                time.sleep(3600)
+                time.sleep(0.5)  # short: a signal another thread took is handled on waking
         finally:
             if token is not None:
                 token.undeclare()
