@@ -110,6 +110,8 @@ def hostile_payloads(keys: Keys) -> list[tuple[str, bytes]]:
                 (keys.obs(r), Obs(0, 10**9, r, 1, 1, v5, 0.0, False, 100.0).pack()),
                 (keys.inbox(r), Bundle(0, 1, r, [b"junk", b"\x93"]).pack()),
                 (keys.inbox(r), Bundle(0, 1, 77, []).pack()),
+                (keys.inbox(r), Bundle(0, 1, r, [], [r]).pack()),  # a successor below it
+                (keys.inbox(r), Bundle(0, 1, r, [], "2").pack()),  # type: ignore[arg-type]
                 (keys.inbox_hidden(r), Hidden(0, 1, 0, 42, bytes(256)).pack()),
                 (keys.inbox_hidden(r), Hidden(0, 1, 0, 1, b"\xff\xff\xff\x7f" * 64).pack()),
                 (keys.traj(r), Traj(0, 1, 99, 1, 1, bits, [], v5).pack()),
@@ -317,6 +319,20 @@ def test_a_child_whose_cleanup_hangs_is_ended_after_its_grace() -> None:
             os.kill(child, signal.SIGKILL)
         if parent.poll() is None:
             parent.kill()
+
+
+def test_a_bundles_successor_list_is_checked() -> None:
+    """The fast lane's successor list: ids above the bundle's robot, within the team, once."""
+    from swarm.net.messages import BadMessage
+    from world.config import WorldConfig
+
+    cfg = WorldConfig(n_robots=4)
+    for succ in (None, [], [2, 3]):
+        assert Bundle.unpack(Bundle(0, 1, 1, [], succ).pack(), cfg).succ == succ
+    for succ, why in (([1], "succ"), ([4], "succ"), ([2, 2], "repeats"), ("2", "list"),
+                      ([2, 3, 3, 3], "list"), ([True], "succ")):
+        with pytest.raises(BadMessage, match=why):
+            Bundle.unpack(Bundle(0, 1, 1, [], succ).pack(), cfg)  # type: ignore[arg-type]
 
 
 OTHER_THREAD = """

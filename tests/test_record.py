@@ -46,8 +46,15 @@ ROBOTS, HORIZON = 3, 8
 
 # ------------------------------------------------------------------------------------ helpers
 def check_schema(obj: Any, schema: dict[str, Any], where: str = "$") -> None:
-    """A tiny JSON Schema validator: type, properties, required, additionalProperties, items."""
+    """A tiny JSON Schema validator: type (one, or a list of them), properties, required,
+    additionalProperties, items."""
     t = schema.get("type")
+    if isinstance(t, list):
+        if obj is None:
+            assert "null" in t, f"{where}: null is not {t}"
+            return
+        t = next(k for k in t if k != "null")
+        schema = {**schema, "type": t}
     types = {"object": dict, "array": list, "string": str, "boolean": bool}
     if t in types:
         assert isinstance(obj, types[t]), f"{where}: {obj!r} is not {t}"

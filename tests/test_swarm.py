@@ -252,6 +252,7 @@ def test_commattn_swarm_matches_batched_eval_tick_by_tick(tmp_path: Path, sample
                   record_actions=True, greedy=not sample)
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
     assert res["messages"]["hidden_delivered"] > 0 and res["timeouts"] == 0
+    assert res["fast_lane_ticks"] == res["ticks"] and res["messages"]["bad"] == 0  # no fault
     assert res["elratio_mean"] == pytest.approx(ev.summary(cfg)["elratio_mean"])
     # where the chain's time goes: a message k hops down waits for the k before it
     depth = res["chain_ms_by_depth"]

@@ -73,6 +73,7 @@ def test_virtual_swarm_equals_batched_eval_under_each_fault(tmp_path: Path, poli
     assert res["clock"] == "virtual" and res["timeouts"] == 0
     swarm_actions = np.array(res["actions"])
     assert np.array_equal(swarm_actions, _batched(policy, KINDS[kind]))
+    assert res["fast_lane_ticks"] == 0  # link faults: every hidden-state copy via the radio
     m = res["messages"]
     if kind in ("latency", "bandwidth", "compute", "mix"):
         assert m["late"] + m["dropped_bw"] > 0  # the plan bites: some copies came too late

@@ -182,24 +182,37 @@ class Traj:
 
 @dataclass
 class Bundle:
-    """Radio -> robot `robot`: the (already validated) trajectory payloads it heard at tick `t`."""
+    """Radio -> robot `robot`: the (already validated) trajectory payloads it heard at tick `t`;
+    with `succ`, the robots whose predecessor it is this tick, to which it sends its hidden-state
+    message itself (the radio's fast lane: virtual clock, no link fault; None: the radio
+    forwards it)."""
 
     ep: int
     t: int
     robot: int
     trajs: list[bytes]
+    succ: list[int] | None = None
 
     def pack(self) -> bytes:
-        return _pack(K_BUNDLE, self.ep, self.t, self.robot, self.trajs)
+        if self.succ is None:
+            return _pack(K_BUNDLE, self.ep, self.t, self.robot, self.trajs)
+        return _pack(K_BUNDLE, self.ep, self.t, self.robot, self.trajs, self.succ)
 
     @classmethod
     def unpack(cls, payload: bytes, cfg: WorldConfig) -> Bundle:
-        ep, t, robot, trajs = _unpack(payload, K_BUNDLE, 4)
+        ep, t, robot, trajs, *rest = _unpack(payload, K_BUNDLE, (4, 5))
         if not isinstance(trajs, list) or len(trajs) > cfg.n_robots or not all(
                 isinstance(b, bytes) for b in trajs):
             raise BadMessage("trajs must be a list of at most N payloads")
-        return cls(_int(ep, "ep", 0, BIG), _int(t, "t", 0, cfg.horizon),
-                   _int(robot, "robot", 0, cfg.n_robots - 1), trajs)
+        robot = _int(robot, "robot", 0, cfg.n_robots - 1)
+        succ = rest[0] if rest else None
+        if succ is not None and (not isinstance(succ, list) or len(succ) >= cfg.n_robots):
+            raise BadMessage("succ must be a list of fewer than N robot ids")
+        if succ is not None:
+            succ = [_int(i, "succ", robot + 1, cfg.n_robots - 1) for i in succ]
+            if len(set(succ)) != len(succ):
+                raise BadMessage("succ repeats a robot id")
+        return cls(_int(ep, "ep", 0, BIG), _int(t, "t", 0, cfg.horizon), robot, trajs, succ)
 
 
 @dataclass

@@ -134,6 +134,7 @@ class RobotProcess:
         self.traj_pub = publisher(session, self.keys.traj(robot))
         self.act_pub = publisher(session, self.keys.action(robot))
         self.hid_pub = publisher(session, self.keys.hidden(robot), express=True)
+        self._succ_pubs: dict[int, Any] = {}  # successor -> publisher on its hidden inbox
         self.status_pub = publisher(session, self.keys.robot_status(robot))
         # learning in the field (run.train): weights version in use, the next one, the record
         self.train = run.train and getattr(policy, "learned", False)
@@ -209,7 +210,7 @@ class RobotProcess:
                     b = Bundle.unpack(payload or b"", self.cfg)
                     if b.robot != self.robot:
                         raise BadMessage(f"addressed to robot {b.robot}")
-                    msg = Heard(b.ep, b.t, b.robot, self.heard(b))
+                    msg = Heard(b.ep, b.t, b.robot, self.heard(b), b.succ)
                 else:
                     msg = Hidden.unpack(payload or b"", self.cfg)
                 if kind != "hidden" and msg.robot != self.robot:
@@ -356,7 +357,7 @@ class RobotProcess:
         heard = bundle.msgs
         t0, waited = time.perf_counter(), self.c.wait_ms
         try:
-            action, chain_ok = self.decide(obs, heard, t_recv, deadline)
+            action, chain_ok = self.decide(obs, heard, t_recv, deadline, bundle.succ)
         except Exception as exc:  # a view no world would send must not take the robot down
             self.c.errors += 1
             log.error("robot %d could not decide at tick %d: %s: %s", r, obs.t,
@@ -383,10 +384,12 @@ class RobotProcess:
             if obs.t % 5 == 0 or self.attn is not None:
                 self.status()
 
-    def decide(self, obs: Obs, heard: TrajMessages, t_recv: float,
-               deadline: float) -> tuple[int, bool]:
+    def decide(self, obs: Obs, heard: TrajMessages, t_recv: float, deadline: float,
+               succ: list[int] | None = None) -> tuple[int, bool]:
         """The action (and whether the predecessor's hidden-state message was used) of this
-        robot at `obs`'s tick from what it heard; chained policies wait for the predecessor."""
+        robot at `obs`'s tick from what it heard; chained policies wait for the predecessor.
+        With `succ` (the radio's fast lane), the hidden-state message also goes straight to
+        those successors."""
         cfg, r = self.cfg, self.robot
         view = robot_view(cfg, self.run_cfg.seed, obs.ep, obs.t, r, heard, obs.reward)
         chain_ok = True
@@ -412,9 +415,17 @@ class RobotProcess:
                 greedy=self.run_cfg.greedy, prepared=prepared)
             action = int(actions[0, r])
             h = Hidden(obs.ep, obs.t, r, action, np.asarray(state[0], "<f4").tobytes()).pack()
-            self.hid_pub.put(h)
-            self.c.msgs_out += 1
-            self.c.bytes_out += len(h)
+            for i in succ or ():  # first: each successor's decode waits for it
+                pub = self._succ_pubs.get(i)
+                if pub is None:
+                    pub = self._succ_pubs[i] = publisher(self.session, self.keys.inbox_hidden(i),
+                                                         express=True)
+                pub.put(h)
+            if succ is None:
+                self.hid_pub.put(h)
+            n_out = len(succ) if succ is not None else 1
+            self.c.msgs_out += n_out
+            self.c.bytes_out += len(h) * n_out
         else:
             action = int(self.policy.act(view, greedy=self.run_cfg.greedy)[0, r])
         return action, chain_ok

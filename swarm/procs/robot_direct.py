@@ -41,6 +41,7 @@ class Heard:
     t: int
     robot: int
     msgs: TrajMessages
+    succ: list[int] | None = None  # the bundle's successors: send them the hidden state directly
 
 
 class _StampingPublisher:

@@ -75,7 +75,11 @@ class TickInbox:
     delivered: bool = False
     """The bundles of this tick have been handed to the radio."""
     hidden_at: dict[int, float] = field(default_factory=dict)
-    """Robot -> perf_counter time its hidden-state message reached the world's loop."""
+    """Robot -> perf_counter time its hidden-state message reached the world's loop (in the fast
+    lane: its action, sent right after the hidden-state message)."""
+    fast_lane: bool = False
+    """This tick's bundles named each robot's successors, and the robots send their hidden-state
+    messages to them directly (`WorldProcess.fast_lane` with no link fault): nothing to forward."""
 
 
 def has_all(got: dict[int, Any] | set[int], live: set[int]) -> bool:
@@ -89,7 +93,7 @@ class WorldProcess:
 
     def __init__(self, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
                  on_status: Callable[[dict[str, Any]], None] | None = None,
-                 faults: dict[str, Any] | None = None) -> None:
+                 faults: dict[str, Any] | None = None, fast_lane: bool = True) -> None:
         self.cfg, self.run_cfg, self.session = cfg, run, session
         self.keys = Keys(run.run_id)
         self.inbox: Inbox | None = None
@@ -100,6 +104,10 @@ class WorldProcess:
         # virtual clock + chain: a tick also waits for every hidden-state message, so each one
         # is charged to its sender's bucket in order (swarm.net.channel), as in the evaluator
         self.chained = self.virtual and run.policy in CHAINED and run.delivery == "radio"
+        # the radio's fast lane: on a tick with no link fault every hidden-state copy is on time,
+        # so the bundles name each robot's successors and the robots send them the message
+        # themselves (through the router, without this process's loop in the chain's hops)
+        self.fast_lane = self.chained and fast_lane
         # direct delivery (swarm.net.direct): robots deliver to one another and report counts
         self.direct = DirectTally(cfg.n_robots) if run.delivery == "direct" else None
         if self.virtual:
@@ -120,6 +128,7 @@ class WorldProcess:
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.bad: dict[str, int] = {}
         self.timeouts = 0
+        self.fast_lane_ticks = 0  # ticks whose hidden-state messages went robot to robot
         self.late = 0
         self.stop = False
         self.on_status = on_status
@@ -226,6 +235,8 @@ class WorldProcess:
             self.radio.counters.traj_in += 1
             self.radio.counters.bytes_in += len(payload or b"")
             tick.traj[msg.robot] = (payload or b"", time.monotonic())
+        elif kind == "hidden" and tick.fast_lane:  # robots send these to successors this tick
+            self._count_bad(key, "hidden-state message to the radio on a fast-lane tick")
         elif kind == "hidden":
             self.radio.counters.hidden_in += 1
             tick.sent_hidden.add(msg.robot)
@@ -235,6 +246,11 @@ class WorldProcess:
             else:
                 tick.hidden[msg.robot] = (msg, payload or b"")
         else:
+            if tick.fast_lane and msg.robot not in tick.action:
+                # its hidden-state message went to its successors before this action left
+                self.radio.counters.hidden_in += 1
+                self.radio.counters.hidden_delivered += len(self.radio.successors(msg.robot))
+                tick.hidden_at.setdefault(msg.robot, time.perf_counter())
             tick.action[msg.robot] = msg
         return True
 
@@ -280,8 +296,10 @@ class WorldProcess:
         if self.virtual:
             heard = self.radio.virtual_bundles(tick.ep, tick.t, lay.to_yx(state.pos[0]),
                                                {j: p for j, (p, _) in tick.traj.items()})
+            tick.fast_lane = self.fast_lane and self.radio.plan.zero
             for i, payloads in heard.items():
-                self._put(self.keys.inbox(i), Bundle(tick.ep, tick.t, i, payloads).pack())
+                succ = self.radio.successors(i) if tick.fast_lane else None
+                self._put(self.keys.inbox(i), Bundle(tick.ep, tick.t, i, payloads, succ).pack())
             tick.delivered = True
             for msg, payload in tick.hidden.values():
                 self._forward_hidden(msg, payload, tick)
@@ -352,7 +370,7 @@ class WorldProcess:
                     t_delivered = time.perf_counter()
                     self._deliver(state, tick)
                 if tick.delivered and has_all(tick.action, live) and (
-                        not self.chained or has_all(tick.sent_hidden, live)):
+                        not self.chained or tick.fast_lane or has_all(tick.sent_hidden, live)):
                     break
                 if self.stop or not self.alive.any():
                     break
@@ -370,6 +388,7 @@ class WorldProcess:
             self.planning_ms += sum(m.planning_ms for m in tick.action.values())
             missing = [int(i) for i in np.flatnonzero(self.alive) if i not in tick.action]
             self.timeouts += len(missing)
+            self.fast_lane_ticks += tick.fast_lane
             state.alive[0] = self.alive
             reward = core.step(cfg, state, acts)
             if self.run_cfg.train:
@@ -482,6 +501,7 @@ class WorldProcess:
             "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad)},
             "faults": self.radio.plan.to_record(),
             "timeouts": self.timeouts,
+            "fast_lane_ticks": self.fast_lane_ticks,
             "robots_lost": int((self.ever_alive & ~self.alive).sum()),
             "actions": [a.tolist() for a in actions],
         })
@@ -491,7 +511,10 @@ class WorldProcess:
 def main(cfg: WorldConfig, run: RunConfig, zopts: ZenohOptions,
          on_status: Callable[[dict[str, Any]], None] | None = None,
          faults: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Open a session, play the run, return its result record."""
+    """Open a session, play the run, return its result record. A session from a config file
+    (`--secure`'s TLS and access control among them) keeps every hidden-state copy going
+    through this process: an access list may let only the world publish on robots' inboxes."""
     with open_session(zopts) as session:
-        world = WorldProcess(cfg, run, session, on_status, faults)
+        world = WorldProcess(cfg, run, session, on_status, faults,
+                             fast_lane=zopts.config_file is None)
         return world.run()

@@ -332,6 +332,10 @@ class Auditor:
             self.same(f"bundle to robot {i}", got.get(i), want.get(i))
             self.report.count("bundles")
             self.report.count("deliveries", len(want.get(i) or []))
+        succ = {b.robot: b.succ for _, b in bucket.bundle}
+        if any(v is not None for v in succ.values()):
+            self._fast_lane(bucket, succ, late)
+            return
         expect: list[tuple[int, bytes]] = []
         for _, h, payload in bucket.hidden:
             if h.robot not in late:
@@ -342,6 +346,26 @@ class Auditor:
         self.same("hidden-state messages forwarded (receiver, sender:state digest)",
                   [(i, _hid(p, self.cfg)) for i, p in forwarded],
                   [(i, _hid(p, self.cfg)) for i, p in sorted(expect)])
+        self.report.count("hidden forwarded", len(expect))
+
+    def _fast_lane(self, bucket: _Tick, succ: dict[int, list[int] | None],
+                   late: set[int]) -> None:
+        """A fast-lane tick (no link fault): each bundle named its robot's successors, and each
+        robot that acted sent its hidden-state message to exactly those, nothing via the radio."""
+        if not self.radio.plan.zero:
+            self.fail("bundles naming successors", "a tick with link faults", "no link fault")
+        expect: list[tuple[int, int]] = []
+        for j in sorted(succ):
+            want = self.radio.successors(j)
+            self.same(f"bundle to robot {j} (successors)", succ[j], want)
+            if j not in late:
+                expect += [(i, j) for i in want]
+                self.hidden_delivered += len(want)
+        sent = sorted((self._receiver(idx), h.robot) for idx, h, _ in bucket.radio_hidden
+                      if h.robot not in late)  # (one that never acted may have sent them)
+        self.same("hidden-state messages sent to successors (receiver, sender)", sent,
+                  sorted(expect))
+        self.same("hidden-state messages to the radio on a fast-lane tick", len(bucket.hidden), 0)
         self.report.count("hidden forwarded", len(expect))
 
     def _receiver(self, idx: int) -> int:

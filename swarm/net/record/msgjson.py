@@ -62,9 +62,11 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "obs": _obj({**HEAD, "y": INT, "x": INT, "patch": INTS, "reward": NUM, "done": BOOL,
                  "budget_ms": NUM}, "swarm observation"),
     "traj": TRAJ,
-    "bundle": _obj({**HEAD, "senders": INTS, "sizes": INTS},
+    "bundle": _obj({**HEAD, "senders": INTS, "sizes": INTS,
+                    "succ": {"type": ["array", "null"], "items": {"type": "integer"}}},
                    "swarm bundle: whose trajectory messages a robot heard (their contents, "
-                   "byte for byte, are on the senders' traj channels)"),
+                   "byte for byte, are on the senders' traj channels); succ: the robots it "
+                   "sends its hidden-state message to itself (the radio's fast lane), or null"),
     "hidden": HIDDEN,
     "radio_hidden": HIDDEN,
     "direct": _obj({**HEAD, "kind": {"enum": ["traj", "hidden"]}, "queue_ms": NUM, "size": INT},
@@ -154,7 +156,7 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
         b = m.Bundle.unpack(payload, cfg)
         return {"ep": b.ep, "t": b.t, "robot": b.robot,
                 "senders": [_sender(p, b, cfg) for p in b.trajs],
-                "sizes": [len(p) for p in b.trajs]}
+                "sizes": [len(p) for p in b.trajs], "succ": b.succ}
     if kind == "direct":
         from swarm.net.direct import carried
 
