@@ -6,7 +6,10 @@ delayed (latency + jitter + the sender's token-bucket queue), and when it arrive
 receiver gets its tick's trajectory messages as one bundle at the arrival of its last on-time
 copy, so no robot waits on a timer when nothing is lost; a copy that would arrive after the
 tick's message deadline is late: counted, never delivered. Hidden-state messages are forwarded
-only to the robots whose predecessor (as computed from what they were delivered) sent them.
+only to the robots whose predecessor (as computed from what they were delivered) sent them; on
+a tick with no link fault the bundles name those successors instead, and each sender puts its
+message to them itself (the fast lane: every copy would be on time anyway). `TickInbox` is what
+the world gathers in a tick for the radio to deliver from.
 Range, neighbourhood and predecessor come from world.decentral, like the batched evaluator's;
 loss, partition and the latency draw come from swarm.net.faults.delivery_mask/delay_ms.
 """
@@ -20,6 +23,7 @@ import numpy as np
 
 from swarm.net.channel import FATES, OK, VirtualChannel
 from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, delay_ms, delivery_mask, link_arrays
+from swarm.net.messages import Action, Hidden
 from world.config import WorldConfig
 from world.decentral import neighbourhood, predecessor
 
@@ -327,3 +331,36 @@ class Radio:
                 self.counters.miss("hidden", FATES[fate], sender, i)
             out.append((i, fate == OK))
         return out
+
+
+@dataclass
+class TickInbox:
+    """What the world gathered for tick `t` of episode `ep` (the radio delivers from it)."""
+
+    ep: int
+    t: int
+    traj_deadline: float
+    """Monotonic time after which a trajectory copy is late for its receivers."""
+    hidden_deadline: float
+    """Monotonic time after which a hidden-state copy is late for its successor."""
+    traj: dict[int, tuple[bytes, float]] = field(default_factory=dict)
+    """Sender -> (its trajectory payload, arrival time)."""
+    hidden: dict[int, tuple[Hidden, bytes]] = field(default_factory=dict)
+    """Hidden-state messages held until the bundles are out (then forwarded as they come)."""
+    action: dict[int, Action] = field(default_factory=dict)
+    sent_hidden: set[int] = field(default_factory=set)
+    """Robots whose hidden-state message of this tick arrived (chained policies)."""
+    delivered: bool = False
+    """The bundles of this tick have been handed to the radio."""
+    hidden_at: dict[int, float] = field(default_factory=dict)
+    """Robot -> perf_counter time its hidden-state message reached the world's loop (in the fast
+    lane: its action, sent right after the hidden-state message)."""
+    fast_lane: bool = False
+    """This tick's bundles named each robot's successors, and the robots send their hidden-state
+    messages to them directly (`WorldProcess.fast_lane` with no link fault): nothing to forward."""
+
+
+def has_all(got: dict[int, Any] | set[int], live: set[int]) -> bool:
+    """Every live robot is in `got` (a set, or a dict's keys; the length test first: this runs
+    on every message)."""
+    return len(got) >= len(live) and live.issubset(got)

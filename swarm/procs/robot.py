@@ -12,7 +12,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -37,6 +36,7 @@ from swarm.net.messages import (
 )
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.robot_direct import Heard, with_delivery
+from swarm.procs.robot_status import RobotCounters, attention_of
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
 from world.decentral import TrajMessages, robot_view
@@ -60,49 +60,10 @@ def hop_deadline(t_recv: float, deadline: float, robot: int, n: int) -> float:
     return t_recv + (deadline - t_recv) * (robot + 1) / max(n, 1)
 
 
-@dataclass
-class RobotCounters:
-    msgs_in: int = 0
-    msgs_out: int = 0
-    bytes_in: int = 0
-    bytes_out: int = 0
-    bad: int = 0
-    stale: int = 0
-    missed: int = 0  # ticks it could not act on (no bundle in time)
-    missed_hidden: int = 0  # predecessor's hidden-state message lost or late: decoded without
-    last_latency_ms: float = 0.0
-    weights_bad: int = 0  # weights messages rejected (wrong policy, shape or version)
-    rollouts_lost: int = 0  # episode records dropped by the injected rollout loss
-    stalls: int = 0  # times this process was stopped or starved for over STALL_S
-    rejoins: int = 0  # times the world's token came back after vanishing (session drop)
-    errors: int = 0  # ticks it could not decide on (an exception in the policy), skipped
-    decisions: int = 0
-    compute_ms: float = 0.0  # planning time of its decisions, summed (waits excluded)
-    wait_ms: float = 0.0  # time spent waiting for bundles and predecessors, summed
-    bad_by_key: dict[str, int] = field(default_factory=dict)
-
-
 def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecord:
     """Ask the world for the run's record, retrying until `timeout`."""
     payload = query(session, keys.config, timeout, f"world answered on {keys.config}")
     return RunRecord.unpack(payload, f"run record from {keys.config}")
-
-
-def attention_of(policy: Policy, robot: int, n: int, t: int) -> tuple[int, list[float]] | None:
-    """(t, this robot's attention weights over the team) from the policy's `last_attention`
-    (CommAttn: [N] or [G, N, N] weights over the members heard, zero elsewhere), for the robot
-    status record; None for a policy without attention or weights that do not fit."""
-    att = getattr(policy, "last_attention", None)
-    if att is None:
-        return None
-    w = np.asarray(att, dtype=np.float64)
-    if w.ndim == 3:
-        w = w[0]
-    if w.ndim == 2:
-        w = w[robot] if w.shape[0] == n else w[0]
-    if w.shape != (n,) or not np.isfinite(w).all():
-        return None
-    return t, [float(x) for x in w]
 
 
 class RobotProcess:

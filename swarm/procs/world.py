@@ -15,7 +15,6 @@ import heapq
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -42,7 +41,7 @@ from swarm.net.messages import (
     pack_record,
     unpack_record,
 )
-from swarm.net.radio import Radio
+from swarm.net.radio import Radio, TickInbox, has_all
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world import core
@@ -53,39 +52,6 @@ PHASES = ("obs", "collect", "radio", "decide", "step")  # see WorldProcess.phase
 
 
 SCHEMA = {"traj": Traj, "hidden": Hidden, "action": Action}  # subscription kind -> schema
-
-
-@dataclass
-class TickInbox:
-    """What the world gathered for tick `t` of episode `ep` (the radio delivers from it)."""
-
-    ep: int
-    t: int
-    traj_deadline: float
-    """Monotonic time after which a trajectory copy is late for its receivers."""
-    hidden_deadline: float
-    """Monotonic time after which a hidden-state copy is late for its successor."""
-    traj: dict[int, tuple[bytes, float]] = field(default_factory=dict)
-    """Sender -> (its trajectory payload, arrival time)."""
-    hidden: dict[int, tuple[Hidden, bytes]] = field(default_factory=dict)
-    """Hidden-state messages held until the bundles are out (then forwarded as they come)."""
-    action: dict[int, Action] = field(default_factory=dict)
-    sent_hidden: set[int] = field(default_factory=set)
-    """Robots whose hidden-state message of this tick arrived (chained policies)."""
-    delivered: bool = False
-    """The bundles of this tick have been handed to the radio."""
-    hidden_at: dict[int, float] = field(default_factory=dict)
-    """Robot -> perf_counter time its hidden-state message reached the world's loop (in the fast
-    lane: its action, sent right after the hidden-state message)."""
-    fast_lane: bool = False
-    """This tick's bundles named each robot's successors, and the robots send their hidden-state
-    messages to them directly (`WorldProcess.fast_lane` with no link fault): nothing to forward."""
-
-
-def has_all(got: dict[int, Any] | set[int], live: set[int]) -> bool:
-    """Every live robot is in `got` (a set, or a dict's keys; the length test first: this runs
-    on every message)."""
-    return len(got) >= len(live) and live.issubset(got)
 
 
 class WorldProcess:
