@@ -3,8 +3,9 @@
 Per tick: take the observation from the world, append the position to its own trajectory,
 publish the trajectory message, take the radio's bundle of what it heard, (for a chained policy)
 take the predecessor's hidden-state message, decide with `world.decentral.robot_view` and the
-shared policy, publish the action (and its own hidden-state message). It keeps acting for as
-long as the world is alive and exits by itself when the world's liveliness token disappears.
+shared policy, publish its own hidden-state message (to the radio, or on a fast-lane tick to the
+successors its bundle names) and the action. It keeps acting for as long as the world is alive
+and exits by itself when the world's liveliness token disappears.
 """
 
 from __future__ import annotations

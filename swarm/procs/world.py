@@ -2,9 +2,11 @@
 
 Per tick t: send every live robot its observation; collect trajectory messages and hand each
 robot its bundle through the radio as soon as every live robot has sent (or half the tick
-deadline passed); forward hidden-state messages to the successors that need them; collect
-actions until every live robot has acted or the deadline passed (a robot that missed it stays in
-place, counted as a timeout); step with the same `world.core.step` as the batched evaluator.
+deadline passed); forward hidden-state messages to the successors that need them (on a tick
+with no link fault the bundles name the successors and the robots send them: the fast lane);
+collect actions until every live robot has acted or the deadline passed (a robot that missed it
+stays in place, counted as a timeout); step with the same `world.core.step` as the batched
+evaluator.
 Everything arriving from the network goes through one queue and is validated there: a bad
 payload is dropped and counted with its key, never raised.
 """
