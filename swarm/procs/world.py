@@ -264,7 +264,6 @@ class WorldProcess:
         if self.virtual:
             heard = self.radio.virtual_bundles(tick.ep, tick.t, lay.to_yx(state.pos[0]),
                                                {j: p for j, (p, _) in tick.traj.items()})
-            tick.fast_lane = self.fast_lane and self.radio.plan.zero
             for i, payloads in heard.items():
                 succ = self.radio.successors(i) if tick.fast_lane else None
                 self._put(self.keys.inbox(i), Bundle(tick.ep, tick.t, i, payloads, succ).pack())
@@ -325,8 +324,11 @@ class WorldProcess:
                 return state, actions_log, ticks
             # the radio stops waiting for senders (real clock: half way; virtual: never early)
             traj_deadline = deadline if self.virtual else start + timeout / 2
+            # the plan is fixed for the tick by now: a fast-lane tick is one from its start, so a
+            # hidden-state message sent to the radio is refused even before the bundles go out
             tick = TickInbox(ep, t, traj_deadline=start + 0.8 * timeout,
-                             hidden_deadline=start + 0.9 * timeout)
+                             hidden_deadline=start + 0.9 * timeout,
+                             fast_lane=self.fast_lane and self.radio.plan.zero)
             tick.delivered = self.direct is not None  # direct delivery: the robots' own
             radio0 = self.phase_ms["radio"]
             t_sent = t_delivered = time.perf_counter()
