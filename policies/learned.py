@@ -49,6 +49,7 @@ class LearnedPolicy(InferencePolicy):
     (the acting twin) and net_cls (the torch module)."""
 
     net_cls: ClassVar[type[nn.Module]]
+    owns_weights = False  # an optimizer step moves the numpy views of the torch parameters
 
     def read(self, checkpoint: str | Path) -> dict[str, Any]:
         return load_checkpoint(checkpoint)

@@ -227,6 +227,35 @@ def test_one_robot_chain_equals_the_batch_and_reports_attention() -> None:
         np.testing.assert_allclose(att, d.attention[0, i], atol=1e-6)
 
 
+@pytest.mark.parametrize("name", ["commattn", "bicnet"])
+def test_a_robots_kept_arrays_compute_the_same_floats(name: str) -> None:
+    """What a robot's decision keeps between calls (the BiGRU's packed recurrent weights) and
+    skips (padding its one receiver's pairs) changes no bit, and adopted weights replace the
+    kept pack (the decision then equals a policy's that packs on every call)."""
+    cfg = WorldConfig()
+    ckpt = ROOT / "checkpoints" / f"{name}.pt"
+    pol = inference_class(name)(cfg, checkpoint=ckpt)
+    view = batch_view(cfg, midgame(cfg, 2, 14))
+    for i in range(cfg.n_robots):
+        rv = robot_view(cfg, view.seed, 0, view.tick, i, heard_by(cfg, view, 0, i), 0.0)
+        pol.reset(1)
+        pol.remember(rv)
+        tok = pol.features(rv)
+        x = layers.token_embed(pol.weights, "embed", tok)
+        assert np.array_equal(layers.bigru(pol.weights, "gru", x, tok, pol.np.packed_bigru("gru")),
+                              layers.bigru(pol.weights, "gru", x, tok))
+        idx, mask = tok.pad_index(len(x))
+        padded, ones = tok.padded(x)
+        assert ones.all() and mask.all() and np.array_equal(padded, x[idx])
+    fresh = {k: v * np.float32(1.5) for k, v in pol.weights.items()}
+    other = inference_class(name)(cfg, checkpoint=ckpt)
+    for p in (pol, other):
+        p.load_weights(fresh, dataclasses.asdict(p.model_cfg))
+        p.reset(2)
+    other.np.keep = False
+    assert np.array_equal(pol.decide(view).probs, other.decide(view).probs)
+
+
 @pytest.mark.parametrize("name", sorted(LEARNED))
 def test_acting_log_probs_equal_the_torch_recomputation(name: str) -> None:
     """What a rollout records (numpy, sampled) and what the update recomputes (torch) for the

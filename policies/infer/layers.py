@@ -97,7 +97,20 @@ def token_embed(w: Weights, name: str, t: Tokens) -> np.ndarray:
     return relu(x)
 
 
-def bigru(w: Weights, name: str, x: np.ndarray, t: Tokens) -> np.ndarray:
+def pack_bigru(w: Weights, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The recurrent weights of nn.GRU `name`'s two directions as one block-diagonal matrix
+    [2H, 6H], columns ordered (r_f, r_b, z_f, z_b, n_f, n_b), and its bias [6H] (see `bigru`)."""
+    k = w[f"{name}.weight_hh_l0"].shape[1]
+    w_hh = np.zeros((2 * k, 6 * k), dtype=np.float32)  # block-diagonal, gate-interleaved
+    w_hh.reshape(2, k, 3, 2, k)[0, :, :, 0] = w[f"{name}.weight_hh_l0"].T.reshape(k, 3, k)
+    w_hh.reshape(2, k, 3, 2, k)[1, :, :, 1] = w[f"{name}.weight_hh_l0_reverse"].T.reshape(k, 3, k)
+    b_hh = np.stack([w[f"{name}.bias_hh_l0"].reshape(3, k),
+                     w[f"{name}.bias_hh_l0_reverse"].reshape(3, k)], axis=1).reshape(6 * k)
+    return w_hh, b_hh
+
+
+def bigru(w: Weights, name: str, x: np.ndarray, t: Tokens,
+          packed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """nn.GRU `name` (bidirectional, one layer) over each receiver's members in id order:
     pairs [P, E] -> [P, 2H] in canonical pair order. Each direction starts from zeros at the
     receiver's own first / last member; no padding enters a recurrence.
@@ -106,26 +119,36 @@ def bigru(w: Weights, name: str, x: np.ndarray, t: Tokens) -> np.ndarray:
     the forward input at slot s and the backward one at slot M-1-s, and one block-diagonal
     matrix projects both states, its columns ordered (r_f, r_b, z_f, z_b, n_f, n_b) so that the
     gates of both directions are contiguous (half the Python steps of one loop per direction).
+    `packed` is `pack_bigru(w, name)` when the caller keeps it (built here otherwise).
     """
-    (idx, mask), p = t.pad_index(x.shape[0]), x.shape[0]
-    xp = np.concatenate([x, np.zeros((1, x.shape[1]), x.dtype)])[idx]  # [R, M, E]
-    r, m, k = t.receivers, t.width, w[f"{name}.weight_hh_l0"].shape[1]
-    gi_f = xp @ w[f"{name}.weight_ih_l0"].T + w[f"{name}.bias_ih_l0"]  # [R, M, 3H]
-    gi_b = xp[:, ::-1] @ w[f"{name}.weight_ih_l0_reverse"].T + w[f"{name}.bias_ih_l0_reverse"]
-    gi = np.stack([gi_f.reshape(r, m, 3, k), gi_b.reshape(r, m, 3, k)], axis=3).reshape(r, m, 6 * k)
-    w_hh = np.zeros((2 * k, 6 * k), dtype=np.float32)  # block-diagonal, gate-interleaved
-    w_hh.reshape(2, k, 3, 2, k)[0, :, :, 0] = w[f"{name}.weight_hh_l0"].T.reshape(k, 3, k)
-    w_hh.reshape(2, k, 3, 2, k)[1, :, :, 1] = w[f"{name}.weight_hh_l0_reverse"].T.reshape(k, 3, k)
-    b_hh = np.stack([w[f"{name}.bias_hh_l0"].reshape(3, k),
-                     w[f"{name}.bias_hh_l0_reverse"].reshape(3, k)], axis=1).reshape(6 * k)
-    full = bool(mask.all())  # (a robot's single receiver, or equal neighbourhoods)
+    p, r, m = x.shape[0], t.receivers, t.width
+    if r == 1:  # a robot's one receiver: its members are the pairs, in order
+        mask = np.ones((1, p), dtype=bool)
+        xp = x[None]  # [1, M, E]
+    else:
+        idx, mask = t.pad_index(p)
+        xp = np.concatenate([x, np.zeros((1, x.shape[1]), x.dtype)])[idx]  # [R, M, E]
+    k = w[f"{name}.weight_hh_l0"].shape[1]
+    gi = np.empty((r, m, 3, 2, k), dtype=np.float32)  # gates of both directions, interleaved
+    gi[:, :, :, 0] = (xp @ w[f"{name}.weight_ih_l0"].T + w[f"{name}.bias_ih_l0"]).reshape(
+        r, m, 3, k)
+    gi[:, :, :, 1] = (xp[:, ::-1] @ w[f"{name}.weight_ih_l0_reverse"].T +
+                      w[f"{name}.bias_ih_l0_reverse"]).reshape(r, m, 3, k)
+    gi = gi.reshape(r, m, 6 * k)
+    w_hh, b_hh = packed if packed is not None else pack_bigru(w, name)
+    full = r == 1 or bool(mask.all())  # (a robot's single receiver, or equal neighbourhoods)
     both = None if full else np.repeat(np.stack([mask, mask[:, ::-1]], axis=2), k, axis=2)
     h = np.zeros((r, 2 * k), dtype=np.float32)
     out = np.empty((r, m, 2 * k), dtype=np.float32)
     for s in range(m):
-        new = gates(gi[:, s], h @ w_hh + b_hh, h)
+        gh = h @ w_hh
+        gh += b_hh
+        new = gates(gi[:, s], gh, h)
         h = new if both is None else np.where(both[:, s], new, h)
         out[:, s] = h
-    flat = np.concatenate([out[:, :, :k], out[:, ::-1, k:]], axis=-1)[mask]
+    if r == 1:
+        flat = np.concatenate([out[0, :, :k], out[0, ::-1, k:]], axis=-1)
+    else:
+        flat = np.concatenate([out[:, :, :k], out[:, ::-1, k:]], axis=-1)[mask]
     assert len(flat) == p
     return flat

@@ -19,6 +19,7 @@ from policies.infer.layers import (
     embedding,
     gru_cell,
     linear,
+    pack_bigru,
     relu,
     softmax,
     token_embed,
@@ -66,8 +67,26 @@ class NumpyNet:
 
     chained = False
 
-    def __init__(self, cfg: ModelConfig, weights: Weights) -> None:
+    def __init__(self, cfg: ModelConfig, weights: Weights, keep: bool = False) -> None:
         self.cfg, self.w = cfg, weights
+        self.keep = keep
+        """Keep arrays derived from the weights between calls: only for an owner that changes
+        the weights through `load_weights`, which calls `forget` (not a LearnedPolicy, whose
+        weights are views of torch parameters an optimizer moves)."""
+        self._derived: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def forget(self) -> None:
+        """Drop the arrays derived from the weights (they changed)."""
+        self._derived.clear()
+
+    def packed_bigru(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """`pack_bigru(self.w, name)`, built once while the weights stay (`keep`)."""
+        if not self.keep:
+            return pack_bigru(self.w, name)
+        out = self._derived.get(name)
+        if out is None:
+            out = self._derived[name] = pack_bigru(self.w, name)
+        return out
 
     @staticmethod
     def shapes(cfg: ModelConfig, member: int, pair: int, own: int) -> Shapes:
@@ -144,7 +163,7 @@ class NumpyCommAttn(NumpyNet):
     def encode(self, t: Tokens) -> Encoded:
         w = self.w
         x = token_embed(w, "embed", t)
-        flat = bigru(w, "gru", x, t)
+        flat = bigru(w, "gru", x, t, self.packed_bigru("gru"))
         mine = flat[t.own_row]
         if self.cfg.self_input:  # also the receiver's own token embedding (a skip past the BiGRU)
             mine = np.concatenate([mine, x[t.own_row]], axis=-1)
@@ -273,7 +292,7 @@ class NumpyBicNet(NumpyNet):
 
     def forward(self, t: Tokens) -> tuple[np.ndarray, np.ndarray]:
         w = self.w
-        mine = bigru(w, "gru", token_embed(w, "embed", t), t)[t.own_row]
+        mine = bigru(w, "gru", token_embed(w, "embed", t), t, self.packed_bigru("gru"))[t.own_row]
         return mlp(w, "policy", mine), mlp(w, "value", mine)[:, 0]
 
 

@@ -139,6 +139,9 @@ class InferencePolicy(Policy):
     `config_cls` and `numpy_cls` come from policies.infer.nets.NETS."""
 
     learned = True
+    owns_weights = True
+    """The numpy weights change only through `load_weights` (so the network may keep arrays
+    derived from them); False where they are views of torch parameters (LearnedPolicy)."""
     config_cls: ClassVar[type]
     numpy_cls: ClassVar[type[NumpyNet]]
 
@@ -157,7 +160,7 @@ class InferencePolicy(Policy):
         self.last_attention = None  # see act_with_chain
         self.model_cfg: ModelConfig = model if model is not None else self.config_cls()
         self.features = featurizer(cfg, self.model_cfg)
-        self.np = self.numpy_cls(self.model_cfg, self.build(weights))
+        self.np = self.numpy_cls(self.model_cfg, self.build(weights), keep=self.owns_weights)
         self.belief = Belief(cfg)  # folded only for networks that read it (model.belief)
         self.team = self.belief.team  # the team memory alone, for networks without the belief
 
@@ -199,6 +202,7 @@ class InferencePolicy(Policy):
         self.check_weights(tensors, model, what)
         for k, v in tensors.items():
             np.copyto(self.weights[k], v, casting="same_kind")
+        self.np.forget()
 
     def set_model(self, **changes: Any) -> None:
         """Change model-config fields that leave every weight shape alone (e.g. team_memory),

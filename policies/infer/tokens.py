@@ -120,7 +120,10 @@ class Tokens:
         return np.where(mask, self.start[:, None] + slots, fill), mask
 
     def padded(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per-pair rows [P, D] -> [R, M, D] (zeros past each neighbourhood) and mask [R, M]."""
+        """Per-pair rows [P, D] -> [R, M, D] (zeros past each neighbourhood) and mask [R, M];
+        with one receiver (a robot's decision) a view of x."""
+        if self.receivers == 1 and len(x) == self.lens[0]:  # its members are the pairs
+            return x[None], np.ones((1, len(x)), dtype=bool)
         idx, mask = self.pad_index(x.shape[0])
         return np.concatenate([x, np.zeros((1, x.shape[1]), x.dtype)])[idx], mask
 
@@ -222,6 +225,10 @@ class Featurizer:
         offsets = np.arange(crop) - crop // 2
         self.window = CellTable(h, w, offsets, offsets, h - 1, w - 1, w)
         self.member_dim = 3 * cfg.vision * cfg.vision + 2
+        # a patch code's planes (block, off-grid, robot; see world.core.patches) [3, 256]
+        c = np.arange(256)
+        self.code_planes = np.stack([(c & 3) == 1, (c & 3) == 2, (c & 4) != 0]).astype(np.float32)
+        self.norm = np.array([max(h - 1, 1), max(w - 1, 1)], dtype=np.float32)
         self.pair_dim = crop * crop + 3 * cfg.recent_len + 2 + 1 + 1
         self.team_pool = team_pool
         # the team map from view.team_visited (a TeamMemory), not this tick; nothing to
@@ -265,10 +272,12 @@ class Featurizer:
             seen[mrow] = True
             used = np.flatnonzero(seen)
         code = msgs.patch.reshape(groups * n, -1)[used]
-        low = code & 3
-        norm = np.array([max(h - 1, 1), max(w - 1, 1)], dtype=f32)
-        feats = np.concatenate([low == 1, low == 2, (code & 4) != 0], axis=1).astype(f32)
-        feats = np.concatenate([feats, pos[used].astype(f32) / norm], axis=1)
+        if code.dtype == np.uint8:  # the three planes of each code, looked up
+            planes = self.code_planes[:, code].transpose(1, 0, 2).reshape(len(code), -1)
+        else:
+            low = code & 3
+            planes = np.concatenate([low == 1, low == 2, (code & 4) != 0], axis=1).astype(f32)
+        feats = np.concatenate([planes, pos[used].astype(f32) / self.norm], axis=1)
         if isinstance(used, slice):
             member = feats
         else:
