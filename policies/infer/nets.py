@@ -69,10 +69,10 @@ class NumpyNet:
 
     def __init__(self, cfg: ModelConfig, weights: Weights, keep: bool = False) -> None:
         self.cfg, self.w = cfg, weights
+        # keep arrays derived from the weights between calls: only for an owner that changes
+        # the weights through `load_weights`, which calls `forget` (not a LearnedPolicy, whose
+        # weights are views of torch parameters an optimizer moves)
         self.keep = keep
-        """Keep arrays derived from the weights between calls: only for an owner that changes
-        the weights through `load_weights`, which calls `forget` (not a LearnedPolicy, whose
-        weights are views of torch parameters an optimizer moves)."""
         self._derived: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def forget(self) -> None:
