@@ -162,6 +162,8 @@ def test_crash_and_restart_mid_episode(tmp_path: Path) -> None:
     assert res["robot_restarts"] == 1 and res["robots_lost"] == 0
     acts = np.array(res["actions"])  # [ep, T, N]
     assert (acts[-1, :, 1] != 0).any()  # robot 1 acts again in the last episode
+    logs = Path(res["logs"])  # a run with a crash keeps its children's logs, and names them
+    assert (logs / "world.log").exists() and (logs / "robot1.log").exists()
 
 
 def test_heavy_loss_and_latency_never_deadlock(tmp_path: Path) -> None:

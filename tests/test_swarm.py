@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -42,10 +43,13 @@ def run_procs(run_id: str) -> list[int]:
 @pytest.mark.parametrize("policy", ["nearest-frontier", "team-beam"])
 def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str) -> None:
     out = tmp_path / "run.json"
+    temp = Path(tempfile.gettempdir())
+    before = set(temp.glob(f"swarm-eq{policy[:4]}-*"))
     r = swarm("run", "--headless", "--robots", "4", "--policy", policy,
               "--episodes", "2", "--seed", "11", "--run-id", "eq" + policy[:4], "--json", str(out))
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
+    assert "logs" not in res and set(temp.glob(f"swarm-eq{policy[:4]}-*")) == before  # tidied
     cfg = WorldConfig(n_robots=4)
     ev = evaluate(cfg, make_policy(policy, cfg), 11, 2, record_actions=True)
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))

@@ -189,7 +189,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                      {"workers": _ints(args.workers_list), "policy": args.policy,
                       "batch": args.batch, "seconds": args.seconds, "repeats": args.repeats,
                       "json": args.json}, where)
-        result = bench_rollout(cfg, lambda row: err.print(f"  {row}"))
+        result = bench_rollout(cfg, lambda row: err.print(_row_line(row)))
         out.print(rollout_bench_table(result))
     elif args.what == "record":
         from swarm.bench.record import RecordBenchConfig, bench_record
@@ -199,7 +199,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                       "episodes": args.episodes, "pairs": args.pairs, "seed": args.seed,
                       "out": args.out, "json": args.json}, where)
         build_policy(cfg.policy, world, cfg.checkpoint)
-        result = bench_record(world, cfg, lambda row: err.print(f"  {row}"))
+        result = bench_record(world, cfg, lambda row: err.print(_row_line(row)))
         out.print(kv_table("Recording cost (medians of interleaved pairs)",
                            {k: v for k, v in result.items() if k != "rows"}))
     elif args.what == "swarm":
@@ -213,7 +213,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                       "repeats": args.repeats, "delivery": args.delivery}, where)
         for name in cfg.policies:
             build_policy(name, world, cfg.checkpoint)
-        result = bench_swarm(world, cfg, lambda row: err.print(f"  {row}"))
+        result = bench_swarm(world, cfg, lambda row: err.print(_row_line(row)))
         out.print(swarm_bench_table(result))
     else:
         cfg = merged(bench.PolicyBenchConfig, table,
@@ -233,6 +233,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 
+def _row_line(row: dict[str, Any]) -> str:
+    """One finished row of a long benchmark as a progress line: its scalar figures."""
+    parts = [f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
+             for k, v in row.items() if isinstance(v, (int, float, str)) and v is not None]
+    return "  " + ", ".join(parts)
+
+
 def cmd_repro(args: argparse.Namespace) -> int:
     from swarm.cli.console import curves_table, files_table, sweep_table, table1_table, table2_table
     from swarm.studies import repro
@@ -248,6 +255,8 @@ def cmd_repro(args: argparse.Namespace) -> int:
                   "curves": _checkpoint_pairs(args.curve, "--curve")},
                  "[repro]")
     items = repro.expand(args.item)
+    if not cfg.out:  # (before the progress display, whose closing would print a blank line)
+        raise ConfigError("repro needs an output directory (--out DIR)")
     out, err = _consoles()
     with RichProgress(err) as progress:
         results = repro.run(items, world, cfg, _command(), progress)
@@ -287,7 +296,11 @@ def add_parsers(sub: Any) -> None:
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("bench", help="print throughput / planning-time figures",
-                       description="Benchmarks: `env` (world step + view), `policy` (planning).")
+                       description="Benchmarks that print figures: `env` (world step + view), "
+                                   "`policy` (planning time), `train` (update speed), `rollout` "
+                                   "(rollout workers over Zenoh), `swarm` (real processes: "
+                                   "ticks/s, memory, CPU, where a tick goes), `record` "
+                                   "(recording cost).")
     bsub = p.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser, required=True)
     b = bsub.add_parser("env", help="agent-steps/s of the batched world step + view",
                         description="Agent-steps/s of world.core.step + "
@@ -359,8 +372,9 @@ def add_parsers(sub: Any) -> None:
 
     p = sub.add_parser("repro", help="reproduce a paper item: table1, table2, fig4, fig5, fig8, "
                                      "fig9, fig10, fig11, comm or all",
-                       description="Reproduce Table 1, Table 2, Fig. 4, Fig. 5 or Fig. 8: writes "
-                                   "ITEM.csv, .md, .png and .json into --out. Learned policies "
+                       description="Reproduce the paper's Table 1, Table 2, Fig. 4, 5, 8, 9, 10, "
+                                   "11 or where communication matters (comm): writes ITEM.csv, "
+                                   ".md, .png and .json into --out. Learned policies "
                                    "use the shipped checkpoints/NAME.pt unless --checkpoint.")
     p.add_argument("item", metavar="ITEM",
                    help="table1, table2, fig4, fig5, fig8, fig9, fig10, fig11, comm or all")

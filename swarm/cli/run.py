@@ -40,7 +40,7 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--policy", help="policy every robot runs (default commattn, from the shipped "
                                     "checkpoint)")
     g.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
-    g.add_argument("--episodes", type=int, metavar="K", help="episodes to run (default 1)")
+    g.add_argument("--episodes", type=int, metavar="K", help="episodes to run (default 5)")
     g.add_argument("--first-episode", type=int, metavar="E", help="number of the first episode")
     g.add_argument("--run-id", metavar="ID", help="namespace of every key (default: random)")
     g.add_argument("--tick-timeout", type=float, metavar="S",
@@ -354,7 +354,9 @@ def add_parsers(sub: Any) -> None:
     _add_train_flags(p)
     p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")
     p.add_argument("--restart-crashed", action="store_true", help="restart robots that die")
-    p.add_argument("--log-dir", metavar="DIR", help="children's logs (default: a temp dir)")
+    p.add_argument("--log-dir", metavar="DIR",
+                   help="children's logs (default: a temp folder, removed after a clean run, "
+                        "kept and named in the result otherwise)")
     p.add_argument("--record", metavar="FILE.mcap",
                    help="record every message of the run (raw msgpack and JSON, MCAP) into "
                         "FILE; see `swarm replay` and `swarm trace`")

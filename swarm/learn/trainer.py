@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from policies import make_policy
+from policies import LEARNED, make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from policies.learned import LearnedPolicy
 from swarm.learn.config import TrainConfig
@@ -65,8 +65,10 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
 
     console = console or Console(stderr=True)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     ckpt_path = out / "checkpoint.pt"
+    if not (resume and ckpt_path.exists()) and cfg.policy not in LEARNED:  # (before any folder)
+        raise ConfigError(f"policy {cfg.policy!r} is not a learned policy")
+    out.mkdir(parents=True, exist_ok=True)
     curves = CurveLog(out)
     cur = Curriculum()
     epoch0, upd = 0, 0

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import tempfile
@@ -94,6 +95,7 @@ class Supervisor:
         self.learning = learning  # {"learner": LearnerConfig fields, "train": ...} or None
         self.learner: subprocess.Popen[bytes] | None = None
         self.learner_status: dict[str, Any] | None = None
+        self.learner_out: str | None = None  # the learner's output folder (--train)
         self.learner_alive = False
         self.faults = dict(faults or {})
         plan = plan_from_table(self.faults, run.seed)
@@ -296,6 +298,21 @@ class Supervisor:
             self.stop_all()
             self.topo.down()
 
+    def _tidy(self, res: dict[str, Any]) -> None:
+        """Remove the run's temp folder (children's logs, its spec) after a clean run that was
+        given no --log-dir; it stays, and the result names it, when anything went wrong, when
+        the learner's output is in it, or when it holds a secure run's session configs."""
+        if self.opts.log_dir is not None:
+            return
+        troubled = any(res.get(k) for k in ("child_errors", "robot_crashes", "robots_lost",
+                                            "timeouts", "robot_restarts", "result_message_lost"))
+        inside = self.learner_out is not None and Path(self.learner_out).resolve().is_relative_to(
+            self.tmp.resolve())
+        if troubled or inside or self.zfiles:
+            res["logs"] = str(self.tmp)
+            return
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()
         mine = str(self.zfiles["supervisor"]) if self.zfiles else None  # --secure
@@ -398,6 +415,7 @@ class Supervisor:
         if self.topo is not None:  # a robot whose session never opened is in no other count
             res["netns"] = {**self.topo.describe(), "never_joined": sum(
                 r.state == "starting" for r in self.view.robots.values())}
+        self._tidy(res)
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res
