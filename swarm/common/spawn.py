@@ -13,6 +13,7 @@ from __future__ import annotations
 import ctypes
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -21,6 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 from world.config import ConfigError
 
@@ -154,3 +156,18 @@ def child_result(path: Path, run_id: str) -> dict | None:
     except (OSError, ValueError):
         return None
     return rec if isinstance(rec, dict) and rec.get("run_id") == run_id else None
+
+
+TROUBLE = ("child_errors", "robot_crashes", "robots_lost", "timeouts", "robot_restarts",
+           "result_message_lost")
+"""Result keys whose non-zero value means a run's logs are worth keeping."""
+
+
+def tidy_logs(folder: Path, res: dict[str, Any], keep: bool = False) -> None:
+    """Remove a run's temp folder (its children's logs, its spec) after a clean run; it stays,
+    named in the result (`logs`), when anything went wrong (`TROUBLE`) or with `keep` (a
+    learner writes into it, it holds a secure run's session configs)."""
+    if keep or any(res.get(k) for k in TROUBLE):
+        res["logs"] = str(folder)
+        return
+    shutil.rmtree(folder, ignore_errors=True)

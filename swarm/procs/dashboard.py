@@ -38,6 +38,13 @@ class RobotRow:
     compute_ms: float = 0.0  # mean planning time per decision, waits excluded
     wait_ms: float = 0.0  # mean time per decision waiting for the bundle and the predecessor
 
+    COUNTERS = ("msgs_in", "msgs_out", "bad", "missed", "version", "weights_bad", "stalls",
+                "rejoins", "errors")
+
+    def counters(self) -> dict[str, int]:
+        """What a run's result reports of this robot (`robot_status`)."""
+        return {k: getattr(self, k) for k in self.COUNTERS}
+
 
 @dataclass
 class SwarmView:

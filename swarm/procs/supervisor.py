@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import shutil
 import signal
 import subprocess
 import tempfile
@@ -34,6 +33,7 @@ from swarm.common.spawn import (
     cli_args,
     last_error,
     registry,
+    tidy_logs,
     wait_port,
 )
 from swarm.net.faults import ProcessFault, parse_process, plan_from_table
@@ -298,21 +298,6 @@ class Supervisor:
             self.stop_all()
             self.topo.down()
 
-    def _tidy(self, res: dict[str, Any]) -> None:
-        """Remove the run's temp folder (children's logs, its spec) after a clean run that was
-        given no --log-dir; it stays, and the result names it, when anything went wrong, when
-        the learner's output is in it, or when it holds a secure run's session configs."""
-        if self.opts.log_dir is not None:
-            return
-        troubled = any(res.get(k) for k in ("child_errors", "robot_crashes", "robots_lost",
-                                            "timeouts", "robot_restarts", "result_message_lost"))
-        inside = self.learner_out is not None and Path(self.learner_out).resolve().is_relative_to(
-            self.tmp.resolve())
-        if troubled or inside or self.zfiles:
-            res["logs"] = str(self.tmp)
-            return
-        shutil.rmtree(self.tmp, ignore_errors=True)
-
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()
         mine = str(self.zfiles["supervisor"]) if self.zfiles else None  # --secure
@@ -406,16 +391,13 @@ class Supervisor:
                 acc.get(k, 0) for k in ("trained", "pending", "stale_dropped", "incomplete",
                                         "rejected"))
             res["learner"] = {**st, "accounting": acc, "out": self.learner_out}
-        res["robot_status"] = {str(i): {"msgs_in": r.msgs_in, "msgs_out": r.msgs_out,
-                                        "bad": r.bad, "missed": r.missed,
-                                        "version": r.version, "weights_bad": r.weights_bad,
-                                        "stalls": r.stalls, "rejoins": r.rejoins,
-                                        "errors": r.errors}
-                               for i, r in self.view.robots.items()}
+        res["robot_status"] = {str(i): r.counters() for i, r in self.view.robots.items()}
         if self.topo is not None:  # a robot whose session never opened is in no other count
             res["netns"] = {**self.topo.describe(), "never_joined": sum(
                 r.state == "starting" for r in self.view.robots.values())}
-        self._tidy(res)
+        if self.opts.log_dir is None:  # a temp folder: removed after a clean run
+            tidy_logs(self.tmp, res, keep=bool(self.zfiles) or self.learner_out is not None and
+                      Path(self.learner_out).resolve().is_relative_to(self.tmp.resolve()))
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res
