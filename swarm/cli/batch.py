@@ -236,7 +236,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def _row_line(row: dict[str, Any]) -> str:
     """One finished row of a long benchmark as a progress line: its scalar figures."""
     parts = [f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
-             for k, v in row.items() if isinstance(v, (int, float, str)) and v is not None]
+             for k, v in row.items() if isinstance(v, (int, float, str))]
     return "  " + ", ".join(parts)
 
 
