@@ -122,12 +122,7 @@ def bigru(w: Weights, name: str, x: np.ndarray, t: Tokens,
     `packed` is `pack_bigru(w, name)` when the caller keeps it (built here otherwise).
     """
     p, r, m = x.shape[0], t.receivers, t.width
-    if r == 1:  # a robot's one receiver: its members are the pairs, in order
-        mask = np.ones((1, p), dtype=bool)
-        xp = x[None]  # [1, M, E]
-    else:
-        idx, mask = t.pad_index(p)
-        xp = np.concatenate([x, np.zeros((1, x.shape[1]), x.dtype)])[idx]  # [R, M, E]
+    xp, mask = t.padded(x)  # [R, M, E]
     k = w[f"{name}.weight_hh_l0"].shape[1]
     gi = np.empty((r, m, 3, 2, k), dtype=np.float32)  # gates of both directions, interleaved
     gi[:, :, :, 0] = (xp @ w[f"{name}.weight_ih_l0"].T + w[f"{name}.bias_ih_l0"]).reshape(
@@ -136,7 +131,7 @@ def bigru(w: Weights, name: str, x: np.ndarray, t: Tokens,
                       w[f"{name}.bias_ih_l0_reverse"]).reshape(r, m, 3, k)
     gi = gi.reshape(r, m, 6 * k)
     w_hh, b_hh = packed if packed is not None else pack_bigru(w, name)
-    full = r == 1 or bool(mask.all())  # (a robot's single receiver, or equal neighbourhoods)
+    full = bool(mask.all())  # (a robot's single receiver, or equal neighbourhoods)
     both = None if full else np.repeat(np.stack([mask, mask[:, ::-1]], axis=2), k, axis=2)
     h = np.zeros((r, 2 * k), dtype=np.float32)
     out = np.empty((r, m, 2 * k), dtype=np.float32)
@@ -146,9 +141,7 @@ def bigru(w: Weights, name: str, x: np.ndarray, t: Tokens,
         new = gates(gi[:, s], gh, h)
         h = new if both is None else np.where(both[:, s], new, h)
         out[:, s] = h
-    if r == 1:
-        flat = np.concatenate([out[0, :, :k], out[0, ::-1, k:]], axis=-1)
-    else:
-        flat = np.concatenate([out[:, :, :k], out[:, ::-1, k:]], axis=-1)[mask]
+    both_ways = np.concatenate([out[:, :, :k], out[:, ::-1, k:]], axis=-1)
+    flat = both_ways.reshape(-1, 2 * k) if full else both_ways[mask]
     assert len(flat) == p
     return flat

@@ -16,6 +16,10 @@ from policies.checkpoint import load_checkpoint, save_checkpoint
 
 def main(out: str, paths: list[str]) -> None:
     cks = [load_checkpoint(p) for p in paths]
+    first = {k: tuple(v.shape) for k, v in cks[0]["state_dict"].items()}
+    for p, c in zip(paths[1:], cks[1:], strict=True):
+        if {k: tuple(v.shape) for k, v in c["state_dict"].items()} != first:
+            sys.exit(f"average.py: {p} is not the network of {paths[0]} (names or shapes differ)")
     avg = dict(cks[-1])
     avg["state_dict"] = {k: sum(torch.as_tensor(c["state_dict"][k]).float() for c in cks)
                          / len(cks) for k in cks[0]["state_dict"]}

@@ -32,7 +32,6 @@ class RobotCounters:
     bad_by_key: dict[str, int] = field(default_factory=dict)
 
 
-
 def attention_of(policy: Policy, robot: int, n: int, t: int) -> tuple[int, list[float]] | None:
     """(t, this robot's attention weights over the team) from the policy's `last_attention`
     (CommAttn: [N] or [G, N, N] weights over the members heard, zero elsewhere), for the robot
