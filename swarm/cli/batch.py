@@ -25,6 +25,7 @@ from swarm.cli.common import (
     merged,
     output_file,
     world_config,
+    world_given,
 )
 from swarm.common import atomic
 from swarm.common.flags import add_flags, given
@@ -153,8 +154,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     faults = fault_table(args, tables, world.n_robots)  # the same flags as swarm run / eval
     if faults and not cfg.faults:
         cfg = dataclasses.replace(cfg, faults=json.dumps(faults))
+    asked = {*tables.get("train", {}), *given(train_config.TrainConfig, args),
+             *(["faults"] if faults else [])}  # what --resume checks against the checkpoint
     out, _ = _consoles()
-    train.main(cfg, world, args.out, resume=args.resume, console=out)
+    train.main(cfg, world, args.out, resume=args.resume, console=out, given=asked,
+               world_given=world_given(args, tables))
     return 0
 
 

@@ -77,23 +77,32 @@ def _size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfig:
-    """`[world]` of the file overridden by the world flags of this subcommand."""
-    dynamic = getattr(args, "dynamic", None)
-    sense = getattr(args, "sense", None)
+def _world_flags(args: argparse.Namespace) -> dict[str, Any]:
+    """WorldConfig fields of this subcommand's world flags (None: not given)."""
     flags = {
-        "n_robots": getattr(args, "world_robots", None), "dynamic": dynamic,
+        "n_robots": getattr(args, "world_robots", None), "dynamic": getattr(args, "dynamic", None),
         "n_static": getattr(args, "static_blocks", None),
         "n_dynamic": getattr(args, "dynamic_blocks", None),
         "add_every": getattr(args, "world_add_every", None),
         "vision": getattr(args, "vision", None),
         "comm_range": getattr(args, "comm_range", None), "horizon": getattr(args, "horizon", None),
-        "explore_mode": "sense" if sense else None,
+        "explore_mode": "sense" if getattr(args, "sense", None) else None,
     }
-    table = dict(tables.get("world", {}))
     size = getattr(args, "size", None)
     if size is not None:
         flags["height"], flags["width"] = size
+    return flags
+
+
+def world_given(args: argparse.Namespace, tables: dict[str, Any]) -> set[str]:
+    """The WorldConfig fields a world flag or the `[world]` table set."""
+    return {*tables.get("world", {}), *(k for k, v in _world_flags(args).items() if v is not None)}
+
+
+def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfig:
+    """`[world]` of the file overridden by the world flags of this subcommand."""
+    flags = _world_flags(args)
+    table = dict(tables.get("world", {}))
     h, w = flags.get("height") or table.get("height"), flags.get("width") or table.get("width")
     if h is not None or w is not None:  # another map size: blocks at the paper's density
         for key, n in scaled_blocks(int(h or WorldConfig.height),

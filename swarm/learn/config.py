@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -176,6 +177,34 @@ class TrainConfig:
 
 
 # ------------------------------------------------------------------------------------ rollout
+
+# ------------------------------------------------------------------------------------ resume
+RESUME_MAY_CHANGE = ("epochs", "workers", "threads")
+"""What `--resume` may change: how long and on how many processes the run goes on, never its
+math (the update is the same for any worker count, up to float rounding)."""
+
+
+def resumed(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | None,
+            done: int, where: str) -> TrainConfig:
+    """The config a resumed run goes on with: `saved` (the checkpoint's) with the `given` fields
+    of `asked` that `--resume` may change (None: every field of `asked` is meant). ConfigError,
+    one line, for a given field that would change the run itself, or epochs already `done`."""
+    names = [f.name for f in dataclasses.fields(TrainConfig)] if given is None else list(given)
+    for name in names:
+        theirs, ours = getattr(saved, name), getattr(asked, name)
+        if name not in RESUME_MAY_CHANGE and ours != theirs:
+            raise ConfigError(f"--resume continues {where} as it was trained: "
+                              f"{name} = {ours!r} differs from its {theirs!r} (only "
+                              f"{', '.join(RESUME_MAY_CHANGE)} may change; a new --out with "
+                              f"--init starts another run from its weights)")
+    changes = {name: getattr(asked, name) for name in names if name in RESUME_MAY_CHANGE}
+    if given is None:  # the Python API's old contract: epochs only ever extend a run
+        changes["epochs"] = max(asked.epochs, saved.epochs)
+    if changes.get("epochs", saved.epochs) < done:
+        raise ConfigError(f"--resume --epochs {changes['epochs']}: {where} has already done "
+                          f"{done} epochs")
+    return dataclasses.replace(saved, **changes)
+
 
 # --------------------------------------------------------------------------------------- CLI
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -13,6 +13,7 @@ import contextlib
 import dataclasses
 import sys
 import time
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ import torch
 from policies import LEARNED, make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from policies.learned import LearnedPolicy
-from swarm.learn.config import TrainConfig
+from swarm.learn.config import TrainConfig, resumed
 from swarm.learn.curriculum import Curriculum
 from swarm.learn.curves import CurveLog, plot_curve
 from swarm.learn.evaluate import evaluate
@@ -41,19 +42,26 @@ def _progress_line(row: dict[str, Any], total: int) -> str:
 
 # ---------------------------------------------------------------------------------- the loop
 def main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool = False,
-         console: Any | None = None) -> dict[str, Any]:
-    """Train (or resume) into `out`: checkpoint.pt, log.jsonl, curve.csv. Returns the last row."""
+         console: Any | None = None, given: Collection[str] | None = None,
+         world_given: Collection[str] | None = None) -> dict[str, Any]:
+    """Train (or resume) into `out`: checkpoint.pt, log.jsonl, curve.csv. Returns the last row.
+
+    Resuming, the checkpoint's config and world stand: `given` names the fields of `cfg` the
+    caller set (None: all of them), and only `RESUME_MAY_CHANGE` of them may differ from the
+    checkpoint's; the `world_given` fields of `world` (None: all) must equal the checkpoint's
+    (ConfigError otherwise, before anything is written)."""
     # Denormal floats slow CPU math ~10x in late training; flushing them is process-global
     # state, so it is on for the run only (not in the policy: other code shares the process).
     torch.set_flush_denormal(True)
     try:
-        return _main(cfg, world, out, resume, console)
+        return _main(cfg, world, out, resume, console, given, world_given)
     finally:
         torch.set_flush_denormal(False)
 
 
 def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
-          console: Any | None) -> dict[str, Any]:
+          console: Any | None, given: Collection[str] | None,
+          world_given: Collection[str] | None) -> dict[str, Any]:
     from rich.console import Console
     from rich.progress import (
         BarColumn,
@@ -77,10 +85,17 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         tr = data.get("train")
         if tr is None:
             raise CheckpointError(f"{ckpt_path} holds no trainer state; cannot resume")
-        epochs = cfg.epochs
-        cfg = from_dict(TrainConfig, tr["config"], where="checkpoint train config")
-        cfg = dataclasses.replace(cfg, epochs=max(epochs, cfg.epochs))
-        world = from_dict(WorldConfig, data["world"], where="checkpoint world")
+        saved = from_dict(TrainConfig, tr["config"], where="checkpoint train config")
+        cfg = resumed(saved, cfg, given, tr["epoch"], str(out))
+        theirs = from_dict(WorldConfig, data["world"], where="checkpoint world")
+        names = [f.name for f in dataclasses.fields(WorldConfig)] if world_given is None \
+            else sorted(world_given)
+        key = next((k for k in names if getattr(world, k) != getattr(theirs, k)), None)
+        if key is not None:
+            raise ConfigError(f"--resume continues {out} on the world it was trained on: "
+                              f"{key} = {getattr(world, key)!r} differs from its "
+                              f"{getattr(theirs, key)!r}")
+        world = theirs
         torch.set_num_threads(cfg.threads)
         policy = make_policy(cfg.policy, world, checkpoint=ckpt_path)
         opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
@@ -89,7 +104,9 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         epoch0, upd = tr["epoch"], tr["update"]
         cur = Curriculum(**tr["curriculum"])
         curves.resume(upd)
-        console.print(f"resuming {cfg.policy} from epoch {epoch0}, update {upd}")
+        console.print(f"resuming {cfg.policy} from epoch {epoch0}, update {upd}" +
+                      (f": all {cfg.epochs} epochs are done (--epochs N goes on)"
+                       if epoch0 >= cfg.epochs else ""))
     else:
         if ckpt_path.exists() and not resume:
             raise ConfigError(f"{out} already holds a run; pass --resume or choose another --out")
