@@ -107,10 +107,12 @@ def test_belief_needs_the_team_map_and_its_memory(tmp_path: Path) -> None:
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-def test_a_robots_belief_tokens_are_its_rows_of_the_batch() -> None:
-    """Each robot folding only what it heard, tick by tick, computes its rows of the batch."""
+@pytest.mark.parametrize("hint", [False, True])
+def test_a_robots_belief_tokens_are_its_rows_of_the_batch(hint: bool) -> None:
+    """Each robot folding only what it heard, tick by tick, computes its rows of the batch
+    (with the hint: coordinated frontier run on its own belief)."""
     cfg = WorldConfig(comm_range=5.0)
-    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True)
+    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=hint)
     views = played(cfg, 1, 12)
     batch = Belief(cfg)
     mine = [Belief(cfg) for _ in range(cfg.n_robots)]
@@ -128,25 +130,62 @@ def test_a_robots_belief_tokens_are_its_rows_of_the_batch() -> None:
             np.testing.assert_array_equal(own[i], t.own_feats[k])
 
 
-def test_a_widened_checkpoint_acts_as_before_and_numpy_equals_torch() -> None:
-    """`widen(belief=True)` adds zero columns: the same actions as the checkpoint; with the new
-    weights moved, the numpy and torch networks still agree, and the learner's refold of a
-    recorded episode gives the features the robots acted on."""
+def test_hint_needs_the_belief_and_is_coordinated_frontiers_moves() -> None:
+    """The hint bits of a receiver are the moves coordinated frontier, on the same belief map,
+    would start toward its target: its own action is one of them (unless it shares its cell:
+    then it steps off the path, policies.nearest_frontier.pick)."""
+    from policies.infer.nets import CommAttnConfig
+
+    with pytest.raises(ConfigError, match="hint features need the belief"):
+        Featurizer(WorldConfig(), team_pool=3, memory=True, hint=True)
+    with pytest.raises(ConfigError, match="model hint needs the belief"):
+        CommAttnConfig(hint=True)
+    with pytest.raises(ConfigError, match="widens an --init"):
+        TrainConfig(hint=True)
+    cfg = WorldConfig(comm_range=5.0)
+    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=True)
+    views = played(cfg, 2, 12)
+    batch = Belief(cfg)
+    planner = make_policy("coordinated-frontier", cfg)
+    planner.reset(2)
+    some = 0
+    for view in views:
+        acted = planner.act(view)
+        view.belief = batch.snapshot(view)
+        view.team_visited = batch.visited
+        t = feats(view)
+        bits = t.own_feats[:, -9:]
+        assert set(np.unique(bits)) <= {0.0, 1.0}
+        has = bits.any(axis=1)
+        some += int(has.sum())
+        chosen = acted[t.group, t.robot]
+        pos = view.msgs.pos[t.group]  # (a robot sharing its cell steps off the path instead)
+        alone = (pos == pos[np.arange(len(chosen)), t.robot][:, None]).all(-1).sum(1) == 1
+        assert (bits[np.arange(len(chosen)), chosen][has & alone] == 1).all()
+    assert some > 100  # (most receivers have a target)
+
+
+@pytest.mark.parametrize("changes", [{"belief": True}, {"belief": True, "hint": True}])
+def test_a_widened_checkpoint_acts_as_before_and_numpy_equals_torch(changes: dict) -> None:
+    """`widen(belief=True)` (and `hint`) adds zero columns: the same actions as the checkpoint;
+    with the new weights moved, the numpy and torch networks still agree, and the learner's
+    refold of a recorded episode gives the features the robots acted on."""
     from swarm.learn.evaluate import evaluate
     from swarm.learn.rollout import collect
 
     cfg = WorldConfig()
     base = make_policy("commattn", cfg, checkpoint=str(CKPT))
     wide = make_policy("commattn", cfg, checkpoint=str(CKPT))
-    wide.widen(belief=True)
-    assert wide.features.own_dim == base.features.own_dim + 2 * 81
+    wide.widen(**changes)
+    extra = 2 * 81 + (9 if changes.get("hint") else 0)
+    assert wide.features.own_dim == base.features.own_dim + extra
     a = evaluate(cfg, base, 0, 6, record_actions=True)
     b = evaluate(cfg, wide, 0, 6, record_actions=True)
     assert np.array_equal(a.actions, b.actions)
     with torch.no_grad():
         own = wide.net.embed.own.weight
         own[:, base.features.own_dim:] = 0.05 * torch.randn(  # a trained layer's scale
-            own.shape[0], 162, generator=torch.Generator().manual_seed(0))
+            own.shape[0], extra, generator=torch.Generator().manual_seed(0))
     view = played(cfg, 2, 10)[-1]
     wide.reset(2)
     logits_t, _ = wide.torch_logits(view)
@@ -181,20 +220,23 @@ def test_widen_refuses_other_changes_and_leaves_the_network_alone() -> None:
 
 
 @pytest.mark.procs
-def test_a_belief_network_in_the_swarm_equals_the_batched_eval(tmp_path: Path) -> None:
-    """Robot processes fold their own belief maps from what they heard: a widened checkpoint
-    whose belief weights matter acts in the swarm exactly as in the batched evaluator (sampled,
-    so every probability counts)."""
+@pytest.mark.parametrize("changes", [{"belief": True}, {"belief": True, "hint": True}])
+def test_a_belief_network_in_the_swarm_equals_the_batched_eval(tmp_path: Path,
+                                                               changes: dict) -> None:
+    """Robot processes fold their own belief maps from what they heard (and run coordinated
+    frontier on them for the hint): a widened checkpoint whose new weights matter acts in the
+    swarm exactly as in the batched evaluator (sampled, so every probability counts)."""
     from policies.checkpoint import save_checkpoint
     from swarm.learn.evaluate import evaluate
 
     cfg = WorldConfig(n_robots=6)
     pol = make_policy("commattn", cfg, checkpoint=str(CKPT))
-    pol.widen(belief=True)
+    pol.widen(**changes)
+    extra = 162 + (9 if changes.get("hint") else 0)
     with torch.no_grad():
         own = pol.net.embed.own.weight
-        own[:, -162:] = 0.2 * torch.randn(own.shape[0], 162,
-                                          generator=torch.Generator().manual_seed(1))
+        own[:, -extra:] = 0.2 * torch.randn(own.shape[0], extra,
+                                            generator=torch.Generator().manual_seed(1))
     ckpt = tmp_path / "belief.pt"
     save_checkpoint(ckpt, pol.payload())
     out = tmp_path / "run.json"

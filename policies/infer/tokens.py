@@ -33,9 +33,10 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from policies.belief import BLOCK
+from policies.belief import BLOCK, Snapshot
 from policies.grid_search import distance_fields
 from world.config import ConfigError, WorldConfig
+from world.core import N_ACTIONS
 from world.decentral import View, heard_union
 
 REFERENCE_SIDE = 20  # the map side the coarse team map's block count is fixed by
@@ -65,6 +66,11 @@ class ModelConfig:
     not known to be blocks to the nearest frontier target (the field nearest frontier descends,
     capped at BELIEF_CAP). Needs the team map and memory; widens the own part (`swarm train
     --init CK --belief true` starts the new inputs' weights at zero)."""
+    hint: bool = False
+    """Also give the receiver's own token coordinated frontier's suggestion (ours): the moves
+    on a shortest path toward the target that planner's assignment gives the receiver on the
+    same belief map (policies.coordinated_frontier, 9 bits). Needs the belief; widens the own
+    part like it (`swarm train --init CK --hint true`)."""
 
     def __post_init__(self) -> None:
         """Every size an integer in [1, MAX_SIZE] (`team_pool` may be 0) and every switch a
@@ -82,6 +88,8 @@ class ModelConfig:
         if getattr(self, "belief", False) and not (self.team_pool and self.team_memory):
             raise ConfigError("model belief needs the team map and its memory (team_pool > 0 "
                               "and team_memory true)")
+        if getattr(self, "hint", False) and not getattr(self, "belief", False):
+            raise ConfigError("model hint needs the belief (the planner plans on it)")
 
 
 @dataclass
@@ -209,7 +217,7 @@ class Featurizer:
     """Turns a View into `Tokens` for its receivers; member_dim + pair_dim is the token width."""
 
     def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0,
-                 memory: bool = False, belief: bool = False) -> None:
+                 memory: bool = False, belief: bool = False, hint: bool = False) -> None:
         if crop < 1 or crop % 2 == 0:
             raise ConfigError(f"crop must be a positive odd number, got {crop}")
         if team_pool < 0:
@@ -217,7 +225,14 @@ class Featurizer:
         if belief and not (team_pool and memory):
             raise ConfigError("belief features need the team map and its memory (team_pool > 0 "
                               "and team_memory true)")
+        if hint and not belief:
+            raise ConfigError("hint features need the belief (the planner plans on it)")
         self.belief = belief
+        self.hint = None
+        if hint:  # (imported here: only a network that reads it pays for the planner)
+            from policies.coordinated_frontier import CoordinatedFrontier
+
+            self.hint = CoordinatedFrontier(cfg)
         self.cfg = cfg
         self.crop = crop
         h, w = cfg.height, cfg.width
@@ -244,7 +259,8 @@ class Featurizer:
             edges = np.arange(k + 1) * p - self.team_half  # block edges, from the cell
             # a cell's block corners in the (H+1) x (W+1) summed-area table, clamped to it
             self.corners = CellTable(h, w, edges, edges, h, w, w + 1, on_grid=False)
-            self.own_dim = crop * crop + k * k + (2 * crop * crop if belief else 0)
+            self.own_dim = crop * crop + k * k + (2 * crop * crop if belief else 0) + \
+                (N_ACTIONS if hint else 0)
 
     @property
     def dim(self) -> int:
@@ -312,7 +328,11 @@ class Featurizer:
                 union = heard_union(view)[g_np, i_np]
             own = self._team(union, at)
             if self.belief:
-                own = np.concatenate([own, self._belief(view, g_np, i_np, at)], axis=1)
+                idx = self._belief_rows(view, g_np, i_np)
+                own = np.concatenate([own, self._belief(view.belief, idx, at)], axis=1)
+                if self.hint is not None:
+                    moves = self.hint.first_moves(view, view.belief)[idx]
+                    own = np.concatenate([own, moves.astype(np.float32)], axis=1)
         return Tokens(member_feats=member, pair_member=mrow, pair_feats=pair, lens=lens,
                       start=np.cumsum(lens) - lens, self_pos=self_pos,
                       group=g_np.astype(np.int64), robot=i_np.astype(np.int64), n=n,
@@ -338,11 +358,9 @@ class Featurizer:
         blocks = s[:, 1:, 1:] - s[:, :-1, 1:] - s[:, 1:, :-1] + s[:, :-1, :-1]
         return np.concatenate([crop, blocks.reshape(r, k * k) / np.float32(p * p)], axis=1)
 
-    def _belief(self, view: View, g: np.ndarray, i: np.ndarray, where: np.ndarray) -> np.ndarray:
-        """Belief features [R, 2 crop^2] of receivers (g, i) at cells `where` [R, 2]: the window
-        of known blocks (1 / 0, -1 off-grid) and of the path length to the nearest frontier
-        target through cells not known to be blocks, as min(d, BELIEF_CAP) / BELIEF_CAP (1: that
-        far or unreachable, blocks included; -1 off-grid)."""
+    @staticmethod
+    def _belief_rows(view: View, g: np.ndarray, i: np.ndarray) -> np.ndarray:
+        """Row of the view's belief snapshot of each receiver (g, i)."""
         snap = view.belief
         if snap is None:
             raise ValueError("this network reads the belief map, but the view has none "
@@ -353,6 +371,14 @@ class Featurizer:
         idx = row[g * n + i]
         if (idx < 0).any():
             raise ValueError("the view's belief lacks a receiver")
+        return idx
+
+    def _belief(self, snap: Snapshot, idx: np.ndarray, where: np.ndarray) -> np.ndarray:
+        """Belief features [R, 2 crop^2] of the receivers at rows `idx` of the belief snapshot,
+        at cells `where` [R, 2]: the window of known blocks (1 / 0, -1 off-grid) and of the path
+        length to the nearest frontier target through cells not known to be blocks, as
+        min(d, BELIEF_CAP) / BELIEF_CAP (1: that far or unreachable, blocks included; -1
+        off-grid)."""
         r = len(idx)
         rows = np.arange(r)[:, None]
         cell, inside = self.window(where[:, 0], where[:, 1])

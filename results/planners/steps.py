@@ -17,7 +17,6 @@ mean count of each kind per episode, the same per tick, and the mean final elrat
 """
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np

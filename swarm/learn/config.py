@@ -33,6 +33,10 @@ class TrainConfig:
     policies.infer.tokens) on for an --init checkpoint trained without them: the new inputs'
     weights start at zero, so the network first acts as the checkpoint did. A fresh network
     takes them with --model '{"belief": true}'."""
+    hint: bool = False
+    """Turn coordinated frontier's suggested moves on as inputs (see policies.infer.tokens,
+    ours) for an --init checkpoint, widened with zero weights like --belief (which it needs,
+    from the checkpoint or this run). A fresh network takes '{"belief": true, "hint": true}'."""
     train_loss: float = 0.0
     """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
     with this probability, with the swarm radio's seeded loss model (0: no faults)."""
@@ -146,6 +150,9 @@ class TrainConfig:
         if self.belief and not self.init:
             raise ConfigError("train belief widens an --init checkpoint; a fresh network takes "
                               "--model '{\"belief\": true}'")
+        if self.hint and not self.init:
+            raise ConfigError("train hint widens an --init checkpoint; a fresh network takes "
+                              "--model '{\"belief\": true, \"hint\": true}'")
         if self.model:
             self.model_config()
         if self.imitate:

@@ -120,8 +120,10 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
             policy = make_policy(cfg.policy, world, checkpoint=cfg.init)
         if cfg.team_memory:
             policy.set_model(team_memory=True)
-        if cfg.belief and not policy.model_cfg.belief:
-            policy.widen(belief=True)
+        widen = {k: True for k in ("belief", "hint")
+                 if getattr(cfg, k) and not getattr(policy.model_cfg, k)}
+        if widen:  # (one call: the new inputs come last, in the featurizer's order)
+            policy.widen(**widen)
         opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
         curves.start()
     train_seed = cfg.train_seed_offset + cfg.seed
