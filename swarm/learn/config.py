@@ -183,8 +183,6 @@ class TrainConfig:
         return from_dict(cls, changes, where="train model")
 
 
-# ------------------------------------------------------------------------------------ rollout
-
 # ------------------------------------------------------------------------------------ resume
 RESUME_MAY_CHANGE = ("epochs", "workers", "threads")
 """What `--resume` may change: how long and on how many processes the run goes on, never its
