@@ -130,6 +130,16 @@ def test_a_robots_belief_tokens_are_its_rows_of_the_batch(hint: bool) -> None:
             np.testing.assert_array_equal(own[i], t.own_feats[k])
 
 
+def test_hint_without_the_belief_is_one_line_and_leaves_no_folder(tmp_path: Path) -> None:
+    from swarm.learn.trainer import main
+
+    out = tmp_path / "run"
+    with pytest.raises(ConfigError, match="model hint needs the belief"):
+        main(TrainConfig(policy="commattn", init=str(CKPT), hint=True, threads=1), WorldConfig(),
+             out)
+    assert not out.exists()
+
+
 def test_hint_needs_the_belief_and_is_coordinated_frontiers_moves() -> None:
     """The hint bits of a receiver are the moves coordinated frontier, on the same belief map,
     would start toward its target: its own action is one of them (unless it shares its cell:

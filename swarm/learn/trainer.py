@@ -74,9 +74,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
     console = console or Console(stderr=True)
     out = Path(out)
     ckpt_path = out / "checkpoint.pt"
-    if not (resume and ckpt_path.exists()) and cfg.policy not in LEARNED:  # (before any folder)
+    if not (resume and ckpt_path.exists()) and cfg.policy not in LEARNED:
         raise ConfigError(f"policy {cfg.policy!r} is not a learned policy")
-    out.mkdir(parents=True, exist_ok=True)
     curves = CurveLog(out)
     cur = Curriculum()
     epoch0, upd = 0, 0
@@ -125,6 +124,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         if widen:  # (one call: the new inputs come last, in the featurizer's order)
             policy.widen(**widen)
         opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
+        out.mkdir(parents=True, exist_ok=True)  # (only once the run is known to start)
         curves.start()
     train_seed = cfg.train_seed_offset + cfg.seed
     total = cfg.epochs * cfg.updates
