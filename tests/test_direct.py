@@ -298,3 +298,68 @@ def test_three_hosts_with_direct_delivery_act_as_one_host_with_the_radio(tmp_pat
     assert (logs / "router1.log").exists() and (logs / "router2.log").exists()
     assert _ours("hthree") == []  # every namespace removed at the end
     assert hosts["messages"]["lost"] > 0 and hosts["messages"]["cut"] > 0
+
+
+@pytest.mark.procs
+@needs_hosts
+def test_a_secure_run_on_three_hosts_keeps_a_foreign_robot_out_at_its_hosts_router(
+        tmp_path: Path) -> None:
+    """`--secure --hosts 3`: TLS and the ACL across routers. The world's and the routers'
+    certificates are issued for the run's addresses; robot 3's valid certificate, connected to
+    host 1's router, cannot put robot 4's action, weights or control; the run acts as the
+    single-host run without --secure."""
+    import sys
+
+    pytest.importorskip("cryptography")
+    from swarm.net.security.certs import make_certs
+
+    certs = tmp_path / "certs"
+    make_certs(certs, robots=5, routers=2)
+    run = ["run", "--robots", "5", "--episodes", "3", "--seed", "5", "--headless",
+           "--checkpoint", CKPT]
+    logs = tmp_path / "shosts-logs"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", *run, "--secure", str(certs), "--hosts", "3",
+         "--delivery", "direct", "--pace", "12", "--run-id", "shosts", "--log-dir", str(logs),
+         "--json", str(tmp_path / "shosts.json")],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # the first tick's status: the run is on
+            if line.startswith('{"status"'):
+                break
+        import zenoh
+
+        conf = zenoh.Config.from_file(str(logs / "zenoh" / "router-1.json5"))
+        router1 = json.loads(conf.get_json("listen/endpoints"))[0]
+        audit = swarm("audit", "--run", "shosts", "--secure", str(certs), "--connect", router1,
+                      "--duration", "2", "--json", str(tmp_path / "audit.json"), timeout=60)
+        proc.stdout.read()
+        assert proc.wait(timeout=120) == 0, proc.stderr.read() if proc.stderr else ""
+    finally:
+        if proc.poll() is None:
+            from swarm.net.kernel.hosts import remove
+
+            proc.kill()
+            proc.wait()
+            remove("shosts", 3)  # what a killed supervisor could not
+    rep = json.loads((tmp_path / "audit.json").read_text())
+    assert audit.returncode == 0 and rep["verdict"] == "pass", audit.stdout
+    assert rep["accepted"] == 0 and rep["connected"] == ["valid_robot-3"]
+    valid = rep["sessions"]["valid_robot-3"]
+    assert valid["ticks_seen"] > 0
+    assert valid["delivered"] == {"action": 0, "weights": 0, "control": 0, "own_key": 1}
+
+    secure = json.loads((tmp_path / "shosts.json").read_text())
+    r = swarm(*run, "--run-id", "splain", "--json", str(tmp_path / "splain.json"))
+    assert r.returncode == 0, r.stderr
+    plain = json.loads((tmp_path / "splain.json").read_text())
+    for key in ("actions", *METRICS, "ticks", "timeouts"):
+        assert secure[key] == plain[key], key
+    assert secure["messages"]["bad"] == 0 and secure["netns"]["never_joined"] == 0
+    assert all(st["bad"] == 0 and st["weights_bad"] == 0
+               for st in secure["robot_status"].values())
+    assert secure["secure"]["hub"].startswith("tls/10.215.")
+    assert {p.stem for p in (logs / "zenoh" / "run-certs").glob("*.pem")} == {
+        "world", "router-1", "router-2"}
+    assert _ours("shosts") == []

@@ -20,6 +20,7 @@ from swarm.net.security.certs import make_certs
 from swarm.net.security.roles import acl, identities, roles
 from swarm.net.security.tls import Secure
 from swarm.net.zconfig import free_port
+from world.config import ConfigError
 
 pytest.importorskip("cryptography")
 
@@ -92,6 +93,51 @@ def test_acl_lets_each_identity_put_only_what_its_role_owns() -> None:
     for who in table:  # every generated session config is one zenoh accepts
         conf = zenoh.Config()
         conf.insert_json5("access_control", json.dumps(acl(who, keys, n, 1)))
+
+
+def test_host_routers_police_their_clients_and_trust_one_another(tmp_path: Path) -> None:
+    """`--hosts 3 --secure`: router-1 and router-2 are relays like the world: each checks the
+    originator of what its own clients put; relays pass one another everything of the run;
+    a robot lets a router deliver only what it may receive. Their run certificates keep the
+    key and name the host's address; a missing router key is one line before any spawn."""
+    from cryptography import x509
+
+    from swarm.net.security.certs import run_certs
+    from swarm.net.security.tls import hosts_secure
+
+    keys, n = Keys("acl3"), 4
+    table = roles(keys, n, routers=2)
+    assert identities(n, 0, 2)[-2:] == ["router-1", "router-2"]
+    r1 = {r["id"]: r for r in acl("router-1", keys, n, 0, 2)["rules"]}
+    assert set(r1["robot-1/ingress/put"]["key_exprs"]) == set(table["robot-1"].put)
+    assert set(r1["robot-1/egress/put"]["key_exprs"]) == set(table["robot-1"].subscribe)
+    for other in ("world", "router-2"):
+        rule = next(r for k, r in r1.items() if k.startswith(f"{other}/ingress/"))
+        assert rule["key_exprs"] == [f"{keys.base}/**"] and "put" in rule["messages"]
+    r3 = {r["id"]: r for r in acl("robot-3", keys, n, 0, 2)["rules"]}
+    for relay in ("world", "router-1", "router-2"):
+        assert set(r3[f"{relay}/ingress/put"]["key_exprs"]) == set(table["robot-3"].subscribe)
+    assert acl("world", keys, n) == acl("world", keys, n, 0, 0)  # no routers: as before
+    conf = zenoh.Config()
+    conf.insert_json5("access_control", json.dumps(acl("router-2", keys, n, 0, 2)))
+
+    d = tmp_path / "certs"
+    make_certs(d, robots=n)
+    with pytest.raises(ConfigError, match="no key for router-1 .*--routers 2") as err:
+        hosts_secure(d, "x", n, 3)
+    assert "\n" not in str(err.value)
+    make_certs(d, robots=n, routers=2)
+    assert hosts_secure(d, "x", n, 3).routers == 2
+    key = (d / "router-1.key").read_bytes()
+    made = run_certs(d, tmp_path / "run", {"router-1": ["10.215.9.3"]})
+    assert (d / "router-1.key").read_bytes() == key
+    assert not (tmp_path / "run" / "router-1.key").exists()  # no key made or copied
+    cert = x509.load_pem_x509_certificate(made["router-1"].read_bytes())
+    cert.verify_directly_issued_by(x509.load_pem_x509_certificate((d / "ca.pem").read_bytes()))
+    alt = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert {"127.0.0.1", "10.215.9.3"} <= {str(a) for a in alt.get_values_for_type(x509.IPAddress)}
+    assert x509.load_pem_x509_certificate((d / "router-1.pem").read_bytes()).public_key() == \
+        cert.public_key()
 
 
 def _session(sec: Secure, who: str, mode: str, listen: list[str], connect: list[str],

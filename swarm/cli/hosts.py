@@ -27,9 +27,6 @@ def hosts_option(args: argparse.Namespace) -> int:
         raise ConfigError(f"--hosts must lie in [1, {MAX_HOSTS}], got {k}")
     if getattr(args, "netns", False):
         raise ConfigError("--hosts and --netns are two topologies: give one")
-    if getattr(args, "secure", None):
-        raise ConfigError("--secure with --hosts is not supported yet (the certificates name "
-                          "127.0.0.1, not the hosts' addresses)")
     reason = hosts_reason()
     if reason:
         raise ConfigError(reason)

@@ -35,7 +35,7 @@ def cmd_certs(args: argparse.Namespace) -> int:
     from swarm.net.security.certs import make_certs
 
     output_file(args.json)
-    rep = make_certs(args.out, args.robots, args.workers, args.host, args.days)
+    rep = make_certs(args.out, args.robots, args.workers, args.host, args.days, args.routers)
     out, _ = _consoles()
     t = Table(title=f"swarm certs {args.out}")
     t.add_column("what")
@@ -111,12 +111,16 @@ def add_parsers(sub: Any) -> None:
     p = sub.add_parser("certs", help="make a CA and one certificate per process identity",
                        description="Make (or complete) DIR: a CA, one ECDSA P-256 certificate + "
                                    "key per identity (world, supervisor, learner, operator, "
-                                   "recorder, robot-0..N-1, worker-0..K-1) for `--secure DIR`. "
+                                   "recorder, robot-0..N-1, worker-0..K-1, router-1..R) for "
+                                   "`--secure DIR`. "
                                    "Re-running adds what is missing and never overwrites a key.")
     p.add_argument("--out", required=True, metavar="DIR", help="certificate directory (0700)")
     p.add_argument("--robots", type=int, required=True, metavar="N", help="robot identities")
     p.add_argument("--workers", type=int, default=0, metavar="K",
                    help="rollout-worker identities (default 0)")
+    p.add_argument("--routers", type=int, default=0, metavar="R",
+                   help="host-router identities router-1..R (default 0; `swarm run --hosts "
+                        "R+1 --secure DIR` needs R = hosts - 1)")
     p.add_argument("--host", action="append", default=[], metavar="NAME|IP",
                    help="a host name or address the processes are reached at, besides "
                         "127.0.0.1/localhost (repeatable; in every certificate)")

@@ -120,6 +120,10 @@ class Keys:
     def alive_world(self) -> str:
         return f"{self.base}/alive/world"
 
+    def alive_router(self, zid: str) -> str:
+        """A host router's token (`swarm router --run-id`), by its Zenoh id."""
+        return f"{self.base}/alive/router/{zid}"
+
     @property
     def alive_recorder(self) -> str:
         """The recorder's token: declared once it listens and its file is open."""

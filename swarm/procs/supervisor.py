@@ -51,7 +51,7 @@ from swarm.net.messages import (
     pack_record,
     unpack_record,
 )
-from swarm.net.security.tls import identity_of, run_configs
+from swarm.net.security.tls import hosts_configs, hosts_secure, identity_of, run_configs
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.runconfig import RunConfig, RunRecord
@@ -113,7 +113,12 @@ class Supervisor:
         self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.zfiles: dict[str, Path] = {}  # --secure: identity -> its session's config file
-        if opts.secure:
+        self.hosts_sec = None  # --secure --hosts: checked now, configs once the hosts are up
+        if opts.secure and opts.hosts:
+            self.hosts_sec = hosts_secure(opts.secure, run.run_id, cfg.n_robots, opts.hosts,
+                                          learning is not None)
+            self.topo.transport = "tls"
+        elif opts.secure:
             self.hub, self.zfiles = run_configs(opts.secure, run.run_id, cfg.n_robots, self.port,
                                                 self.log_dir / "zenoh", learning is not None)
         self.world: subprocess.Popen[bytes] | None = None
@@ -183,6 +188,9 @@ class Supervisor:
             host, ns = self.topo.hub_addr, self.topo.world_ns
             self.hub = f"tcp/{host}:{self.port}"
             listen = self.topo.world_listen(self.port)
+            if self.hosts_sec is not None:  # the relays' certificates name the hosts' addresses
+                self.hub, self.zfiles = hosts_configs(self.hosts_sec, self.topo, self.port,
+                                                      self.log_dir / "zenoh")
         write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
         self.world = self._spawn(["world", "--spec", str(spec),

@@ -73,6 +73,7 @@ class Hosts(Namespaced):
         self.robot_ns = [self.host_ns[self.host_of(i)] for i in range(n_robots)]
         self.addr: list[str] = []
         self.hub_addr = ""
+        self.transport = "tcp"  # every session's link ("tls" under --secure)
 
     def host_of(self, robot: int) -> int:
         """The host robot `robot` runs on (round robin)."""
@@ -81,7 +82,7 @@ class Hosts(Namespaced):
     # --- endpoints ----------------------------------------------------------------------------
     def endpoint(self, host: int, port: int) -> str:
         """Host `host`'s router (host 0: the world)."""
-        return f"tcp/{self.addr[host]}:{port}"
+        return f"{self.transport}/{self.addr[host]}:{port}"
 
     def world_listen(self, port: int) -> list[str]:
         return [self.endpoint(0, port)]
@@ -178,7 +179,7 @@ def route(zopts: ZenohOptions, run_id: str | None = None) -> None:
     with open_session(zopts) as session:
         token = None
         if run_id is not None:
-            key = f"{Keys(run_id).base}/alive/router/{session.zid()}"
+            key = Keys(run_id).alive_router(str(session.zid()))
             token = session.liveliness().declare_token(key)
         logging.getLogger("swarm.router").info("routing: listen %s, connect %s", zopts.listen,
                                                zopts.connect)

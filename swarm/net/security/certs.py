@@ -101,10 +101,12 @@ def check_hosts(hosts: list[str]) -> list[str]:
 class _Issuer:
     """Signs with the CA of a directory (made on first use)."""
 
-    def __init__(self, out: Path, days: int, report: CertsReport) -> None:
+    def __init__(self, out: Path, days: int, report: CertsReport, create: bool = True) -> None:
         self.x509, self.hashes, self.ser, self.ec, self.EKU, self.NameOID = _crypto()
         self.out, self.days, self.report = out, days, report
-        self.key = self._key(out / CA_KEY, "ca")
+        if not create and not (out / CA_CERT).exists():
+            raise ConfigError(f"{out / CA_CERT} is missing (run `swarm certs --out {out}`)")
+        self.key = self._key(out / CA_KEY, "ca", create)
         cert_path = out / CA_CERT
         cert = self._load_cert(cert_path)
         if cert is not None and cert.public_key().public_numbers() != \
@@ -124,8 +126,10 @@ class _Issuer:
         except ValueError:
             raise ConfigError(f"{path} is not a PEM certificate") from None
 
-    def _key(self, path: Path, who: str) -> Any:
-        """The existing key at `path`, or a new one written 0600."""
+    def _key(self, path: Path, who: str, create: bool = True) -> Any:
+        """The existing key at `path`, or a new one written 0600 (`create`; else an error)."""
+        if not create and not path.exists():
+            raise ConfigError(f"{path} is missing (run `swarm certs --out {path.parent}`)")
         if path.exists():
             try:
                 key = self.ser.load_pem_private_key(path.read_bytes(), password=None)
@@ -184,7 +188,6 @@ class _Issuer:
 
     def identity(self, cn: str, hosts: list[str]) -> None:
         """Key and certificate of identity `cn` (made, completed or kept)."""
-        x = self.x509
         key_path, cert_path = self.out / f"{cn}.key", self.out / f"{cn}.pem"
         had_key = key_path.exists()
         key = self._key(key_path, cn)
@@ -193,8 +196,15 @@ class _Issuer:
         if old is not None and had_key and self._fits(old, key, cn, sans):
             self.report.kept.append(cn)
             return
+        cert = self._sign(cn, key, sans)
+        _write_cert(cert_path, cert.public_bytes(self.ser.Encoding.PEM))
+        (self.report.reissued if had_key else self.report.made).append(cert_path.name)
+
+    def _sign(self, cn: str, key: Any, sans: list[str]) -> Any:
+        """A certificate of this CA for `key`, named `cn`, valid for the hosts `sans`."""
+        x = self.x509
         alt = [x.IPAddress(ipaddress.ip_address(h)) if _is_ip(h) else x.DNSName(h) for h in sans]
-        cert = (self._builder(self._name(cn), key.public_key(), self.days)
+        return (self._builder(self._name(cn), key.public_key(), self.days)
                 .issuer_name(self.cert.subject)
                 .add_extension(x.BasicConstraints(ca=False, path_length=None), critical=True)
                 .add_extension(x.KeyUsage(digital_signature=True, content_commitment=False,
@@ -208,8 +218,6 @@ class _Issuer:
                 .add_extension(x.AuthorityKeyIdentifier.from_issuer_public_key(
                     self.key.public_key()), critical=False)
                 .sign(self.key, self.hashes.SHA256()))
-        _write_cert(cert_path, cert.public_bytes(self.ser.Encoding.PEM))
-        (self.report.reissued if had_key else self.report.made).append(cert_path.name)
 
 
 def _is_ip(h: str) -> bool:
@@ -235,12 +243,13 @@ def read_roster(out: Path) -> dict[str, Any]:
 
 
 def make_certs(out: str | Path, robots: int, workers: int = 0, hosts: list[str] | None = None,
-               days: int = 825) -> CertsReport:
-    """Make (or complete) the certificate directory `out` for `robots` robots and `workers`
-    rollout workers; `hosts` are added to every certificate's subjectAltName."""
-    if not 1 <= robots <= 4096 or not 0 <= workers <= 1024:
-        raise ConfigError(f"--robots must lie in [1, 4096] and --workers in [0, 1024], got "
-                          f"{robots} and {workers}")
+               days: int = 825, routers: int = 0) -> CertsReport:
+    """Make (or complete) the certificate directory `out` for `robots` robots, `workers`
+    rollout workers and `routers` host routers (router-1..; `swarm run --hosts routers+1`);
+    `hosts` are added to every certificate's subjectAltName."""
+    if not 1 <= robots <= 4096 or not 0 <= workers <= 1024 or not 0 <= routers <= 64:
+        raise ConfigError(f"--robots must lie in [1, 4096], --workers in [0, 1024] and --routers "
+                          f"in [0, 64], got {robots}, {workers} and {routers}")
     if not 1 <= days <= 10_000:
         raise ConfigError(f"--days must lie in [1, 10000], got {days}")
     out = Path(out)
@@ -252,11 +261,31 @@ def make_certs(out: str | Path, robots: int, workers: int = 0, hosts: list[str] 
     hosts = check_hosts(list(dict.fromkeys([*old.get("hosts", []), *(hosts or [])])))
     robots = max(robots, int(old.get("robots", 0)))
     workers = max(workers, int(old.get("workers", 0)))
+    routers = max(routers, int(old.get("routers", 0)))
     report = CertsReport()
     issuer = _Issuer(out, days, report)
-    for cn in identities(robots, workers):
+    for cn in identities(robots, workers, routers):
         issuer.identity(cn, hosts)
-    roster = {"robots": robots, "workers": workers, "hosts": hosts,
-              "identities": identities(robots, workers)}
+    roster = {"robots": robots, "workers": workers, "routers": routers, "hosts": hosts,
+              "identities": identities(robots, workers, routers)}
     (out / ROSTER).write_text(json.dumps(roster, indent=1) + "\n")
     return report
+
+
+def run_certs(cert_dir: str | Path, out: str | Path, names: dict[str, list[str]],
+              days: int = 2) -> dict[str, Path]:
+    """Certificates for one run: for each identity of `names`, its existing key of `cert_dir`
+    certified again by that directory's CA, naming its usual hosts and the given addresses (the
+    emulated hosts' addresses, chosen when a run starts), written to `out/<identity>.pem`. No
+    key is made or copied; the certificates live as long as the run's folder (`days`)."""
+    d, out = Path(cert_dir), Path(out)
+    issuer = _Issuer(d, days, CertsReport(), create=False)
+    hosts = read_roster(d).get("hosts", [])
+    out.mkdir(parents=True, exist_ok=True)
+    made: dict[str, Path] = {}
+    for cn, addrs in names.items():
+        key = issuer._key(d / f"{cn}.key", cn, create=False)
+        cert = issuer._sign(cn, key, _sans([*hosts, *check_hosts(addrs)]))
+        made[cn] = out / f"{cn}.pem"
+        _write_cert(made[cn], cert.public_bytes(issuer.ser.Encoding.PEM))
+    return made

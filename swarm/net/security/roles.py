@@ -15,6 +15,10 @@ watches. From it, `acl(identity, ...)` makes the `access_control` of one session
   ACL lets the world deliver exactly what this process may receive, and lets the process send
   only what its own role originates (to any neighbour: the world, or a peer in a peer-to-peer
   deployment, whose messages it accepts only as far as that peer's role originates them).
+- Emulated hosts (`swarm run --hosts K --secure DIR`) add routers `router-1..K-1`, relays like
+  the world: each checks the originator of what its own clients send, exactly as the world
+  does, and relays trust one another for everything of the run (a message admitted at one
+  relay crosses the others unchanged).
 - Default deny: an identity outside the roster (or a session without a certificate of the
   run's CA, which TLS refuses before any message) may do nothing, and nothing outside
   `swarm/<run>/**` is ever allowed.
@@ -31,17 +35,29 @@ from world.config import ConfigError
 CA_CERT, CA_KEY, ROSTER = "ca.pem", "ca.key", "roster.json"
 SINGLETONS = ("world", "supervisor", "learner", "operator", "recorder")
 RELAYS = ("world",)
-"""Identities whose sessions route other processes' messages (the world runs in router mode)."""
+"""Identities whose sessions route other processes' messages (the world runs in router mode);
+the routers of emulated hosts (`router-<h>`) are relays too (`is_relay`)."""
+ALL_KINDS = ("put", "delete", "query", "reply", "declare_subscriber", "declare_queryable",
+             "liveliness_token", "declare_liveliness_subscriber", "liveliness_query")
+"""Every message kind an ACL rule can name: what relays pass one another."""
+
+
+def is_relay(identity: str) -> bool:
+    """The world, or the router of an emulated host (`router-1`, `router-2`, ...)."""
+    kind, _, num = identity.partition("-")
+    return identity in RELAYS or (kind == "router" and num.isdigit() and int(num) >= 1)
 
 DECLARATIONS = ("declare_subscriber", "declare_queryable")
 """What a relay tells its neighbours about the others' subscribers and queryables (so that a
 publisher knows someone listens); allowed for every key of the run, in both directions."""
 
 
-def identities(robots: int, workers: int = 0) -> list[str]:
-    """Every process identity of a roster, each the common name of one certificate."""
+def identities(robots: int, workers: int = 0, routers: int = 0) -> list[str]:
+    """Every process identity of a roster, each the common name of one certificate; `routers`
+    are the routers of hosts 1..routers (host 0's is the world)."""
     return [*SINGLETONS, *(f"robot-{i}" for i in range(robots)),
-            *(f"worker-{k}" for k in range(workers))]
+            *(f"worker-{k}" for k in range(workers)),
+            *(f"router-{h}" for h in range(1, routers + 1))]
 
 
 @dataclass(frozen=True)
@@ -74,8 +90,9 @@ class Role:
                 ("liveliness_token",): self.watch, DECLARATIONS: (f"{base}/**",)}
 
 
-def roles(keys: Keys, robots: int, workers: int = 0) -> dict[str, Role]:
-    """The role of every identity of a run with `robots` robots and `workers` rollout workers."""
+def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[str, Role]:
+    """The role of every identity of a run with `robots` robots, `workers` rollout workers and
+    `routers` host routers."""
     k = keys
     alive_all = k.alive_world.rsplit("/", 1)[0] + "/**"
     out = {
@@ -106,6 +123,8 @@ def roles(keys: Keys, robots: int, workers: int = 0) -> dict[str, Role]:
     for w in range(workers):
         out[f"worker-{w}"] = Role(put=(k.worker_episodes,), query=(k.learner_config, k.weights),
                                   subscribe=(k.weights,), watch=(k.alive_learner,))
+    for h in range(1, routers + 1):  # what it originates itself: its liveliness token
+        out[f"router-{h}"] = Role(token=(k.alive_router("*"),))
     return out
 
 
@@ -116,12 +135,14 @@ def _rules(subject: str, flow: str, table: dict[tuple[str, ...], tuple[str, ...]
             for msgs, keys in table.items() if keys]
 
 
-def acl(identity: str, keys: Keys, robots: int, workers: int = 0) -> dict[str, Any]:
+def acl(identity: str, keys: Keys, robots: int, workers: int = 0,
+        routers: int = 0) -> dict[str, Any]:
     """The `access_control` of the session of `identity` in run `keys.run` (module docstring)."""
-    table = roles(keys, robots, workers)
+    table = roles(keys, robots, workers, routers)
     if identity not in table:
         raise ConfigError(f"identity {identity!r} is not in the run's roster "
-                          f"({robots} robots, {workers} workers)")
+                          f"({robots} robots, {workers} workers, {routers} routers)")
+    everything = {ALL_KINDS: (f"{keys.base}/**",)}
     me = table[identity]
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
@@ -129,11 +150,14 @@ def acl(identity: str, keys: Keys, robots: int, workers: int = 0) -> dict[str, A
     for other, role in table.items():
         if other == identity:
             continue
-        # a relay delivers what I may receive (from anyone it admitted); anyone else sends only
-        # what it originates itself
-        ingress = me.receives(keys.base) if other in RELAYS else role.sends()
-        # a relay may send anyone what that one may receive; anyone else sends only its own
-        egress = role.receives(keys.base) if identity in RELAYS else me.sends()
+        if is_relay(identity) and is_relay(other):  # relays pass on what the others admitted
+            ingress = egress = everything
+        else:
+            # a relay delivers what I may receive (from anyone it admitted); anyone else sends
+            # only what it originates itself
+            ingress = me.receives(keys.base) if is_relay(other) else role.sends()
+            # a relay may send anyone what that one may receive; anyone else sends only its own
+            egress = role.receives(keys.base) if is_relay(identity) else me.sends()
         mine = _rules(other, "ingress", ingress) + _rules(other, "egress", egress)
         rules += mine
         subjects.append({"id": other, "cert_common_names": [other]})

@@ -6,6 +6,7 @@ No torch and no `cryptography` here: a process only reads the files `swarm certs
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass, field
@@ -13,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.net.keys import Keys
-from swarm.net.security.roles import CA_CERT, RELAYS, ROSTER, acl, identities, roles
+from swarm.net.security.roles import CA_CERT, CA_KEY, ROSTER, acl, identities, is_relay, roles
 from world.config import ConfigError
 
 
@@ -33,10 +34,15 @@ class Secure:
     """Rollout workers of the roster (worker-0 .. worker-K-1)."""
     extra_files: tuple[str, ...] = field(default=())
     """Other identities whose certificate and key must be present (a supervisor's children)."""
+    routers: int = 0
+    """Host routers of the roster (router-1 .. router-R: `swarm run --hosts R+1`)."""
+    run_certs: tuple[tuple[str, str], ...] = ()
+    """(identity, certificate file) issued for this run's addresses (`--hosts`: the relays'
+    certificates naming the emulated hosts' addresses), used instead of DIR/<identity>.pem."""
 
     @classmethod
     def load(cls, cert_dir: str | Path, identity: str, run_id: str, robots: int | None = None,
-             need: tuple[str, ...] = ()) -> Secure:
+             need: tuple[str, ...] = (), routers: int | None = None) -> Secure:
         """Read the roster of `cert_dir` and check every file the session (and `need`, the
         identities it will start) reads: one line naming the first file missing or unsafe."""
         d = Path(cert_dir).expanduser().resolve()
@@ -52,23 +58,28 @@ class Secure:
                 raise ConfigError(f"{d / ROSTER}: {exc}") from None
         n = robots if robots is not None else int(roster.get("robots", 0))
         workers = int(roster.get("workers", 0))
+        nr = routers if routers is not None else int(roster.get("routers", 0))
         kind, _, num = identity.partition("-")
         if not roster and num.isdigit():  # a host given only its own files: room for its own id
             if kind == "robot":
                 n = max(n, int(num) + 1)
+            elif kind == "router":
+                nr = max(nr, int(num))
             else:
                 workers = max(workers, int(num) + 1)
-        sec = cls(d, identity, Keys(run_id).run, max(n, 1), workers, tuple(need))
-        if identity not in roles(Keys(run_id), sec.robots, sec.workers):
+        sec = cls(d, identity, Keys(run_id).run, max(n, 1), workers, tuple(need), nr)
+        if identity not in roles(Keys(run_id), sec.robots, sec.workers, sec.routers):
             raise ConfigError(f"--secure: identity {identity!r} is not in the roster of {d} "
-                              f"({sec.robots} robots, {sec.workers} workers)")
+                              f"({sec.robots} robots, {sec.workers} workers, "
+                              f"{sec.routers} routers)")
         sec.check()
         return sec
 
     def files(self, identity: str | None = None) -> tuple[Path, Path]:
         """(certificate, key) of `identity` (default: this session's)."""
         who = identity or self.identity
-        return self.cert_dir / f"{who}.pem", self.cert_dir / f"{who}.key"
+        cert = dict(self.run_certs).get(who)
+        return (Path(cert) if cert else self.cert_dir / f"{who}.pem"), self.cert_dir / f"{who}.key"
 
     def check(self) -> None:
         """Every file present, readable, PEM, and every key private to its owner."""
@@ -102,7 +113,8 @@ class Secure:
         who = identity or self.identity
         return {"transport/link/protocols": ["tls"],
                 "transport/link/tls": self.tls(who),
-                "access_control": acl(who, Keys(self.run_id), self.robots, self.workers)}
+                "access_control": acl(who, Keys(self.run_id), self.robots, self.workers,
+                                      self.routers)}
 
     def cfg(self) -> list[str]:
         """The settings as `--cfg KEY:JSON5` items (swarm.net.zconfig.ZenohOptions.cfg)."""
@@ -117,7 +129,8 @@ class Secure:
             "transport": {"link": {"protocols": ["tls"], "tx": {"lease": 1000},
                                    "tls": self.tls(identity)},
                           "shared_memory": {"enabled": False}},
-            "access_control": acl(identity, Keys(self.run_id), self.robots, self.workers),
+            "access_control": acl(identity, Keys(self.run_id), self.robots, self.workers,
+                                  self.routers),
         }
         return conf
 
@@ -152,23 +165,29 @@ def write_config(path: str | Path, conf: dict[str, Any], header: str) -> Path:
 
 
 def identity_of(process: str) -> str:
-    """The identity of a supervisor's child by its log name (`robot3` -> `robot-3`)."""
+    """The identity of a supervisor's child by its log name (`robot3` -> `robot-3`, `router1`
+    -> `router-1`)."""
     if process.startswith("robot") and process[5:].isdigit():
         return f"robot-{process[5:]}"
     if process.startswith("worker") and process[6:].isdigit():
         return f"worker-{process[6:]}"
+    if process.startswith("router") and process[6:].isdigit():
+        return f"router-{process[6:]}"
     return process
 
 
-def write_run_configs(sec: Secure, out_dir: str | Path, hub: str) -> dict[str, Path]:
+def write_run_configs(sec: Secure, out_dir: str | Path, hub: str,
+                      layout: dict[str, tuple[list[str], list[str]]] | None = None
+                      ) -> dict[str, Path]:
     """The configuration of every session of a `swarm run` (the world listening on `hub` as the
-    router, everyone else a client of it), written to `out_dir/<identity>.json5` for the user to
-    read and for each process to load; identity -> path."""
+    router, everyone else a client of it; or each identity's (listen, connect) from `layout`,
+    relays in router mode), written to `out_dir/<identity>.json5` for the user to read and for
+    each process to load; identity -> path."""
     out: dict[str, Path] = {}
-    for who in identities(sec.robots, sec.workers):
-        world = who in RELAYS
-        conf = sec.session_config(who, "router" if world else "client",
-                                  [hub] if world else [], [] if world else [hub])
+    for who in identities(sec.robots, sec.workers, sec.routers):
+        relay = is_relay(who)
+        listen, connect = (layout or {}).get(who, ([hub], []) if relay else ([], [hub]))
+        conf = sec.session_config(who, "router" if relay else "client", listen, connect)
         out[who] = write_config(Path(out_dir) / f"{who}.json5", conf, (
             f"Zenoh session of {who} in secure run {sec.run_id}, generated by swarm run "
             f"--secure {sec.cert_dir}.\nTLS with mutual authentication; access_control: "
@@ -187,11 +206,54 @@ def run_configs(cert_dir: str | Path, run_id: str, robots: int, port: int, out_d
     return hub, write_run_configs(sec, out_dir, hub)
 
 
+def hosts_secure(cert_dir: str | Path, run_id: str, robots: int, hosts: int,
+                 learner: bool = False) -> Secure:
+    """The supervisor's credentials for `swarm run --secure DIR --hosts K`, checked before any
+    spawn: the run's files, the routers' keys (`swarm certs --routers K-1`) and the CA key, with
+    which `hosts_configs` names the emulated hosts' addresses in the relays' certificates."""
+    need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()),
+            *(f"router-{h}" for h in range(1, hosts)))
+    d = Path(cert_dir).expanduser().resolve()
+    missing = [f"router-{h}" for h in range(1, hosts) if not (d / f"router-{h}.key").exists()]
+    if missing:
+        raise ConfigError(f"--secure {cert_dir} --hosts {hosts}: no key for {missing[0]} (run "
+                          f"`swarm certs --out {cert_dir} --robots {robots} --routers "
+                          f"{hosts - 1}`)")
+    sec = Secure.load(cert_dir, "supervisor", run_id, robots, need=need, routers=hosts - 1)
+    ca_key = d / CA_KEY
+    if not os.access(ca_key, os.R_OK):
+        raise ConfigError(f"--secure {cert_dir} --hosts {hosts}: {ca_key} is needed to name the "
+                          "emulated hosts' addresses in the world's and routers' certificates")
+    from swarm.net.security.certs import _crypto
+
+    _crypto()  # the `cryptography` package, before anything starts
+    return sec
+
+
+def hosts_configs(sec: Secure, topo: Any, port: int, out_dir: Path) -> tuple[str, dict[str, Path]]:
+    """(hub, identity -> config file) of a secure run on emulated hosts (`topo`: an up
+    `swarm.net.kernel.hosts.Hosts` whose endpoints are TLS): the world's and each router's
+    certificate issued again for the same key, naming its host's address (the addresses are
+    chosen when the run starts, so `swarm certs` cannot know them), into `out_dir/run-certs`."""
+    from swarm.net.security.certs import run_certs
+
+    relays = {"world": [topo.addr[0]], **{f"router-{h}": [topo.addr[h]]
+                                          for h in range(1, topo.k)}}
+    made = run_certs(sec.cert_dir, Path(out_dir) / "run-certs", relays)
+    sec = dataclasses.replace(sec, run_certs=tuple((k, str(v)) for k, v in made.items()))
+    hub = topo.endpoint(0, port)
+    layout: dict[str, tuple[list[str], list[str]]] = {"world": ([hub], [])}
+    for h in range(1, topo.k):
+        layout[f"router-{h}"] = ([topo.endpoint(h, port)],
+                                 [topo.endpoint(g, port) for g in range(h)])
+    for i in range(sec.robots):
+        layout[f"robot-{i}"] = ([], [topo.robot_endpoint(i, port)])
+    return hub, write_run_configs(sec, out_dir, hub, layout)
+
+
 def apply(opts: Any, sec: Secure) -> Any:
     """`ZenohOptions` made secure: TLS endpoints only (a listening session defaults to
     tls/127.0.0.1:0), this identity's TLS settings and ACL applied before any `--cfg`."""
-    import dataclasses
-
     check_endpoints(opts.connect, "--connect")
     check_endpoints(opts.listen, "--listen")
     listen = opts.listen or ([] if opts.mode == "client" or opts.config_file
