@@ -28,7 +28,7 @@ pytest.importorskip("cryptography")
 @pytest.fixture(scope="module")
 def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("secure") / "certs"
-    make_certs(d, robots=5, workers=1)
+    make_certs(d, robots=5, workers=1, routers=1)
     return d
 
 
@@ -189,6 +189,38 @@ def test_the_router_checks_the_originator_and_each_client_what_it_receives(certs
                 time.sleep(0.5)
         assert got == [k.action(3)]
         assert heard == ([k.obs(3)] if delivers else [])
+
+
+@pytest.mark.procs
+def test_a_host_router_on_its_own_takes_its_identity_and_the_runs_acl(certs: Path) -> None:
+    """`swarm router --secure DIR --router-id 1` (a real host's router): a TLS-only router
+    that a client of the run reaches with its certificate and sees declared in the run."""
+    from swarm.common.spawn import wait_port
+
+    r = swarm("router", "--secure", str(certs), "--listen", "tls/127.0.0.1:1")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--run-id" in r.stderr, r.stderr
+    r = swarm("router", "--secure", str(certs), "--router-id", "2", "--run-id", "rt")
+    assert r.returncode == 2 and "router-2" in r.stderr, r.stderr  # not in the roster
+    port = free_port()
+    hub = f"tls/127.0.0.1:{port}"
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "router", "--secure", str(certs),
+                             "--router-id", "1", "--run-id", "rt", "--listen", hub], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        wait_port("127.0.0.1", port, proc, 30.0, "router")
+        sec = Secure.load(certs, "supervisor", "rt")
+        assert sec.routers == 1
+        with _session(sec, "supervisor", "client", [], [hub]) as s:
+            seen: list[str] = []
+            sub = s.liveliness().declare_subscriber(Keys("rt").alive_router("*"), history=True,
+                                                    handler=lambda x: seen.append(
+                                                        str(x.key_expr)))
+            time.sleep(1.0)
+            sub.undeclare()
+        assert len(seen) == 1 and seen[0].startswith(Keys("rt").alive_router("")), seen
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
 
 
 def test_a_missing_certificate_is_one_line_before_any_process(certs: Path, tmp_path: Path) -> None:

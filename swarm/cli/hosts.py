@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.net import zconfig
 from world.config import ConfigError
 
@@ -41,8 +42,15 @@ def cmd_router(args: argparse.Namespace) -> int:
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         stream=sys.stderr, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    zopts = zconfig.from_args(args)
+    if args.secure:  # on a real host: its own identity polices this host's clients
+        if not args.run_id:
+            raise ConfigError("swarm router --secure needs --run-id (the run its ACL admits)")
+        if not 1 <= args.router_id <= 64:
+            raise ConfigError(f"--router-id must lie in [1, 64], got {args.router_id}")
+        zopts = secure_options(args, zopts, f"router-{args.router_id}", args.run_id)
     try:
-        route(zconfig.from_args(args), args.run_id)
+        route(zopts, args.run_id)
     except KeyboardInterrupt:
         return 130
     return 0
@@ -55,5 +63,9 @@ def add_parsers(sub: Any) -> None:
                                    "other hosts' routers (a Python session in router mode).")
     p.add_argument("--run-id", help="declare a liveliness token under the run's keys")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
+    p.add_argument("--router-id", type=int, default=1, metavar="H",
+                   help="with --secure: this router's identity router-H (default 1; "
+                        "`swarm certs --routers R` makes router-1..R)")
     zconfig.add_arguments(p)
+    add_secure_flag(p)
     p.set_defaults(func=cmd_router, zenoh_mode="router")

@@ -8,12 +8,30 @@ numpy weights are views of its parameters: adopting weights updates the torch ne
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
 from policies.infer.policy import BadWeights, InferencePolicy
 from swarm.net.learning import Weights
 from swarm.net.messages import BadMessage
+from world.config import WorldConfig
+
+
+def fresh_checkpoint(policy: str, cfg: WorldConfig, seed: int, path: Path) -> Path:
+    """`swarm run --train` without `--checkpoint`: one fresh network (torch seed = run seed)
+    saved at `path` for the robots and the learner alike, so every process starts from the same
+    version 0."""
+    import torch
+
+    from policies import make_policy
+    from policies.checkpoint import save_checkpoint
+
+    torch.manual_seed(seed)
+    pol = make_policy(policy, cfg)
+    save_checkpoint(path, pol.payload({"command": "swarm run --train (initial weights)",
+                                       "seed": seed}))
+    return path
 
 
 def weights_of(policy: InferencePolicy, version: int) -> Weights:

@@ -10,6 +10,7 @@ link faults.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -36,6 +37,7 @@ from swarm.common.spawn import (
     tidy_logs,
     wait_port,
 )
+from swarm.learn.weights import fresh_checkpoint
 from swarm.net.faults import ProcessFault, parse_process, plan_from_table
 from swarm.net.inbox import Inbox, put_once
 from swarm.net.kernel.hosts import topology
@@ -113,12 +115,9 @@ class Supervisor:
         self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.zfiles: dict[str, Path] = {}  # --secure: identity -> its session's config file
-        self.hosts_sec = None  # --secure --hosts: checked now, configs once the hosts are up
-        if opts.secure and opts.hosts:
-            self.hosts_sec = hosts_secure(opts.secure, run.run_id, cfg.n_robots, opts.hosts,
-                                          learning is not None)
-            self.topo.transport = "tls"
-        elif opts.secure:
+        self.hosts_sec = hosts_secure(opts.secure, run.run_id, cfg.n_robots, opts.hosts,
+                                      learning is not None) if opts.secure and opts.hosts else None
+        if opts.secure and not opts.hosts:  # (with --hosts: configs once the hosts are up)
             self.hub, self.zfiles = run_configs(opts.secure, run.run_id, cfg.n_robots, self.port,
                                                 self.log_dir / "zenoh", learning is not None)
         self.world: subprocess.Popen[bytes] | None = None
@@ -155,30 +154,12 @@ class Supervisor:
                                       "--connect", hub, "--zenoh-mode", "client"],
                                      f"robot{i}", ns)
 
-    def _initial_weights(self) -> None:
-        """--train without --checkpoint: one fresh network (torch seed = run seed) saved for the
-        robots and the learner alike, so every process starts from the same version 0."""
-        if self.run_cfg.checkpoint:
-            return
-        import dataclasses
-
-        import torch
-
-        from policies import make_policy
-        from policies.checkpoint import save_checkpoint
-
-        torch.manual_seed(self.run_cfg.seed)
-        pol = make_policy(self.run_cfg.policy, self.cfg)
-        path = self.tmp / "initial.pt"
-        save_checkpoint(path, pol.payload({"command": "swarm run --train (initial weights)",
-                                           "seed": self.run_cfg.seed}))
-        self.run_cfg = dataclasses.replace(self.run_cfg, checkpoint=str(path))
-
     def start(self) -> float:
         """Write the spec and start the world; robots follow once the supervisor listens."""
         spec = self.tmp / "spec.json"
-        if self.learning is not None:
-            self._initial_weights()
+        if self.learning is not None and not self.run_cfg.checkpoint:  # one fresh version 0
+            self.run_cfg = dataclasses.replace(self.run_cfg, checkpoint=str(fresh_checkpoint(
+                self.run_cfg.policy, self.cfg, self.run_cfg.seed, self.tmp / "initial.pt")))
         learning = self.learning or {}
         RunRecord(self.cfg, self.run_cfg, self.faults, learner=learning.get("learner"),
                   train=learning.get("train")).write(spec)
@@ -187,10 +168,10 @@ class Supervisor:
             self.topo.up()
             host, ns = self.topo.hub_addr, self.topo.world_ns
             self.hub = f"tcp/{host}:{self.port}"
-            listen = self.topo.world_listen(self.port)
-            if self.hosts_sec is not None:  # the relays' certificates name the hosts' addresses
+            if self.hosts_sec is not None:  # TLS; the relays' certificates name the addresses
                 self.hub, self.zfiles = hosts_configs(self.hosts_sec, self.topo, self.port,
                                                       self.log_dir / "zenoh")
+            listen = self.topo.world_listen(self.port)
         write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
         self.world = self._spawn(["world", "--spec", str(spec),

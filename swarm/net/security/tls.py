@@ -237,6 +237,7 @@ def hosts_configs(sec: Secure, topo: Any, port: int, out_dir: Path) -> tuple[str
     chosen when the run starts, so `swarm certs` cannot know them), into `out_dir/run-certs`."""
     from swarm.net.security.certs import run_certs
 
+    topo.transport = "tls"  # every endpoint of the hosts
     relays = {"world": [topo.addr[0]], **{f"router-{h}": [topo.addr[h]]
                                           for h in range(1, topo.k)}}
     made = run_certs(sec.cert_dir, Path(out_dir) / "run-certs", relays)
