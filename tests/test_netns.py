@@ -89,6 +89,23 @@ def test_netns_run_takes_the_same_actions_as_loopback(tmp_path: Path) -> None:
     assert b["timeouts"] == 0 and b["robots_lost"] == 0 and b["messages"]["late"] == 0
     assert ours("nskern") == []
 
+    # --secure: TLS on every veth, the world's certificate issued for the run's addresses
+    pytest.importorskip("cryptography")
+    from swarm.net.security.certs import make_certs
+
+    make_certs(tmp_path / "certs", robots=2)
+    sec = swarm(*common, "--netns", "--secure", str(tmp_path / "certs"), "--run-id", "nssec",
+                "--json", str(tmp_path / "c.json"), "--log-dir", str(tmp_path / "nssec"))
+    assert sec.returncode == 0, sec.stderr
+    c = json.loads((tmp_path / "c.json").read_text())
+    assert c["actions"] == a["actions"] and c["timeouts"] == 0 and c["messages"]["bad"] == 0
+    assert c["secure"]["hub"].startswith(f"tls/{c['netns']['hub_addr']}:")
+    assert (tmp_path / "nssec" / "zenoh" / "run-certs" / "world.pem").exists()
+    assert ours("nssec") == []
+    udp = swarm(*common, "--netns", "--netns-transport", "udp", "--secure",
+                str(tmp_path / "certs"))
+    assert udp.returncode == 2 and "tcp" in udp.stderr and udp.stderr.count("\n") == 1
+
 
 @pytest.mark.procs
 @pytest.mark.skipif(shutil.which("iptables") is None, reason="iptables is not installed")

@@ -103,7 +103,7 @@ def test_host_routers_police_their_clients_and_trust_one_another(tmp_path: Path)
     from cryptography import x509
 
     from swarm.net.security.certs import run_certs
-    from swarm.net.security.tls import hosts_secure
+    from swarm.net.security.tls import topology_secure
 
     keys, n = Keys("acl3"), 4
     table = roles(keys, n, routers=2)
@@ -124,10 +124,10 @@ def test_host_routers_police_their_clients_and_trust_one_another(tmp_path: Path)
     d = tmp_path / "certs"
     make_certs(d, robots=n)
     with pytest.raises(ConfigError, match="no key for router-1 .*--routers 2") as err:
-        hosts_secure(d, "x", n, 3)
+        topology_secure(d, "x", n, 3)
     assert "\n" not in str(err.value)
     make_certs(d, robots=n, routers=2)
-    assert hosts_secure(d, "x", n, 3).routers == 2
+    assert topology_secure(d, "x", n, 3).routers == 2
     key = (d / "router-1.key").read_bytes()
     made = run_certs(d, tmp_path / "run", {"router-1": ["10.215.9.3"]})
     assert (d / "router-1.key").read_bytes() == key

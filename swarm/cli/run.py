@@ -199,9 +199,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     netns = netns_faults(args)
     if netns is not None:  # the kernel decides when a packet arrives: only the wall clock knows
         run = dataclasses.replace(run, clock="real")
-    if args.secure and netns is not None:
-        raise ConfigError("--secure with --netns is not supported yet (the certificates name "
-                          "127.0.0.1, not the namespaces' addresses)")
+    if args.secure and netns is not None and netns.transport != "tcp":
+        raise ConfigError("--secure needs --netns-transport tcp (TLS runs over TCP)")
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             restart_crashed=args.restart_crashed, log_dir=args.log_dir,
                             netns=netns, secure=args.secure, record=args.record,

@@ -53,7 +53,7 @@ from swarm.net.messages import (
     pack_record,
     unpack_record,
 )
-from swarm.net.security.tls import hosts_configs, hosts_secure, identity_of, run_configs
+from swarm.net.security.tls import identity_of, run_configs, topology_configs, topology_secure
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.runconfig import RunConfig, RunRecord
@@ -115,9 +115,9 @@ class Supervisor:
         self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.zfiles: dict[str, Path] = {}  # --secure: identity -> its session's config file
-        self.hosts_sec = hosts_secure(opts.secure, run.run_id, cfg.n_robots, opts.hosts,
-                                      learning is not None) if opts.secure and opts.hosts else None
-        if opts.secure and not opts.hosts:  # (with --hosts: configs once the hosts are up)
+        self.topo_sec = topology_secure(opts.secure, run.run_id, cfg.n_robots, opts.hosts,
+                                        learning is not None) if opts.secure and self.topo else None
+        if opts.secure and self.topo is None:  # (namespaces: configs once they are up)
             self.hub, self.zfiles = run_configs(opts.secure, run.run_id, cfg.n_robots, self.port,
                                                 self.log_dir / "zenoh", learning is not None)
         self.world: subprocess.Popen[bytes] | None = None
@@ -168,9 +168,9 @@ class Supervisor:
             self.topo.up()
             host, ns = self.topo.hub_addr, self.topo.world_ns
             self.hub = f"tcp/{host}:{self.port}"
-            if self.hosts_sec is not None:  # TLS; the relays' certificates name the addresses
-                self.hub, self.zfiles = hosts_configs(self.hosts_sec, self.topo, self.port,
-                                                      self.log_dir / "zenoh")
+            if self.topo_sec is not None:  # TLS; the relays' certificates name the addresses
+                self.hub, self.zfiles = topology_configs(self.topo_sec, self.topo, self.port,
+                                                         self.log_dir / "zenoh")
             listen = self.topo.world_listen(self.port)
         write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()

@@ -91,16 +91,25 @@ class Hosts(Namespaced):
         """The one endpoint robot i connects to: its own host's router."""
         return self.endpoint(self.host_of(i), port)
 
+    def relay_addresses(self) -> dict[str, list[str]]:
+        """Identity -> the addresses its certificate must name (`--secure`): host h's router."""
+        return {"world": [self.addr[0]], **{f"router-{h}": [self.addr[h]]
+                                            for h in range(1, self.k)}}
+
+    def router_endpoints(self, h: int, port: int) -> tuple[list[str], list[str]]:
+        """(listen, connect) of host h's router: its address; the world and hosts 1..h-1."""
+        return [self.endpoint(h, port)], [self.endpoint(g, port) for g in range(h)]
+
     def routers(self, port: int) -> list[tuple[str, list[str], str, str]]:
         """(name, `swarm` arguments, namespace, address) of each router process to start once
         the world listens: host h's listens on its address and connects to the world and to
         hosts 1..h-1's routers."""
         out = []
         for h in range(1, self.k):
-            connect = [x for g in range(h) for x in ("--connect", self.endpoint(g, port))]
-            out.append((f"router{h}", ["router", "--run-id", self.run_id, "--listen",
-                                       self.endpoint(h, port), *connect], self.host_ns[h],
-                        self.addr[h]))
+            listen, connect = self.router_endpoints(h, port)
+            out.append((f"router{h}", ["router", "--run-id", self.run_id, "--listen", *listen,
+                                       *(x for e in connect for x in ("--connect", e))],
+                        self.host_ns[h], self.addr[h]))
         return out
 
     def describe(self) -> dict[str, Any]:

@@ -222,6 +222,7 @@ class Topology(Namespaced):
         if len(self.world_if[-1] if n_robots else "") > 15:
             raise ConfigError(f"--netns supports at most 999999 robots, got {n_robots}")
         self.host_addr = self.hub_addr = ""
+        self.transport = ""  # "tls" under --secure: every link, the robots' and the supervisor's
 
     # --- addresses the processes use ------------------------------------------------------
     def world_addr(self, i: int) -> str:
@@ -233,12 +234,16 @@ class Topology(Namespaced):
 
     def robot_endpoint(self, i: int, port: int) -> str:
         """The Zenoh endpoint robot i connects to."""
-        return f"{self.faults.transport}/{self.world_addr(i)}:{port}"
+        return f"{self.transport or self.faults.transport}/{self.world_addr(i)}:{port}"
 
     def world_listen(self, port: int) -> list[str]:
         """The world's endpoints: tcp on the root link's world side, then each robot link's."""
-        return [f"tcp/{self.hub_addr}:{port}", *(self.robot_endpoint(i, port)
-                                                 for i in range(self.n))]
+        return [f"{self.transport or 'tcp'}/{self.hub_addr}:{port}",
+                *(self.robot_endpoint(i, port) for i in range(self.n))]
+
+    def relay_addresses(self) -> dict[str, list[str]]:
+        """Identity -> the addresses its certificate must name (`--secure`): the world's."""
+        return {"world": [self.hub_addr, *(self.world_addr(i) for i in range(self.n))]}
 
     def routers(self, port: int) -> list[tuple[str, list[str], str, str]]:
         """Router processes to start (swarm.net.kernel.hosts has some): none, the world routes."""

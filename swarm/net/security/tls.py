@@ -206,50 +206,49 @@ def run_configs(cert_dir: str | Path, run_id: str, robots: int, port: int, out_d
     return hub, write_run_configs(sec, out_dir, hub)
 
 
-def hosts_secure(cert_dir: str | Path, run_id: str, robots: int, hosts: int,
-                 learner: bool = False) -> Secure:
-    """The supervisor's credentials for `swarm run --secure DIR --hosts K`, checked before any
-    spawn: the run's files, the routers' keys (`swarm certs --routers K-1`) and the CA key, with
-    which `hosts_configs` names the emulated hosts' addresses in the relays' certificates."""
+def topology_secure(cert_dir: str | Path, run_id: str, robots: int, hosts: int = 0,
+                    learner: bool = False) -> Secure:
+    """The supervisor's credentials for `swarm run --secure DIR` with `--hosts K` (hosts >= 1) or
+    `--netns` (hosts 0), checked before any spawn: the run's files, the routers' keys (`swarm
+    certs --routers K-1`) and the CA key, with which `topology_configs` names the run's
+    addresses in the world's (and routers') certificates."""
+    routers = max(hosts - 1, 0)
     need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()),
-            *(f"router-{h}" for h in range(1, hosts)))
+            *(f"router-{h}" for h in range(1, routers + 1)))
     d = Path(cert_dir).expanduser().resolve()
-    missing = [f"router-{h}" for h in range(1, hosts) if not (d / f"router-{h}.key").exists()]
+    missing = [f"router-{h}" for h in range(1, routers + 1) if not (d / f"router-{h}.key").exists()]
     if missing:
         raise ConfigError(f"--secure {cert_dir} --hosts {hosts}: no key for {missing[0]} (run "
                           f"`swarm certs --out {cert_dir} --robots {robots} --routers "
-                          f"{hosts - 1}`)")
-    sec = Secure.load(cert_dir, "supervisor", run_id, robots, need=need, routers=hosts - 1)
+                          f"{routers}`)")
+    sec = Secure.load(cert_dir, "supervisor", run_id, robots, need=need, routers=routers)
     ca_key = d / CA_KEY
     if not os.access(ca_key, os.R_OK):
-        raise ConfigError(f"--secure {cert_dir} --hosts {hosts}: {ca_key} is needed to name the "
-                          "emulated hosts' addresses in the world's and routers' certificates")
+        raise ConfigError(f"--secure {cert_dir}: {ca_key} is needed to name the run's namespace "
+                          "addresses in the world's and routers' certificates")
     from swarm.net.security.certs import _crypto
 
     _crypto()  # the `cryptography` package, before anything starts
     return sec
 
 
-def hosts_configs(sec: Secure, topo: Any, port: int, out_dir: Path) -> tuple[str, dict[str, Path]]:
-    """(hub, identity -> config file) of a secure run on emulated hosts (`topo`: an up
-    `swarm.net.kernel.hosts.Hosts` whose endpoints are TLS): the world's and each router's
-    certificate issued again for the same key, naming its host's address (the addresses are
-    chosen when the run starts, so `swarm certs` cannot know them), into `out_dir/run-certs`."""
+def topology_configs(sec: Secure, topo: Any, port: int,
+                     out_dir: Path) -> tuple[str, dict[str, Path]]:
+    """(hub, identity -> config file) of a secure run in namespaces (`topo`: an up
+    `swarm.net.kernel.hosts.Hosts` or `swarm.net.kernel.netns.Topology`), every endpoint TLS:
+    the world's (and each host router's) certificate issued again for the same key, naming the
+    addresses it is reached at (chosen when the run starts, so `swarm certs` cannot know them),
+    into `out_dir/run-certs`."""
     from swarm.net.security.certs import run_certs
 
-    topo.transport = "tls"  # every endpoint of the hosts
-    relays = {"world": [topo.addr[0]], **{f"router-{h}": [topo.addr[h]]
-                                          for h in range(1, topo.k)}}
-    made = run_certs(sec.cert_dir, Path(out_dir) / "run-certs", relays)
+    topo.transport = "tls"
+    made = run_certs(sec.cert_dir, Path(out_dir) / "run-certs", topo.relay_addresses())
     sec = dataclasses.replace(sec, run_certs=tuple((k, str(v)) for k, v in made.items()))
-    hub = topo.endpoint(0, port)
-    layout: dict[str, tuple[list[str], list[str]]] = {"world": ([hub], [])}
-    for h in range(1, topo.k):
-        layout[f"router-{h}"] = ([topo.endpoint(h, port)],
-                                 [topo.endpoint(g, port) for g in range(h)])
-    for i in range(sec.robots):
-        layout[f"robot-{i}"] = ([], [topo.robot_endpoint(i, port)])
-    return hub, write_run_configs(sec, out_dir, hub, layout)
+    listen = topo.world_listen(port)
+    layout = {"world": (listen, []),
+              **{f"router-{h}": topo.router_endpoints(h, port) for h in range(1, sec.routers + 1)},
+              **{f"robot-{i}": ([], [topo.robot_endpoint(i, port)]) for i in range(sec.robots)}}
+    return listen[0], write_run_configs(sec, out_dir, listen[0], layout)
 
 
 def apply(opts: Any, sec: Secure) -> Any:
