@@ -264,24 +264,29 @@ def apply(opts: Any, sec: Secure) -> Any:
 
 
 TEMPLATE_HEADER = """{what}, as `--secure` generates it
-(run id RUN, 3 robots, certificates in /etc/swarm/certs; the world at WORLD_HOST:7448).
+(run id RUN, 3 robots, certificates in /etc/swarm/certs; the world at WORLD_HOST:7448, a second
+host's router, router-1, at ROUTER_HOST:7448).
 Do not edit by hand: `swarm run --secure DIR` writes one per process into LOG_DIR/zenoh/, and
 `swarm world|robot|learner|rollout-worker|fault --secure DIR` build theirs in memory.
 Regenerate: python -c 'from swarm.net.security.tls import write_templates; write_templates()'
 (tests/test_secure.py fails when this file and the generator disagree).
-Make the certificates with `swarm certs --out /etc/swarm/certs --robots 3 --host WORLD_HOST`."""
+Make the certificates with `swarm certs --out /etc/swarm/certs --robots 3 --routers 1
+--host WORLD_HOST --host ROUTER_HOST`."""
 
 
 def templates() -> dict[str, str]:
     """deploy/ file name -> text of the example configs of a 3-robot run on real hosts."""
-    sec = Secure(Path("/etc/swarm/certs"), "world", "RUN", 3)
+    sec = Secure(Path("/etc/swarm/certs"), "world", "RUN", 3, routers=1)
     hub = "tls/WORLD_HOST:7448"
     out = {}
     for name, who, mode, listen, connect, what in (
             ("tls-acl.json5", "world", "router", ["tls/0.0.0.0:7448"], [],
              "The world (the router every other process connects to) of a secure run"),
             ("tls-acl-robot.json5", "robot-0", "client", [], [hub],
-             "Robot 0 of a secure run, on its own host")):
+             "Robot 0 of a secure run, on its own host"),
+            ("tls-acl-router.json5", "router-1", "router", ["tls/0.0.0.0:7448"], [hub],
+             "Router 1 of a secure run (`swarm router --secure DIR --router-id 1`): the\n"
+             "router of a second host, whose processes connect to it")):
         text = "".join(f"// {line}\n" for line in TEMPLATE_HEADER.format(what=what).splitlines())
         out[name] = text + dumps(sec.session_config(who, mode, listen, connect))
     return out
