@@ -216,6 +216,8 @@ def topology_secure(cert_dir: str | Path, run_id: str, robots: int, hosts: int =
     need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()),
             *(f"router-{h}" for h in range(1, routers + 1)))
     d = Path(cert_dir).expanduser().resolve()
+    if not d.is_dir():
+        Secure.load(cert_dir, "supervisor", run_id, robots)  # its one-line "no such directory"
     missing = [f"router-{h}" for h in range(1, routers + 1) if not (d / f"router-{h}.key").exists()]
     if missing:
         raise ConfigError(f"--secure {cert_dir} --hosts {hosts}: no key for {missing[0]} (run "
