@@ -273,7 +273,7 @@ def make_certs(out: str | Path, robots: int, workers: int = 0, hosts: list[str] 
 
 
 def run_certs(cert_dir: str | Path, out: str | Path, names: dict[str, list[str]],
-              days: int = 2) -> dict[str, Path]:
+              days: int = 30) -> dict[str, Path]:
     """Certificates for one run: for each identity of `names`, its existing key of `cert_dir`
     certified again by that directory's CA, naming its usual hosts and the given addresses (the
     emulated hosts' addresses, chosen when a run starts), written to `out/<identity>.pem`. No

@@ -37,8 +37,8 @@ class Secure:
     routers: int = 0
     """Host routers of the roster (router-1 .. router-R: `swarm run --hosts R+1`)."""
     run_certs: tuple[tuple[str, str], ...] = ()
-    """(identity, certificate file) issued for this run's addresses (`--hosts`: the relays'
-    certificates naming the emulated hosts' addresses), used instead of DIR/<identity>.pem."""
+    """(identity, certificate file) issued for this run's addresses (`--hosts`, `--netns`: the
+    relays' certificates naming the namespaces' addresses), used instead of DIR/<identity>.pem."""
 
     @classmethod
     def load(cls, cert_dir: str | Path, identity: str, run_id: str, robots: int | None = None,
