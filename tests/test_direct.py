@@ -21,6 +21,7 @@ from swarm.net.keys import Keys
 from swarm.net.messages import (
     DROPPED_Q,
     K_HIDDEN,
+    K_OBS,
     K_STAMPED,
     K_TRAJ,
     BadMessage,
@@ -115,6 +116,24 @@ def test_a_lost_hidden_state_is_known_without_waiting_for_it() -> None:
     part = DirectLink(cfg, 2, plan_from_table({"latency": "50ms"}, 1, 3), 0.2)
     part.begin(Obs(0, 4, 2, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
     assert part.hidden(1) is None  # on time or late depends on its queue: wait for it
+
+
+def test_an_observations_fault_table_round_trips_and_is_bounded() -> None:
+    cfg = WorldConfig(n_robots=3)
+    table = msgpack.packb({"loss": 0.3})
+    obs = Obs(0, 2, 1, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0", table)
+    assert Obs.unpack(obs.pack(), cfg) == obs
+    plain = Obs(0, 2, 1, 1, 1, bytes(25), 0.0, False, 1e3)
+    assert Obs.unpack(plain.pack(), cfg) == plain  # no live, no faults: nine fields as before
+    head = [1, K_OBS, 0, 2, 1, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"]
+    for faults in ("loss", bytes(70_000), 3):
+        with pytest.raises(BadMessage):
+            Obs.unpack(msgpack.packb([*head, faults], use_bin_type=True), cfg)
+    link = DirectLink(cfg, 1, plan_from_table({}, 0, 3), 0.2)
+    link.set_plan(plan_from_table({"loss": 1.0}, 0, 3))
+    link.begin(obs)
+    h = link.hidden(0)  # the new plan decides: its predecessor's message is lost
+    assert h is not None and h.is_miss
 
 
 def test_hostile_stamped_messages_are_refused() -> None:
@@ -363,3 +382,43 @@ def test_a_secure_run_on_three_hosts_keeps_a_foreign_robot_out_at_its_hosts_rout
     assert {p.stem for p in (logs / "zenoh" / "run-certs").glob("*.pem")} == {
         "world", "router-1", "router-2"}
     assert _ours("shosts") == []
+
+
+def _live_change_run(tmp: Path, run_id: str, *extra: str) -> dict:
+    """A 4-robot CommAttn run (3 episodes, paced) whose link faults change live at run tick 40
+    (`swarm fault --at-tick`, sent at tick 5)."""
+    import sys
+
+    out = tmp / f"{run_id}.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "4", "--episodes",
+         "3", "--seed", "3", "--checkpoint", CKPT, "--run-id", run_id, "--pace", "20",
+         "--json", str(out), *extra],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if line.startswith('{"status"') and json.loads(line)["status"]["run_tick"] == 5:
+                r = swarm("fault", "--run", run_id, "--loss", "0.4", "--latency", "150ms",
+                          "--jitter", "100ms", "--at-tick", "40", timeout=30)
+                assert r.returncode == 0, r.stderr
+        assert proc.wait(timeout=120) == 0, proc.stderr.read() if proc.stderr else ""
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return json.loads(out.read_text())
+
+
+@pytest.mark.procs
+def test_a_live_fault_change_under_direct_delivery_lands_as_with_the_radio(
+        tmp_path: Path) -> None:
+    """The world hands the changed table to the robots in the observations of the tick it
+    applies from; every robot switches its plan there, as the radio does: same actions and
+    counters as the radio run with the same change."""
+    radio = _live_change_run(tmp_path, "liveradio")
+    direct = _live_change_run(tmp_path, "livedirect", "--delivery", "direct")
+    assert direct["delivery"] == "direct" and direct["actions"] == radio["actions"]
+    for key in COPIES:
+        assert direct["messages"][key] == radio["messages"][key], key
+    assert direct["messages"]["lost"] > 0 and direct["messages"]["bad"] == 0
+    assert all(st["bad"] == 0 for st in direct["robot_status"].values())

@@ -74,6 +74,11 @@ class DirectLink:
         self.stale = 0  # messages of a tick this robot had already left
         self.overflow = 0  # messages refused because too many were held
 
+    def set_plan(self, plan: FaultPlan) -> None:
+        """A live fault change, from the tick whose observation carried it (as the radio's
+        `Radio.set_plan`: a new channel, token buckets full again)."""
+        self.channel = VirtualChannel(plan, self.n, self.channel.tick_ms / 1e3)
+
     # --- a tick ------------------------------------------------------------------------------
     def begin(self, obs: Obs) -> None:
         """A new tick (a new episode starts with full token buckets)."""

@@ -79,6 +79,7 @@ def _bytes(v: Any, name: str, size: int) -> bytes:
 
 
 BIG = 2**31 - 1
+MAX_FAULTS_BYTES = 65536  # a live fault table carried in an observation (direct delivery)
 
 
 @dataclass
@@ -96,21 +97,29 @@ class Obs:
     budget_ms: float  # time left until the world's action deadline when it sent this
     live: bytes = b""  # direct delivery: np.packbits of the robots the world sent this tick to
     # (whose trajectory messages a robot waits for); empty (and not sent) with the radio
+    faults: bytes = b""  # direct delivery: the run's `[faults]` table (msgpack) from this tick
+    # on, after a live change (`swarm fault`); empty when the plan did not change
 
     def pack(self) -> bytes:
+        tail = (self.live, self.faults) if self.faults else (self.live,) if self.live else ()
         return _pack(K_OBS, self.ep, self.t, self.robot, self.y, self.x, self.patch, self.reward,
-                     self.done, self.budget_ms, *((self.live,) if self.live else ()))
+                     self.done, self.budget_ms, *tail)
 
     @classmethod
     def unpack(cls, payload: bytes, cfg: WorldConfig) -> Obs:
-        ep, t, robot, y, x, patch, reward, done, budget, *live = _unpack(payload, K_OBS, (9, 10))
+        ep, t, robot, y, x, patch, reward, done, budget, *rest = _unpack(payload, K_OBS,
+                                                                        (9, 10, 11))
         if not isinstance(done, bool):
             raise BadMessage("done must be a bool")
+        live = _bytes(rest[0], "live", (cfg.n_robots + 7) // 8) if rest and rest[0] else b""
+        faults = rest[1] if len(rest) > 1 else b""
+        if not isinstance(faults, bytes) or len(faults) > MAX_FAULTS_BYTES:
+            raise BadMessage(f"faults must be at most {MAX_FAULTS_BYTES} bytes")
         return cls(_int(ep, "ep", 0, BIG), _int(t, "t", 0, cfg.horizon),
                    _int(robot, "robot", 0, cfg.n_robots - 1), _int(y, "y", 0, cfg.height - 1),
                    _int(x, "x", 0, cfg.width - 1), _bytes(patch, "patch", cfg.vision ** 2),
                    _float(reward, "reward"), done, _float(budget, "budget_ms", 0.0, MAX_MS),
-                   _bytes(live[0], "live", (cfg.n_robots + 7) // 8) if live else b"")
+                   live, faults)
 
 
 @dataclass

@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import msgpack
 import zenoh
 
 from swarm.net.direct import WAIT_FRAC, DirectLink
@@ -29,6 +30,7 @@ from swarm.net.messages import (
     pack_record,
     unpack_record,
 )
+from world.config import ConfigError
 from world.decentral import TrajMessages
 
 
@@ -130,6 +132,15 @@ class DirectDelivery:
             self.link.done_ep = max(self.link.done_ep, obs.ep)
             self.proc.status()
             return
+        if obs.faults:  # a live change from this tick on (the world's radio switches with it)
+            try:
+                table = msgpack.unpackb(obs.faults)
+                if not isinstance(table, dict):
+                    raise ConfigError("the faults table is not a map")
+                self.link.set_plan(plan_from_table(table, self.proc.run_cfg.seed,
+                                                   self.proc.cfg.n_robots))
+            except (ConfigError, ValueError, TypeError, msgpack.UnpackException) as exc:
+                self.proc._bad(self.proc.keys.obs(self.proc.robot), f"live faults: {exc}")
         self.link.begin(obs)
         self.t_begin, self.budget_s = time.monotonic(), obs.budget_ms / 1e3
         if not self.link.sees_peers():  # (at a run's start, or after a peer's restart)

@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import msgpack
 import numpy as np
 import zenoh
 
@@ -165,9 +166,7 @@ class WorldProcess:
                 return True
             if rec.get("stop"):
                 self.stop = True
-            if isinstance(rec.get("faults_table"), dict) and self.direct is not None:
-                self._count_bad(key, "live link faults need the radio (robots hold the plan)")
-            elif isinstance(rec.get("faults_table"), dict):
+            if isinstance(rec.get("faults_table"), dict):
                 table = rec["faults_table"] if rec.get("replace") else {
                     **self.fault_table, **rec["faults_table"]}
                 table = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
@@ -177,7 +176,6 @@ class WorldProcess:
                     at = rec.get("at_tick", -1)
                     self._pending_at = at if isinstance(at, int) and 0 <= at < 2**40 else -1
                     self.fault_table = table
-                    self._record = RunRecord(self.cfg, self.run_cfg, table).pack()
                 except ConfigError as exc:
                     self._count_bad(key, str(exc))
             return True
@@ -293,10 +291,14 @@ class WorldProcess:
             if self.run_cfg.pace > 0:
                 time.sleep(max(0.0, next_tick - time.monotonic()))
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
+            obs_faults = b""
             if self._pending_plan is not None and self.run_tick >= self._pending_at:
                 self.radio.set_plan(self._pending_plan)
                 log.info("faults now: %s", "; ".join(self._pending_plan.describe()) or "none")
                 self._pending_plan = None
+                self._record = RunRecord(cfg, self.run_cfg, self.fault_table).pack()
+                if self.direct is not None:  # the robots hold the plan: this tick's obs carry it
+                    obs_faults = msgpack.packb(self.fault_table)
             self._due.clear()  # nothing of an older tick is ever delivered
             state.alive[0] = self.alive
             t = state.t
@@ -314,7 +316,8 @@ class WorldProcess:
             for i in np.flatnonzero(self.alive):
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
                                                  patch[i].tobytes(), float(state.last_reward[0, i]),
-                                                 bool(done), budget_ms, live).pack())
+                                                 bool(done), budget_ms, live,
+                                                 obs_faults).pack())
             if done and self.run_cfg.train and rewards:
                 m = core.metrics(cfg, state)
                 rec = EpisodeRecord(ep, np.stack(rewards).astype(np.float32), np.stack(acted),
