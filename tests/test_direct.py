@@ -104,6 +104,8 @@ def test_each_robot_decides_its_copies_as_the_radio_does(table: dict) -> None:
     assert mine["traj_in"] == 2 * 12 * n  # what robots sent (the world counts what it got)
     if table:
         assert sum(mine[k] for k in ("lost", "cut", "late", "dropped_bw")) > 0
+    assert tally.faulted_links() == radio.counters.faulted_links()  # what the dashboard shows
+    assert bool(tally.faulted_links()) == bool(table)
 
 
 def test_a_lost_hidden_state_is_known_without_waiting_for_it() -> None:
@@ -176,6 +178,14 @@ def test_hostile_stamped_messages_are_refused() -> None:
     assert len(link.store) <= 8 * 3 and link.overflow > 0
     with pytest.raises(BadMessage):
         DirectTally(3).offer({"robot": 1, "direct": {"done_ep": 0, "counts": {"lost": -1}}})
+    good_rec = DirectLink(cfg, 1, plan_from_table({}, 0, 3), 0.2).record()
+    for links in ({"0-2": [1, 2, 0, 0]}, {"0-1": [1, 2, 0]}, {"x-1": [0, 0, 0, 0]},
+                  {"0-1": [1, -2, 0, 0]}, {f"{j}-1": [0, 1, 0, 0] for j in range(4)}, [1]):
+        with pytest.raises(BadMessage):  # only its own incoming links, four counts each
+            DirectTally(3).offer({"robot": 1, "direct": {**good_rec, "links": links}})
+    tally = DirectTally(3)
+    tally.offer({"robot": 1, "direct": {**good_rec, "links": {"0-1": [3, 1, 0, 0]}}})
+    assert tally.faulted_links() == {"0-1": [3, 1, 0, 0]}
 
 
 @pytest.mark.parametrize("flags,why", [

@@ -215,7 +215,7 @@ class DirectLink:
     def record(self) -> dict[str, Any]:
         """The counters for the robot's status record (`DirectTally` sums them)."""
         return {"done_ep": self.done_ep, "stale": self.stale, "overflow": self.overflow,
-                "counts": self.counters.totals()}
+                "counts": self.counters.totals(), "links": self.counters.faulted_links()}
 
 
 COUNT_KEYS = ("traj_in", "traj_delivered", "hidden_in", "hidden_delivered", "out_of_range", "lost",
@@ -249,8 +249,17 @@ def check_direct(rec: Any, n: int) -> tuple[int, dict[str, Any]]:
         raise BadMessage("by_kind must hold traj and hidden")
     out["by_kind"] = {kind: {k: _count((by_kind[kind] or {}).get(k) if isinstance(
         by_kind[kind], dict) else None, f"{kind}.{k}") for k in KIND_KEYS} for kind in by_kind}
+    links = d.get("links", {})
+    if not isinstance(links, dict) or len(links) > n:
+        raise BadMessage("links must be a map of at most one entry per sender")
+    for key, v in links.items():
+        a, _, b = key.partition("-") if isinstance(key, str) else ("", "", "")
+        if not (a.isdigit() and b.isdigit() and int(a) < n and int(b) == robot) or \
+                not isinstance(v, list) or len(v) != 4:
+            raise BadMessage(f"link {key!r} is not one of robot {robot}'s incoming links")
+        links[key] = [_count(x, f"links.{key}") for x in v]
     return robot, {"done_ep": done, "stale": _count(d.get("stale", 0), "stale"),
-                   "counts": out}
+                   "counts": out, "links": links}
 
 
 class DirectTally:
@@ -284,3 +293,7 @@ class DirectTally:
         out["robot_stale"] = sum(rec["stale"] for rec in self.latest.values())
         out["reported"] = sorted(self.latest)
         return out
+
+    def faulted_links(self) -> dict[str, list[int]]:
+        """The robots' own incoming faulted links, together: the radio's `faulted_links`."""
+        return {k: v for rec in self.latest.values() for k, v in rec["links"].items()}

@@ -404,7 +404,7 @@ class WorldProcess:
             "clock": self.run_cfg.clock, "vtime": self.run_tick * self.run_cfg.tick_timeout,
             "faults": self.radio.plan.describe(),
             "heard_links": self.radio.heard_links(),
-            "links": self.radio.counters.faulted_links(),
+            "links": (self.direct or self.radio.counters).faulted_links(),
         }
         if state.t == 1:
             rec["static"] = np.argwhere(lay.inner(state.grid[0]) == core.STATIC).tolist()
