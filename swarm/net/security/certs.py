@@ -43,7 +43,7 @@ class CertsReport:
     """Identities whose key and certificate were already right."""
 
 
-def _crypto() -> Any:
+def crypto() -> Any:
     try:
         import cryptography  # noqa: F401
     except ImportError:
@@ -102,7 +102,7 @@ class _Issuer:
     """Signs with the CA of a directory (made on first use)."""
 
     def __init__(self, out: Path, days: int, report: CertsReport, create: bool = True) -> None:
-        self.x509, self.hashes, self.ser, self.ec, self.EKU, self.NameOID = _crypto()
+        self.x509, self.hashes, self.ser, self.ec, self.EKU, self.NameOID = crypto()
         self.out, self.days, self.report = out, days, report
         if not create and not (out / CA_CERT).exists():
             raise ConfigError(f"{out / CA_CERT} is missing (run `swarm certs --out {out}`)")

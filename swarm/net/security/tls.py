@@ -228,9 +228,9 @@ def topology_secure(cert_dir: str | Path, run_id: str, robots: int, hosts: int =
     if not os.access(ca_key, os.R_OK):
         raise ConfigError(f"--secure {cert_dir}: {ca_key} is needed to name the run's namespace "
                           "addresses in the world's and routers' certificates")
-    from swarm.net.security.certs import _crypto
+    from swarm.net.security.certs import crypto
 
-    _crypto()  # the `cryptography` package, before anything starts
+    crypto()  # the `cryptography` package, before anything starts
     return sec
 
 
