@@ -44,6 +44,7 @@ class CertsReport:
 
 
 def crypto() -> Any:
+    """The `cryptography` modules used here; without the package, a one-line ConfigError."""
     try:
         import cryptography  # noqa: F401
     except ImportError:
