@@ -223,6 +223,29 @@ def test_a_host_router_on_its_own_takes_its_identity_and_the_runs_acl(certs: Pat
         proc.wait(timeout=10)
 
 
+@pytest.mark.procs
+def test_bench_swarm_measures_the_secure_mode_against_the_same_runs_without(
+        certs: Path, tmp_path: Path) -> None:
+    """`swarm bench swarm --secure DIR`: every run twice a round, order alternating; the
+    secure row's ratio is to the same policy's plain run of the round; the same actions."""
+    r = swarm("bench", "swarm", "--robots", "6", "--secure", str(certs))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "robot-5" in r.stderr, r.stderr
+    out = tmp_path / "b.json"
+    r = swarm("bench", "swarm", "--robots", "3", "--policy", "nearest-frontier", "--episodes",
+              "1", "--horizon", "8", "--repeats", "2", "--secure", str(certs), "--json", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(out.read_text())
+    rows = res["rows"]
+    assert [(x["round"], x["policy"]) for x in rows] == [
+        (0, "nearest-frontier"), (0, "nearest-frontier+secure"),
+        (1, "nearest-frontier+secure"), (1, "nearest-frontier")]
+    assert len({x["actions_sha1"] for x in rows}) == 1 and all(x["bad"] == 0 for x in rows)
+    speed = {(x["round"], x["policy"]): x["ticks_per_s"] for x in rows}
+    sec = next(m for m in res["summary"] if m["policy"] == "nearest-frontier+secure")
+    assert sec["vs_first"] == pytest.approx([speed[(k, "nearest-frontier+secure")]
+                                             / speed[(k, "nearest-frontier")] for k in (0, 1)])
+
+
 def test_a_missing_certificate_is_one_line_before_any_process(certs: Path, tmp_path: Path) -> None:
     d = tmp_path / "incomplete"
     d.mkdir(mode=0o700)

@@ -12,6 +12,8 @@ each policy's per-round ratio to the first policy (the two runs of a round are s
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import statistics
 from dataclasses import dataclass
 from typing import Any
@@ -42,6 +44,12 @@ class SwarmBenchConfig:
     medians over rounds (ticks/s and the per-round ratio to the first policy)."""
     delivery: str = "radio"
     """`radio` (the world's radio delivers, the default of `swarm run`) or `direct`."""
+    hosts: int = 0
+    """Emulated hosts (`swarm run --hosts K`, root); 0: one host, loopback."""
+    secure: str | None = None
+    """Certificate directory: every run is made twice a round, without and with `--secure DIR`
+    (order alternating), the second listed as POLICY+secure; its ratio to the first policy is
+    the secure mode's speed cost."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1 or not self.robots or min(self.robots) < 1:
@@ -51,27 +59,57 @@ class SwarmBenchConfig:
         if self.delivery not in ("radio", "direct"):
             raise ConfigError(f"bench swarm delivery must be 'radio' or 'direct', "
                               f"got {self.delivery!r}")
+        if self.hosts < 0:
+            raise ConfigError(f"bench swarm hosts must be >= 0, got {self.hosts}")
+
+    def check(self) -> None:
+        """Hosts and certificates usable for every team size, before any run (one line)."""
+        if self.hosts:
+            from swarm.net.kernel.hosts import MAX_HOSTS, hosts_reason
+
+            reason = hosts_reason() if self.hosts <= MAX_HOSTS else f"at most {MAX_HOSTS} hosts"
+            if reason:
+                raise ConfigError(reason)
+        if self.secure:
+            from swarm.net.security.tls import Secure, topology_secure
+
+            n = max(self.robots)
+            if self.hosts:
+                topology_secure(self.secure, "bench", n, self.hosts)
+            else:
+                Secure.load(self.secure, "supervisor", "bench", n,
+                            need=("world", *(f"robot-{i}" for i in range(n))))
 
 
 def bench_swarm(world: WorldConfig, cfg: SwarmBenchConfig, progress: Any = None) -> dict[str, Any]:
+    cfg.check()
+    modes = (False, True) if cfg.secure else (False,)
     rows = []
     for rnd in range(cfg.repeats):
         for policy in cfg.policies:
             for n in cfg.robots:
-                rows.append({**_one_run(world, cfg, policy, n), "round": rnd})
-                if progress is not None:
-                    progress(rows[-1])
+                for secure in modes if rnd % 2 == 0 else modes[::-1]:
+                    rows.append({**_one_run(world, cfg, policy, n, secure), "round": rnd})
+                    if progress is not None:
+                        progress(rows[-1])
+    names = tuple(f"{p}{tag}" for p in cfg.policies for tag in ("", "+secure")[:len(modes)])
     return {"rows": rows, "episodes": cfg.episodes, "seed": cfg.seed, "repeats": cfg.repeats,
-            "delivery": cfg.delivery, "summary": summarize(rows, cfg.policies, cfg.robots)}
+            "delivery": cfg.delivery, "hosts": cfg.hosts, "secure": cfg.secure,
+            "summary": summarize(rows, names, cfg.robots)}
 
 
-def _one_run(world: WorldConfig, cfg: SwarmBenchConfig, policy: str, n: int) -> dict[str, Any]:
+def _one_run(world: WorldConfig, cfg: SwarmBenchConfig, policy: str, n: int,
+             secure: bool = False) -> dict[str, Any]:
     wcfg = dataclasses.replace(world, n_robots=n)
-    run = RunConfig(run_id=f"bench-{policy}-{n}"[:60], policy=policy, episodes=cfg.episodes,
-                    seed=cfg.seed, checkpoint=cfg.checkpoint, delivery=cfg.delivery)
-    opts = SuperviseOptions(headless=True, status_lines=False)
+    run = RunConfig(run_id=f"bench-{policy}-{n}{'s' if secure else ''}"[:60], policy=policy,
+                    episodes=cfg.episodes, seed=cfg.seed, checkpoint=cfg.checkpoint,
+                    delivery=cfg.delivery)
+    opts = SuperviseOptions(headless=True, status_lines=False, hosts=cfg.hosts,
+                            secure=cfg.secure if secure else None)
     res = Supervisor(wcfg, run, opts).supervise()
-    return {"policy": policy, "robots": n, "size": f"{wcfg.height}x{wcfg.width}",
+    return {"policy": f"{policy}+secure" if secure else policy, "robots": n,
+            "size": f"{wcfg.height}x{wcfg.width}",
+            "actions_sha1": hashlib.sha1(json.dumps(res["actions"]).encode()).hexdigest()[:12],
             "ticks_per_s": res["ticks_per_s"], "startup_s": res["startup_s"],
             "rss_mb_per_robot": res["rss_mb_per_robot"],
             "pss_mb_per_robot": res.get("pss_mb_per_robot"),
@@ -89,15 +127,17 @@ def _one_run(world: WorldConfig, cfg: SwarmBenchConfig, policy: str, n: int) -> 
 def summarize(rows: list[dict[str, Any]], policies: tuple[str, ...],
               robots: tuple[int, ...]) -> list[dict[str, Any]]:
     """Per (policy, team size): ticks/s of every round and their median, and the median over
-    rounds of its ticks/s divided by the first policy's in the same round."""
+    rounds of its ticks/s divided by the first policy's in the same round (for `P+secure`: by
+    `P`'s without --secure, the secure mode's cost)."""
     speed = {(r["policy"], r["robots"], r["round"]): r["ticks_per_s"] for r in rows}
     rounds = sorted({r["round"] for r in rows})
     out = []
     for policy in policies:
         for n in robots:
             tps = [speed[(policy, n, k)] for k in rounds if (policy, n, k) in speed]
-            ratios = [speed[(policy, n, k)] / speed[(policies[0], n, k)] for k in rounds
-                      if (policy, n, k) in speed and speed.get((policies[0], n, k), 0) > 0]
+            ref = policy.removesuffix("+secure") if policy.endswith("+secure") else policies[0]
+            ratios = [speed[(policy, n, k)] / speed[(ref, n, k)] for k in rounds
+                      if (policy, n, k) in speed and speed.get((ref, n, k), 0) > 0]
             out.append({"policy": policy, "robots": n, "ticks_per_s": tps,
                         "ticks_per_s_median": statistics.median(tps) if tps else None,
                         "vs_first": ratios,

@@ -214,7 +214,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
                      {"robots": _ints(args.robots_list), "policies": _names(args.policy),
                       "episodes": args.episodes, "seed": args.seed,
                       "checkpoint": args.checkpoint, "json": args.json,
-                      "repeats": args.repeats, "delivery": args.delivery}, where)
+                      "repeats": args.repeats, "delivery": args.delivery,
+                      "hosts": args.hosts, "secure": args.secure}, where)
         for name in cfg.policies:
             build_policy(name, world, cfg.checkpoint)
         result = bench_swarm(world, cfg, lambda row: err.print(_row_line(row)))
@@ -370,6 +371,9 @@ def add_parsers(sub: Any) -> None:
                         "policy's per-round speed ratio to the first (default 1)")
     b.add_argument("--delivery", choices=["radio", "direct"],
                    help="who delivers robot-to-robot messages (default radio)")
+    b.add_argument("--hosts", type=int, metavar="K", help="emulated hosts (root; default 0)")
+    b.add_argument("--secure", metavar="DIR",
+                   help="also run each with --secure DIR (interleaved; listed as POLICY+secure)")
     add_common(b)
     add_world(b, robots=False)
     b.set_defaults(func=cmd_bench)

@@ -197,8 +197,8 @@ def swarm_bench_table(result: Mapping[str, Any]) -> Any:
     med = Table(title=f"Medians over {result['repeats']} interleaved rounds",
                 title_justify="left")
     med.add_column("policy", style="bold")
-    for col in ("robots", "ticks/s median", "ticks/s per round", f"x {first} median",
-                "per round"):
+    ref = f"x {first} median" + (" (+secure: x itself plain)" if result.get("secure") else "")
+    for col in ("robots", "ticks/s median", "ticks/s per round", ref, "per round"):
         med.add_column(col, justify="right")
     for m in result["summary"]:
         med.add_row(m["policy"], str(m["robots"]), f(m["ticks_per_s_median"]),
