@@ -279,6 +279,42 @@ def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[st
 
 
 @pytest.mark.procs
+def test_verify_reruns_direct_delivery_and_names_a_false_stamp(tmp_path: Path) -> None:
+    """A direct-delivery run under loss, latency, a bandwidth cap and a partition: every robot's
+    decisions re-run from the recorded stamped messages give the counters it reported; a stamp
+    whose queue delay its sender's bucket does not give is named."""
+    from swarm.net.messages import K_TRAJ, Stamped
+
+    f = tmp_path / "direct.mcap"
+    r = swarm("run", "--headless", "--robots", "4", "--policy", "commattn", "--checkpoint", CKPT,
+              "--episodes", "2", "--horizon", str(HORIZON), "--seed", "3", "--delivery", "direct",
+              "--loss", "0.2", "--latency", "120ms", "--jitter", "60ms", "--bandwidth",
+              "1.5kB/s", "--partition", "0-1/2-3", "--tick-timeout", "0.2", "--run-id", "recd",
+              "--record", str(f), timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    r = swarm("replay", str(f), "--verify", "--json", str(tmp_path / "v.json"))
+    assert r.returncode == 0, r.stderr
+    v = json.loads((tmp_path / "v.json").read_text())
+    assert v["ok"] and v["checked"]["direct copies decided"] > 0 and v["checked"]["results"] == 1
+    cfg = WorldConfig(n_robots=4, horizon=HORIZON)
+
+    def alter(topic: str, data: bytes) -> bytes:
+        if topic == "swarm/recd/robot/2/dtraj":
+            st = Stamped.unpack(data, cfg)
+            if (st.ep, st.t) == (1, 3) and st.kind == K_TRAJ:
+                return Stamped(st.kind, st.ep, st.t, st.robot, st.queue_ms + 250.0,
+                               st.payload).pack()
+        return data
+
+    bad = tmp_path / "altered.mcap"
+    rewrite(f, bad, edit_msg=alter)
+    r = swarm("replay", str(bad), "--verify")
+    assert r.returncode == 1
+    line = r.stderr.strip().splitlines()[-1]
+    assert "divergence at episode 1 tick 3" in line and "robot 2's trajectory stamp" in line, line
+
+
+@pytest.mark.procs
 def test_replay_renders_the_run_into_a_capture_console(recorded: dict[str, Any]) -> None:
     from swarm.studies.replay import load, replay
 

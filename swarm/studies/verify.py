@@ -6,7 +6,9 @@ result): every observation, every status and the result must be what they comput
 made in virtual time also re-runs the radio (`swarm.net.radio.Radio` with its `VirtualChannel`,
 live fault changes included) on the recorded trajectory and hidden-state messages: every
 bundle, every forwarded hidden-state message (or miss marker) and the radio's counters must
-match. The first divergence is reported as (episode, tick, field, recorded, recomputed).
+match; under direct delivery the robots' own deliveries are re-run instead
+(`swarm.studies.verify_direct`). The first divergence is reported as (episode, tick, field,
+recorded, recomputed).
 
 Which actions the world applied, and which messages its radio saw, cannot be read from the
 order the recorder heard them in: the world, the run's router, may step and publish its status
@@ -38,11 +40,13 @@ from swarm.net.messages import (
     Bundle,
     Hidden,
     Obs,
+    Stamped,
     Traj,
     unpack_record,
 )
 from swarm.net.radio import Radio
 from swarm.studies.replay import Recording
+from swarm.studies.verify_direct import DirectAudit, stamped_of
 from world import core
 from world.config import ConfigError
 
@@ -96,6 +100,7 @@ class _Tick:
     hidden: list[tuple[int, Hidden, bytes]] = field(default_factory=list)
     radio_hidden: list[tuple[int, Hidden, bytes]] = field(default_factory=list)
     action: list[tuple[int, Action]] = field(default_factory=list)
+    direct: list[tuple[str, Stamped, bytes]] = field(default_factory=list)  # (key, it, raw)
 
 
 def _index(rec: Recording, report: VerifyReport) -> tuple[dict[tuple[int, int], _Tick],
@@ -114,6 +119,10 @@ def _index(rec: Recording, report: VerifyReport) -> tuple[dict[tuple[int, int], 
                 continue
             if m.kind == "control":
                 control.append((idx, unpack_record(m.payload, K_CONTROL)))
+                continue
+            if m.kind == "direct":
+                st = stamped_of(m.key, m.payload, m.robot, cfg)
+                ticks.setdefault((st.ep, st.t), _Tick()).direct.append((m.key, st, m.payload))
                 continue
             if m.kind not in UNPACK:
                 continue
@@ -142,10 +151,12 @@ class Auditor:
         self.rec, self.cfg, self.run = rec, rec.record.world, rec.record.run
         self.report = VerifyReport()
         self.virtual = self.run.clock == "virtual"
-        # direct delivery: robots decide their copies' fates themselves, the world's radio does
-        # not run, so only the world is re-stepped (deliveries are not re-run yet)
+        # direct delivery: robots decide their copies' fates themselves and the world's radio
+        # does not run, so the robots' own decisions are re-run
         self.radio_run = self.virtual and getattr(self.run, "delivery", "radio") == "radio"
         self.table = dict(rec.record.faults)
+        self.direct = DirectAudit(self.cfg, self.run, self.table) if self.virtual and \
+            not self.radio_run else None
         self.radio = Radio(self.cfg, plan_from_table(self.table, self.run.seed, self.cfg.n_robots))
         if self.virtual:
             self.radio.use_virtual_clock(self.run.tick_timeout)
@@ -181,9 +192,6 @@ class Auditor:
         if not self.virtual:
             self.report.notes.append("real clock: deliveries depend on wall time; the radio is "
                                      "not re-run, the world is")
-        elif not self.radio_run:
-            self.report.notes.append("direct delivery: the robots' own fault draws are not "
-                                     "re-run, the world is")
         try:
             self._episodes()
             self._result()
@@ -265,6 +273,10 @@ class Auditor:
             self.fail("status.timeouts", late, "a list of robot ids")
         if self.radio_run:
             self._radio(ep, t, state, bucket, set(late))
+        elif self.direct is not None:
+            obs = {o.robot: o for _, o in bucket.obs}
+            self.report.count("direct copies decided", self.direct.tick(obs, bucket.direct,
+                                                                        self.same))
         alive = np.zeros(cfg.n_robots, dtype=bool)
         rec_alive = st.get("alive")
         if not isinstance(rec_alive, list) or len(rec_alive) != cfg.n_robots:
@@ -398,10 +410,11 @@ class Auditor:
                                  self.parts, self.curves).summary(self.cfg)
             for k in SUMMARY_KEYS:
                 self.same(f"result.{k}", res.get(k), float(summ[k]))  # type: ignore[arg-type]
-        if self.radio_run:
-            msgs = res.get("messages") if isinstance(res.get("messages"), dict) else {}
-            for k, v in self._radio_totals().items():
-                self.same(f"result.messages.{k}", msgs.get(k), v)
+        msgs = res.get("messages") if isinstance(res.get("messages"), dict) else {}
+        mine = self._radio_totals() if self.radio_run else \
+            self.direct.totals() if self.direct is not None else {}
+        for k, v in mine.items():
+            self.same(f"result.messages.{k}", msgs.get(k), v)
         self.report.count("results")
 
 

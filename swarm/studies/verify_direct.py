@@ -1,0 +1,91 @@
+"""Direct delivery re-run from a recording (`swarm replay --verify` of a `--delivery direct`
+run in virtual time).
+
+Each robot decided the fate of every copy it received itself (`swarm.net.direct.DirectLink`);
+the recording holds every stamped message the robots put and every observation the world sent.
+So one `DirectLink` per robot is fed, tick by tick, what that robot was fed: its observation
+(with any live fault change it carried), its own messages (whose stamps are recomputed from its
+own token bucket and must equal the queue delays it claimed), every other robot's trajectory
+message, and, for a chained policy, its predecessor's hidden-state message (the predecessor
+being the highest lower id among the trajectories it heard). The counters those links end with
+must be the ones the robots reported and the world summed into the result.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import msgpack
+
+from policies import CHAINED
+from swarm.net.direct import COUNT_KEYS, KIND_KEYS, DirectLink, DirectTally
+from swarm.net.faults import plan_from_table
+from swarm.net.messages import K_HIDDEN, K_TRAJ, BadMessage, Obs, Stamped, Traj
+from world.config import ConfigError, WorldConfig
+
+
+class DirectAudit:
+    """The robots' direct delivery, re-run on recorded messages."""
+
+    def __init__(self, cfg: WorldConfig, run: Any, table: dict[str, Any]) -> None:
+        self.cfg, self.run = cfg, run
+        self.chained = run.policy in CHAINED
+        plan = plan_from_table(table, run.seed, cfg.n_robots)
+        self.links = [DirectLink(cfg, i, plan, run.tick_timeout) for i in range(cfg.n_robots)]
+
+    def tick(self, obs: dict[int, Obs], stamped: list[tuple[str, Stamped, bytes]],
+             same: Callable[[str, Any, Any], None]) -> int:
+        """Re-run one tick (observations by robot, stamped messages as (key, envelope, raw
+        payload)); `same` reports a divergence. Returns the copies decided."""
+        for i, o in sorted(obs.items()):
+            if o.faults:  # a live change from this tick on, as the robot applied it
+                try:
+                    table = msgpack.unpackb(o.faults)
+                    self.links[i].set_plan(plan_from_table(table, self.run.seed, self.cfg.n_robots))
+                except (ConfigError, ValueError, TypeError, AttributeError,
+                        msgpack.UnpackException):
+                    pass  # the robot dropped it too (and counted it bad)
+            self.links[i].begin(o)
+        mine = {(st.kind, st.robot): (key, st, raw) for key, st, raw in stamped}
+        for (kind, j), (_, st, _) in sorted(mine.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+            if j in obs:  # its own stamp: the queue delay its bucket gives, as it claimed
+                again = Stamped.unpack(self.links[j].stamp(kind, st.payload), self.cfg)
+                what = "trajectory" if kind == K_TRAJ else "hidden-state"
+                same(f"robot {j}'s {what} stamp (queue ms)", st.queue_ms, again.queue_ms)
+        decided = 0
+        for i in sorted(obs):
+            for (kind, j), (key, _, raw) in mine.items():
+                if kind == K_TRAJ and j != i:
+                    self.links[i].offer(key, raw)
+            heard = self.links[i].heard()
+            decided += len(heard)
+            if not self.chained:
+                continue
+            lower = [m.robot for m in (Traj.unpack(p, self.cfg) for p in heard) if m.robot < i]
+            if lower:
+                pred = max(lower)
+                got = mine.get((K_HIDDEN, pred))
+                if got is not None:
+                    self.links[i].offer(got[0], got[2])
+                self.links[i].hidden(pred)
+                decided += 1
+        return decided
+
+    def totals(self) -> dict[str, Any]:
+        """The counters the links end with, summed as the world sums the robots' reports."""
+        tally = DirectTally(self.cfg.n_robots)
+        for i, link in enumerate(self.links):
+            tally.offer({"robot": i, "direct": link.record()})
+        tot = tally.totals()
+        return {k: tot[k] for k in COUNT_KEYS} | {
+            "by_kind": {kind: {k: tot["by_kind"][kind][k] for k in KIND_KEYS}
+                        for kind in ("traj", "hidden")}}
+
+
+def stamped_of(key: str, payload: bytes, robot: int | None, cfg: WorldConfig) -> Stamped:
+    """A recorded stamped message, checked (BadMessage: skipped, as its receivers dropped it)."""
+    st = Stamped.unpack(payload, cfg)
+    if robot != st.robot or key.endswith("/dhidden") != (st.kind == K_HIDDEN):
+        raise BadMessage("a stamped message that does not fit its key")
+    return st
