@@ -394,9 +394,9 @@ def test_a_secure_run_on_three_hosts_keeps_a_foreign_robot_out_at_its_hosts_rout
     assert _ours("shosts") == []
 
 
-def _live_change_run(tmp: Path, run_id: str, *extra: str) -> dict:
-    """A 4-robot CommAttn run (3 episodes, paced) whose link faults change live at run tick 40
-    (`swarm fault --at-tick`, sent at tick 5)."""
+def _live_change_run(tmp: Path, run_id: str, at: int, *extra: str) -> dict:
+    """A 4-robot CommAttn run (3 episodes, paced) whose link faults change live at run tick
+    `at` (`swarm fault --at-tick`, sent at tick 5)."""
     import sys
 
     out = tmp / f"{run_id}.json"
@@ -410,7 +410,7 @@ def _live_change_run(tmp: Path, run_id: str, *extra: str) -> dict:
         for line in proc.stdout:
             if line.startswith('{"status"') and json.loads(line)["status"]["run_tick"] == 5:
                 r = swarm("fault", "--run", run_id, "--loss", "0.4", "--latency", "150ms",
-                          "--jitter", "100ms", "--at-tick", "40", timeout=30)
+                          "--jitter", "100ms", "--at-tick", str(at), timeout=30)
                 assert r.returncode == 0, r.stderr
         assert proc.wait(timeout=120) == 0, proc.stderr.read() if proc.stderr else ""
     finally:
@@ -420,13 +420,15 @@ def _live_change_run(tmp: Path, run_id: str, *extra: str) -> dict:
 
 
 @pytest.mark.procs
+@pytest.mark.parametrize("at", [30, 40])
 def test_a_live_fault_change_under_direct_delivery_lands_as_with_the_radio(
-        tmp_path: Path) -> None:
+        tmp_path: Path, at: int) -> None:
     """The world hands the changed table to the robots in the observations of the tick it
-    applies from; every robot switches its plan there, as the radio does: same actions and
-    counters as the radio run with the same change."""
-    radio = _live_change_run(tmp_path, "liveradio")
-    direct = _live_change_run(tmp_path, "livedirect", "--delivery", "direct")
+    applies from (at 30: the last observation of episode 0); every robot switches its plan
+    there, as the radio does: same actions and counters as the radio run with the same
+    change."""
+    radio = _live_change_run(tmp_path, f"liveradio{at}", at)
+    direct = _live_change_run(tmp_path, f"livedirect{at}", at, "--delivery", "direct")
     assert direct["delivery"] == "direct" and direct["actions"] == radio["actions"]
     for key in COPIES:
         assert direct["messages"][key] == radio["messages"][key], key

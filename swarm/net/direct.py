@@ -22,10 +22,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import msgpack
 import numpy as np
 
 from swarm.net.channel import CUT, FATES, LOST, OK, VirtualChannel
-from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan
+from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, plan_from_table
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     DROPPED_Q,
@@ -38,11 +39,28 @@ from swarm.net.messages import (
     Traj,
 )
 from swarm.net.radio import RadioCounters
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 from world.decentral import neighbourhood
 
 WAIT_FRAC = 0.5  # a robot waits for the tick's trajectory messages up to this part of its budget
 BIG = 2**53  # counters a status record may report
+
+
+def live_plan(packed: bytes, seed: int, n: int) -> FaultPlan:
+    """The plan of a live fault change an observation carries (`Obs.faults`: the run's
+    `[faults]` table, msgpack); a ConfigError names what is wrong with it."""
+    try:
+        table = msgpack.unpackb(packed)
+    except (ValueError, TypeError, msgpack.UnpackException) as exc:
+        raise ConfigError(f"the faults table does not decode: {exc}") from None
+    if not isinstance(table, dict):
+        raise ConfigError("the faults table is not a map")
+    try:
+        return plan_from_table(table, seed, n)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise ConfigError(f"bad faults table: {exc}") from None
 
 
 def carried(st: Stamped, cfg: WorldConfig) -> Traj | Hidden:

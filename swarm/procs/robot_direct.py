@@ -14,10 +14,9 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-import msgpack
 import zenoh
 
-from swarm.net.direct import WAIT_FRAC, DirectLink
+from swarm.net.direct import WAIT_FRAC, DirectLink, live_plan
 from swarm.net.faults import plan_from_table
 from swarm.net.inbox import Event, Inbox, publisher
 from swarm.net.messages import (
@@ -128,19 +127,16 @@ class DirectDelivery:
     def begin(self, obs: Obs) -> None:
         """An observation: a new tick to deliver (or an episode's end, reported at once so the
         world can sum every robot's counters)."""
+        if obs.faults:  # a live change from this tick on (the world's radio switches with it;
+            try:          # an episode's last observation may carry it too)
+                self.link.set_plan(live_plan(obs.faults, self.proc.run_cfg.seed,
+                                             self.proc.cfg.n_robots))
+            except ConfigError as exc:
+                self.proc._bad(self.proc.keys.obs(self.proc.robot), f"live faults: {exc}")
         if obs.done:
             self.link.done_ep = max(self.link.done_ep, obs.ep)
             self.proc.status()
             return
-        if obs.faults:  # a live change from this tick on (the world's radio switches with it)
-            try:
-                table = msgpack.unpackb(obs.faults)
-                if not isinstance(table, dict):
-                    raise ConfigError("the faults table is not a map")
-                self.link.set_plan(plan_from_table(table, self.proc.run_cfg.seed,
-                                                   self.proc.cfg.n_robots))
-            except (ConfigError, ValueError, TypeError, msgpack.UnpackException) as exc:
-                self.proc._bad(self.proc.keys.obs(self.proc.robot), f"live faults: {exc}")
         self.link.begin(obs)
         self.t_begin, self.budget_s = time.monotonic(), obs.budget_ms / 1e3
         if not self.link.sees_peers():  # (at a run's start, or after a peer's restart)

@@ -220,6 +220,9 @@ class Auditor:
             if state.done:
                 self.where = (ep, state.t, run_tick)
                 self._observations(ep, state)
+                if self.direct is not None:  # a live change may ride in the last observations
+                    self.direct.faults({o.robot: o for _, o in
+                                        self.ticks.get((ep, state.t), _Tick()).obs})
                 self.parts.append(core.metrics(self.cfg, state))
                 self.curves.append(state.elratio)
                 self.actions.append(acts_log)

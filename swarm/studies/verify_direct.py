@@ -16,10 +16,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import msgpack
-
 from policies import CHAINED
-from swarm.net.direct import COUNT_KEYS, KIND_KEYS, DirectLink, DirectTally
+from swarm.net.direct import COUNT_KEYS, KIND_KEYS, DirectLink, DirectTally, live_plan
 from swarm.net.faults import plan_from_table
 from swarm.net.messages import K_HIDDEN, K_TRAJ, BadMessage, Obs, Stamped, Traj
 from world.config import ConfigError, WorldConfig
@@ -38,15 +36,9 @@ class DirectAudit:
              same: Callable[[str, Any, Any], None]) -> int:
         """Re-run one tick (observations by robot, stamped messages as (key, envelope, raw
         payload)); `same` reports a divergence. Returns the copies decided."""
-        for i, o in sorted(obs.items()):
-            if o.faults:  # a live change from this tick on, as the robot applied it
-                try:
-                    table = msgpack.unpackb(o.faults)
-                    self.links[i].set_plan(plan_from_table(table, self.run.seed, self.cfg.n_robots))
-                except (ConfigError, ValueError, TypeError, AttributeError,
-                        msgpack.UnpackException):
-                    pass  # the robot dropped it too (and counted it bad)
-            self.links[i].begin(o)
+        self.faults(obs)
+        for _, o in sorted(obs.items()):
+            self.links[o.robot].begin(o)
         mine = {(st.kind, st.robot): (key, st, raw) for key, st, raw in stamped}
         for (kind, j), (_, st, _) in sorted(mine.items(), key=lambda kv: (kv[0][1], kv[0][0])):
             if j in obs:  # its own stamp: the queue delay its bucket gives, as it claimed
@@ -71,6 +63,16 @@ class DirectAudit:
                 self.links[i].hidden(pred)
                 decided += 1
         return decided
+
+    def faults(self, obs: dict[int, Obs]) -> None:
+        """Live fault changes the observations carry (an episode's last one may), as each robot
+        applied them; one a robot dropped as bad, the audit drops too."""
+        for i, o in obs.items():
+            if o.faults:
+                try:
+                    self.links[i].set_plan(live_plan(o.faults, self.run.seed, self.cfg.n_robots))
+                except ConfigError:
+                    pass
 
     def totals(self) -> dict[str, Any]:
         """The counters the links end with, summed as the world sums the robots' reports."""
