@@ -7,9 +7,13 @@ set -euo pipefail
 S=.venv/bin/swarm
 COMMON=(--updates 100 --batch 288 --workers 2 --threads 1 --gamma 0.9 --val-episodes 288)
 
-if [ ! -f runs/paper_full/checkpoint.pt ]; then
-    mkdir -p runs && cp -r results/paper_full/run runs/paper_full
-fi
+mkdir -p runs
+for k in "" 2 3; do  # the committed run directories, where a stage stopped
+    src=results/paper_full/run$k
+    if [ -f "$src/checkpoint.pt" ] && [ ! -f "runs/paper_full$k/checkpoint.pt" ]; then
+        cp -r "$src" "runs/paper_full$k"
+    fi
+done
 $S train --resume --out runs/paper_full                                       # stage 1 (25 epochs)
 
 stage() {  # out, from, epochs, lr, seed
