@@ -19,6 +19,18 @@ def swarm(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
                           text=True, capture_output=True, timeout=timeout)
 
 
+def swarm_started(*args: str) -> subprocess.Popen[str]:
+    """Start `python -m swarm.cli ARGS` (a headless run) and return once its first tick's status
+    line is out, the run on; the caller waits for it (or kills it)."""
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if line.startswith('{"status"'):
+            break
+    return proc
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "procs: spawns processes or opens Zenoh sessions (slow)")
 

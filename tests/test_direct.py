@@ -13,7 +13,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_started
 
 from swarm.net.direct import DirectLink, DirectTally
 from swarm.net.faults import plan_from_table
@@ -337,7 +337,6 @@ def test_a_secure_run_on_three_hosts_keeps_a_foreign_robot_out_at_its_hosts_rout
     certificates are issued for the run's addresses; robot 3's valid certificate, connected to
     host 1's router, cannot put robot 4's action, weights or control; the run acts as the
     single-host run without --secure."""
-    import sys
 
     pytest.importorskip("cryptography")
     from swarm.net.security.certs import make_certs
@@ -347,16 +346,11 @@ def test_a_secure_run_on_three_hosts_keeps_a_foreign_robot_out_at_its_hosts_rout
     run = ["run", "--robots", "5", "--episodes", "3", "--seed", "5", "--headless",
            "--checkpoint", CKPT]
     logs = tmp_path / "shosts-logs"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", *run, "--secure", str(certs), "--hosts", "3",
-         "--delivery", "direct", "--pace", "12", "--run-id", "shosts", "--log-dir", str(logs),
-         "--json", str(tmp_path / "shosts.json")],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = swarm_started(*run, "--secure", str(certs), "--hosts", "3", "--delivery", "direct",
+                         "--pace", "12", "--run-id", "shosts", "--log-dir", str(logs),
+                         "--json", str(tmp_path / "shosts.json"))
     try:
         assert proc.stdout is not None
-        for line in proc.stdout:  # the first tick's status: the run is on
-            if line.startswith('{"status"'):
-                break
         import zenoh
 
         conf = zenoh.Config.from_file(str(logs / "zenoh" / "router-1.json5"))

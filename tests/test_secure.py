@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_started
 
 from swarm.net.keys import Keys
 from swarm.net.security.certs import make_certs
@@ -282,15 +282,10 @@ def test_foreign_peers_get_nothing_into_a_secure_run(certs: Path, tmp_path: Path
     certificate cannot put robot 4's action, weights or control; the run's metrics equal the
     same run without --secure, and no process counted a forged message."""
     run = ["run", "--robots", "5", "--episodes", "4", "--seed", "5", "--headless"]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", *run, "--secure", str(certs), "--pace", "12",
-         "--run-id", "secaudit", "--json", str(tmp_path / "secure.json")],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = swarm_started(*run, "--secure", str(certs), "--pace", "12", "--run-id", "secaudit",
+                         "--json", str(tmp_path / "secure.json"))
     try:
         assert proc.stdout is not None
-        for line in proc.stdout:  # the first tick's status: the run is on
-            if line.startswith('{"status"'):
-                break
         audit = swarm("audit", "--run", "secaudit", "--secure", str(certs), "--duration", "2",
                       "--json", str(tmp_path / "audit.json"), timeout=60)
         proc.stdout.read()
