@@ -111,7 +111,8 @@ class Obs:
                                                                         (9, 10, 11))
         if not isinstance(done, bool):
             raise BadMessage("done must be a bool")
-        live = _bytes(rest[0], "live", (cfg.n_robots + 7) // 8) if rest and rest[0] else b""
+        live = b"" if not rest or rest[0] == b"" else _bytes(rest[0], "live",
+                                                             (cfg.n_robots + 7) // 8)
         faults = rest[1] if len(rest) > 1 else b""
         if not isinstance(faults, bytes) or len(faults) > MAX_FAULTS_BYTES:
             raise BadMessage(f"faults must be at most {MAX_FAULTS_BYTES} bytes")
