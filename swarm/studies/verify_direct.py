@@ -16,11 +16,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from policies import CHAINED
 from swarm.net.direct import COUNT_KEYS, KIND_KEYS, DirectLink, DirectTally, live_plan
 from swarm.net.faults import plan_from_table
 from swarm.net.messages import K_HIDDEN, K_TRAJ, BadMessage, Obs, Stamped, Traj
 from world.config import ConfigError, WorldConfig
+from world.decentral import predecessor_of
 
 
 class DirectAudit:
@@ -54,9 +57,10 @@ class DirectAudit:
             decided += len(heard)
             if not self.chained:
                 continue
-            lower = [m.robot for m in (Traj.unpack(p, self.cfg) for p in heard) if m.robot < i]
-            if lower:
-                pred = max(lower)
+            row = np.zeros((1, self.cfg.n_robots), dtype=bool)  # the robot's own predecessor
+            row[0, [Traj.unpack(p, self.cfg).robot for p in heard]] = True
+            pred = int(predecessor_of(row, np.array([i]))[0])
+            if pred >= 0:
                 got = mine.get((K_HIDDEN, pred))
                 if got is not None:
                     self.links[i].offer(got[0], got[2])
