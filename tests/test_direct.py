@@ -20,10 +20,12 @@ from swarm.net.faults import plan_from_table
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     DROPPED_Q,
+    K_ACTION,
     K_HIDDEN,
     K_OBS,
     K_STAMPED,
     K_TRAJ,
+    Action,
     BadMessage,
     Hidden,
     Obs,
@@ -186,6 +188,75 @@ def test_hostile_stamped_messages_are_refused() -> None:
     tally = DirectTally(3)
     tally.offer({"robot": 1, "direct": {**good_rec, "links": {"0-1": [3, 1, 0, 0]}}})
     assert tally.faulted_links() == {"0-1": [3, 1, 0, 0]}
+
+
+def test_a_restarted_robot_takes_up_its_bucket_and_its_counts_add_up() -> None:
+    """A robot restarted mid-episode goes on with the token bucket its last action reported
+    (`Action.bucket` -> `Obs.bucket`), as the radio's bucket for it would have; a live fault
+    change fills it instead; the world's tally adds a crashed incarnation's last report to its
+    successor's and refuses the dead one's records after that."""
+    cfg = WorldConfig(n_robots=3)
+    plan = plan_from_table({"bandwidth": "100B/s", "burst": 400}, 0, 3)
+
+    def obs(t: int, **kw: object) -> Obs:
+        return Obs(0, t, 1, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0", **kw)  # type: ignore
+
+    def traj(t: int) -> bytes:
+        return Traj(0, t, 1, 1, 1, bytes(50), [3], bytes(25)).pack()
+
+    old = DirectLink(cfg, 1, plan, 0.2)
+    for t in range(8):
+        old.begin(obs(t))
+        old.stamp(K_TRAJ, traj(t))
+    held = old.bucket()
+    assert held is not None and held[0] < 0  # it owes bytes: its messages queue
+    new, fresh, changed = (DirectLink(cfg, 1, plan, 0.2) for _ in range(3))
+    new.begin(Obs.unpack(obs(11, bucket=held).pack(), cfg))
+    fresh.begin(obs(11))
+    changed.begin(obs(11, bucket=held, faults=msgpack.packb({"bandwidth": "300B/s"})))
+    old.begin(obs(11))
+    q = [Stamped.unpack(link.stamp(K_TRAJ, traj(11)), cfg).queue_ms
+         for link in (old, new, fresh, changed)]
+    assert q[0] == q[1] > 0 and q[2] == q[3] == 0.0
+    assert DirectLink(cfg, 1, plan_from_table({}, 0, 3), 0.2).bucket() is None  # no cap
+    a = Action(0, 11, 1, 4, 2.0, held)
+    assert Action.unpack(a.pack(), cfg) == a and Action.unpack(
+        Action(0, 11, 1, 4, 2.0).pack(), cfg).bucket is None
+    for bad in ([float("nan"), 1.0], [1e300, 0.0], [1.0], "x", [1.0, -5.0]):
+        for payload in (msgpack.packb([1, K_ACTION, 0, 11, 1, 4, 2.0, bad]),
+                        msgpack.packb([1, K_OBS, 0, 2, 1, 1, 1, bytes(25), 0.0, False, 1e3,
+                                       b"", b"", bad], use_bin_type=True)):
+            with pytest.raises(BadMessage):
+                (Action if payload[2] == K_ACTION else Obs).unpack(payload, cfg)
+    # the tally: two incarnations of robot 1, each counting from zero
+    first, second = DirectLink(cfg, 1, plan, 0.2), DirectLink(cfg, 1, plan, 0.2)
+    first.counters.traj_in, second.counters.traj_in = 5, 3
+    first.t, first.ep = 9, 0
+    tally = DirectTally(3)
+    a_rec = {"robot": 1, "direct": {**first.record(), "links": {"0-1": [1, 0, 0, 0]}}}
+    tally.offer(a_rec)
+    tally.offer({"robot": 1, "direct": {**second.record(), "links": {"0-1": [2, 1, 0, 0]}}})
+    tot = tally.totals()
+    assert tot["traj_in"] == 8 and tot["restarted"] == [{"robot": 1, "reported_to": [0, 9]}]
+    assert tally.faulted_links() == {"0-1": [3, 1, 0, 0]}
+    with pytest.raises(BadMessage, match="earlier incarnation"):
+        tally.offer(a_rec)
+    for boot in (-1, 2**62, True, "1"):
+        with pytest.raises(BadMessage):
+            DirectTally(3).offer({"robot": 1, "direct": {**first.record(), "boot": boot}})
+
+
+def test_a_peer_seen_to_vanish_is_not_waited_for() -> None:
+    """A robot that crashed after the world sent it the tick's observation: its peers see its
+    token go and send at once, instead of spending the tick's wait on its return."""
+    cfg, keys = WorldConfig(n_robots=3), Keys("v")
+    link = DirectLink(cfg, 0, plan_from_table({}, 0, 3), 0.2)
+    link.begin(Obs(0, 4, 0, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
+    link.peer(keys.alive_robot(1), True)
+    assert not link.sees_peers()  # robot 2 not seen yet (a run's start, a restart)
+    link.peer(keys.alive_robot(2), True)
+    link.peer(keys.alive_robot(2), False)
+    assert link.sees_peers()
 
 
 @pytest.mark.parametrize("flags,why", [

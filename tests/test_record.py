@@ -315,6 +315,33 @@ def test_verify_reruns_direct_delivery_and_names_a_false_stamp(tmp_path: Path) -
 
 
 @pytest.mark.procs
+def test_a_robot_restarted_under_direct_delivery_verifies(tmp_path: Path) -> None:
+    """A robot killed and restarted in a direct-delivery run under a tight bandwidth cap: its
+    successor takes up the token bucket its last action reported, its peers do not wait for it
+    once its token is gone, and the world adds both incarnations' counts; so the re-run of every
+    robot's deliveries from the recording (one link per robot, never restarted) agrees with
+    every stamp and with the result, less what the dead one counted after its last report."""
+    f = tmp_path / "restart.mcap"
+    r = swarm("run", "--headless", "--robots", "4", "--policy", "nearest-frontier",
+              "--episodes", "3", "--seed", "3", "--delivery", "direct", "--bandwidth", "200B/s",
+              "--loss", "0.2", "--tick-timeout", "0.2", "--crash", "1@3",
+              "--restart", "1@6", "--pace", "20", "--run-id", "rest", "--record", str(f),
+              "--json", str(tmp_path / "r.json"), timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["robot_restarts"] == 1 and res["completed"] == 3
+    assert [e["robot"] for e in res["messages"]["restarted"]] == [1]
+    _, msgs = read_mcap(f)
+    taken = [json.loads(data)["bucket"] for topic, enc, data, _ in msgs
+             if topic == f"{Keys('rest').obs(1)}/json" and b"bucket" in data]
+    assert taken and min(b[0] for b in taken) < 0  # it came back owing bytes
+    r = swarm("replay", str(f), "--verify", "--json", str(tmp_path / "v.json"))
+    assert r.returncode == 0, r.stderr
+    v = json.loads((tmp_path / "v.json").read_text())
+    assert v["ok"] and v["checked"]["direct copies decided"] > 0
+
+
+@pytest.mark.procs
 def test_replay_renders_the_run_into_a_capture_console(recorded: dict[str, Any]) -> None:
     from swarm.studies.replay import load, replay
 

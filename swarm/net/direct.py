@@ -20,6 +20,7 @@ it sums the counters robots report in their status records.
 from __future__ import annotations
 
 import math
+import secrets
 from typing import Any
 
 import msgpack
@@ -91,6 +92,7 @@ class DirectLink:
         self.early: dict[tuple[int, int, int], int] = {}  # their fate as far as draws tell
         self.stale = 0  # messages of a tick this robot had already left
         self.overflow = 0  # messages refused because too many were held
+        self.boot = secrets.randbits(62)  # this incarnation: a restarted robot counts anew
 
     def set_plan(self, plan: FaultPlan) -> None:
         """A live fault change, from the tick whose observation carried it (as the radio's
@@ -99,9 +101,13 @@ class DirectLink:
 
     # --- a tick ------------------------------------------------------------------------------
     def begin(self, obs: Obs) -> None:
-        """A new tick (a new episode starts with full token buckets)."""
+        """A new tick (a new episode starts with full token buckets; a robot that comes in
+        mid-episode, restarted, takes up its own bucket where its last action left it, unless
+        the plan changes at this tick: a change fills every bucket)."""
         if obs.ep != self.ep or obs.t == 0:
             self.channel.reset(1)
+            if obs.t > 0 and obs.bucket is not None and not obs.faults:
+                self.channel.tokens[0, self.robot], self.channel.last[0, self.robot] = obs.bucket
         self.ep, self.t = obs.ep, obs.t
         self.expected = np.ones(self.n, dtype=bool) if not obs.live else np.unpackbits(
             np.frombuffer(obs.live, dtype=np.uint8), count=self.n).astype(bool)
@@ -126,6 +132,14 @@ class DirectLink:
             c.hidden_in += 1
         return st.pack()
 
+    def bucket(self) -> tuple[float, float] | None:
+        """Its own token bucket (tokens, ms of the last charge) for its action to carry; None
+        when it has no cap or has not sent this episode."""
+        ch, r = self.channel, self.robot
+        if ch.rate[r] <= 0 or math.isnan(ch.last[0, r]):
+            return None
+        return float(ch.tokens[0, r]), float(ch.last[0, r])
+
     def peer(self, key: str, live: bool) -> None:
         """A robot's liveliness token came or went: a gone robot is not waited for."""
         try:
@@ -137,11 +151,14 @@ class DirectLink:
             (self.seen.add if live else self.seen.discard)(j)
 
     def sees_peers(self) -> bool:
-        """It sees the token of every robot the world sent this tick's observation to. A peer's
-        token comes after its subscriptions on the same links, so from then on this robot's
-        messages reach it: a robot sends only once this holds (or a wait ran out), or a
+        """It sees the token of every robot the world sent this tick's observation to, except
+        those whose token it saw vanish (a robot that crashed after the world sent it this
+        observation: waiting for it would spend the tick's wait on a robot that never comes).
+        A peer's token comes after its subscriptions on the same links, so from then on this
+        robot's messages reach it: a robot sends only once this holds (or a wait ran out), or a
         subscription still on its way across routers could miss its first messages."""
-        return bool(self.seen.issuperset(np.flatnonzero(self.expected).tolist()))
+        want = set(np.flatnonzero(self.expected).tolist()) - self.gone
+        return bool(self.seen.issuperset(want))
 
     def offer(self, key: str, payload: bytes) -> None:
         """A stamped message from the network; BadMessage (to drop and count) unless it fits
@@ -233,7 +250,8 @@ class DirectLink:
     def record(self) -> dict[str, Any]:
         """The counters for the robot's status record (`DirectTally` sums them)."""
         return {"done_ep": self.done_ep, "stale": self.stale, "overflow": self.overflow,
-                "counts": self.counters.totals(), "links": self.counters.faulted_links()}
+                "counts": self.counters.totals(), "links": self.counters.faulted_links(),
+                "boot": self.boot, "at": [self.ep, self.t]}
 
 
 COUNT_KEYS = ("traj_in", "traj_delivered", "hidden_in", "hidden_delivered", "out_of_range", "lost",
@@ -276,21 +294,40 @@ def check_direct(rec: Any, n: int) -> tuple[int, dict[str, Any]]:
                 not isinstance(v, list) or len(v) != 4:
             raise BadMessage(f"link {key!r} is not one of robot {robot}'s incoming links")
         links[key] = [_count(x, f"links.{key}") for x in v]
+    boot, at = d.get("boot", 0), d.get("at", [-1, -1])
+    if not isinstance(boot, int) or isinstance(boot, bool) or not 0 <= boot < 2**62:
+        raise BadMessage(f"boot={boot!r} out of range")
+    if not isinstance(at, list) or len(at) != 2 or not all(
+            isinstance(x, int) and not isinstance(x, bool) and -1 <= x < 2**31 for x in at):
+        raise BadMessage(f"at={at!r} is not [episode, tick]")
     return robot, {"done_ep": done, "stale": _count(d.get("stale", 0), "stale"),
-                   "counts": out, "links": links}
+                   "counts": out, "links": links, "boot": boot, "at": at}
 
 
 class DirectTally:
     """The world's sum of the counters its robots report (direct delivery): the latest record of
-    each robot, whose counters are cumulative over the run."""
+    each robot's incarnation, whose counters are cumulative over its life, plus the last record
+    of each incarnation before it (a robot restarted after a crash counts from zero again; what
+    its predecessor counted after its last report died with it, and `retired` says from when)."""
 
     def __init__(self, n: int) -> None:
         self.n = n
         self.latest: dict[int, dict[str, Any]] = {}
+        self.retired: list[tuple[int, dict[str, Any]]] = []  # (robot, its last record)
+        self.boots: set[tuple[int, int]] = set()  # (robot, boot) of every retired incarnation
 
     def offer(self, payload_record: Any) -> None:
         robot, rec = check_direct(payload_record, self.n)
+        if (robot, rec["boot"]) in self.boots:
+            raise BadMessage(f"a record of robot {robot}'s earlier incarnation, after its restart")
+        old = self.latest.get(robot)
+        if old is not None and old["boot"] != rec["boot"]:
+            self.retired.append((robot, old))
+            self.boots.add((robot, old["boot"]))
         self.latest[robot] = rec
+
+    def _records(self) -> list[dict[str, Any]]:
+        return [rec for _, rec in self.retired] + list(self.latest.values())
 
     def complete(self, robots: np.ndarray, ep: int) -> bool:
         """Each robot of `robots` [N] bool has reported after the end of episode `ep`."""
@@ -301,17 +338,23 @@ class DirectTally:
         """The run's message counters, the radio's keys (`RadioCounters.totals`), summed."""
         out: dict[str, Any] = dict.fromkeys(COUNT_KEYS, 0)
         out["by_kind"] = {k: dict.fromkeys(KIND_KEYS, 0) for k in ("traj", "hidden")}
-        for rec in self.latest.values():
+        for rec in self._records():
             c = rec["counts"]
             for k in COUNT_KEYS:
                 out[k] += c[k]
             for kind in ("traj", "hidden"):
                 for k in KIND_KEYS:
                     out["by_kind"][kind][k] += c["by_kind"][kind][k]
-        out["robot_stale"] = sum(rec["stale"] for rec in self.latest.values())
+        out["robot_stale"] = sum(rec["stale"] for rec in self._records())
         out["reported"] = sorted(self.latest)
+        if self.retired:  # each crashed incarnation: counted up to its last report
+            out["restarted"] = [{"robot": r, "reported_to": rec["at"]} for r, rec in self.retired]
         return out
 
     def faulted_links(self) -> dict[str, list[int]]:
         """The robots' own incoming faulted links, together: the radio's `faulted_links`."""
-        return {k: v for rec in self.latest.values() for k, v in rec["links"].items()}
+        out: dict[str, list[int]] = {}
+        for rec in self._records():
+            for k, v in rec["links"].items():
+                out[k] = [a + b for a, b in zip(out.get(k, [0, 0, 0, 0]), v, strict=True)]
+        return out

@@ -79,6 +79,20 @@ def _bytes(v: Any, name: str, size: int) -> bytes:
 
 
 BIG = 2**31 - 1
+MAX_TOKENS = 1e15  # bytes a token bucket may hold or owe
+
+
+def _bucket(v: Any) -> tuple[float, float] | None:
+    """A token bucket on the wire: None (absent) or [tokens, ms of its last charge], each in
+    range (tokens may be negative: bytes owed by a queue)."""
+    if v is None or v == []:
+        return None
+    if not isinstance(v, list) or len(v) != 2:
+        raise BadMessage("bucket must be [tokens, last_ms]")
+    return (_float(v[0], "bucket tokens", -MAX_TOKENS, MAX_TOKENS),
+            _float(v[1], "bucket last_ms", 0.0, MAX_TOKENS))
+
+
 MAX_FAULTS_BYTES = 65536  # a live fault table carried in an observation (direct delivery)
 
 
@@ -99,16 +113,21 @@ class Obs:
     # (whose trajectory messages a robot waits for); empty (and not sent) with the radio
     faults: bytes = b""  # direct delivery: the run's `[faults]` table (msgpack) from this tick
     # on, after a live change (`swarm fault`); empty when the plan did not change
+    bucket: tuple[float, float] | None = None  # direct delivery under a bandwidth cap: the
+    # robot's own token bucket (tokens, ms of its last charge) after its last action this
+    # episode, as its action reported it; a restarted robot takes it up (`Action.bucket`)
 
     def pack(self) -> bytes:
-        tail = (self.live, self.faults) if self.faults else (self.live,) if self.live else ()
+        tail: tuple[Any, ...] = (self.live, self.faults, list(self.bucket or ()))
+        while tail and not tail[-1]:
+            tail = tail[:-1]
         return _pack(K_OBS, self.ep, self.t, self.robot, self.y, self.x, self.patch, self.reward,
                      self.done, self.budget_ms, *tail)
 
     @classmethod
     def unpack(cls, payload: bytes, cfg: WorldConfig) -> Obs:
         ep, t, robot, y, x, patch, reward, done, budget, *rest = _unpack(payload, K_OBS,
-                                                                        (9, 10, 11))
+                                                                        (9, 10, 11, 12))
         if not isinstance(done, bool):
             raise BadMessage("done must be a bool")
         live = b"" if not rest or rest[0] == b"" else _bytes(rest[0], "live",
@@ -120,7 +139,7 @@ class Obs:
                    _int(robot, "robot", 0, cfg.n_robots - 1), _int(y, "y", 0, cfg.height - 1),
                    _int(x, "x", 0, cfg.width - 1), _bytes(patch, "patch", cfg.vision ** 2),
                    _float(reward, "reward"), done, _float(budget, "budget_ms", 0.0, MAX_MS),
-                   live, faults)
+                   live, faults, _bucket(rest[2] if len(rest) > 2 else None))
 
 
 @dataclass
@@ -298,23 +317,29 @@ class Stamped:
 
 @dataclass
 class Action:
-    """Robot -> world: its action for tick `t`, and how long it took to plan."""
+    """Robot -> world: its action for tick `t`, and how long it took to plan; in direct delivery
+    under a bandwidth cap also its own token bucket after this tick's sends, which the world
+    hands back in its next observation (`Obs.bucket`) so that a restarted robot goes on with
+    it, as the radio's bucket for it would have."""
 
     ep: int
     t: int
     robot: int
     action: int
     planning_ms: float
+    bucket: tuple[float, float] | None = None
 
     def pack(self) -> bytes:
-        return _pack(K_ACTION, self.ep, self.t, self.robot, self.action, self.planning_ms)
+        tail = (list(self.bucket),) if self.bucket is not None else ()
+        return _pack(K_ACTION, self.ep, self.t, self.robot, self.action, self.planning_ms, *tail)
 
     @classmethod
     def unpack(cls, payload: bytes, cfg: WorldConfig) -> Action:
-        ep, t, robot, action, planning_ms = _unpack(payload, K_ACTION, 5)
+        ep, t, robot, action, planning_ms, *rest = _unpack(payload, K_ACTION, (5, 6))
         return cls(_int(ep, "ep", 0, BIG), _int(t, "t", 0, cfg.horizon - 1),
                    _int(robot, "robot", 0, cfg.n_robots - 1), _int(action, "action", 0, 8),
-                   _float(planning_ms, "planning_ms", 0.0, MAX_MS))
+                   _float(planning_ms, "planning_ms", 0.0, MAX_MS),
+                   _bucket(rest[0] if rest else None))
 
 
 def pack_record(kind: int, record: dict[str, Any]) -> bytes:

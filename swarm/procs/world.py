@@ -79,6 +79,7 @@ class WorldProcess:
         self.fast_lane = self.chained and fast_lane
         # direct delivery (swarm.net.direct): robots deliver to one another and report counts
         self.direct = DirectTally(cfg.n_robots) if run.delivery == "direct" else None
+        self.buckets: dict[int, tuple[int, tuple[float, float]]] = {}  # robot: (ep, its bucket)
         if self.virtual:
             self.radio.use_virtual_clock(run.tick_timeout)
         self._pending_at = -1  # run tick from which the pending plan applies
@@ -218,6 +219,8 @@ class WorldProcess:
                 self.radio.counters.hidden_delivered += len(self.radio.successors(msg.robot))
                 tick.hidden_at.setdefault(msg.robot, time.perf_counter())
             tick.action[msg.robot] = msg
+            if msg.bucket is not None and self.direct is not None:  # handed back (Obs.bucket)
+                self.buckets[msg.robot] = (msg.ep, msg.bucket)
         return True
 
     def _schedule(self, when: float, key: str, payload: bytes) -> None:
@@ -314,10 +317,12 @@ class WorldProcess:
             t_obs = time.perf_counter()
             live = np.packbits(self.alive).tobytes() if self.direct is not None else b""
             for i in np.flatnonzero(self.alive):
+                held = self.buckets.get(int(i))
+                held_now = held[1] if held and held[0] == ep else None
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
                                                  patch[i].tobytes(), float(state.last_reward[0, i]),
-                                                 bool(done), budget_ms, live,
-                                                 obs_faults).pack())
+                                                 bool(done), budget_ms, live, obs_faults,
+                                                 held_now).pack())
             if done and self.run_cfg.train and rewards:
                 m = core.metrics(cfg, state)
                 rec = EpisodeRecord(ep, np.stack(rewards).astype(np.float32), np.stack(acted),

@@ -8,11 +8,14 @@ So one `DirectLink` per robot is fed, tick by tick, what that robot was fed: its
 own token bucket and must equal the queue delays it claimed), every other robot's trajectory
 message, and, for a chained policy, its predecessor's hidden-state message (the predecessor
 being the highest lower id among the trajectories it heard). The counters those links end with
-must be the ones the robots reported and the world summed into the result.
+must be the ones the robots reported and the world summed into the result, less what a crashed
+robot counted after its last report (the result names each such incarnation and the tick it
+reported to; the audit keeps each robot's last few ticks of counts to take that off).
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -34,12 +37,22 @@ class DirectAudit:
         self.chained = run.policy in CHAINED
         plan = plan_from_table(table, run.seed, cfg.n_robots)
         self.links = [DirectLink(cfg, i, plan, run.tick_timeout) for i in range(cfg.n_robots)]
+        # each robot's counts at the end of its last ticks, and where it vanished from the
+        # observations: [(those ticks' counts, its counts then)] (a crash loses what it
+        # counted after its last report: `DirectTally.retired`)
+        self.recent = [deque[tuple[tuple[int, int], dict[str, Any]]](maxlen=KEEP)
+                       for _ in range(cfg.n_robots)]
+        self.gaps: list[list[tuple[list[Any], dict[str, Any]]]] = [[] for _ in self.links]
+        self.present: set[int] = set()
 
     def tick(self, obs: dict[int, Obs], stamped: list[tuple[str, Stamped, bytes]],
              same: Callable[[str, Any, Any], None]) -> int:
         """Re-run one tick (observations by robot, stamped messages as (key, envelope, raw
         payload)); `same` reports a divergence. Returns the copies decided."""
         self.faults(obs)
+        for i in self.present - set(obs):
+            self.gaps[i].append((list(self.recent[i]), self.links[i].record()))
+        self.present = set(obs)
         for _, o in sorted(obs.items()):
             self.links[o.robot].begin(o)
         mine = {(st.kind, st.robot): (key, st, raw) for key, st, raw in stamped}
@@ -66,6 +79,8 @@ class DirectAudit:
                     self.links[i].offer(got[0], got[2])
                 self.links[i].hidden(pred)
                 decided += 1
+        for _, o in obs.items():
+            self.recent[o.robot].append(((o.ep, o.t), self.links[o.robot].record()))
         return decided
 
     def faults(self, obs: dict[int, Obs]) -> None:
@@ -78,15 +93,52 @@ class DirectAudit:
                 except ConfigError:
                     pass
 
-    def totals(self) -> dict[str, Any]:
-        """The counters the links end with, summed as the world sums the robots' reports."""
+    def lost_in_crashes(self, restarted: Any) -> list[dict[str, Any]]:
+        """The counts each crashed incarnation of the result's `restarted` list made after the
+        tick it last reported: its counts when it vanished less its counts at that tick.
+        BadMessage when an entry has no such tick among the last ones before a vanishing."""
+        out = []
+        for entry in restarted if isinstance(restarted, list) else []:
+            robot = entry.get("robot") if isinstance(entry, dict) else None
+            at = entry.get("reported_to") if isinstance(entry, dict) else None
+            gaps = self.gaps[robot] if isinstance(robot, int) and 0 <= robot < len(self.gaps) \
+                else []
+            for g, (ring, then) in enumerate(gaps):
+                base = next((rec for k, rec in ring if list(k) == at), None)
+                if base is not None:
+                    out.append(_minus(then, base))
+                    del gaps[g]
+                    break
+            else:
+                raise BadMessage(f"robot {robot}'s crash after reporting to {at} is not where "
+                                 "the recording has it vanish")
+        return out
+
+    def totals(self, restarted: Any = None) -> dict[str, Any]:
+        """The counters the links end with, summed as the world sums the robots' reports, less
+        what crashed incarnations counted after their last report (`lost_in_crashes`)."""
         tally = DirectTally(self.cfg.n_robots)
         for i, link in enumerate(self.links):
             tally.offer({"robot": i, "direct": link.record()})
         tot = tally.totals()
-        return {k: tot[k] for k in COUNT_KEYS} | {
+        out = {k: tot[k] for k in COUNT_KEYS} | {
             "by_kind": {kind: {k: tot["by_kind"][kind][k] for k in KIND_KEYS}
                         for kind in ("traj", "hidden")}}
+        for lost in self.lost_in_crashes(restarted):
+            out = _minus({"counts": out}, {"counts": lost})
+        return out
+
+
+KEEP = 8  # ticks of counts kept per robot: a robot reports at least every 5 ticks
+
+
+def _minus(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    """The counters of record `a` less those of record `b` (the radio's keys, `by_kind` too)."""
+    ca, cb = a["counts"], b["counts"]
+    out = {k: ca[k] - cb[k] for k in COUNT_KEYS}
+    out["by_kind"] = {kind: {k: ca["by_kind"][kind][k] - cb["by_kind"][kind][k]
+                             for k in KIND_KEYS} for kind in ("traj", "hidden")}
+    return out
 
 
 def stamped_of(key: str, payload: bytes, robot: int | None, cfg: WorldConfig) -> Stamped:

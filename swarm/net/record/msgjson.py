@@ -32,10 +32,15 @@ NUMS = {"type": "array", "items": NUM}
 HEAD = {"ep": INT, "t": INT, "robot": INT}
 
 
-def _obj(props: dict[str, Any], title: str, closed: bool = True) -> dict[str, Any]:
+def _obj(props: dict[str, Any], title: str, closed: bool = True,
+         optional: dict[str, Any] | None = None) -> dict[str, Any]:
     return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title,
-            "type": "object", "properties": props, "required": sorted(props),
+            "type": "object", "properties": props | (optional or {}), "required": sorted(props),
             "additionalProperties": not closed}
+
+
+BUCKET = {"bucket": {"type": "array", "items": NUM, "minItems": 2, "maxItems": 2}}  # direct
+# delivery under a cap: the robot's own token bucket [tokens, ms of its last charge]
 
 
 TRAJ = _obj({**HEAD, "y": INT, "x": INT, "visited": B64, "visited_cells": INT,
@@ -60,7 +65,7 @@ def _record(props: dict[str, Any], title: str, required: tuple[str, ...] = ()) -
 
 SCHEMAS: dict[str, dict[str, Any]] = {
     "obs": _obj({**HEAD, "y": INT, "x": INT, "patch": INTS, "reward": NUM, "done": BOOL,
-                 "budget_ms": NUM}, "swarm observation"),
+                 "budget_ms": NUM}, "swarm observation", optional=BUCKET),
     "traj": TRAJ,
     "bundle": _obj({**HEAD, "senders": INTS, "sizes": INTS,
                     "succ": {"type": ["array", "null"], "items": {"type": "integer"}}},
@@ -72,7 +77,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "direct": _obj({**HEAD, "kind": {"enum": ["traj", "hidden"]}, "queue_ms": NUM, "size": INT},
                    "swarm direct delivery: a robot's stamped message (queue_ms -1: its "
                    "bandwidth cap dropped it)"),
-    "action": _obj({**HEAD, "action": INT, "planning_ms": NUM}, "swarm action"),
+    "action": _obj({**HEAD, "action": INT, "planning_ms": NUM}, "swarm action",
+                   optional=BUCKET),
     "status": _record(STATUS_PROPS, "swarm world status", ("ep", "t", "run_tick", "elratio")),
     "rstatus": _record(RSTATUS_PROPS, "swarm robot status", ("robot",)),
     "result": _record({"run_id": {"type": "string"}}, "swarm run result"),
@@ -149,7 +155,7 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
         o = m.Obs.unpack(payload, cfg)
         return {"ep": o.ep, "t": o.t, "robot": o.robot, "y": o.y, "x": o.x,
                 "patch": list(o.patch), "reward": o.reward, "done": o.done,
-                "budget_ms": o.budget_ms}
+                "budget_ms": o.budget_ms} | ({"bucket": list(o.bucket)} if o.bucket else {})
     if kind == "traj":
         return _traj(m.Traj.unpack(payload, cfg), cfg.cells)
     if kind == "bundle":
@@ -169,7 +175,7 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
     if kind == "action":
         a = m.Action.unpack(payload, cfg)
         return {"ep": a.ep, "t": a.t, "robot": a.robot, "action": a.action,
-                "planning_ms": a.planning_ms}
+                "planning_ms": a.planning_ms} | ({"bucket": list(a.bucket)} if a.bucket else {})
     if kind in RECORD_KINDS:
         rec = m.unpack_record(payload, RECORD_KINDS[kind])
         if kind == "rstatus":
