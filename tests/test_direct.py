@@ -259,8 +259,41 @@ def test_a_peer_seen_to_vanish_is_not_waited_for() -> None:
     assert link.sees_peers()
 
 
+def test_on_the_real_clock_a_copy_is_due_when_it_came_plus_its_delays() -> None:
+    """`--clock real`: a robot times each copy from when it came (its own clock) plus its
+    sender's queue and the drawn delay, late after its own deadline (0.8 of its budget for
+    trajectories, 0.9 for hidden states); a hidden state is handed over only once it is due."""
+    cfg, keys = WorldConfig(n_robots=3, comm_range=float("inf")), Keys("rc")
+
+    def link(latency: str) -> DirectLink:
+        out = DirectLink(cfg, 2, plan_from_table({"latency": latency}, 1, 3), 0.4, real=True)
+        out.begin(Obs(0, 4, 2, 1, 1, bytes(25), 0.0, False, 400.0, b"\xe0"), now=100.0)
+        return out
+
+    def stamped(kind: int, j: int) -> bytes:
+        msg = Traj(0, 4, j, 1, 1, bytes(50), [], bytes(25)) if kind == K_TRAJ else \
+            Hidden(0, 4, j, 3, bytes(32))
+        return Stamped(kind, 0, 4, j, 0.0, msg.pack()).pack()
+
+    on_time, late = link("100ms"), link("330ms")  # due at 100.11; at 100.34 > 100.32
+    for lk in (on_time, late):
+        lk.stamp(K_TRAJ, Traj(0, 4, 2, 1, 1, bytes(50), [], bytes(25)).pack(), now=100.001)
+        lk.offer(keys.direct(0), stamped(K_TRAJ, 0), now=100.01)
+        lk.offer(keys.direct(1), stamped(K_TRAJ, 1), now=100.01)
+    assert len(on_time.heard()) == 3 and on_time.due == pytest.approx(100.11)
+    assert len(late.heard()) == 1 and late.counters.late == 2 and late.due == 100.0
+    on_time.offer(keys.direct(1, hidden=True), stamped(K_HIDDEN, 1), now=100.05)
+    assert on_time.hidden(1, now=100.06) is None and on_time.wake_at == pytest.approx(100.15)
+    h = on_time.hidden(1, now=100.16)
+    assert h is not None and not h.is_miss
+    slow = link("320ms")  # a hidden state due at 100.37, after 100.36
+    slow.offer(keys.direct(1, hidden=True), stamped(K_HIDDEN, 1), now=100.05)
+    h = slow.hidden(1, now=100.06)
+    assert h is not None and h.is_miss and slow.counters.kinds["hidden"]["late"] == 1
+    assert on_time.bucket() is None  # the virtual bucket hand-over is the virtual clock's
+
+
 @pytest.mark.parametrize("flags,why", [
-    (["--delivery", "direct", "--clock", "real"], "virtual clock"),
     (["--delivery", "sideways"], "invalid choice"),
     (["--hosts", "0"], "--hosts must lie in"),
     (["--hosts", "2", "--netns"], "two topologies"),
@@ -328,6 +361,27 @@ def test_direct_delivery_decides_as_the_radio(tmp_path: Path, policy: str, fault
     assert dm["bad"] == 0 and all(s["bad"] == 0 for s in direct["robot_status"].values())
     if faults == "mix":
         assert dm["lost"] > 0 and dm["cut"] > 0 and dm["late"] + dm["queued"] > 0
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("faults", [{"loss": "0.3", "latency": "60ms", "partition": "0/1-3"},
+                                    {"loss": "0.2", "latency": "600ms"}])
+def test_on_the_real_clock_direct_delivery_decides_as_the_radio(tmp_path: Path,
+                                                               faults: dict[str, str]) -> None:
+    """`--clock real` (as `--netns` forces): robots time their copies on their own clocks; with
+    latencies far from the deadline (0.4 s of a 0.5 s tick) both modes hear, count and act
+    alike (timing-bound counts, queues and near-deadline lateness, vary run to run in both)."""
+    tag = "late" if faults["latency"] == "600ms" else "ok"
+    extra = ("--episodes", "2", "--clock", "real", "--tick-timeout", "0.5")
+    radio = _run(tmp_path, f"rr{tag}", "nearest-frontier", faults, *extra)
+    direct = _run(tmp_path, f"dr{tag}", "nearest-frontier", faults, *extra, "--delivery", "direct")
+    assert direct["clock"] == "real" and direct["delivery"] == "direct"
+    assert direct["actions"] == radio["actions"] and direct["timeouts"] == radio["timeouts"] == 0
+    dm, rm = direct["messages"], radio["messages"]
+    for key in COPIES:
+        assert dm[key] == rm[key], key
+    assert dm["lost"] > 0 and (dm["late"] > 0) == (tag == "late") and (dm["cut"] > 0) != (
+        tag == "late")
 
 
 # ----------------------------------------------------------------------- emulated hosts

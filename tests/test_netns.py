@@ -88,6 +88,14 @@ def test_netns_run_takes_the_same_actions_as_loopback(tmp_path: Path) -> None:
     assert a["actions"] == b["actions"]
     assert b["timeouts"] == 0 and b["robots_lost"] == 0 and b["messages"]["late"] == 0
     assert ours("nskern") == []
+    # --delivery direct: the robots time their copies on their own wall clocks in namespaces
+    direct = swarm(*common, "--netns", "--delivery", "direct", "--run-id", "nsdir", "--json",
+                   str(tmp_path / "d.json"))
+    assert direct.returncode == 0, direct.stderr
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["actions"] == a["actions"] and d["delivery"] == "direct" and d["clock"] == "real"
+    assert d["messages"]["late"] == 0 and d["messages"]["reported"] == [0, 1]
+    assert ours("nsdir") == []
 
     # --secure: TLS on every veth, the world's certificate issued for the run's addresses
     pytest.importorskip("cryptography")

@@ -56,7 +56,8 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--delivery", choices=["radio", "direct"],
                    help="robot-to-robot messages through the world's radio (default) or straight "
                         "between robots, each applying range and the seeded faults itself "
-                        "(same decisions; robots learn it from the world)")
+                        "(same decisions; on the real clock each robot times its copies on "
+                        "its own clock; robots learn it from the world)")
     g.add_argument("--watchdog", type=float, metavar="S",
                    help="virtual clock: wall seconds before a hung robot is stepped without "
                         "(default 10)")

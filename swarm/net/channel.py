@@ -155,22 +155,22 @@ class VirtualChannel:
         return float(self._queue(senders, sizes, self.send_ms(t)[None])[0, sender])
 
     def _pair(self, kind: int, episode: int, t: int, sel: tuple[object, object],
-              cut: np.ndarray | bool, send: np.ndarray | float, queue_ms: np.ndarray | float
-              ) -> np.ndarray:
+              cut: np.ndarray | bool, send: np.ndarray | float, queue_ms: np.ndarray | float,
+              deadline_ms: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         if self.plan.zero:
             keep, delay = np.ones(self.n, dtype=bool), np.zeros(self.n)
         else:
             k, d = self._base(kind, np.array([episode]), t)
             keep, delay = k[0][sel], d[0][sel]  # type: ignore[index]
         return self.decide(keep, delay, cut if self.plan.partition else False, send, queue_ms,
-                           self.deadline_ms(kind, t))[0]
+                           self.deadline_ms(kind, t) if deadline_ms is None else deadline_ms)
 
     def column(self, kind: int, episode: int, t: int, sender: int,
                queue_ms: float) -> np.ndarray:
         """Fates [N] of `sender`'s message of `kind` at tick t to every receiver, given the ms it
         waited in the sender's bucket (NaN: dropped)."""
         fate = self._pair(kind, episode, t, (slice(None), sender), self._cut[:, sender],
-                          float(self.send_ms(t)[sender]), queue_ms)
+                          float(self.send_ms(t)[sender]), queue_ms)[0]
         fate[sender] = OK
         return fate
 
@@ -179,9 +179,20 @@ class VirtualChannel:
         """Fates [N] of every sender's message of `kind` at tick t to `receiver`, given each
         sender's queue delay [N] (NaN: dropped): what a robot decides in direct delivery."""
         fate = self._pair(kind, episode, t, (receiver, slice(None)), self._cut[receiver],
-                          self.send_ms(t), np.asarray(queue_ms, dtype=np.float64))
+                          self.send_ms(t), np.asarray(queue_ms, dtype=np.float64))[0]
         fate[receiver] = OK
         return fate
+
+    def row_at(self, kind: int, episode: int, t: int, receiver: int, send_ms: np.ndarray,
+               queue_ms: np.ndarray, deadline_ms: float) -> tuple[np.ndarray, np.ndarray]:
+        """`row` on the wall clock (direct delivery, `--clock real`): fates [N] and arrival
+        times [N] (ms) of every sender's message given when each came (`send_ms`, the
+        receiver's clock) and the receiver's own deadline; the same draws and the same rule."""
+        fate, arrival = self._pair(kind, episode, t, (receiver, slice(None)),
+                                   self._cut[receiver], np.asarray(send_ms, dtype=np.float64),
+                                   np.asarray(queue_ms, dtype=np.float64), deadline_ms)
+        fate[receiver] = OK
+        return fate, arrival
 
     def hidden_from(self, episode: int, t: int, sender: int, size: float) -> np.ndarray:
         """Fates [N] of one hidden-state message of `sender` (one group) to every receiver:

@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import math
 import secrets
+import time
 from typing import Any
 
 import msgpack
 import numpy as np
 
-from swarm.net.channel import CUT, FATES, LOST, OK, VirtualChannel
+from swarm.net.channel import CUT, FATES, HIDDEN_FRAC, LOST, OK, TRAJ_FRAC, VirtualChannel
 from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, plan_from_table
 from swarm.net.keys import Keys
 from swarm.net.messages import (
@@ -39,7 +40,7 @@ from swarm.net.messages import (
     Stamped,
     Traj,
 )
-from swarm.net.radio import RadioCounters
+from swarm.net.radio import RadioCounters, TokenBucket, wall_queue
 from world.config import ConfigError, WorldConfig
 from world.decentral import neighbourhood
 
@@ -76,11 +77,21 @@ def carried(st: Stamped, cfg: WorldConfig) -> Traj | Hidden:
 
 
 class DirectLink:
-    """Robot `robot`'s direct delivery (see the module docstring)."""
+    """Robot `robot`'s direct delivery (see the module docstring); `real`: on the wall clock
+    (`--clock real`), where a copy arrives when it came plus its sender's queue and its drawn
+    delay, and is late after this robot's own deadline (the radio's fractions of its budget)."""
 
-    def __init__(self, cfg: WorldConfig, robot: int, plan: FaultPlan, tick_s: float) -> None:
+    def __init__(self, cfg: WorldConfig, robot: int, plan: FaultPlan, tick_s: float,
+                 real: bool = False) -> None:
         self.cfg, self.robot, self.n = cfg, robot, cfg.n_robots
         self.channel = VirtualChannel(plan, cfg.n_robots, tick_s)
+        self.real = real
+        self.t0 = 0.0  # real clock: when this tick's observation came (monotonic seconds)
+        self.budget_s = 0.0
+        self.arrived: dict[tuple[int, int, int, int], float] = {}  # real: when each came
+        self.wall_buckets: dict[int, TokenBucket] = {}  # real: its own bucket, wall time
+        self.due = 0.0  # real: when the last on-time copy it heard this tick arrives
+        self.wake_at = math.inf  # real: when the predecessor's held hidden state is due
         self.counters = RadioCounters()
         self.ep, self.t = -1, -1
         self.done_ep = -1  # the last episode whose end this robot saw (the world's tally waits)
@@ -98,28 +109,39 @@ class DirectLink:
         """A live fault change, from the tick whose observation carried it (as the radio's
         `Radio.set_plan`: a new channel, token buckets full again)."""
         self.channel = VirtualChannel(plan, self.n, self.channel.tick_ms / 1e3)
+        self.wall_buckets = {}
 
     # --- a tick ------------------------------------------------------------------------------
-    def begin(self, obs: Obs) -> None:
+    def begin(self, obs: Obs, now: float | None = None) -> None:
         """A new tick (a new episode starts with full token buckets; a robot that comes in
         mid-episode, restarted, takes up its own bucket where its last action left it, unless
         the plan changes at this tick: a change fills every bucket)."""
         if obs.ep != self.ep or obs.t == 0:
             self.channel.reset(1)
-            if obs.t > 0 and obs.bucket is not None and not obs.faults:
+            if obs.t > 0 and obs.bucket is not None and not obs.faults and not self.real:
                 self.channel.tokens[0, self.robot], self.channel.last[0, self.robot] = obs.bucket
         self.ep, self.t = obs.ep, obs.t
+        self.t0 = time.monotonic() if now is None else now
+        self.budget_s = obs.budget_ms / 1e3
         self.expected = np.ones(self.n, dtype=bool) if not obs.live else np.unpackbits(
             np.frombuffer(obs.live, dtype=np.uint8), count=self.n).astype(bool)
         self.expected[self.robot] = True
         for key in [k for k in self.store if (k[1], k[2]) < (self.ep, self.t)]:
             del self.store[key]  # others' hidden states, copies that came after it decided
+            self.arrived.pop(key, None)
         self.decided, self.early = set(), {}
 
-    def stamp(self, kind: int, payload: bytes) -> bytes:
+    def stamp(self, kind: int, payload: bytes, now: float | None = None) -> bytes:
         """This robot's message of the current tick in its envelope, charged to its bucket (a
-        trajectory first, then the hidden state: the radio's order)."""
-        q = self.channel.charge(self.t, self.robot, len(payload))
+        trajectory first, then the hidden state: the radio's order; on the real clock at the
+        wall time it leaves, as the radio charged it when it came)."""
+        if self.real:
+            now = time.monotonic() if now is None else now
+            self.arrived[(kind, self.ep, self.t, self.robot)] = now
+            w = wall_queue(self.wall_buckets, self.channel.plan, self.robot, len(payload), now)
+            q = math.nan if w is None else 1e3 * w
+        else:
+            q = self.channel.charge(self.t, self.robot, len(payload))
         st = Stamped(kind, self.ep, self.t, self.robot, DROPPED_Q if math.isnan(q) else q,
                      payload)
         msg: Traj | Hidden = (Traj if kind == K_TRAJ else Hidden).unpack(payload, self.cfg)
@@ -136,7 +158,7 @@ class DirectLink:
         """Its own token bucket (tokens, ms of the last charge) for its action to carry; None
         when it has no cap or has not sent this episode."""
         ch, r = self.channel, self.robot
-        if ch.rate[r] <= 0 or math.isnan(ch.last[0, r]):
+        if self.real or ch.rate[r] <= 0 or math.isnan(ch.last[0, r]):
             return None
         return float(ch.tokens[0, r]), float(ch.last[0, r])
 
@@ -160,9 +182,9 @@ class DirectLink:
         want = set(np.flatnonzero(self.expected).tolist()) - self.gone
         return bool(self.seen.issuperset(want))
 
-    def offer(self, key: str, payload: bytes) -> None:
-        """A stamped message from the network; BadMessage (to drop and count) unless it fits
-        its key and schema."""
+    def offer(self, key: str, payload: bytes, now: float | None = None) -> None:
+        """A stamped message from the network (that came at `now`, real clock); BadMessage (to
+        drop and count) unless it fits its key and schema."""
         st = Stamped.unpack(payload, self.cfg)
         if Keys.robot_of(key) != st.robot:
             raise BadMessage(f"robot id {st.robot} does not match key")
@@ -182,6 +204,8 @@ class DirectLink:
             self.overflow += 1
             return
         self.store[k] = (st, msg)
+        if self.real:
+            self.arrived[k] = time.monotonic() if now is None else now
 
     def traj_complete(self) -> bool:
         """Every robot the world sent this tick's observation to (and that is still alive) has
@@ -215,15 +239,25 @@ class DirectLink:
         if not present[self.robot]:
             return []
         hears = neighbourhood(self.cfg.comm_range, pos[None], present[None])[0][self.robot]
-        fate = self.channel.row(KIND_TRAJ, self.ep, self.t, self.robot, q)
+        if self.real:  # each copy from when it came, against this robot's own deadline
+            sent = np.array([1e3 * self.arrived.get((K_TRAJ, self.ep, self.t, j), self.t0)
+                             for j in range(n)])
+            fate, arrival = self.channel.row_at(KIND_TRAJ, self.ep, self.t, self.robot, sent, q,
+                                                1e3 * (self.t0 + TRAJ_FRAC * self.budget_s))
+        else:
+            fate = self.channel.row(KIND_TRAJ, self.ep, self.t, self.robot, q)
         rows = np.array([self.robot])
         ok = c.count_traj(rows, hears[None], fate[None], present, present & (q > 0), sizes)[0]
+        if self.real:  # the robot has them once the last one arrives
+            self.due = max([self.t0] + [arrival[j] / 1e3 for j in np.flatnonzero(ok).tolist()
+                                        if j != self.robot])
         return [payloads[j] for j in np.flatnonzero(ok).tolist()]
 
-    def hidden(self, pred: int) -> Hidden | None:
+    def hidden(self, pred: int, now: float | None = None) -> Hidden | None:
         """Predecessor `pred`'s hidden-state message of this tick: the message, a miss marker
         (lost, cut, dropped or late: decode without it), or None while it has not come and its
-        fate depends on it (its queue delay)."""
+        fate depends on it (its queue delay), or, on the real clock, until it is due (then
+        `wake_at` says when)."""
         c, key = self.counters, (self.ep, self.t, pred)
         if key in self.decided:
             return Hidden.miss(*key)
@@ -239,7 +273,19 @@ class DirectLink:
         else:
             st, msg = got
             q = math.nan if st.queue_ms == DROPPED_Q else st.queue_ms
-            fate = int(self.channel.column(KIND_HIDDEN, self.ep, self.t, pred, q)[self.robot])
+            if self.real:
+                k = (K_HIDDEN, self.ep, self.t, pred)
+                f, arrival = self.channel.row_at(
+                    KIND_HIDDEN, self.ep, self.t, self.robot,
+                    np.full(self.n, 1e3 * self.arrived.get(k, self.t0)), np.full(self.n, q),
+                    1e3 * (self.t0 + HIDDEN_FRAC * self.budget_s))
+                fate = int(f[pred])
+                now = time.monotonic() if now is None else now
+                if fate == OK and arrival[pred] / 1e3 > now:
+                    self.wake_at = arrival[pred] / 1e3
+                    return None
+            else:
+                fate = int(self.channel.column(KIND_HIDDEN, self.ep, self.t, pred, q)[self.robot])
         self.decided.add(key)
         if fate != OK or not isinstance(msg, Hidden):
             c.miss("hidden", FATES[fate], pred, self.robot)

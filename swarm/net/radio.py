@@ -149,6 +149,20 @@ class TokenBucket:
         return -self.tokens / self.rate
 
 
+def wall_queue(buckets: dict[int, TokenBucket], plan: FaultPlan, sender: int, size: int,
+               now: float) -> float | None:
+    """Seconds a message of `sender` sent at wall time `now` waits in its token bucket (kept in
+    `buckets`), None if its cap drops it: the real clock's cap, for the radio and for a robot
+    charging its own bucket in direct delivery."""
+    f = plan.per_robot.get(sender, plan.default)
+    if f.bandwidth <= 0:
+        return 0.0
+    b = buckets.get(sender)
+    if b is None or b.rate != f.bandwidth:
+        b = buckets[sender] = TokenBucket(f.bandwidth, f.burst or f.bandwidth)
+    return b.send(size, now, f.overflow == "queue")
+
+
 class Radio:
     """Range-limited, faulted delivery, one tick at a time."""
 
@@ -170,13 +184,7 @@ class Radio:
             self.channel = VirtualChannel(plan, self.cfg.n_robots, self.tick_s)
 
     def _queue_delay(self, sender: int, size: int, now: float) -> float | None:
-        f = self.plan.per_robot.get(sender, self.plan.default)
-        if f.bandwidth <= 0:
-            return 0.0
-        b = self.buckets.get(sender)
-        if b is None or b.rate != f.bandwidth:
-            b = self.buckets[sender] = TokenBucket(f.bandwidth, f.burst or f.bandwidth)
-        return b.send(size, now, f.overflow == "queue")
+        return wall_queue(self.buckets, self.plan, sender, size, now)
 
     def bundles(self, ep: int, t: int, positions: np.ndarray,
                 senders: dict[int, tuple[bytes, float]], deadline: float

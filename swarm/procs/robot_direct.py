@@ -10,6 +10,7 @@ talk to the radio.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -102,7 +103,7 @@ class DirectDelivery:
         self.proc = proc
         cfg, run = proc.cfg, proc.run_cfg
         plan = plan_from_table(faults, run.seed, cfg.n_robots)
-        self.link = DirectLink(cfg, proc.robot, plan, run.tick_timeout)
+        self.link = DirectLink(cfg, proc.robot, plan, run.tick_timeout, real=run.clock == "real")
         for old in (proc.traj_pub, proc.hid_pub):
             old.undeclare()
         k, r, s = proc.keys, proc.robot, proc.session
@@ -182,6 +183,9 @@ class DirectDelivery:
                 if self._pump(limit) is None:
                     return None
             payloads = link.heard()  # complete, or time is up: the messages that came
+            while link.real and time.monotonic() < min(link.due, deadline):  # real clock: they
+                if self._pump(min(link.due, deadline)) is None:  # are its once they arrive
+                    return None
             try:
                 return Heard(ep, t, proc.robot, proc.heard(Bundle(ep, t, proc.robot, payloads)))
             except BadMessage as exc:
@@ -189,10 +193,11 @@ class DirectDelivery:
                 return None
         assert sender is not None
         while True:
+            link.wake_at = math.inf
             h = link.hidden(sender)
             if h is not None:
                 return h
-            if time.monotonic() >= deadline or self._pump(deadline) is None:
+            if time.monotonic() >= deadline or self._pump(min(deadline, link.wake_at)) is None:
                 return None
 
     def _pump(self, deadline: float) -> bool | None:

@@ -43,7 +43,8 @@ class RunConfig:
     """`radio`: the world's radio owns robot-to-robot delivery (range, faults, bundles);
     `direct`: robots subscribe to one another's messages and apply range and the fault plan's
     seeded draws themselves (swarm.net.direct), for hosts where nobody owns the channel. Both
-    decide identically; `direct` needs the virtual clock."""
+    decide identically in virtual time; on the real clock each robot times its copies on its own
+    wall clock (from when each came, against its own deadline), as the radio does on its."""
     tick_timeout: float = 2.0
     """The tick's length: trajectory messages arriving after 0.8 of it (hidden-state ones after
     0.9) are late. Virtual seconds with the virtual clock; with the real clock, wall seconds the
@@ -87,9 +88,6 @@ class RunConfig:
             raise ConfigError(f"clock must be 'virtual' or 'real', got {self.clock!r}")
         if self.delivery not in ("radio", "direct"):
             raise ConfigError(f"delivery must be 'radio' or 'direct', got {self.delivery!r}")
-        if self.delivery == "direct" and self.clock != "virtual":
-            raise ConfigError("direct delivery needs the virtual clock (robots decide each "
-                              "copy's fate in virtual time; --netns forces the real clock)")
         if not isinstance(self.policy, str) or not self.policy:
             raise ConfigError("policy must be a registry name")
 
