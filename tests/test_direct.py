@@ -241,6 +241,11 @@ def test_a_restarted_robot_takes_up_its_bucket_and_its_counts_add_up() -> None:
     assert tally.faulted_links() == {"0-1": [3, 1, 0, 0]}
     with pytest.raises(BadMessage, match="earlier incarnation"):
         tally.offer(a_rec)
+    flood = DirectTally(3)
+    with pytest.raises(BadMessage, match="incarnations"):
+        for boot in range(1, 1000):  # a robot that invents incarnations is bounded
+            flood.offer({"robot": 1, "direct": {**first.record(), "boot": boot}})
+    assert len(flood.retired) == 64 * 3
     for boot in (-1, 2**62, True, "1"):
         with pytest.raises(BadMessage):
             DirectTally(3).offer({"robot": 1, "direct": {**first.record(), "boot": boot}})

@@ -46,6 +46,7 @@ from world.decentral import neighbourhood
 
 WAIT_FRAC = 0.5  # a robot waits for the tick's trajectory messages up to this part of its budget
 BIG = 2**53  # counters a status record may report
+MAX_RESTARTS = 64  # incarnations per robot (on average) the world's tally keeps
 
 
 def live_plan(packed: bytes, seed: int, n: int) -> FaultPlan:
@@ -368,6 +369,8 @@ class DirectTally:
             raise BadMessage(f"a record of robot {robot}'s earlier incarnation, after its restart")
         old = self.latest.get(robot)
         if old is not None and old["boot"] != rec["boot"]:
+            if len(self.retired) >= MAX_RESTARTS * self.n:  # a robot inventing incarnations
+                raise BadMessage(f"robot {robot}: more incarnations than a run can restart")
             self.retired.append((robot, old))
             self.boots.add((robot, old["boot"]))
         self.latest[robot] = rec
