@@ -313,6 +313,25 @@ def test_verify_reruns_direct_delivery_and_names_a_false_stamp(tmp_path: Path) -
     line = r.stderr.strip().splitlines()[-1]
     assert "divergence at episode 1 tick 3" in line and "robot 2's trajectory stamp" in line, line
 
+    # whom each robot heard comes with its action (the dashboard's links), checked the same way
+    _, msgs = read_mcap(f)
+    links = [json.loads(d)["heard_links"] for topic, _, d, _ in msgs
+             if topic == f"{Keys('recd').status}/json"]
+    assert max(links) > 0
+
+    def claim(topic: str, data: bytes) -> bytes:
+        if topic == Keys("recd").action(1):
+            a = Action.unpack(data, cfg)
+            if (a.ep, a.t) == (0, 5):
+                return Action(a.ep, a.t, a.robot, a.action, a.planning_ms, a.bucket,
+                              bytes([0b11110000])).pack()  # "it heard everyone"
+        return data
+
+    rewrite(f, bad, edit_msg=claim)
+    r = swarm("replay", str(bad), "--verify")
+    line = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 1 and "episode 0 tick 5" in line and "robot 1's heard" in line, line
+
 
 @pytest.mark.procs
 def test_a_robot_restarted_under_direct_delivery_verifies(tmp_path: Path) -> None:

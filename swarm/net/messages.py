@@ -317,10 +317,11 @@ class Stamped:
 
 @dataclass
 class Action:
-    """Robot -> world: its action for tick `t`, and how long it took to plan; in direct delivery
-    under a bandwidth cap also its own token bucket after this tick's sends, which the world
-    hands back in its next observation (`Obs.bucket`) so that a restarted robot goes on with
-    it, as the radio's bucket for it would have."""
+    """Robot -> world: its action for tick `t`, and how long it took to plan. In direct delivery
+    also whom it heard this tick (`heard`, np.packbits of N bools: the links the dashboard
+    shows, which no radio saw) and, under a bandwidth cap in virtual time, its own token bucket
+    after this tick's sends, which the world hands back in its next observation (`Obs.bucket`)
+    so that a restarted robot goes on with it, as the radio's bucket for it would have."""
 
     ep: int
     t: int
@@ -328,18 +329,24 @@ class Action:
     action: int
     planning_ms: float
     bucket: tuple[float, float] | None = None
+    heard: bytes = b""
 
     def pack(self) -> bytes:
-        tail = (list(self.bucket),) if self.bucket is not None else ()
+        tail: tuple[Any, ...] = (list(self.bucket or ()), self.heard)
+        while tail and not tail[-1]:
+            tail = tail[:-1]
         return _pack(K_ACTION, self.ep, self.t, self.robot, self.action, self.planning_ms, *tail)
 
     @classmethod
     def unpack(cls, payload: bytes, cfg: WorldConfig) -> Action:
-        ep, t, robot, action, planning_ms, *rest = _unpack(payload, K_ACTION, (5, 6))
+        ep, t, robot, action, planning_ms, *rest = _unpack(payload, K_ACTION, (5, 6, 7))
+        heard = rest[1] if len(rest) > 1 else b""
+        if heard != b"":
+            heard = _bytes(heard, "heard", (cfg.n_robots + 7) // 8)
         return cls(_int(ep, "ep", 0, BIG), _int(t, "t", 0, cfg.horizon - 1),
                    _int(robot, "robot", 0, cfg.n_robots - 1), _int(action, "action", 0, 8),
                    _float(planning_ms, "planning_ms", 0.0, MAX_MS),
-                   _bucket(rest[0] if rest else None))
+                   _bucket(rest[0] if rest else None), heard)
 
 
 def pack_record(kind: int, record: dict[str, Any]) -> bytes:

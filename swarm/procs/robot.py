@@ -335,8 +335,10 @@ class RobotProcess:
             mask = int(sum(1 << int(j) for j in np.flatnonzero(heard.present[0])))
             self.record.append(RolloutTick(traj, mask, chain_ok, action, logp, float(obs.reward),
                                 self.version))
+        direct = self.direct is not None  # then the world learns whom it heard from it
         a = Action(obs.ep, obs.t, r, int(action), ms,
-                   self.direct.link.bucket() if self.direct is not None else None).pack()
+                   self.direct.link.bucket() if direct else None,
+                   np.packbits(heard.present[0]).tobytes() if direct else b"").pack()
         self.act_pub.put(a)
         self.c.msgs_out += 1
         self.c.bytes_out += len(a)

@@ -219,8 +219,12 @@ class WorldProcess:
                 self.radio.counters.hidden_delivered += len(self.radio.successors(msg.robot))
                 tick.hidden_at.setdefault(msg.robot, time.perf_counter())
             tick.action[msg.robot] = msg
-            if msg.bucket is not None and self.direct is not None:  # handed back (Obs.bucket)
-                self.buckets[msg.robot] = (msg.ep, msg.bucket)
+            if self.direct is not None:
+                if msg.bucket is not None:  # handed back in its observations (Obs.bucket)
+                    self.buckets[msg.robot] = (msg.ep, msg.bucket)
+                if msg.heard:  # whom it heard: the dashboard's links, as the radio's bundles
+                    self.radio.delivered[msg.robot] = np.unpackbits(np.frombuffer(
+                        msg.heard, dtype=np.uint8), count=self.cfg.n_robots).astype(bool)
         return True
 
     def _schedule(self, when: float, key: str, payload: bytes) -> None:
@@ -315,7 +319,10 @@ class WorldProcess:
             deadline = start + timeout
             budget_ms = 1e3 * timeout
             t_obs = time.perf_counter()
-            live = np.packbits(self.alive).tobytes() if self.direct is not None else b""
+            live = b""
+            if self.direct is not None:  # the tick's links come with its actions (Action.heard)
+                live = np.packbits(self.alive).tobytes()
+                self.radio.delivered = np.zeros((cfg.n_robots, cfg.n_robots), dtype=bool)
             for i in np.flatnonzero(self.alive):
                 held = self.buckets.get(int(i))
                 held_now = held[1] if held and held[0] == ep else None

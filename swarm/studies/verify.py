@@ -157,6 +157,7 @@ class Auditor:
         self.table = dict(rec.record.faults)
         self.direct = DirectAudit(self.cfg, self.run, self.table) if self.virtual and \
             not self.radio_run else None
+        self.direct_links = 0  # direct delivery: the links the actions say were heard
         self.radio = Radio(self.cfg, plan_from_table(self.table, self.run.seed, self.cfg.n_robots))
         if self.virtual:
             self.radio.use_virtual_clock(self.run.tick_timeout)
@@ -280,6 +281,7 @@ class Auditor:
             obs = {o.robot: o for _, o in bucket.obs}
             self.report.count("direct copies decided", self.direct.tick(obs, bucket.direct,
                                                                         self.same))
+            self._heard(bucket, set(late))
         alive = np.zeros(cfg.n_robots, dtype=bool)
         rec_alive = st.get("alive")
         if not isinstance(rec_alive, list) or len(rec_alive) != cfg.n_robots:
@@ -300,6 +302,20 @@ class Auditor:
         self._status(st, state)
         return acts[0].tolist()
 
+    def _heard(self, bucket: _Tick, late: set[int]) -> None:
+        """Direct delivery: whom each robot says it heard (`Action.heard`) is whom its re-run
+        link hears, and the dashboard's links are the world's count of those rows."""
+        n = self.cfg.n_robots
+        rows = np.zeros((n, n), dtype=bool)
+        for _, a in bucket.action:
+            if not a.heard or a.robot in late:
+                continue
+            row = np.unpackbits(np.frombuffer(a.heard, dtype=np.uint8), count=n).astype(bool)
+            self.same(f"robot {a.robot}'s heard senders (action)", np.flatnonzero(row).tolist(),
+                      self.direct.heard.get(a.robot) if self.direct is not None else None)
+            rows[a.robot] = row
+        self.direct_links = int(np.triu(rows | rows.T, 1).sum())
+
     def _status(self, st: dict, state: core.WorldState) -> None:
         lay = core.Layout.of(self.cfg)
         self.same("status.pos", st.get("pos"), lay.to_yx(state.pos[0]).tolist())
@@ -317,6 +333,8 @@ class Auditor:
             for k, v in self._radio_totals().items():
                 self.same(f"status.radio.{k}", radio.get(k), v)
             self.same("status.links", st.get("links"), self._links())
+        elif self.direct is not None:
+            self.same("status.heard_links", st.get("heard_links"), self.direct_links)
         self.report.count("statuses")
 
     def _radio_totals(self) -> dict[str, Any]:

@@ -44,12 +44,14 @@ class DirectAudit:
                        for _ in range(cfg.n_robots)]
         self.gaps: list[list[tuple[list[Any], dict[str, Any]]]] = [[] for _ in self.links]
         self.present: set[int] = set()
+        self.heard: dict[int, list[int]] = {}  # the last tick's senders each robot heard
 
     def tick(self, obs: dict[int, Obs], stamped: list[tuple[str, Stamped, bytes]],
              same: Callable[[str, Any, Any], None]) -> int:
         """Re-run one tick (observations by robot, stamped messages as (key, envelope, raw
         payload)); `same` reports a divergence. Returns the copies decided."""
         self.faults(obs)
+        self.heard = {}
         for i in self.present - set(obs):
             self.gaps[i].append((list(self.recent[i]), self.links[i].record()))
         self.present = set(obs)
@@ -68,10 +70,11 @@ class DirectAudit:
                     self.links[i].offer(key, raw)
             heard = self.links[i].heard()
             decided += len(heard)
+            self.heard[i] = [Traj.unpack(p, self.cfg).robot for p in heard]
             if not self.chained:
                 continue
             row = np.zeros((1, self.cfg.n_robots), dtype=bool)  # the robot's own predecessor
-            row[0, [Traj.unpack(p, self.cfg).robot for p in heard]] = True
+            row[0, self.heard[i]] = True
             pred = int(predecessor_of(row, np.array([i]))[0])
             if pred >= 0:
                 got = mine.get((K_HIDDEN, pred))

@@ -78,7 +78,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
                    "swarm direct delivery: a robot's stamped message (queue_ms -1: its "
                    "bandwidth cap dropped it)"),
     "action": _obj({**HEAD, "action": INT, "planning_ms": NUM}, "swarm action",
-                   optional=BUCKET),
+                   optional=BUCKET | {"heard": INTS}),
     "status": _record(STATUS_PROPS, "swarm world status", ("ep", "t", "run_tick", "elratio")),
     "rstatus": _record(RSTATUS_PROPS, "swarm robot status", ("robot",)),
     "result": _record({"run_id": {"type": "string"}}, "swarm run result"),
@@ -175,7 +175,10 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
     if kind == "action":
         a = m.Action.unpack(payload, cfg)
         return {"ep": a.ep, "t": a.t, "robot": a.robot, "action": a.action,
-                "planning_ms": a.planning_ms} | ({"bucket": list(a.bucket)} if a.bucket else {})
+                "planning_ms": a.planning_ms} | ({"bucket": list(a.bucket)} if a.bucket else {}) | (
+                    {"heard": np.unpackbits(np.frombuffer(a.heard, dtype=np.uint8),
+                                            count=cfg.n_robots).astype(int).tolist()}
+                    if a.heard else {})
     if kind in RECORD_KINDS:
         rec = m.unpack_record(payload, RECORD_KINDS[kind])
         if kind == "rstatus":
