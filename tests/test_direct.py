@@ -222,6 +222,13 @@ def test_a_restarted_robot_takes_up_its_bucket_and_its_counts_add_up() -> None:
     a = Action(0, 11, 1, 4, 2.0, held)
     assert Action.unpack(a.pack(), cfg) == a and Action.unpack(
         Action(0, 11, 1, 4, 2.0).pack(), cfg).bucket is None
+    for heard_by in (Action(0, 11, 1, 4, 2.0, None, b"\xa0"),
+                     Action(0, 11, 1, 4, 2.0, held, b"\xe0")):
+        assert Action.unpack(heard_by.pack(), cfg) == heard_by  # whom it heard, with or without
+    for heard in (b"\x00\x00", "x", 7):  # N bits, packed: one byte for 3 robots
+        with pytest.raises(BadMessage):
+            Action.unpack(msgpack.packb([1, K_ACTION, 0, 11, 1, 4, 2.0, [], heard],
+                                        use_bin_type=True), cfg)
     for bad in ([float("nan"), 1.0], [1e300, 0.0], [1.0], "x", [1.0, -5.0]):
         for payload in (msgpack.packb([1, K_ACTION, 0, 11, 1, 4, 2.0, bad]),
                         msgpack.packb([1, K_OBS, 0, 2, 1, 1, 1, bytes(25), 0.0, False, 1e3,
