@@ -362,6 +362,7 @@ class DirectTally:
         self.latest: dict[int, dict[str, Any]] = {}
         self.retired: list[tuple[int, dict[str, Any]]] = []  # (robot, its last record)
         self.boots: set[tuple[int, int]] = set()  # (robot, boot) of every retired incarnation
+        self.buckets: dict[int, tuple[int, tuple[float, float]]] = {}  # robot: (ep, bucket)
 
     def offer(self, payload_record: Any) -> None:
         robot, rec = check_direct(payload_record, self.n)
@@ -374,6 +375,21 @@ class DirectTally:
             self.retired.append((robot, old))
             self.boots.add((robot, old["boot"]))
         self.latest[robot] = rec
+
+    def took(self, action: Any, delivered: np.ndarray) -> None:
+        """A robot's checked `Action` of the tick: keep its token bucket (handed back in its
+        observations, `Obs.bucket`) and write whom it heard into `delivered` [N, N] (the
+        dashboard's links, as the radio's bundles would)."""
+        if action.bucket is not None:
+            self.buckets[action.robot] = (action.ep, action.bucket)
+        if action.heard:
+            delivered[action.robot] = np.unpackbits(np.frombuffer(
+                action.heard, dtype=np.uint8), count=self.n).astype(bool)
+
+    def bucket_of(self, robot: int, ep: int) -> tuple[float, float] | None:
+        """Robot `robot`'s bucket as its last action of episode `ep` reported it, if any."""
+        held = self.buckets.get(robot)
+        return held[1] if held is not None and held[0] == ep else None
 
     def _records(self) -> list[dict[str, Any]]:
         return [rec for _, rec in self.retired] + list(self.latest.values())

@@ -79,7 +79,6 @@ class WorldProcess:
         self.fast_lane = self.chained and fast_lane
         # direct delivery (swarm.net.direct): robots deliver to one another and report counts
         self.direct = DirectTally(cfg.n_robots) if run.delivery == "direct" else None
-        self.buckets: dict[int, tuple[int, tuple[float, float]]] = {}  # robot: (ep, its bucket)
         if self.virtual:
             self.radio.use_virtual_clock(run.tick_timeout)
         self._pending_at = -1  # run tick from which the pending plan applies
@@ -219,12 +218,8 @@ class WorldProcess:
                 self.radio.counters.hidden_delivered += len(self.radio.successors(msg.robot))
                 tick.hidden_at.setdefault(msg.robot, time.perf_counter())
             tick.action[msg.robot] = msg
-            if self.direct is not None:
-                if msg.bucket is not None:  # handed back in its observations (Obs.bucket)
-                    self.buckets[msg.robot] = (msg.ep, msg.bucket)
-                if msg.heard:  # whom it heard: the dashboard's links, as the radio's bundles
-                    self.radio.delivered[msg.robot] = np.unpackbits(np.frombuffer(
-                        msg.heard, dtype=np.uint8), count=self.cfg.n_robots).astype(bool)
+            if self.direct is not None:  # its bucket, and whom it heard (the dashboard's links)
+                self.direct.took(msg, self.radio.delivered)
         return True
 
     def _schedule(self, when: float, key: str, payload: bytes) -> None:
@@ -324,12 +319,11 @@ class WorldProcess:
                 live = np.packbits(self.alive).tobytes()
                 self.radio.delivered = np.zeros((cfg.n_robots, cfg.n_robots), dtype=bool)
             for i in np.flatnonzero(self.alive):
-                held = self.buckets.get(int(i))
-                held_now = held[1] if held and held[0] == ep else None
+                held = self.direct.bucket_of(int(i), ep) if self.direct is not None else None
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
                                                  patch[i].tobytes(), float(state.last_reward[0, i]),
                                                  bool(done), budget_ms, live, obs_faults,
-                                                 held_now).pack())
+                                                 held).pack())
             if done and self.run_cfg.train and rewards:
                 m = core.metrics(cfg, state)
                 rec = EpisodeRecord(ep, np.stack(rewards).astype(np.float32), np.stack(acted),
