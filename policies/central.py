@@ -164,14 +164,18 @@ class CentralPolicy(Policy):
         score = np.zeros((gsz, 1), dtype=np.float32)
         key = np.zeros((gsz, 1), dtype=np.uint64)
         first = np.zeros((gsz, 1), dtype=np.int64)
-        noise = uniform(view.seed, view.episodes[groups], view.tick, robot,
-                        s.horizon * s.beam * 9, stream=7).astype(np.float32) * 1e-3
+        # (drawn once per episode: `team-beam` plans many receivers of one episode alike)
+        eps, back = np.unique(np.asarray(view.episodes)[groups], return_inverse=True)
+        noise = uniform(view.seed, eps, view.tick, robot, s.horizon * s.beam * 9,
+                        stream=7)[back.ravel()].astype(np.float32) * 1e-3
         for t in range(1, s.horizon + 1):
             b = pos.shape[1]
             q = self.nbr[pos]  # [G, B, 9]
             qc = np.maximum(q, 0)
             valid = (q >= 0) & passable[gi[:, :, None], qc]
-            seen = (hist[:, :, None, :] == qc[..., None]).any(-1)
+            seen = hist[:, :, 0, None] == qc  # (a loop over t: cheaper than a 4-d any)
+            for c in range(1, t):
+                seen |= hist[:, :, c, None] == qc
             g_new = gain[gi[:, :, None], qc] & ~seen & valid
             sc = (score[:, :, None] + (s.gamma ** t) * g_new
                   - s.crowd * occ[gi[:, :, None], t, qc]).reshape(gsz, -1)
@@ -180,11 +184,7 @@ class CentralPolicy(Policy):
             rank = sc + term[gi, qf] + noise[:, (t - 1) * s.beam * 9:][:, :b * 9]
             rank[~valid.reshape(gsz, -1)] = -np.inf
             dk = k ^ (qf.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15))
-            order = np.argsort(dk, axis=1, kind="stable")
-            sk = np.take_along_axis(dk, order, 1)
-            dup = np.zeros_like(rank, dtype=bool)
-            np.put_along_axis(dup, order[:, 1:], sk[:, 1:] == sk[:, :-1], 1)
-            rank[dup] = -np.inf
+            rank[duplicates(dk)] = -np.inf
             keep = min(s.beam, rank.shape[1])
             sel = np.argpartition(-rank, keep - 1, axis=1)[:, :keep]
             alive = np.isfinite(np.take_along_axis(rank, sel, 1))
@@ -198,3 +198,19 @@ class CentralPolicy(Policy):
         best = np.argmax(score + term[gi, pos], axis=1)
         rows = np.arange(gsz)
         return first[rows, best], hist[rows, best]
+
+
+def duplicates(keys: np.ndarray) -> np.ndarray:
+    """[G, C] bool: True where a row's key equals one earlier in the row (the first stays).
+
+    The column index replaces the key's low bits, so one value sort (no argsort, no gather)
+    orders equal keys by column; keys equal in their other 64 - log2(C) bits count as equal
+    (hashes: a false match has odds ~C^2 / 2^57 a row)."""
+    c = keys.shape[1]
+    bits = np.uint64(max(1, (c - 1).bit_length()))
+    low = (np.uint64(1) << bits) - np.uint64(1)
+    s = np.sort((keys & ~low) | np.arange(c, dtype=np.uint64), axis=1)
+    hi = s >> bits
+    dup = np.zeros(keys.shape, dtype=bool)
+    np.put_along_axis(dup, (s[:, 1:] & low).astype(np.intp), hi[:, 1:] == hi[:, :-1], 1)
+    return dup

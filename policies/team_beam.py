@@ -23,7 +23,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from policies.belief import Belief
+from policies.belief import Belief, Snapshot
 from policies.central import CentralConfig, CentralPolicy
 from world.config import WorldConfig
 from world.decentral import View
@@ -45,8 +45,12 @@ class TeamBeam(CentralPolicy):
     def act(self, view: View, greedy: bool = True) -> np.ndarray:
         snap = self.belief.snapshot(view)
         out = np.zeros(view.receivers.shape, dtype=np.int64)
-        if snap.size == 0:
-            return out
+        if snap.size:
+            out[snap.g, snap.i] = self.own_moves(view, snap)
+        return out
+
+    def own_moves(self, view: View, snap: Snapshot) -> np.ndarray:
+        """The first move [R] of each receiver of `snap` in the joint plan of its heard team."""
         g, i, r = snap.g, snap.i, snap.size
         team = view.hears[g, i] & view.msgs.present[g]  # [R, N]
         pos = np.where(team[..., None], view.msgs.pos[g], snap.cells[:, None, :])
@@ -55,6 +59,12 @@ class TeamBeam(CentralPolicy):
                               episodes=np.asarray(view.episodes)[g])
         self.known = snap.known.reshape(r, -1)  # the beliefs `plan` reads, one row per receiver
         self.explored = snap.explored.reshape(r, -1)
-        plans = self.plan(sub, np.arange(r))  # type: ignore[arg-type]
-        out[g, i] = plans[np.arange(r), i]
+        return self.plan(sub, np.arange(r))[np.arange(r), i]  # type: ignore[arg-type]
+
+    def first_moves(self, view: View, snap: Snapshot) -> np.ndarray:
+        """`own_moves` as a one-hot [R, 9] bool: a network's planner hint (policies.infer.tokens,
+        `hint_planner` "team-beam"), in the form coordinated frontier's `first_moves` takes."""
+        out = np.zeros((snap.size, 9), dtype=bool)
+        if snap.size:
+            out[np.arange(snap.size), self.own_moves(view, snap)] = True
         return out

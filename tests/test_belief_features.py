@@ -107,12 +107,14 @@ def test_belief_needs_the_team_map_and_its_memory(tmp_path: Path) -> None:
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("hint", [False, True])
-def test_a_robots_belief_tokens_are_its_rows_of_the_batch(hint: bool) -> None:
+@pytest.mark.parametrize("hint", ["", "coordinated-frontier", "team-beam"])
+def test_a_robots_belief_tokens_are_its_rows_of_the_batch(hint: str) -> None:
     """Each robot folding only what it heard, tick by tick, computes its rows of the batch
-    (with the hint: coordinated frontier run on its own belief)."""
+    (with the hint: coordinated frontier, or team-beam planning its heard team, run on its own
+    belief)."""
     cfg = WorldConfig(comm_range=5.0)
-    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=hint)
+    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=bool(hint),
+                       **({"hint_planner": hint} if hint else {}))
     views = played(cfg, 1, 12)
     batch = Belief(cfg)
     mine = [Belief(cfg) for _ in range(cfg.n_robots)]
@@ -173,6 +175,41 @@ def test_hint_needs_the_belief_and_is_coordinated_frontiers_moves() -> None:
         alone = (pos == pos[np.arange(len(chosen)), t.robot][:, None]).all(-1).sum(1) == 1
         assert (bits[np.arange(len(chosen)), chosen][has & alone] == 1).all()
     assert some > 100  # (most receivers have a target)
+
+
+def test_a_team_beam_hint_is_the_one_move_team_beam_takes() -> None:
+    """`hint_planner` "team-beam": the 9 hint bits are one-hot, at the move `team-beam` (with
+    the hint's light search) takes on the same belief; a bad planner name is one line, and
+    `swarm train --hint-planner` needs an --init checkpoint."""
+    from policies.central import CentralConfig
+    from policies.infer.nets import CommAttnConfig
+    from policies.infer.tokens import HINT_BEAM
+    from policies.team_beam import TeamBeam
+
+    with pytest.raises(ConfigError, match="hint_planner must be one of"):
+        CommAttnConfig(belief=True, hint=True, hint_planner="oracle")
+    with pytest.raises(ConfigError, match="hint_planner must be one of"):
+        TrainConfig(init=str(CKPT), hint_planner="central")
+    with pytest.raises(ConfigError, match="a fresh network takes --model"):
+        TrainConfig(hint_planner="team-beam")
+    cfg = WorldConfig(comm_range=5.0)
+    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=True,
+                       hint_planner="team-beam")
+    views = played(cfg, 2, 10)
+    batch = Belief(cfg)
+    planner = TeamBeam(cfg, CentralConfig(**HINT_BEAM))
+    planner.reset(2)
+    moved = 0
+    for view in views:
+        acted = planner.act(view)
+        view.belief = batch.snapshot(view)
+        view.team_visited = batch.visited
+        t = feats(view)
+        bits = t.own_feats[:, -9:]
+        np.testing.assert_array_equal(bits.sum(1), 1.0)
+        np.testing.assert_array_equal(bits.argmax(1), acted[t.group, t.robot])
+        moved += int((bits.argmax(1) != 0).sum())
+    assert moved > 100
 
 
 @pytest.mark.parametrize("changes", [{"belief": True}, {"belief": True, "hint": True}])

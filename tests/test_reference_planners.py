@@ -129,3 +129,22 @@ def test_team_beam_is_central_when_everyone_hears_everyone_and_differs_when_not(
                 differ += int((mine != theirs).sum())
             core.step(cfg, state, theirs)
     assert differ > 0
+
+
+def test_beam_duplicates_keep_the_first_of_equal_keys() -> None:
+    """`duplicates` (the beam's state dedup by one value sort) marks exactly what a stable
+    argsort marks: every key equal to one earlier in its row."""
+    from policies.central import duplicates
+
+    rng = np.random.default_rng(0)
+    for c in (1, 9, 72, 216, 300):
+        keys = rng.integers(0, 2**63, size=(50, c), dtype=np.int64).astype(np.uint64)
+        if c > 4:  # copies, some before and some after their first
+            keys[:, 3] = keys[:, c - 1]
+            keys[::2, 0] = keys[::2, 2]
+        order = np.argsort(keys, axis=1, kind="stable")
+        sk = np.take_along_axis(keys, order, 1)
+        want = np.zeros(keys.shape, dtype=bool)
+        np.put_along_axis(want, order[:, 1:], sk[:, 1:] == sk[:, :-1], 1)
+        np.testing.assert_array_equal(duplicates(keys), want)
+        assert want.any() == (c > 4)

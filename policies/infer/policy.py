@@ -55,7 +55,8 @@ def featurizer(cfg: WorldConfig, model: Any) -> Featurizer:
     """The features a network of config `model` reads."""
     return Featurizer(cfg, crop=model.crop, team_pool=getattr(model, "team_pool", 0),
                       memory=getattr(model, "team_memory", False),
-                      belief=getattr(model, "belief", False), hint=getattr(model, "hint", False))
+                      belief=getattr(model, "belief", False), hint=getattr(model, "hint", False),
+                      hint_planner=getattr(model, "hint_planner", "coordinated-frontier"))
 
 
 def gumbel(view: View, group: np.ndarray, robot: np.ndarray) -> np.ndarray:

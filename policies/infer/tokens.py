@@ -30,6 +30,7 @@ canonical pair order), so an unheard robot never enters a computation. Receivers
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +43,8 @@ from world.decentral import View, heard_union
 REFERENCE_SIDE = 20  # the map side the coarse team map's block count is fixed by
 MAX_SIZE = 4096  # the largest layer width or window side a model config may ask for
 BELIEF_CAP = 16  # path lengths in the belief features are capped here (and scaled by it)
+HINT_PLANNERS = ("coordinated-frontier", "team-beam")  # what `ModelConfig.hint_planner` names
+HINT_BEAM = {"beam": 8, "passes": 1}  # the hint's `team-beam` search (policies.central)
 
 
 @dataclass
@@ -71,13 +74,22 @@ class ModelConfig:
     on a shortest path toward the target that planner's assignment gives the receiver on the
     same belief map (policies.coordinated_frontier, 9 bits). Needs the belief; widens the own
     part like it (`swarm train --init CK --hint true`)."""
+    hint_planner: str = "coordinated-frontier"
+    """Whose suggestion the hint is: "coordinated-frontier" (the moves above) or "team-beam"
+    (ours: the one move `team-beam` takes on the same belief, with a light search of beam 8
+    and one pass, HINT_BEAM; the same 9 inputs, one-hot). Changes no weight shape (`swarm train
+    --init CK --hint-planner team-beam` swaps it); checkpoints older than it load with the first."""
 
     def __post_init__(self) -> None:
         """Every size an integer in [1, MAX_SIZE] (`team_pool` may be 0) and every switch a
         bool, whether it came from a checkpoint, a weights message or `swarm train --model`."""
         for f in fields(self):
             v, default = getattr(self, f.name), f.default
-            if isinstance(default, bool):
+            if isinstance(default, str):
+                if v not in HINT_PLANNERS:
+                    raise ConfigError(f"model {f.name} must be one of {', '.join(HINT_PLANNERS)}, "
+                                      f"got {v!r}")
+            elif isinstance(default, bool):
                 if not isinstance(v, bool):
                     raise ConfigError(f"model {f.name} must be true or false, got {v!r}")
             elif isinstance(default, int):
@@ -217,7 +229,8 @@ class Featurizer:
     """Turns a View into `Tokens` for its receivers; member_dim + pair_dim is the token width."""
 
     def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0,
-                 memory: bool = False, belief: bool = False, hint: bool = False) -> None:
+                 memory: bool = False, belief: bool = False, hint: bool = False,
+                 hint_planner: str = HINT_PLANNERS[0]) -> None:
         if crop < 1 or crop % 2 == 0:
             raise ConfigError(f"crop must be a positive odd number, got {crop}")
         if team_pool < 0:
@@ -228,11 +241,20 @@ class Featurizer:
         if hint and not belief:
             raise ConfigError("hint features need the belief (the planner plans on it)")
         self.belief = belief
-        self.hint = None
+        self.hint: Any = None
         if hint:  # (imported here: only a network that reads it pays for the planner)
-            from policies.coordinated_frontier import CoordinatedFrontier
+            if hint_planner == "team-beam":
+                from policies.central import CentralConfig
+                from policies.team_beam import TeamBeam
 
-            self.hint = CoordinatedFrontier(cfg)
+                self.hint = TeamBeam(cfg, CentralConfig(**HINT_BEAM))
+            elif hint_planner == "coordinated-frontier":
+                from policies.coordinated_frontier import CoordinatedFrontier
+
+                self.hint = CoordinatedFrontier(cfg)
+            else:
+                raise ConfigError(f"hint planner must be one of {', '.join(HINT_PLANNERS)}, "
+                                  f"got {hint_planner!r}")
         self.cfg = cfg
         self.crop = crop
         h, w = cfg.height, cfg.width

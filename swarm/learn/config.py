@@ -37,6 +37,10 @@ class TrainConfig:
     """Turn coordinated frontier's suggested moves on as inputs (see policies.infer.tokens,
     ours) for an --init checkpoint, widened with zero weights like --belief (which it needs,
     from the checkpoint or this run). A fresh network takes '{"belief": true, "hint": true}'."""
+    hint_planner: str = ""
+    """Set the planner behind the hint of an --init checkpoint: "team-beam" (its one move, ours)
+    or "coordinated-frontier" (see ModelConfig.hint_planner); "" keeps the checkpoint's. The
+    inputs keep their width and weights. A fresh network takes it in --model."""
     train_loss: float = 0.0
     """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
     with this probability, with the swarm radio's seeded loss model (0: no faults)."""
@@ -153,6 +157,16 @@ class TrainConfig:
         if self.hint and not self.init:
             raise ConfigError("train hint widens an --init checkpoint; a fresh network takes "
                               "--model '{\"belief\": true, \"hint\": true}'")
+        if self.hint_planner:
+            from policies.infer.tokens import HINT_PLANNERS
+
+            if self.hint_planner not in HINT_PLANNERS:
+                raise ConfigError(f"train hint_planner must be one of {', '.join(HINT_PLANNERS)}, "
+                                  f"got {self.hint_planner!r}")
+            if not self.init:
+                raise ConfigError("train hint_planner sets an --init checkpoint's hint; a fresh "
+                                  "network takes --model '{\"belief\": true, \"hint\": true, "
+                                  "\"hint_planner\": \"team-beam\"}'")
         if self.model:
             self.model_config()
         if self.imitate:

@@ -123,6 +123,10 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                  if getattr(cfg, k) and not getattr(policy.model_cfg, k)}
         if widen:  # (one call: the new inputs come last, in the featurizer's order)
             policy.widen(**widen)
+        if cfg.hint_planner:
+            if not policy.model_cfg.hint:
+                raise ConfigError("train hint_planner needs a network with the hint (--hint true)")
+            policy.set_model(hint_planner=cfg.hint_planner)
         opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
         out.mkdir(parents=True, exist_ok=True)  # (only once the run is known to start)
         curves.start()
