@@ -165,9 +165,10 @@ class CentralPolicy(Policy):
         key = np.zeros((gsz, 1), dtype=np.uint64)
         first = np.zeros((gsz, 1), dtype=np.int64)
         # (drawn once per episode: `team-beam` plans many receivers of one episode alike)
-        eps, back = np.unique(np.asarray(view.episodes)[groups], return_inverse=True)
+        eps = np.asarray(view.episodes)[groups]
+        eps, back = (eps, slice(None)) if gsz == 1 else np.unique(eps, return_inverse=True)
         noise = uniform(view.seed, eps, view.tick, robot, s.horizon * s.beam * 9,
-                        stream=7)[back.ravel()].astype(np.float32) * 1e-3
+                        stream=7)[back].astype(np.float32) * 1e-3
         for t in range(1, s.horizon + 1):
             b = pos.shape[1]
             q = self.nbr[pos]  # [G, B, 9]
@@ -187,14 +188,14 @@ class CentralPolicy(Policy):
             rank[duplicates(dk)] = -np.inf
             keep = min(s.beam, rank.shape[1])
             sel = np.argpartition(-rank, keep - 1, axis=1)[:, :keep]
-            alive = np.isfinite(np.take_along_axis(rank, sel, 1))
+            alive = np.isfinite(rank[gi, sel])  # (fancy indexing: take_along_axis costs more)
             sel = np.where(alive, sel, rank.argmax(1)[:, None])  # pad dead slots with the best
             par, act = np.divmod(sel, 9)
-            pos = np.take_along_axis(qf, sel, 1)
-            hist = np.concatenate([np.take_along_axis(hist, par[..., None], 1), pos[..., None]], 2)
-            score = np.take_along_axis(sc, sel, 1)
-            key = np.take_along_axis(k, sel, 1)
-            first = act if t == 1 else np.take_along_axis(first, par, 1)
+            pos = qf[gi, sel]
+            hist = np.concatenate([hist[gi, par], pos[..., None]], 2)
+            score = sc[gi, sel]
+            key = k[gi, sel]
+            first = act if t == 1 else first[gi, par]
         best = np.argmax(score + term[gi, pos], axis=1)
         rows = np.arange(gsz)
         return first[rows, best], hist[rows, best]
@@ -212,5 +213,5 @@ def duplicates(keys: np.ndarray) -> np.ndarray:
     s = np.sort((keys & ~low) | np.arange(c, dtype=np.uint64), axis=1)
     hi = s >> bits
     dup = np.zeros(keys.shape, dtype=bool)
-    np.put_along_axis(dup, (s[:, 1:] & low).astype(np.intp), hi[:, 1:] == hi[:, :-1], 1)
+    dup[np.arange(len(keys))[:, None], (s[:, 1:] & low).astype(np.intp)] = hi[:, 1:] == hi[:, :-1]
     return dup

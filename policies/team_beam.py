@@ -12,8 +12,12 @@ receivers at once and a robot process plans its one. The beam's noise is keyed b
 tick and planned robot, not by the receiver: robots that know the same make the same joint plan
 (a convention, not a message), so with a radio that reaches everyone `team-beam` is `central`
 (tested), and with a shorter one each robot's plan is `central`'s over what it heard. It costs
-one `central` team decision per robot: 13.8 ms for one robot's decision on 20 x 20 with 10
-robots (`swarm bench policy --policies team-beam --one-robot`), ~4 ms each batched.
+one `central` team decision per robot: ~10-13 ms for one robot's decision on 20 x 20 with 10
+robots (`swarm bench policy --policies team-beam --one-robot`), ~1.8 ms each batched
+(docs/DECISIONS.md "`team-beam`" has the measurements).
+
+`first_moves` hands its move to a learned network as its planner hint (model field
+`hint_planner`, policies.infer.tokens).
 """
 
 from __future__ import annotations
