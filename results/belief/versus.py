@@ -5,6 +5,9 @@ Usage:
     .venv/bin/python results/belief/versus.py results/belief/versus_1000.json
     .venv/bin/python results/belief/versus.py results/belief/versus_big_1000.json \
         results/belief/belief_big_checkpoint.pt
+
+More opponents follow the checkpoint as NAME or NAME=CHECKPOINT (e.g. team-beam, or
+commattn=results/hint/hint_checkpoint.pt); each is evaluated on the same episodes.
 """
 
 from __future__ import annotations
@@ -24,22 +27,27 @@ OTHERS = {"commattn (shipped)": ("commattn", "checkpoints/commattn.pt"),
           "coordinated-frontier": ("coordinated-frontier", None)}
 
 
-def main(out: str, ckpt: str = "results/belief/belief_b_checkpoint.pt") -> None:
+def main(out: str, ckpt: str = "results/belief/belief_b_checkpoint.pt", *more: str) -> None:
     torch.set_num_threads(1)
     world = WorldConfig()
     mine = evaluate(world, make_policy("commattn", world, checkpoint=ckpt), 0, 1000).elratio
     rows = {}
-    for label, (name, path) in OTHERS.items():
+    others = dict(OTHERS)
+    for spec in more:
+        name, _, path = spec.partition("=")
+        others[spec] = (name, path or None)
+    for label, (name, path) in others.items():
         kw = {"checkpoint": path} if path else {}
         theirs = evaluate(world, make_policy(name, world, **kw), 0, 1000).elratio
         diff, se = paired(mine, theirs)
         rows[label] = {"elratio_mean": float(theirs.mean()), "belief_minus_this": diff, "se": se}
         print(label, rows[label], flush=True)
-    write_json(out, {"command": f"results/belief/versus.py {out} {ckpt}", "checkpoint": ckpt,
+    write_json(out, {"command": " ".join(["results/belief/versus.py", out, ckpt, *more]),
+                     "checkpoint": ckpt,
                      "elratio_mean": float(mine.mean()), "rows": rows})
 
 
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3):
+    if len(sys.argv) < 2:
         sys.exit(__doc__)
     main(*sys.argv[1:])
