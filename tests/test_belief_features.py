@@ -177,7 +177,8 @@ def test_hint_needs_the_belief_and_is_coordinated_frontiers_moves() -> None:
     assert some > 100  # (most receivers have a target)
 
 
-def test_a_team_beam_hint_is_the_one_move_team_beam_takes() -> None:
+@pytest.mark.parametrize("light", [True, False])
+def test_a_team_beam_hint_is_the_one_move_team_beam_takes(light: bool) -> None:
     """`hint_planner` "team-beam": the 9 hint bits are one-hot, at the move `team-beam` (with
     the hint's light search) takes on the same belief; a bad planner name is one line, and
     `swarm train --hint-planner` needs an --init checkpoint."""
@@ -188,16 +189,19 @@ def test_a_team_beam_hint_is_the_one_move_team_beam_takes() -> None:
 
     with pytest.raises(ConfigError, match="hint_planner must be one of"):
         CommAttnConfig(belief=True, hint=True, hint_planner="oracle")
+    with pytest.raises(ConfigError, match="hint_passes must be an integer in"):
+        CommAttnConfig(belief=True, hint=True, hint_planner="team-beam", hint_passes=5)
     with pytest.raises(ConfigError, match="hint_planner must be one of"):
         TrainConfig(init=str(CKPT), hint_planner="central")
     with pytest.raises(ConfigError, match="a fresh network takes --model"):
         TrainConfig(hint_planner="team-beam")
     cfg = WorldConfig(comm_range=5.0)
+    search = HINT_BEAM if light else {"beam": 24, "passes": 2}  # (the latter: team-beam's own)
     feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=True,
-                       hint_planner="team-beam")
+                       hint_planner="team-beam", hint_search=search)
     views = played(cfg, 2, 10)
     batch = Belief(cfg)
-    planner = TeamBeam(cfg, CentralConfig(**HINT_BEAM))
+    planner = TeamBeam(cfg, CentralConfig(**search)) if light else make_policy("team-beam", cfg)
     planner.reset(2)
     moved = 0
     for view in views:

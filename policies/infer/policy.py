@@ -56,7 +56,9 @@ def featurizer(cfg: WorldConfig, model: Any) -> Featurizer:
     return Featurizer(cfg, crop=model.crop, team_pool=getattr(model, "team_pool", 0),
                       memory=getattr(model, "team_memory", False),
                       belief=getattr(model, "belief", False), hint=getattr(model, "hint", False),
-                      hint_planner=getattr(model, "hint_planner", "coordinated-frontier"))
+                      hint_planner=getattr(model, "hint_planner", "coordinated-frontier"),
+                      hint_search={"beam": getattr(model, "hint_beam", 8),
+                                   "passes": getattr(model, "hint_passes", 1)})
 
 
 def gumbel(view: View, group: np.ndarray, robot: np.ndarray) -> np.ndarray:

@@ -44,7 +44,7 @@ REFERENCE_SIDE = 20  # the map side the coarse team map's block count is fixed b
 MAX_SIZE = 4096  # the largest layer width or window side a model config may ask for
 BELIEF_CAP = 16  # path lengths in the belief features are capped here (and scaled by it)
 HINT_PLANNERS = ("coordinated-frontier", "team-beam")  # what `ModelConfig.hint_planner` names
-HINT_BEAM = {"beam": 8, "passes": 1}  # the hint's `team-beam` search (policies.central)
+HINT_BEAM = {"beam": 8, "passes": 1}  # the hint's `team-beam` search by default (hint_beam, ..)
 
 
 @dataclass
@@ -79,6 +79,10 @@ class ModelConfig:
     (ours: the one move `team-beam` takes on the same belief, with a light search of beam 8
     and one pass, HINT_BEAM; the same 9 inputs, one-hot). Changes no weight shape (`swarm train
     --init CK --hint-planner team-beam` swaps it); checkpoints older than it load with the first."""
+    hint_beam: int = 8
+    """Beam width of the "team-beam" hint's search (HINT_BEAM; `team-beam` itself: 24)."""
+    hint_passes: int = 1
+    """Rounds of prioritized planning of the "team-beam" hint (`team-beam` itself: 2)."""
 
     def __post_init__(self) -> None:
         """Every size an integer in [1, MAX_SIZE] (`team_pool` may be 0) and every switch a
@@ -97,6 +101,10 @@ class ModelConfig:
                 if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= MAX_SIZE:
                     raise ConfigError(f"model {f.name} must be an integer in [{lo}, {MAX_SIZE}], "
                                       f"got {v!r}")
+        for name, hi in (("hint_beam", 64), ("hint_passes", 4)):  # (a robot's time per tick)
+            if not 1 <= getattr(self, name, 1) <= hi:
+                raise ConfigError(f"model {name} must be an integer in [1, {hi}], "
+                                  f"got {getattr(self, name)!r}")
         if getattr(self, "belief", False) and not (self.team_pool and self.team_memory):
             raise ConfigError("model belief needs the team map and its memory (team_pool > 0 "
                               "and team_memory true)")
@@ -230,7 +238,8 @@ class Featurizer:
 
     def __init__(self, cfg: WorldConfig, crop: int = 9, team_pool: int = 0,
                  memory: bool = False, belief: bool = False, hint: bool = False,
-                 hint_planner: str = HINT_PLANNERS[0]) -> None:
+                 hint_planner: str = HINT_PLANNERS[0],
+                 hint_search: dict[str, int] | None = None) -> None:
         if crop < 1 or crop % 2 == 0:
             raise ConfigError(f"crop must be a positive odd number, got {crop}")
         if team_pool < 0:
@@ -247,7 +256,7 @@ class Featurizer:
                 from policies.central import CentralConfig
                 from policies.team_beam import TeamBeam
 
-                self.hint = TeamBeam(cfg, CentralConfig(**HINT_BEAM))
+                self.hint = TeamBeam(cfg, CentralConfig(**(hint_search or HINT_BEAM)))
             elif hint_planner == "coordinated-frontier":
                 from policies.coordinated_frontier import CoordinatedFrontier
 
