@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from collections import deque
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,19 @@ def played(cfg: WorldConfig, groups: int, ticks: int, seed: int = 3) -> list:
         views.append(batch_view(cfg, state))
         core.step(cfg, state, rng.integers(0, 9, (groups, cfg.n_robots)))
     return views
+
+
+def hinted(cfg: WorldConfig, feats: Featurizer, planner: object, ticks: int) -> Iterator:
+    """(the view, the planner's actions [G, N], the tokens, their 9 hint bits) at every tick
+    of 2 groups' random play, the hint computed on the belief the batch folds."""
+    batch = Belief(cfg)
+    planner.reset(2)  # type: ignore[attr-defined]
+    for view in played(cfg, 2, ticks):
+        acted = planner.act(view)  # type: ignore[attr-defined]
+        view.belief = batch.snapshot(view)
+        view.team_visited = batch.visited
+        t = feats(view)
+        yield view, acted, t, t.own_feats[:, -9:]
 
 
 def plain_windows(known: np.ndarray, explored: np.ndarray, cell: tuple[int, int],
@@ -156,17 +170,8 @@ def test_hint_needs_the_belief_and_is_coordinated_frontiers_moves() -> None:
         TrainConfig(hint=True)
     cfg = WorldConfig(comm_range=5.0)
     feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=True)
-    views = played(cfg, 2, 12)
-    batch = Belief(cfg)
-    planner = make_policy("coordinated-frontier", cfg)
-    planner.reset(2)
     some = 0
-    for view in views:
-        acted = planner.act(view)
-        view.belief = batch.snapshot(view)
-        view.team_visited = batch.visited
-        t = feats(view)
-        bits = t.own_feats[:, -9:]
+    for view, acted, t, bits in hinted(cfg, feats, make_policy("coordinated-frontier", cfg), 12):
         assert set(np.unique(bits)) <= {0.0, 1.0}
         has = bits.any(axis=1)
         some += int(has.sum())
@@ -199,17 +204,9 @@ def test_a_team_beam_hint_is_the_one_move_team_beam_takes(light: bool) -> None:
     search = HINT_BEAM if light else {"beam": 24, "passes": 2}  # (the latter: team-beam's own)
     feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=True,
                        hint_planner="team-beam", hint_search=search)
-    views = played(cfg, 2, 10)
-    batch = Belief(cfg)
     planner = TeamBeam(cfg, CentralConfig(**search)) if light else make_policy("team-beam", cfg)
-    planner.reset(2)
     moved = 0
-    for view in views:
-        acted = planner.act(view)
-        view.belief = batch.snapshot(view)
-        view.team_visited = batch.visited
-        t = feats(view)
-        bits = t.own_feats[:, -9:]
+    for _view, acted, t, bits in hinted(cfg, feats, planner, 10):
         np.testing.assert_array_equal(bits.sum(1), 1.0)
         np.testing.assert_array_equal(bits.argmax(1), acted[t.group, t.robot])
         moved += int((bits.argmax(1) != 0).sum())
