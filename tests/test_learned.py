@@ -15,13 +15,13 @@ from rich.console import Console
 
 from policies import make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from swarm.learn.config import TrainConfig
+from swarm.learn.config import TrainConfig, resumed
 from swarm.learn.evaluate import evaluate
 from swarm.learn.rollout import collect
 from swarm.learn.trainer import main
 from swarm.learn.update import update
 from world import core
-from world.config import ConfigError, WorldConfig
+from world.config import ConfigError, WorldConfig, from_dict
 from world.decentral import TeamMemory, View, batch_view, heard_by, remember, robot_view
 
 LEARNED = ["commattn", "commnet", "vain", "bicnet"]
@@ -388,13 +388,18 @@ def test_resume_refuses_what_would_change_the_run(tmp_path: Path) -> None:
     assert first.returncode == 0, first.stderr
     log = (tmp_path / "run" / "log.jsonl").read_bytes()
     for flags, says in ((["--lr", "0.1"], "lr = 0.1 differs from its 0.002"),
-                        (["--seed", "4"], "seed = 4 differs from its 3"),
-                        (["--robots", "5"], "n_robots = 5 differs from its 3"),
-                        (["--gamma", "0.5"], "gamma = 0.5 differs")):
+                        (["--robots", "5"], "n_robots = 5 differs from its 3")):
         res = swarm("train", "--resume", "--out", out, "--epochs", "2", *flags)
         assert res.returncode == 2 and says in res.stderr, res.stderr
         assert len(res.stderr.strip().splitlines()) == 1, res.stderr
         assert (tmp_path / "run" / "log.jsonl").read_bytes() == log  # nothing written
+    saved = from_dict(TrainConfig, load_checkpoint(tmp_path / "run" / "checkpoint.pt")["train"]
+                      ["config"], where="test")
+    for field, value, says in (("seed", 4, "seed = 4 differs from its 3"),
+                               ("gamma", 0.5, "gamma = 0.5 differs")):  # the same check, in-process
+        asked = dataclasses.replace(saved, **{field: value, "epochs": 2})
+        with pytest.raises(ConfigError, match=says):
+            resumed(saved, asked, [field, "epochs"], 1, out)
     res = swarm("train", "--resume", "--out", out, "--seed", "3", "--threads", "2")
     assert res.returncode == 0 and "all 1 epochs are done" in res.stdout + res.stderr
     res = swarm("train", "--resume", "--out", out, "--epochs", "2", "--workers", "2")
