@@ -8,7 +8,8 @@ and where does it inherit its planner's losses?
     .venv/bin/python results/hint_tb/comm.py OUT.json I [I ...]
 
 I: indices into `swarm.studies.comm.CONDITIONS` (0-8 are the 20 x 20 ones; ~315 s a condition
-on one core, the network and `team-beam` most of it). The README's table is `comm_a.json` (0-4) and `comm_b.json` (5-8).
+on one core, the network and `team-beam` most of it). The README's table is `comm_a.json`
+(0-4) and `comm_b.json` (5-8).
 """
 import json
 import sys
