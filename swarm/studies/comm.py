@@ -13,15 +13,17 @@ per cell (10 x 30 / 400); there CommAttn runs the checkpoint fine-tuned on 40 x 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from policies.base import Policy
 from swarm.common.policy_spec import SHIPPED, build_policy
 from swarm.common.report import header, md_table, paired, paired_cell, write_item
-from swarm.learn.evaluate import evaluate
+from swarm.learn.evaluate import EvalResult, evaluate
 from swarm.net.faults import plan_from_table
 from world.config import WorldConfig, replace, scaled_blocks, to_dict
 
@@ -53,6 +55,40 @@ def checkpoint_for(name: str, wc: WorldConfig, given: str | None) -> str | None:
     return str(tuned) if tuned is not None and tuned.is_file() else given
 
 
+def under(wc: WorldConfig, faults: dict[str, Any], policy: Policy, seed: int, episodes: int,
+          batch: int = 250, tick_s: float = 2.0) -> EvalResult:
+    """Episodes 0..episodes-1 of `seed` under one condition's world and `[faults]` table (the
+    radio's virtual-time model, seeded by `seed`)."""
+    plan = plan_from_table({**faults, "seed": seed}, seed) if faults else None
+    return evaluate(wc, policy, seed, episodes, batch=batch, faults=plan, tick_s=tick_s)
+
+
+def paired_conditions(picks: Sequence[int], specs: dict[str, tuple[str, str | None]], seed: int,
+                      episodes: int, batch: int = 100) -> list[dict[str, Any]]:
+    """One row per condition index in `picks`: each spec (label -> policy name, checkpoint) on
+    the same episodes, its elratio and success, and the first spec's paired lead over each
+    other (`FIRST_minus_OTHER`: mean, standard error). The results scripts that put one more
+    policy beside `repro comm`'s (results/planners/team_beam_comm.py, results/hint_tb/comm.py)."""
+    first, *others = specs
+    rows = []
+    for k in picks:
+        label, changes, faults = CONDITIONS[k]
+        wc = replace(WorldConfig(), **changes)
+        t0 = time.time()
+        el = {name: under(wc, faults, build_policy(policy, wc, ckpt), seed, episodes, batch)
+              for name, (policy, ckpt) in specs.items()}
+        row: dict[str, Any] = {"condition": label, "episodes": episodes,
+                               "seconds": time.time() - t0}
+        for name, res in el.items():
+            row[name] = {"elratio": float(res.elratio.mean()),
+                         "success": float(res.success.mean())}
+        for other in others:
+            row[f"{first.replace('-', '_')}_minus_{other}"] = paired(el[first].elratio,
+                                                                     el[other].elratio)
+        rows.append(row)
+    return rows
+
+
 def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
          policies: Sequence[str] = POLICIES, checkpoints: dict[str, str | None] | None = None,
          batch: int = 250, tick_s: float = 2.0) -> dict[str, Any]:
@@ -68,8 +104,7 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
         for name in policies:
             ckpt = checkpoint_for(name, wc, checkpoints.get(name))
             policy = build_policy(name, wc, ckpt)
-            plan = plan_from_table({**faults, "seed": seed}, seed) if faults else None
-            res = evaluate(wc, policy, seed, episodes, batch=batch, faults=plan, tick_s=tick_s)
+            res = under(wc, faults, policy, seed, episodes, batch, tick_s)
             s = res.summary(wc)
             first = res.elratio if first is None else first
             lead, se = paired(first, res.elratio)  # the same episodes
