@@ -129,10 +129,13 @@ def test_killed_robot_is_noticed_and_mission_goes_on(tmp_path: Path) -> None:
 @pytest.mark.procs
 def test_ctrl_c_leaves_no_process_behind() -> None:
     run_id = "ctrlc"
+    # started with SIGINT ignored, as a shell without job control starts `swarm run ... &`:
+    # the CLI takes Ctrl-C back (swarm.cli.main), or the run would be deaf to it
     proc = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
          "random", "--episodes", "1000", "--run-id", run_id],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     assert proc.stdout is not None
     proc.stdout.readline()
     assert len(run_procs(run_id)) >= 4  # supervisor, world, 3 robots

@@ -9,7 +9,9 @@ router.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from swarm.cli import batch, hosts, learn, record, run, secure
@@ -35,7 +37,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `swarm` console script; returns the exit status."""
     # a child of `swarm run` goes when its supervisor goes, SIGKILL included (with a deadline);
-    # SIGTERM cleans up like Ctrl-C (children stopped, files closed)
+    # SIGTERM cleans up like Ctrl-C (children stopped, files closed). SIGINT is Ctrl-C even where
+    # it came in ignored: a shell without job control starts `swarm run ... &` with SIGINT
+    # ignored, and Python then never raises KeyboardInterrupt; the supervisor and its children
+    # stop on SIGINT, so a run started so would otherwise be deaf to `kill -INT` and to its stop
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     if not die_with_parent():
         terminate_as_interrupt()
     parser = build_parser()
