@@ -4,6 +4,7 @@ loopback (scouting off), real torch models."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import signal
@@ -183,12 +184,13 @@ def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path,
     """`swarm run --train`: the learner's first update from the robots' records equals the
     batched trainer's update on the same episodes (same seed, initial weights, no faults), with
     the paper's REINFORCE and with PPO (whose ratios use the log-probabilities robots recorded)."""
-    cfg = WorldConfig(n_robots=3)
+    cfg = dataclasses.replace(SMALL, horizon=16)  # a small world: the same code paths, faster
     init = initial(tmp_path, cfg, seed=1)
     out = tmp_path / "learner"
     ppo = ["--train-algo", "ppo", "--train-ppo-epochs", "2"] if algo == "ppo" else []
-    r = swarm("run", "--train", "--headless", "--robots", "3", "--policy", "commattn",
-              "--checkpoint", str(init), "--episodes", "4", "--train-batch", "4", "--seed", "6",
+    r = swarm("run", "--train", "--headless", "--config", str(world_toml(tmp_path, cfg)),
+              "--policy", "commattn", "--checkpoint", str(init), "--episodes", "4",
+              "--train-batch", "4", "--seed", "6",
               "--learner-out", str(out), "--run-id", "geq", "--json", str(tmp_path / "r.json"),
               "--tick-timeout", "10", *ppo)  # no faults: a long deadline changes nothing but load
     assert r.returncode == 0, r.stderr

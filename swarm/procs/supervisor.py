@@ -157,9 +157,10 @@ class Supervisor:
     def start(self) -> float:
         """Write the spec and start the world; robots follow once the supervisor listens."""
         spec = self.tmp / "spec.json"
-        if self.learning is not None and not self.run_cfg.checkpoint:  # one fresh version 0
-            self.run_cfg = dataclasses.replace(self.run_cfg, checkpoint=str(fresh_checkpoint(
-                self.run_cfg.policy, self.cfg, self.run_cfg.seed, self.tmp / "initial.pt")))
+        fresh = self.learning is not None and not self.run_cfg.checkpoint  # one fresh version 0
+        if fresh:  # (written while the world starts: the world never reads it)
+            self.run_cfg = dataclasses.replace(self.run_cfg,
+                                               checkpoint=str(self.tmp / "initial.pt"))
         learning = self.learning or {}
         RunRecord(self.cfg, self.run_cfg, self.faults, learner=learning.get("learner"),
                   train=learning.get("train")).write(spec)
@@ -178,6 +179,13 @@ class Supervisor:
                                   "--json", str(self.tmp / "world_result.json"),
                                   *(x for e in listen for x in ("--listen", e)),
                                   "--zenoh-mode", "router"], "world", ns)
+        if fresh:
+            try:
+                fresh_checkpoint(self.run_cfg.policy, self.cfg, self.run_cfg.seed,
+                                 Path(str(self.run_cfg.checkpoint)))
+            except BaseException:
+                self.stop_all()
+                raise
         wait_port(host, self.port, self.world, 30.0)
         for name, args, rns, addr in self.topo.routers(self.port) if self.topo else []:
             self.routers.append(self._spawn(args, name, rns))
@@ -300,15 +308,7 @@ class Supervisor:
                 .subscribe(k.robot_status("*"), "rstatus").subscribe(k.result, "result")
                 .subscribe(k.control, "control").subscribe(k.learner_status, "lstatus")
                 .liveliness(f"{k.base}/alive/**", "alive"))
-            if self.learner is not None:  # its subscriptions before the first episode ends
-                deadline = time.monotonic() + 60.0
-                while not self.learner_alive:
-                    ev = inbox.next(0.1)
-                    if ev is not None:
-                        self._handle(*ev)
-                    if self.learner.poll() is not None or time.monotonic() > deadline:
-                        self.stop_all()
-                        raise RuntimeError(f"the learner did not start (logs in {self.log_dir})")
+            # (the learner starts beside the robots: the world's first tick waits for it)
             if self.recorder is not None:  # its subscription first: every tick is recorded
                 self._wait_recorder(inbox)
             # Robots only after our subscriptions reached the world: the first tick is not missed.

@@ -95,6 +95,7 @@ class WorldProcess:
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
         self.live: set[int] = set()  # the ids where `alive` is set (kept with it in _liveness)
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
+        self.learner_alive = not run.train  # a training run's first tick waits for its learner
         self.bad: dict[str, int] = {}
         self.timeouts = 0
         self.fast_lane_ticks = 0  # ticks whose hidden-state messages went robot to robot
@@ -121,6 +122,8 @@ class WorldProcess:
         inbox = Inbox(self.session)
         if self.direct is not None:  # the robots' counters of direct delivery
             inbox.subscribe(k.robot_status("*"), "rstatus")
+        if self.run_cfg.train:  # its token follows its subscriptions (swarm.procs.learner)
+            inbox.liveliness(k.alive_learner, "learner")
         return (inbox.subscribe(k.traj("*"), "traj")
                 .subscribe(k.hidden("*"), "hidden").subscribe(k.action("*"), "action")
                 .subscribe(k.control, "control").queryable(k.config, lambda: self._record)
@@ -139,11 +142,18 @@ class WorldProcess:
 
     # --- the tick loop ----------------------------------------------------------------------
     def wait_for_robots(self) -> None:
+        """Until every robot is alive (or start_timeout: then those that are), and in a
+        training run its learner: the learner starts beside the robots, not before them, and
+        no episode may end before it listens."""
         deadline = time.monotonic() + self.run_cfg.start_timeout
-        while not self.alive.all() and time.monotonic() < deadline and not self.stop:
+        while not (self.alive.all() and self.learner_alive) and time.monotonic() < deadline \
+                and not self.stop:
             self._pump(deadline)
         if not self.alive.any():
             raise RuntimeError(f"no robot came alive within {self.run_cfg.start_timeout:g} s")
+        if not self.learner_alive and not self.stop:
+            raise RuntimeError(f"the learner did not come alive within "
+                               f"{self.run_cfg.start_timeout:g} s")
 
     def _pump(self, deadline: float, tick: TickInbox | None = None) -> bool:
         """Handle one queued event (or due delivery) before `deadline`; False when it passed."""
@@ -157,6 +167,9 @@ class WorldProcess:
         kind, key, payload = ev
         if kind in ("robot:live", "robot:dead"):
             self._liveness(kind == "robot:live", key)
+            return True
+        if kind in ("learner:live", "learner:dead"):
+            self.learner_alive = kind == "learner:live"
             return True
         if kind == "control":
             try:
