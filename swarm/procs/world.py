@@ -94,6 +94,9 @@ class WorldProcess:
         self.chain_ms: list[list[float]] = []  # per chain depth: [sum of ms, messages]
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
         self.live: set[int] = set()  # the ids where `alive` is set (kept with it in _liveness)
+        # this tick's: the live robots it sent an observation to, less any that died since (a
+        # robot that comes alive mid-tick joins at the next one: nobody waits for its action)
+        self.tick_live: set[int] = set()
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.learner_alive = not run.train  # a training run's first tick waits for its learner
         self.bad: dict[str, int] = {}
@@ -137,6 +140,8 @@ class WorldProcess:
         if 0 <= robot < self.cfg.n_robots:
             self.alive[robot] = live
             (self.live.add if live else self.live.discard)(robot)
+            if not live:
+                self.tick_live.discard(robot)
             self.ever_alive[robot] |= live
             log.info("robot %d %s", robot, "alive" if live else "gone")
 
@@ -331,6 +336,7 @@ class WorldProcess:
             if self.direct is not None:  # the tick's links come with its actions (Action.heard)
                 live = np.packbits(self.alive).tobytes()
                 self.radio.delivered = np.zeros((cfg.n_robots, cfg.n_robots), dtype=bool)
+            self.tick_live = set(self.live)
             for i in np.flatnonzero(self.alive):
                 held = self.direct.bucket_of(int(i), ep) if self.direct is not None else None
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
@@ -355,7 +361,7 @@ class WorldProcess:
             radio0 = self.phase_ms["radio"]
             t_sent = t_delivered = time.perf_counter()
             self.phase_ms["obs"] += 1e3 * (t_sent - t_obs)
-            live = self.live  # (changes only with a liveness event, in _liveness)
+            live = self.tick_live  # (changes only with a liveness event, in _liveness)
             while True:
                 if not tick.delivered and (has_all(tick.traj, live)
                                            or time.monotonic() >= traj_deadline):
@@ -378,7 +384,7 @@ class WorldProcess:
             for i, msg in tick.action.items():
                 acts[0, i] = msg.action
             self.planning_ms += sum(m.planning_ms for m in tick.action.values())
-            missing = [int(i) for i in np.flatnonzero(self.alive) if i not in tick.action]
+            missing = [i for i in sorted(self.tick_live) if i not in tick.action]
             self.timeouts += len(missing)
             self.fast_lane_ticks += tick.fast_lane
             state.alive[0] = self.alive

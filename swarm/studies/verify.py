@@ -293,8 +293,12 @@ class Auditor:
             if a.robot not in late:
                 acts[0, a.robot] = a.action
                 got.add(a.robot)
-        missing = [int(i) for i in np.flatnonzero(alive) if i not in got]
-        self.same("status.timeouts (alive robots without a recorded action)", late, missing)
+        # the world waits for the robots it sent this tick's observation to (one that came
+        # alive mid-tick joins at the next); those still alive without an action timed out
+        sent = {o.robot for _, o in bucket.obs}
+        missing = [int(i) for i in np.flatnonzero(alive) if i in sent and i not in got]
+        self.same("status.timeouts (alive robots observed without a recorded action)", late,
+                  missing)
         self.timeouts += len(missing)
         self.report.count("actions", len(got))
         state.alive[0] = alive
