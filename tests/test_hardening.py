@@ -74,8 +74,8 @@ def run_pids(run_id: str) -> list[int]:
     return pids
 
 
-def start_run(tmp: Path, run_id: str, *args: str) -> subprocess.Popen[bytes]:
-    (tmp / "tiny.toml").write_text(TINY)
+def start_run(tmp: Path, run_id: str, *args: str, toml: str = "") -> subprocess.Popen[bytes]:
+    (tmp / "tiny.toml").write_text(TINY + toml)
     return subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--config", str(tmp / "tiny.toml"),
          "--run-id", run_id, "--json", str(tmp / "r.json"), "--log-dir", str(tmp / "logs"),
@@ -205,7 +205,7 @@ def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Pa
     """Every process stays alive and counts what it refused; the run completes."""
     run_id = "fuzz1"
     proc = start_run(tmp_path, run_id, "--policy", "commattn", "--train", "--train-batch", "2",
-                     "--episodes", "8", "--pace", "12", "--tick-timeout", "1")
+                     "--episodes", "6", "--pace", "16", "--tick-timeout", "1")
     try:
         hub = hub_of(run_id, proc)
         keys = Keys(run_id)
@@ -227,7 +227,7 @@ def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Pa
         if proc.poll() is None:
             proc.kill()
     res = json.loads((tmp_path / "r.json").read_text())
-    assert res["completed"] == 8 and res["robot_crashes"] == 0 and res["robots_lost"] == 0
+    assert res["completed"] == 6 and res["robot_crashes"] == 0 and res["robots_lost"] == 0
     assert res["messages"]["bad"] > 0  # the world refused forged trajectories, actions, control
     assert all(r["bad"] > 0 and r["errors"] == 0 for r in res["robot_status"].values())
     assert res["supervisor_bad"] > 0
@@ -369,7 +369,8 @@ def test_a_signal_another_thread_takes_still_ends_a_long_wait() -> None:
 def test_every_played_episode_ends_in_exactly_one_learner_counter(tmp_path: Path) -> None:
     """played = trained + pending + stale_dropped + incomplete + rejected, in the result."""
     proc = start_run(tmp_path, "acct1", "--policy", "commattn", "--train", "--train-batch", "4",
-                     "--episodes", "14", "--rollout-loss", "0.2")
+                     "--episodes", "14", "--rollout-loss", "0.2",
+                     toml="[learner]\njoin_timeout = 2\n")  # (default 5 s: the wait at the end)
     assert proc.wait(timeout=180) == 0, proc.stderr.read().decode()[-2000:]
     acc = json.loads((tmp_path / "r.json").read_text())["learner"]["accounting"]
     assert acc["played"] == 14 and acc["unaccounted"] == 0, acc

@@ -371,6 +371,7 @@ def test_rollout_loss_drops_records_and_the_learner_counts_incomplete_episodes(
     """A fault on the rollout traffic: robots drop their episode records with the seeded
     probability; the learner drops those episodes as incomplete (counted), never trains on them."""
     toml = world_toml(tmp_path, SMALL)
+    toml.write_text(toml.read_text() + "[learner]\njoin_timeout = 2\n")  # (default 5 s)
     r = swarm("run", "--train", "--headless", "--config", str(toml), "--policy", "vain",
               "--episodes", "12", "--train-batch", "2", "--rollout-loss", "0.5", "--seed", "4",
               "--run-id", "rloss", "--learner-out", str(tmp_path / "l"),
