@@ -22,7 +22,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from policies.base import Policy
-from policies.belief import BLOCK, Belief
+from policies.belief import BLOCK, Belief, Snapshot
 from policies.central import CentralPolicy
 from policies.oracle import Episode, _beam, _cover, _pick_team, to_actions
 from swarm.learn.evaluate import evaluate
@@ -109,17 +109,24 @@ class DecentralizedReplan(Policy):
 
     def act(self, view: View, greedy: bool = True) -> np.ndarray:
         snap = self.belief.snapshot(view)
-        cfg = self.cfg
         out = np.zeros(view.receivers.shape, dtype=np.int64)
-        for k in range(snap.size):
-            g, i = int(snap.g[k]), int(snap.i[k])
-            team = np.flatnonzero(view.hears[g, i])
-            cells = view.msgs.pos[g, team, 0] * cfg.width + view.msgs.pos[g, team, 1]
-            rng = np.random.default_rng([int(view.seed), int(view.episodes[g]), view.tick, i, 29])
-            moves = plan_first_moves(cfg, snap.known[k].ravel().copy(),
-                                     snap.explored[k].ravel(), cells, view.tick, rng)
-            out[g, i] = moves[int(np.flatnonzero(team == i)[0])]
+        out[snap.g, snap.i] = own_moves(self.cfg, view, snap)
         return out
+
+
+def own_moves(cfg: WorldConfig, view: View, snap: Snapshot) -> np.ndarray:
+    """Each receiver's first move [R] in the whole-horizon plan of its heard team, planned on
+    its own belief (`DecentralizedReplan`'s decision; a hint in results/hint_tb/replan_hint.py)."""
+    out = np.zeros(snap.size, dtype=np.int64)
+    for k in range(snap.size):
+        g, i = int(snap.g[k]), int(snap.i[k])
+        team = np.flatnonzero(view.hears[g, i])
+        cells = view.msgs.pos[g, team, 0] * cfg.width + view.msgs.pos[g, team, 1]
+        rng = np.random.default_rng([int(view.seed), int(view.episodes[g]), view.tick, i, 29])
+        moves = plan_first_moves(cfg, snap.known[k].ravel().copy(), snap.explored[k].ravel(),
+                                 cells, view.tick, rng)
+        out[k] = moves[int(np.flatnonzero(team == i)[0])]
+    return out
 
 
 if __name__ == "__main__":
