@@ -372,3 +372,22 @@ def has_all(got: dict[int, Any] | set[int], live: set[int]) -> bool:
     """Every live robot is in `got` (a set, or a dict's keys; the length test first: this runs
     on every message)."""
     return len(got) >= len(live) and live.issubset(got)
+
+
+def chain_times(chain_ms: list[list[float]], pred: np.ndarray, hidden_at: dict[int, float],
+                t_delivered: float) -> None:
+    """Add to `chain_ms` ([sum of ms, messages] per position in the chain: 0 no predecessor, k
+    k hops down) when this tick's hidden-state messages (`hidden_at`: robot -> monotonic time)
+    reached the world after the bundles began to go out (`t_delivered`): where the chain's time
+    goes (the world's `chain_ms_by_depth`)."""
+    if not hidden_at:
+        return
+    depth: list[int] = []
+    for p in pred.tolist():
+        depth.append(0 if p < 0 else depth[p] + 1)  # a predecessor has a lower id
+    for i, at in hidden_at.items():
+        d = depth[i]
+        while len(chain_ms) <= d:
+            chain_ms.append([0.0, 0])
+        chain_ms[d][0] += 1e3 * (at - t_delivered)
+        chain_ms[d][1] += 1

@@ -44,7 +44,7 @@ from swarm.net.messages import (
     pack_record,
     unpack_record,
 )
-from swarm.net.radio import Radio, TickInbox, has_all
+from swarm.net.radio import Radio, TickInbox, chain_times, has_all
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world import core
@@ -94,8 +94,8 @@ class WorldProcess:
         self.chain_ms: list[list[float]] = []  # per chain depth: [sum of ms, messages]
         self.alive = np.zeros(cfg.n_robots, dtype=bool)
         self.live: set[int] = set()  # the ids where `alive` is set (kept with it in _liveness)
-        # this tick's: the live robots it sent an observation to, less any that died since (a
-        # robot that comes alive mid-tick joins at the next one: nobody waits for its action)
+        # the live robots sent this tick's observation, less any that died since (one that comes
+        # alive mid-tick joins at the next: nobody waits for its action)
         self.tick_live: set[int] = set()
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.learner_alive = not run.train  # a training run's first tick waits for its learner
@@ -147,9 +147,8 @@ class WorldProcess:
 
     # --- the tick loop ----------------------------------------------------------------------
     def wait_for_robots(self) -> None:
-        """Until every robot is alive (or start_timeout: then those that are), and in a
-        training run its learner: the learner starts beside the robots, not before them, and
-        no episode may end before it listens."""
+        """Until every robot (or start_timeout: those alive then) and a training run's learner
+        is alive: the learner starts beside the robots; no episode may end before it listens."""
         deadline = time.monotonic() + self.run_cfg.start_timeout
         while not (self.alive.all() and self.learner_alive) and time.monotonic() < deadline \
                 and not self.stop:
@@ -157,8 +156,7 @@ class WorldProcess:
         if not self.alive.any():
             raise RuntimeError(f"no robot came alive within {self.run_cfg.start_timeout:g} s")
         if not self.learner_alive and not self.stop:
-            raise RuntimeError(f"the learner did not come alive within "
-                               f"{self.run_cfg.start_timeout:g} s")
+            raise RuntimeError(f"no learner came alive within {self.run_cfg.start_timeout:g} s")
 
     def _pump(self, deadline: float, tick: TickInbox | None = None) -> bool:
         """Handle one queued event (or due delivery) before `deadline`; False when it passed."""
@@ -379,7 +377,7 @@ class WorldProcess:
             radio = self.phase_ms["radio"] - radio0  # this tick's bundles and forwarding
             self.phase_ms["collect"] += 1e3 * (t_delivered - t_sent)
             self.phase_ms["decide"] += max(0.0, 1e3 * (t_acted - t_delivered) - radio)
-            self._time_chain(tick, t_delivered)
+            chain_times(self.chain_ms, self.radio.pred, tick.hidden_at, t_delivered)
             acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
             for i, msg in tick.action.items():
                 acts[0, i] = msg.action
@@ -399,22 +397,6 @@ class WorldProcess:
             self.run_tick += 1
             self._status(state, ep, missing)
             self.phase_ms["step"] += 1e3 * (time.perf_counter() - t_acted)
-
-    def _time_chain(self, tick: TickInbox, t_delivered: float) -> None:
-        """Sum, per position in the chain (0: no predecessor, k: k hops down), when hidden-state
-        messages reached the world after the bundles began to go out: where the chain's time
-        goes (`chain_ms_by_depth` in the result)."""
-        if not tick.hidden_at:
-            return
-        depth: list[int] = []
-        for p in self.radio.pred.tolist():
-            depth.append(0 if p < 0 else depth[p] + 1)  # a predecessor has a lower id
-        for i, at in tick.hidden_at.items():
-            d = depth[i]
-            while len(self.chain_ms) <= d:
-                self.chain_ms.append([0.0, 0])
-            self.chain_ms[d][0] += 1e3 * (at - t_delivered)
-            self.chain_ms[d][1] += 1
 
     def _status(self, state: core.WorldState, ep: int, missing: list[int]) -> None:
         lay = core.Layout.of(self.cfg)
