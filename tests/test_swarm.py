@@ -300,6 +300,8 @@ def test_a_world_that_fails_is_reported_with_its_own_error(tmp_path: Path) -> No
     log.write_text("Traceback (most recent call last):\n  File \"x.py\", line 1, in <module>\n"
                    "    raise RuntimeError(...)\nRuntimeError: no robot came alive within 15 s\n")
     assert last_error(log) == "RuntimeError: no robot came alive within 15 s"
+    log.write_text("swarm: error: [Errno 30] Read-only file system: '/x/l'\n")  # a CLI error
+    assert last_error(log) == "[Errno 30] Read-only file system: '/x/l'"
     log.write_text("a warning\n")
     assert last_error(log) == "" and last_error(tmp_path / "missing.log") == ""
 

@@ -133,7 +133,8 @@ def wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: floa
 
 
 def last_error(log: Path, tail: int = 4096) -> str:
-    """The last exception line (`SomeError: message`) of a child's log, or "" if none."""
+    """The last exception line (`SomeError: message`) or one-line CLI error (`swarm: error:
+    message`, given as the message) of a child's log, or "" if none."""
     try:
         with log.open("rb") as fh:
             fh.seek(max(fh.seek(0, os.SEEK_END) - tail, 0))
@@ -141,6 +142,8 @@ def last_error(log: Path, tail: int = 4096) -> str:
     except OSError:
         return ""
     for line in reversed(lines):
+        if line.startswith("swarm: error: "):  # swarm.cli.main's one line (a bad config, a path)
+            return line[len("swarm: error: "):].strip()
         head = line.split(":", 1)[0]
         if line and not line[0].isspace() and head.endswith(("Error", "Exception")):
             return line.strip()
