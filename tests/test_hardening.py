@@ -399,6 +399,8 @@ BAD_INPUTS = [
      "tcp/127.0.0.1:1"],
     ["train", "--out", "{tmp}/t", "--lr", "nan"], ["train", "--out", "{tmp}/t", "--epochs", "0"],
     ["eval", "--policy", "nope"], ["eval", "--json", "{tmp}"],
+    # (permission bits say "writable" for root here: the check writes a probe file)
+    ["eval", "--json", "/proc/swarm.json"], ["run", "--train", "--learner-out", "/proc/swarm"],
     ["fault", "--run", "nosuchrun", "--loss", "0.1"],
 ]
 

@@ -13,6 +13,7 @@ import math
 import os
 import shlex
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any, NoReturn, Self
 
@@ -238,22 +239,29 @@ def output_file(path: str | None, flag: str = "--json") -> None:
     parent = target.parent if str(target.parent) else Path(".")
     if not parent.is_dir():
         raise ConfigError(f"{flag} {path}: directory {parent} does not exist")
-    if not os.access(parent, os.W_OK) or (target.exists() and not os.access(target, os.W_OK)):
+    if target.exists() and not os.access(target, os.W_OK):
         raise ConfigError(f"{flag} {path} is not writable")
+    try:  # it is written as a temporary file beside it, then renamed (swarm.common.atomic)
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"{flag} {path} is not writable ({exc.strerror or exc})") from None
 
 
 def output_dir(path: str | None, flag: str) -> None:
-    """A directory a run will write into: existing and writable, or creatable."""
+    """A directory a run will write into, made now and probed with a file (permission bits do
+    not say it for root or for a special file system such as /proc)."""
     if path is None:
         return
     target = Path(path)
     if target.exists() and not target.is_dir():
         raise ConfigError(f"{flag} {path} exists and is not a directory")
-    probe = target
-    while not probe.exists():
-        probe = probe.parent
-    if not os.access(probe, os.W_OK):
-        raise ConfigError(f"{flag} {path} is not writable")
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=target):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"{flag} {path} is not writable ({exc.strerror or exc})") from None
 
 
 def add_fault_flags(p: argparse.ArgumentParser, process: bool = True) -> None:
