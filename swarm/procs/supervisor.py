@@ -98,7 +98,6 @@ class Supervisor:
         self.learner: subprocess.Popen[bytes] | None = None
         self.learner_status: dict[str, Any] | None = None
         self.learner_out: str | None = None  # the learner's output folder (--train)
-        self.learner_alive = False
         self.faults = dict(faults or {})
         plan = plan_from_table(self.faults, run.seed)
         self.process_faults = sorted(plan.process, key=lambda p: p.tick)
@@ -256,8 +255,6 @@ class Supervisor:
                 live, parts = kind == "alive:live", key.split("/")
                 if parts[-2] == "robot" and parts[-1].isdigit():
                     v.set_alive(int(parts[-1]), live)
-                elif parts[-1] == "learner":
-                    self.learner_alive = live
                 elif parts[-1] == "recorder":
                     self.recorder_alive = live
                 elif parts[-1] == "world":
