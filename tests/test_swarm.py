@@ -291,6 +291,33 @@ def _run_killing_robot(run_id: str, robot: int, out: Path, *extra: str,
     return json.loads(out.read_text())
 
 
+@pytest.mark.procs
+def test_a_training_world_waits_for_its_learner(tmp_path: Path) -> None:
+    """A world of a training run started by hand takes no tick before its learner is up: with
+    none within start_timeout it ends with one line (its robots leave by themselves)."""
+    from swarm.net.zconfig import free_port
+
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    (tmp_path / "c.toml").write_text("[run]\ntrain = true\nstart_timeout = 2\n")
+    world = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "world", "--run-id", "nolearner", "--robots", "1",
+         "--policy", "commattn", "--episodes", "1", "--listen", hub, "--config",
+         str(tmp_path / "c.toml")], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True)
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "robot", "--id", "0", "--run-id", "nolearner",
+         "--connect", hub], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _, err = world.communicate(timeout=60)
+        assert world.returncode == 1 and "no learner came alive within 2 s" in err, err
+        assert err.strip().splitlines()[-1].startswith("swarm: error:")
+        assert robot.wait(timeout=30) == 0
+    finally:
+        for p in (world, robot):
+            if p.poll() is None:
+                p.kill()
+
+
 def test_a_world_that_fails_is_reported_with_its_own_error(tmp_path: Path) -> None:
     """When the world ends without a result, the supervisor's one error names the world's own
     last exception (from its log), not only the exit code."""
