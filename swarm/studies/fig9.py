@@ -25,11 +25,12 @@ POLICIES = ("commnet", "commattn")
 
 
 def vision_checkpoint(name: str, vision: int, default: WorldConfig,
-                      shipped: str | None) -> Path | None:
-    """The checkpoint of `name` trained with vision `vision`, or None if there is none."""
+                      shipped: str | None, where: Path = SHIPPED / "vision") -> Path | None:
+    """The checkpoint of `name` trained with vision `vision` (`where`/NAME_vV.pt, or `shipped`
+    at the default vision), or None if there is none."""
     if vision == default.vision and shipped:
         return Path(shipped)
-    path = SHIPPED / "vision" / f"{name}_v{vision}.pt"
+    path = where / f"{name}_v{vision}.pt"
     return path if path.is_file() else None
 
 
@@ -37,16 +38,17 @@ def fig9(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
          policies: Sequence[str] = POLICIES, visions: Sequence[int] = VISIONS,
          ranges: Sequence[float] = RANGES, batch: int = 250,
          checkpoints: dict[str, str | None] | None = None, progress: Any = None,
-         ) -> dict[str, Any]:
+         vision_dir: Path = SHIPPED / "vision") -> dict[str, Any]:
     """Rows per (policy, vision, comm range): success rate and elratio on `episodes` held-out
-    dynamic-map episodes of `seed`; writes fig9.csv/.md/.png/.json into `out`."""
+    dynamic-map episodes of `seed`, the vision checkpoints from `vision_dir`; writes
+    fig9.csv/.md/.png/.json into `out`."""
     checkpoints = checkpoints or {}
     base = replace(world, dynamic=True)
     rows: list[dict[str, Any]] = []
     missing: list[str] = []
     for name in policies:
         for v in visions:
-            ckpt = vision_checkpoint(name, v, base, checkpoints.get(name))
+            ckpt = vision_checkpoint(name, v, base, checkpoints.get(name), vision_dir)
             if ckpt is None:
                 missing.append(f"{name} v={v}")
                 continue
