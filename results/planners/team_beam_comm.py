@@ -8,26 +8,11 @@ what it hears loses as communication gets scarce, next to the learned policy:
 I: indices into `swarm.studies.comm.CONDITIONS` (the 40 x 40 ones are too slow for team-beam
 here: every robot plans every robot it hears). 200 episodes of seed 0 per condition.
 """
-import json
 import sys
 
-import torch
-
-from swarm.common.atomic import write_json
-from swarm.studies.comm import CONDITIONS, paired_conditions
+from swarm.studies.comm import paired_script
 
 EPISODES, SEED = 200, 0
 SPECS = {"team-beam": ("team-beam", None), "commattn": ("commattn", None),
          "coordinated-frontier": ("coordinated-frontier", None)}
-if len(sys.argv) < 3:
-    sys.exit("usage: team_beam_comm.py OUT.json I [I ...]")
-torch.set_num_threads(1)
-path, picks = sys.argv[1], [int(a) for a in sys.argv[2:]]
-for k in picks:
-    if "height" in CONDITIONS[k][1]:
-        sys.exit(f"condition {k} ({CONDITIONS[k][0]}) is not on 20 x 20")
-rows = paired_conditions(picks, SPECS, SEED, EPISODES)
-for row in rows:
-    print(json.dumps(row), flush=True)
-write_json(path, {"rows": rows,
-                  "command": "results/planners/team_beam_comm.py " + " ".join(sys.argv[1:])})
+paired_script(sys.argv[1:], "results/planners/team_beam_comm.py", SPECS, SEED, EPISODES)

@@ -89,6 +89,30 @@ def paired_conditions(picks: Sequence[int], specs: dict[str, tuple[str, str | No
     return rows
 
 
+def paired_script(argv: Sequence[str], script: str, specs: dict[str, tuple[str, str | None]],
+                  seed: int, episodes: int, **meta: Any) -> None:
+    """The command line of those results scripts: `SCRIPT OUT.json I [I ...]` (condition
+    indices, 20 x 20 only), rows printed as they come and written to OUT.json with `meta`."""
+    import json
+    import sys
+
+    import torch
+
+    from swarm.common.atomic import write_json
+
+    if len(argv) < 2:
+        sys.exit(f"usage: {script} OUT.json I [I ...]")
+    torch.set_num_threads(1)
+    path, picks = argv[0], [int(a) for a in argv[1:]]
+    for k in picks:
+        if "height" in CONDITIONS[k][1]:
+            sys.exit(f"condition {k} ({CONDITIONS[k][0]}) is not on 20 x 20")
+    rows = paired_conditions(picks, specs, seed, episodes)
+    for row in rows:
+        print(json.dumps(row), flush=True)
+    write_json(path, {"rows": rows, **meta, "command": f"{script} {' '.join(argv)}"})
+
+
 def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
          policies: Sequence[str] = POLICIES, checkpoints: dict[str, str | None] | None = None,
          batch: int = 250, tick_s: float = 2.0) -> dict[str, Any]:
