@@ -367,6 +367,8 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path: Path) -> None:
         fh.write("99,2,0,0,0,0,0,0,0,0,0,0,0,0,0,0\n")  # a row written after the checkpoint
     main(cfg, SMALL, tmp_path / "part", resume=True, console=quiet())
     assert _curve(tmp_path / "full" / "curve.csv") == _curve(tmp_path / "part" / "curve.csv")
+    for run in ("full", "part"):  # one line ending, fresh or resumed
+        assert b"\r" not in (tmp_path / run / "curve.csv").read_bytes()
     full, part = (load_checkpoint(tmp_path / d / "checkpoint.pt") for d in ("full", "part"))
     assert full["train"]["update"] == part["train"]["update"] == 4
     for key, value in full["state_dict"].items():

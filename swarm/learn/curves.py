@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from swarm.common.atomic import write_text
 from swarm.common.report import save_png
 from world.config import ConfigError
 
@@ -30,26 +31,29 @@ class CurveLog:
         self.jsonl.write_text("")
 
     def resume(self, update: int) -> None:
-        """Drop rows past update `update` (written after the checkpoint a run resumes from)."""
+        """Drop rows past update `update` (written after the checkpoint a run resumes from). The
+        files are replaced atomically (a kill here leaves the old rows), and only if rows go."""
         for path, is_csv in ((self.csv, True), (self.jsonl, False)):
             if not path.exists():
                 continue
-            lines = path.read_text().splitlines(keepends=True)
+            with path.open(newline="") as fh:
+                lines = fh.read().splitlines(keepends=True)
             out = lines[:1] if is_csv else []
             for line in lines[1:] if is_csv else lines:
                 upd = int(next(csv.reader([line]))[0]) if is_csv else json.loads(line).get(
                     "update", 0)
                 if upd <= update:
                     out.append(line)
-            path.write_text("".join(out))
+            if len(out) < len(lines):
+                write_text(path, "".join(out))
 
     def append(self, row: dict[str, Any], **extra: Any) -> None:
         """One update's row: CURVE_FIELDS to the CSV, everything (plus `extra`) to the log."""
         with self.jsonl.open("a") as fh:
             fh.write(json.dumps({"kind": "update", **extra, **row}) + "\n")
         buf = io.StringIO()
-        csv.writer(buf).writerow([f"{row[k]:.6g}" if isinstance(row[k], float) else row[k]
-                                  for k in CURVE_FIELDS])
+        csv.writer(buf, lineterminator="\n").writerow(
+            [f"{row[k]:.6g}" if isinstance(row[k], float) else row[k] for k in CURVE_FIELDS])
         with self.csv.open("a") as fh:
             fh.write(buf.getvalue())
 
