@@ -24,12 +24,13 @@ REGISTRY: dict[str, str] = {
     "oracle": "policies.oracle:OraclePolicy",
     "central": "policies.central:CentralPolicy",
     "team-beam": "policies.team_beam:TeamBeam",
+    "chain-plan": "policies.chain_plan:ChainPlan",
 }
 
 BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility")
 # Policies whose robots send hidden-state messages along the id chain (SPEC 3.5), known without
 # importing them (the world process never imports torch); tests check it against the classes.
-CHAINED = frozenset({"commattn"})
+CHAINED = frozenset({"commattn", "chain-plan"})
 # Learned policies (a torch network to train, a numpy twin in policies.infer.nets to act with).
 LEARNED = frozenset({"commattn", "commnet", "vain", "bicnet"})
 # Policies `swarm train --imitate` can learn from: they act on a View alone (the oracle reads the

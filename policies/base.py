@@ -33,6 +33,11 @@ class Policy(ABC):
     def reset(self, groups: int) -> None:  # noqa: B027 (a no-op unless the policy remembers)
         """Start new episodes for `groups` groups: forget every receiver's memory."""
 
+    def state_ok(self, state: np.ndarray, tick: int) -> bool:
+        """Whether a predecessor's hidden-state message of tick `tick` (chained policies; its
+        size is checked before) is one this policy can read; one that is not counts as lost."""
+        return True
+
     @abstractmethod
     def act(self, view: View, greedy: bool = True) -> np.ndarray:
         """Actions [G, N] for the view's receivers; `greedy=False` samples where that differs."""

@@ -148,3 +148,91 @@ def test_beam_duplicates_keep_the_first_of_equal_keys() -> None:
         np.put_along_axis(want, order[:, 1:], sk[:, 1:] == sk[:, :-1], 1)
         np.testing.assert_array_equal(duplicates(keys), want)
         assert want.any() == (c > 4)
+
+
+def _chain_world() -> WorldConfig:
+    return WorldConfig(height=12, width=12, n_static=20, n_dynamic=10, n_robots=5,
+                       comm_range=4.0, horizon=12, add_every=2)
+
+
+@pytest.mark.parametrize("lost", [False, True])
+def test_chain_plan_robot_by_robot_equals_the_batch(lost: bool) -> None:
+    """`chain-plan` in robot processes: each robot, with its own belief and memory, decides from
+    its predecessor's message (the plan as it left it) what the batched chain decides, and sends
+    the same plan; with a lost message (`chain_ok`) it heads a chain, in both settings."""
+    from policies.chain_plan import ChainPlan
+    from world.decentral import heard_by, robot_view
+
+    cfg = _chain_world()
+    state = core.reset(cfg, seed=3, episodes=[0, 1])
+    batched = ChainPlan(cfg)
+    batched.reset(2)
+    robots = {(g, i): ChainPlan(cfg) for g in range(2) for i in range(cfg.n_robots)}
+    for pol in robots.values():
+        pol.reset(1)
+    heads = 0
+    while not state.done:
+        view = batch_view(cfg, state)
+        if lost:  # every robot 2 misses its predecessor's message
+            view.chain_ok = np.ones(view.receivers.shape, dtype=bool)
+            view.chain_ok[:, 2] = False
+        d = batched.decide(view)
+        for (g, i), pol in robots.items():
+            own = robot_view(cfg, state.seed, int(state.episodes[g]), state.t, i,
+                             heard_by(cfg, view, g, i), float(view.last_reward[g, i]))
+            own.chain_ok = None if view.chain_ok is None else view.chain_ok[g][None]
+            prep = pol.prepare_chain(own)
+            p = int(prep.pred[0])
+            if p < 0 or (lost and i == 2):
+                heads += 1
+            msg = None if p < 0 else d.state[g, p][None]
+            if msg is not None:
+                assert pol.state_ok(msg[0], state.t)
+            acts, sent = pol.act_with_chain(own, msg, None if p < 0 else d.actions[g, p:p + 1],
+                                            prepared=prep)
+            assert acts[0, i] == d.actions[g, i], f"robot {i} of group {g} at tick {state.t}"
+            assert np.array_equal(sent[0], d.state[g, i])
+        core.step(cfg, state, d.actions)
+    assert heads > 2 * cfg.horizon  # robot 0 always heads; others do when they hear no lower id
+
+
+def test_chain_plan_refuses_a_plan_that_fails_its_checks() -> None:
+    """Every field of the plan message has a range; a message outside it is not a plan (the
+    robot process counts it as a lost hidden-state message and heads a chain)."""
+    from policies.chain_plan import ChainPlan
+
+    cfg = _chain_world()
+    pol = ChainPlan(cfg)
+    t, left = 4, cfg.horizon - 4 + 1
+    good = pol.encode({0: np.array([13] * left), 3: np.arange(left) + 26})
+    assert pol.state_ok(good, t) and set(pol.decode(good, t)) == {0, 3}
+    rows = good.reshape(cfg.n_robots, -1)
+
+    def bad(edit) -> np.ndarray:
+        r = rows.copy()
+        edit(r)
+        return r.ravel()
+
+    for msg in (good[:-1], np.full_like(good, np.nan), bad(lambda r: r.__setitem__((1, 0), 5)),
+                bad(lambda r: r.__setitem__((1, 0), 0)), bad(lambda r: r.__setitem__((0, 0), 0.5)),
+                bad(lambda r: r.__setitem__((0, 2), 144)), bad(lambda r: r.__setitem__((0, 2), 15)),
+                bad(lambda r: r.__setitem__((0, left + 1), 13)),
+                bad(lambda r: r.__setitem__((2, 3), 7)), bad(lambda r: r.__setitem__((1, 1), -1))):
+        assert not pol.state_ok(msg, t)
+    everyone = WorldConfig(**{**cfg.__dict__, "comm_range": float("inf")})
+    view = batch_view(everyone, core.reset(everyone, seed=0, episodes=[0]))
+    view.receivers = np.arange(cfg.n_robots)[None] == 1  # robot 1 alone: its predecessor is 0
+    with pytest.raises(ValueError, match="state_ok"):
+        ChainPlan(everyone).act_with_chain(view, np.full((1, pol.state_size), np.nan, np.float32),
+                                           np.array([0]))
+
+
+def test_chain_plan_config_and_message_size_are_checked() -> None:
+    from policies.chain_plan import ChainConfig, ChainPlan
+    from world.config import ConfigError
+
+    for bad in ({"head_iters": -1}, {"head_beam": 0}, {"beam": 1.5}, {"iters": True}):
+        with pytest.raises(ConfigError, match="chain-plan"):
+            ChainConfig(**bad)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="at most 4096"):
+        ChainPlan(WorldConfig(n_robots=200, height=40, width=40))

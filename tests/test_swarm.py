@@ -40,7 +40,7 @@ def run_procs(run_id: str) -> list[int]:
 
 
 @pytest.mark.procs
-@pytest.mark.parametrize("policy", ["nearest-frontier", "team-beam"])
+@pytest.mark.parametrize("policy", ["nearest-frontier", "team-beam", "chain-plan"])
 def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str) -> None:
     out = tmp_path / "run.json"
     temp = Path(tempfile.gettempdir())

@@ -66,7 +66,7 @@ def _batched(policy: str, faults: dict[str, object]) -> np.ndarray:
 
 @pytest.mark.procs
 @pytest.mark.parametrize("policy,kind", [("nearest-frontier", k) for k in KINDS]
-                         + [("commattn", "mix"), ("commattn", "latency")])
+                         + [("commattn", "mix"), ("commattn", "latency"), ("chain-plan", "mix")])
 def test_virtual_swarm_equals_batched_eval_under_each_fault(tmp_path: Path, policy: str,
                                                             kind: str) -> None:
     res = _run(tmp_path, f"v{kind}{policy[:4]}", policy, KINDS[kind])

@@ -17,65 +17,37 @@ question being whether decentralized planning alone can reach 0.95.
 import json
 import sys
 import time
-from types import SimpleNamespace
 
 import numpy as np
 
 from policies.base import Policy
-from policies.belief import BLOCK, Belief, Snapshot
+from policies.belief import Belief, Snapshot
 from policies.central import CentralPolicy
-from policies.oracle import Episode, _beam, _cover, _pick_team, to_actions
+from policies.horizon_search import belief_episode, fill, improve, zobrist
+from policies.oracle import Episode, to_actions
 from swarm.learn.evaluate import evaluate
-from world import core
 from world.config import WorldConfig
 from world.decentral import View
 
-ITERS, BEAM, GROUPS, BOOSTS = 12, 48, (2, 2, 3), (1, 1, 3)
+ITERS, BEAM = 12, 48
+
+
+def plan_paths(cfg: WorldConfig, known: np.ndarray, explored: np.ndarray, cells: np.ndarray,
+               t: int, rng: np.random.Generator) -> tuple[Episode, np.ndarray]:
+    """A whole-horizon team plan [N, T-t+1] over the belief, and the belief's episode."""
+    ep = belief_episode(cfg, known, explored, cells, t)
+    zob = zobrist(cfg, rng)
+    n = len(cells)
+    paths = np.repeat(ep.starts[:, None], cfg.horizon - t + 1, axis=1)
+    paths = fill(ep, paths, np.arange(n), BEAM, rng, zob)
+    return ep, improve(ep, paths, np.ones(n, dtype=bool), ITERS, BEAM, rng, zob)
 
 
 def plan_first_moves(cfg: WorldConfig, known: np.ndarray, explored: np.ndarray, cells: np.ndarray,
                      t: int, rng: np.random.Generator) -> np.ndarray:
     """First moves [N] of a whole-horizon team plan over the belief (unknown = free)."""
-    left = cfg.horizon - t
-    ecfg = SimpleNamespace(horizon=left, width=cfg.width, cells=cfg.cells)  # the steps left
-    block = known == BLOCK
-    block[cells] = False  # where a robot stands is free
-    due = np.where(block, -1, left + 1).astype(np.int64)
-    h, w = cfg.height, cfg.width
-    y, x = np.divmod(np.arange(h * w), w)
-    ny, nx = y[:, None] + core.ACTIONS[None, :, 0], x[:, None] + core.ACTIONS[None, :, 1]
-    ok = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
-    nbr = np.where(ok, ny * w + nx, -1)
-    nbr[ok] = np.where(due[nbr[ok]] < 0, -1, nbr[ok])
-    value = ~explored & ~block
-    value[cells] = False
-    ep = Episode(ecfg, cells.astype(np.int64), nbr, due, value, 0)
-    zob = rng.integers(0, np.iinfo(np.int64).max, h * w, dtype=np.int64).astype(np.uint64)
-    n = len(cells)
-    paths = np.repeat(ep.starts[:, None], left + 1, axis=1)
-    cov = _cover(ep, paths)
-    for r in range(n):
-        others = cov[np.arange(n) != r].any(0)
-        paths[r] = _beam(ep, int(ep.starts[r]), ep.value & ~others, BEAM, rng, zob)
-        cov[r] = _cover(ep, paths[r:r + 1])[0]
-    covered = int(cov.any(0).sum())
-    yx = np.stack(np.divmod(np.arange(h * w), w), axis=-1)
-    for _ in range(ITERS):
-        team = _pick_team(yx, paths, value & ~cov.any(0), int(rng.choice(GROUPS)), rng)
-        new_paths, new_cov = paths.copy(), cov.copy()
-        new_cov[team] = False
-        missing = value & ~cov.any(0)
-        boost = int(rng.choice(BOOSTS))
-        for k, r in enumerate(team):
-            others = new_cov[np.arange(n) != r].any(0)
-            weight = (ep.value & ~others).astype(np.int64)
-            if k == 0:
-                weight[missing & ~others] = boost
-            new_paths[r] = _beam(ep, int(ep.starts[r]), weight, BEAM, rng, zob)
-            new_cov[r] = _cover(ep, new_paths[r:r + 1])[0]
-        if int(new_cov.any(0).sum()) >= covered:
-            paths, cov, covered = new_paths, new_cov, int(new_cov.any(0).sum())
-    return to_actions(ecfg, paths[:, :2])[0]
+    ep, paths = plan_paths(cfg, known, explored, cells, t, rng)
+    return to_actions(ep.cfg, paths[:, :2])[0]
 
 
 class Replan(CentralPolicy):

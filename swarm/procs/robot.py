@@ -368,7 +368,8 @@ class RobotProcess:
                 hidden = self._wait("hidden", obs.ep, obs.t, pred,
                                     hop_deadline(t_recv, deadline, r, cfg.n_robots))
                 self.c.wait_ms += 1e3 * (time.perf_counter() - w0)
-                if hidden is None or len(hidden.state) != 4 * self.policy.state_size:
+                if hidden is None or len(hidden.state) != 4 * self.policy.state_size or \
+                        not self.policy.state_ok(hidden.vector(), obs.t):
                     # lost, late or malformed: decode as if there were no predecessor
                     self.c.missed_hidden += 1
                     view.chain_ok = np.zeros((1, cfg.n_robots), dtype=bool)
