@@ -37,8 +37,9 @@ ANALYSES = ("fig10", "fig11", "comm")  # CommAttn's communication (swarm.studies
 LEARNED = learned_names()
 ALL_POLICIES = (*LEARNED, "nearest-frontier", "coordinated-frontier", "cost-utility", "random")
 # planners that bound the others: `team-beam` (decentralized, each robot plans its heard team),
-# `central` (a perfect radio) and `oracle` (foresight), the last two not decentralized
-REFERENCE = ("team-beam", "central", "oracle")
+# `chain-plan` (decentralized, one whole-horizon plan passed down the id chain), `central` (a
+# perfect radio) and `oracle` (foresight), the last two not decentralized
+REFERENCE = ("team-beam", "chain-plan", "central", "oracle")
 # Paper's Table 2 (10 robots, 30 s, 1000 episodes): mean reward, collisions, elratio %, std %.
 PAPER_TABLE2: dict[str, tuple[float, float, float, float | None]] = {
     "commattn": (37, 9, 95.2, 3.1), "vain": (21, 15, 90.2, None),
@@ -81,8 +82,8 @@ class ReproConfig:
     """Table 2: the oracle plans each episode in ~2 s, so it plays only the first this many of
     the held-out episodes (its paired difference is over those)."""
     reference: bool = True
-    """Table 2 with the default policies: add the planners (team-beam, central, oracle) and each
-    policy's share of the oracle-to-random gap (name them in `policies` to choose)."""
+    """Table 2 with the default policies: add the planners (team-beam, chain-plan, central, oracle)
+    and each policy's share of the oracle-to-random gap (name them in `policies` to choose)."""
     curves: dict[str, str] = field(default_factory=dict)
     """Fig. 8: training-curve CSV per learned policy (default: checkpoints/NAME_curve.csv)."""
     smooth: int = 25
@@ -276,7 +277,8 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
                 f"{cfg.policies[0]}'s elratio minus the row's, episode by episode, with the "
                 "standard error of that paired mean. `team-beam` is a hand-written decentralized "
                 "planner (every robot plans the robots it hears with `central`'s search, on "
-                "its own belief). Rows marked * are reference planners, not "
+                "its own belief); `chain-plan` another (a whole-horizon team plan that each robot "
+                "refines and passes to its successor in the hidden-state message). Rows marked * are reference planners, not "
                 f"decentralized: `central` pools every robot's observations (a perfect radio), "
                 f"`oracle` knows the whole episode in advance (first {cfg.oracle_episodes} "
                 "episodes only); 'gap' is the share of the oracle-to-random elratio gap a "
