@@ -111,7 +111,10 @@ class ChainPlan(Policy):
 
     # ------------------------------------------------------------- the batch: the whole chain
     def act(self, view: View, greedy: bool = True) -> np.ndarray:
-        return self.decide(view, greedy).actions
+        snap = self.belief.snapshot(view)
+        actions = np.zeros(view.receivers.shape, dtype=np.int64)
+        actions[snap.g, snap.i] = self.moves(view, snap)  # no messages encoded: nobody reads them
+        return actions
 
     def decide(self, view: View, greedy: bool = True) -> Decision:
         """Actions [G, N] and the message [G, N, S] every receiver sends on."""
