@@ -22,9 +22,11 @@ over ticks instead of remade.
 Decentralized by the policy contract: a decision reads the robot's own belief (the frontier
 baselines' `policies.belief`), the messages it heard, its predecessor's hidden-state message,
 its own memory of what it sent, and noise keyed by (seed, episode, tick, robot). The message has
-`n_robots x (horizon + 2)` floats (a robot id and horizon + 1 cells per row, -1 padding; 320
-for 10 robots and 30 steps), checked on arrival (`state_ok`): ids in range and distinct, cells
-on the grid, one move apart. A message that fails is treated as lost (the robot heads a chain).
+a row per robot: its id, its first cell and its moves packed six to a float (base 9, below
+the message's 1e6 bound), -1 rows after the plan's robots: `n_robots x (2 + ceil(horizon /
+6))` floats, 70 (280 bytes) for 10 robots and 30 steps. It is checked on arrival
+(`state_ok`): ids in range and distinct, every field an integer in range, the path on the
+grid. A message that fails is treated as lost (the robot heads a chain).
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ from world.config import ConfigError, WorldConfig
 from world.decentral import View, predecessor_of
 
 MAX_FLOATS = 4096  # a hidden-state message's limit (swarm.net.messages.Hidden)
+BASE, MOVES_PER_FLOAT = 9, 6  # a move is (dy + 1) * 3 + dx + 1; 9**6 < 1e6 (messages.Hidden)
+PLACES = BASE ** np.arange(MOVES_PER_FLOAT, dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -96,14 +100,20 @@ class ChainPlan(Policy):
         self.search = search or ChainConfig()
         if self.state_size > MAX_FLOATS:
             raise ConfigError(f"chain-plan's message would carry {self.state_size} floats "
-                              f"(robots x (horizon + 2)); at most {MAX_FLOATS}")
+                              f"(robots x (2 + horizon / 6)); at most {MAX_FLOATS}")
         self.belief = Belief(cfg)
         self.memory: dict[tuple[int, int], tuple[int, Plan]] = {}
 
     @property
+    def words(self) -> int:
+        """Floats of packed moves in a robot's row: a path's horizon moves, 6 to a float."""
+        return -(-self.cfg.horizon // MOVES_PER_FLOAT)
+
+    @property
     def state_size(self) -> int:
-        """Floats in a hidden-state message: a row (robot id, horizon + 1 cells) per robot."""
-        return self.cfg.n_robots * (self.cfg.horizon + 2)
+        """Floats in a hidden-state message: a row (robot id, first cell, packed moves) per
+        robot."""
+        return self.cfg.n_robots * (2 + self.words)
 
     def reset(self, groups: int) -> None:
         self.belief.reset(groups)
@@ -188,10 +198,16 @@ class ChainPlan(Policy):
 
     # ------------------------------------------------------------- the message
     def encode(self, plan: Plan) -> np.ndarray:
-        n, t1 = self.cfg.n_robots, self.cfg.horizon + 1
-        rows = np.full((n, t1 + 1), -1.0, dtype=np.float32)
+        """A plan as the message: a row per robot (id, first cell, its moves packed base 9,
+        MOVES_PER_FLOAT to a float; unused digits 0), rows in id order, -1 rows after them."""
+        cfg = self.cfg
+        rows = np.full((cfg.n_robots, 2 + self.words), -1.0, dtype=np.float32)
         for row, (r, path) in enumerate(sorted(plan.items())):
-            rows[row, 0], rows[row, 1:1 + len(path)] = r, path
+            y, x = np.divmod(np.asarray(path, dtype=np.int64), cfg.width)
+            digits = np.zeros(self.words * MOVES_PER_FLOAT, dtype=np.int64)
+            digits[:len(path) - 1] = (np.diff(y) + 1) * 3 + np.diff(x) + 1
+            rows[row, 0], rows[row, 1] = r, path[0]
+            rows[row, 2:] = digits.reshape(self.words, MOVES_PER_FLOAT) @ PLACES
         return rows.ravel()
 
     def decode(self, state: np.ndarray, tick: int) -> Plan | None:
@@ -200,20 +216,25 @@ class ChainPlan(Policy):
         rows = np.asarray(state, dtype=np.float64)
         if rows.shape != (self.state_size,) or not np.isfinite(rows).all():
             return None
-        rows = rows.reshape(cfg.n_robots, cfg.horizon + 2)
+        rows = rows.reshape(cfg.n_robots, 2 + self.words)
         used = rows[:, 0] >= 0
-        ids, cells = rows[used, 0], rows[used, 1:]
-        left = cfg.horizon - tick + 1  # cells of a path at this tick
-        if ((rows[~used] != -1).any() or (ids != np.round(ids)).any() or (ids >= cfg.n_robots).any()
-                or len(np.unique(ids)) != len(ids) or (cells[:, left:] != -1).any()):
+        ids, start, packed = rows[used, 0], rows[used, 1], rows[used, 2:]
+        if ((rows[~used] != -1).any() or (rows[used] != np.round(rows[used])).any()
+                or (ids >= cfg.n_robots).any() or len(np.unique(ids)) != len(ids)
+                or (start < 0).any() or (start >= cfg.cells).any() or (packed < 0).any()
+                or (packed >= BASE ** MOVES_PER_FLOAT).any()):
             return None
-        path = cells[:, :left]
-        if ((path != np.round(path)).any() or (path < 0).any() or (path >= cfg.cells).any()):
+        digits = (packed.astype(np.int64)[..., None] // PLACES) % BASE
+        digits = digits.reshape(len(ids), -1)
+        moves = cfg.horizon - tick  # a path at this tick has horizon - tick + 1 cells
+        if moves < 0 or (digits[:, moves:] != 0).any():
             return None
-        y, x = np.divmod(path.astype(np.int64), cfg.width)
-        if (np.abs(np.diff(y, axis=1)) > 1).any() or (np.abs(np.diff(x, axis=1)) > 1).any():
+        y0, x0 = np.divmod(start.astype(np.int64), cfg.width)
+        y = np.concatenate([y0[:, None], digits[:, :moves] // 3 - 1], axis=1).cumsum(1)
+        x = np.concatenate([x0[:, None], digits[:, :moves] % 3 - 1], axis=1).cumsum(1)
+        if (y < 0).any() or (y >= cfg.height).any() or (x < 0).any() or (x >= cfg.width).any():
             return None
-        return {int(r): p.astype(np.int64) for r, p in zip(ids, path, strict=True)}
+        return {int(r): p for r, p in zip(ids, y * cfg.width + x, strict=True)}
 
     # ------------------------------------------------------------- one decision
     def _decide(self, view: View, snap: Snapshot, k: int, got: Plan) -> tuple[int, Plan]:

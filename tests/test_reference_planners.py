@@ -206,6 +206,7 @@ def test_chain_plan_refuses_a_plan_that_fails_its_checks() -> None:
     t, left = 4, cfg.horizon - 4 + 1
     good = pol.encode({0: np.array([13] * left), 3: np.arange(left) + 26})
     assert pol.state_ok(good, t) and set(pol.decode(good, t)) == {0, 3}
+    assert np.array_equal(pol.decode(good, t)[3], np.arange(left) + 26)
     rows = good.reshape(cfg.n_robots, -1)
 
     def bad(edit) -> np.ndarray:
@@ -213,11 +214,14 @@ def test_chain_plan_refuses_a_plan_that_fails_its_checks() -> None:
         edit(r)
         return r.ravel()
 
-    for msg in (good[:-1], np.full_like(good, np.nan), bad(lambda r: r.__setitem__((1, 0), 5)),
-                bad(lambda r: r.__setitem__((1, 0), 0)), bad(lambda r: r.__setitem__((0, 0), 0.5)),
-                bad(lambda r: r.__setitem__((0, 2), 144)), bad(lambda r: r.__setitem__((0, 2), 15)),
-                bad(lambda r: r.__setitem__((0, left + 1), 13)),
-                bad(lambda r: r.__setitem__((2, 3), 7)), bad(lambda r: r.__setitem__((1, 1), -1))):
+    def put(row: int, col: int, value: float) -> np.ndarray:
+        return bad(lambda r: r.__setitem__((row, col), value))
+
+    assert rows.shape == (cfg.n_robots, 4)  # id, first cell, 12 moves packed 6 to a float
+    beyond = rows[0, 3] + 81  # robot 0's 9th move digit: past the 8 moves left at tick 4
+    for msg in (good[:-1], np.full_like(good, np.nan), put(1, 0, 5), put(1, 0, 0),
+                put(0, 0, 0.5), put(0, 1, 144), put(1, 1, -1), put(0, 2, 0.5), put(0, 2, -1),
+                put(0, 2, 9 ** 6), put(0, 3, beyond), put(1, 1, 28), put(2, 3, 7)):
         assert not pol.state_ok(msg, t)
     everyone = WorldConfig(**{**cfg.__dict__, "comm_range": float("inf")})
     view = batch_view(everyone, core.reset(everyone, seed=0, episodes=[0]))
@@ -227,6 +231,20 @@ def test_chain_plan_refuses_a_plan_that_fails_its_checks() -> None:
                                            np.array([0]))
 
 
+def test_chain_plan_message_fits_the_wire_schema() -> None:
+    """The largest plan message (every robot, every packed move digit 8) passes the
+    hidden-state message's checks on the wire (magnitude bound, size)."""
+    from policies.chain_plan import BASE, MOVES_PER_FLOAT, ChainPlan
+    from swarm.net.messages import Hidden
+
+    cfg = WorldConfig(n_robots=200, height=40, width=40)
+    pol = ChainPlan(cfg)
+    worst = np.full(pol.state_size, BASE ** MOVES_PER_FLOAT - 1, dtype="<f4")
+    worst[::2 + pol.words] = cfg.n_robots - 1
+    msg = Hidden.unpack(Hidden(0, 1, 0, 0, worst.tobytes()).pack(), cfg, pol.state_size)
+    assert np.array_equal(msg.vector(), worst)
+
+
 def test_chain_plan_config_and_message_size_are_checked() -> None:
     from policies.chain_plan import ChainConfig, ChainPlan
     from world.config import ConfigError
@@ -234,5 +252,6 @@ def test_chain_plan_config_and_message_size_are_checked() -> None:
     for bad in ({"head_iters": -1}, {"head_beam": 0}, {"beam": 1.5}, {"iters": True}):
         with pytest.raises(ConfigError, match="chain-plan"):
             ChainConfig(**bad)  # type: ignore[arg-type]
+    assert ChainPlan(WorldConfig(n_robots=200, height=40, width=40)).state_size == 1400
     with pytest.raises(ConfigError, match="at most 4096"):
-        ChainPlan(WorldConfig(n_robots=200, height=40, width=40))
+        ChainPlan(WorldConfig(n_robots=200, height=40, width=40, horizon=200))
