@@ -102,7 +102,9 @@ class ChainPlan(Policy):
             raise ConfigError(f"chain-plan's message would carry {self.state_size} floats "
                               f"(robots x (2 + horizon / 6)); at most {MAX_FLOATS}")
         self.belief = Belief(cfg)
-        self.memory: dict[tuple[int, int], tuple[int, Plan]] = {}
+        # (group, robot) -> (episode, tick, the plan it sent): one entry per robot of a group,
+        # so a long run does not grow it (a key per episode would)
+        self.memory: dict[tuple[int, int], tuple[int, int, Plan]] = {}
 
     @property
     def words(self) -> int:
@@ -254,7 +256,9 @@ class ChainPlan(Policy):
         rng = np.random.default_rng([int(view.seed), episode, view.tick, i, 31])
         zob = zobrist(cfg, rng)
         paths = np.repeat(cells[:, None], cfg.horizon - view.tick + 1, axis=1)
-        tick, last = self.memory.get((episode, i), (-1, {}))
+        ep_sent, tick, last = self.memory.get((g, i), (-1, -1, {}))
+        if ep_sent != episode:
+            tick = -1
         kept = np.zeros(len(ids), dtype=bool)
         for n, r in enumerate(ids):
             if n != me and r in got:
@@ -271,5 +275,5 @@ class ChainPlan(Policy):
             paths = improve(ep, paths, np.ones(len(ids), dtype=bool), s.head_iters, s.head_beam,
                             rng, zob)
         plan = {int(r): paths[n] for n, r in enumerate(ids)}
-        self.memory[(episode, i)] = (view.tick, plan)
+        self.memory[(g, i)] = (episode, view.tick, plan)
         return int(to_actions(ep.cfg, paths[me:me + 1, :2])[0, 0]), plan  # type: ignore[arg-type]

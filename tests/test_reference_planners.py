@@ -196,6 +196,23 @@ def test_chain_plan_robot_by_robot_equals_the_batch(lost: bool) -> None:
     assert heads > 2 * cfg.horizon  # robot 0 always heads; others do when they hear no lower id
 
 
+def test_chain_plan_memory_stays_one_plan_per_robot_without_reset() -> None:
+    """As a network's hint nobody resets the planner between episodes: its memory of sent plans
+    keeps one entry per (group, robot), not one per episode."""
+    from policies.chain_plan import ChainConfig, ChainPlan
+
+    cfg = _chain_world()
+    pol = ChainPlan(cfg, ChainConfig(head_iters=0, head_beam=4, beam=4))
+    pol.reset(1)
+    for episode in range(3):
+        state = core.reset(cfg, seed=1, episodes=[episode])
+        for _ in range(3):
+            view = batch_view(cfg, state)
+            core.step(cfg, state, pol.moves(view, pol.belief.snapshot(view))[None])
+    assert len(pol.memory) == cfg.n_robots
+    assert {ep for ep, _, _ in pol.memory.values()} == {2}
+
+
 def test_chain_plan_refuses_a_plan_that_fails_its_checks() -> None:
     """Every field of the plan message has a range; a message outside it is not a plan (the
     robot process counts it as a lost hidden-state message and heads a chain)."""
