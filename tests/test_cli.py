@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
+import sys
 from io import StringIO
 from pathlib import Path
 
@@ -315,3 +317,33 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
     assert "commattn - central (paired)" in (tmp_path / "comm.md").read_text()
     tuned = ROOT / "checkpoints" / "scale" / "commattn_40x40_n20.pt"
     assert {row["checkpoint"] for row in big if row["policy"] == "commattn"} == {str(tuned)}
+
+
+@pytest.mark.procs
+def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_path: Path) -> None:
+    """The results scripts' command line (`swarm.studies.comm.paired_script`): bad arguments
+    are one line; each condition's row is printed and OUT.json rewritten as it finishes; a spec
+    without a checkpoint runs the one `repro comm` would (40 x 40: the fine-tuned CommAttn)."""
+    script = tmp_path / "pair.py"
+    script.write_text("import sys\nfrom swarm.studies.comm import paired_script\n"
+                      "paired_script(sys.argv[1:], 'pair.py', {'nearest-frontier': "
+                      "('nearest-frontier', None), 'commattn': ('commattn', None)}, 0, 100)\n")
+    out = tmp_path / "out.json"
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, str(script), *args], cwd=ROOT, text=True,
+                              capture_output=True, timeout=300)
+
+    for bad in ((str(out), "99"), (str(out), "1", "--episodes", "x"), (str(out),)):
+        r = run(*bad)
+        assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = run(str(out), "1", "10", "--episodes", "2")
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(out.read_text())["rows"]
+    assert [row["condition"] for row in rows] == ["range 5", "40 x 40, 50 robots"]
+    assert len(r.stdout.strip().splitlines()) == 2 and rows[0]["episodes"] == 2
+    tuned = ROOT / "checkpoints" / "scale" / "commattn_40x40_n20.pt"
+    assert rows[1]["checkpoints"] == {"commattn": str(tuned)} and rows[0]["checkpoints"] == {}
+    mean, se = rows[0]["nearest_frontier_minus_commattn"]
+    assert mean == pytest.approx(rows[0]["nearest-frontier"]["elratio"]
+                                 - rows[0]["commattn"]["elratio"]) and se >= 0

@@ -8,9 +8,9 @@ rides in the hidden-state message (280 bytes a robot a tick here, packed; CommAt
 plan was packed (it was 1,280 bytes, every cell a float; `rows_before_packing` keeps those
 rows). Packing is lossless, so the other rows are what the packed plan gives too.
 
-    .venv/bin/python results/planners/chain_plan_comm.py OUT.json I [I ...]
+    .venv/bin/python results/planners/chain_plan_comm.py OUT.json I [I ...] [--episodes K]
 
-I: indices into `swarm.studies.comm.CONDITIONS` (20 x 20 ones only).
+I: indices into `swarm.studies.comm.CONDITIONS`; `--episodes K` for fewer (the 40 x 40 rows: 30).
 """
 import sys
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -64,21 +64,28 @@ def under(wc: WorldConfig, faults: dict[str, Any], policy: Policy, seed: int, ep
 
 
 def paired_conditions(picks: Sequence[int], specs: dict[str, tuple[str, str | None]], seed: int,
-                      episodes: int, batch: int = 100) -> list[dict[str, Any]]:
+                      episodes: int, batch: int = 100,
+                      on_row: Callable[[list[dict[str, Any]]], None] | None = None
+                      ) -> list[dict[str, Any]]:
     """One row per condition index in `picks`: each spec (label -> policy name, checkpoint) on
     the same episodes, its elratio and success, and the first spec's paired lead over each
-    other (`FIRST_minus_OTHER`: mean, standard error). The results scripts that put one more
-    policy beside `repro comm`'s (results/planners/team_beam_comm.py, results/hint_tb/comm.py)."""
+    other (`FIRST_minus_OTHER`: mean, standard error). A spec without a checkpoint runs the one
+    `repro comm` would (`checkpoint_for`: fine-tuned on the condition's map size if shipped);
+    each row names the checkpoints it ran. `on_row(rows so far)` after each condition. The
+    results scripts that put one more policy beside `repro comm`'s
+    (results/planners/team_beam_comm.py, results/hint_tb/comm.py)."""
     first, *others = specs
-    rows = []
+    rows: list[dict[str, Any]] = []
     for k in picks:
         label, changes, faults = CONDITIONS[k]
         wc = replace(WorldConfig(), **changes)
         t0 = time.time()
-        el = {name: under(wc, faults, build_policy(policy, wc, ckpt), seed, episodes, batch)
-              for name, (policy, ckpt) in specs.items()}
+        ckpts = {name: checkpoint_for(policy, wc, ckpt) for name, (policy, ckpt) in specs.items()}
+        el = {name: under(wc, faults, build_policy(policy, wc, ckpts[name]), seed, episodes,
+                          batch) for name, (policy, _) in specs.items()}
         row: dict[str, Any] = {"condition": label, "episodes": episodes,
-                               "seconds": time.time() - t0}
+                               "seconds": time.time() - t0,
+                               "checkpoints": {n: c for n, c in ckpts.items() if c}}
         for name, res in el.items():
             row[name] = {"elratio": float(res.elratio.mean()),
                          "success": float(res.success.mean())}
@@ -86,13 +93,16 @@ def paired_conditions(picks: Sequence[int], specs: dict[str, tuple[str, str | No
             row[f"{first.replace('-', '_')}_minus_{other}"] = paired(el[first].elratio,
                                                                      el[other].elratio)
         rows.append(row)
+        if on_row is not None:
+            on_row(rows)
     return rows
 
 
 def paired_script(argv: Sequence[str], script: str, specs: dict[str, tuple[str, str | None]],
                   seed: int, episodes: int, **meta: Any) -> None:
-    """The command line of those results scripts: `SCRIPT OUT.json I [I ...]` (condition
-    indices, 20 x 20 only), rows printed as they come and written to OUT.json with `meta`."""
+    """The command line of those results scripts: `SCRIPT OUT.json I [I ...] [--episodes K]`
+    (condition indices; K episodes of `seed` each, default `episodes`), each row printed and
+    OUT.json rewritten (atomically, with `meta`) as each condition finishes."""
     import json
     import sys
 
@@ -100,17 +110,26 @@ def paired_script(argv: Sequence[str], script: str, specs: dict[str, tuple[str, 
 
     from swarm.common.atomic import write_json
 
-    if len(argv) < 2:
-        sys.exit(f"usage: {script} OUT.json I [I ...]")
+    args = list(argv)
+    if "--episodes" in args:
+        at = args.index("--episodes")
+        value = args[at + 1] if at + 1 < len(args) else ""
+        if not value.isdigit() or int(value) < 2:
+            sys.exit(f"{script}: --episodes must be an integer >= 2, got {value!r}")
+        episodes = int(value)
+        del args[at:at + 2]
+    if len(args) < 2 or not all(a.isdigit() and int(a) < len(CONDITIONS) for a in args[1:]):
+        sys.exit(f"usage: {script} OUT.json I [I ...] [--episodes K] "
+                 f"(I: condition indices 0-{len(CONDITIONS) - 1})")
     torch.set_num_threads(1)
-    path, picks = argv[0], [int(a) for a in argv[1:]]
-    for k in picks:
-        if "height" in CONDITIONS[k][1]:
-            sys.exit(f"condition {k} ({CONDITIONS[k][0]}) is not on 20 x 20")
-    rows = paired_conditions(picks, specs, seed, episodes)
-    for row in rows:
-        print(json.dumps(row), flush=True)
-    write_json(path, {"rows": rows, **meta, "command": f"{script} {' '.join(argv)}"})
+    path, picks = args[0], [int(a) for a in args[1:]]
+    command = f"{script} {' '.join(argv)}"
+
+    def on_row(rows: list[dict[str, Any]]) -> None:
+        print(json.dumps(rows[-1]), flush=True)
+        write_json(path, {"rows": rows, **meta, "command": command})
+
+    paired_conditions(picks, specs, seed, episodes, on_row=on_row)
 
 
 def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
