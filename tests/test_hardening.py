@@ -445,3 +445,35 @@ def test_every_swarm_process_uses_one_blas_thread_unless_told_otherwise() -> Non
     assert threads("numpy") > 1  # the default this guards against
     assert threads("swarm") == 1
     assert threads("swarm", OPENBLAS_NUM_THREADS="2") == 2
+
+
+def test_stop_children_ends_every_child_even_when_popens_lock_was_lost() -> None:
+    """A Ctrl-C landing inside Popen.poll can leave Popen's wait lock held (a supervisor then
+    hung in stop_all's Popen.wait for good, its children zombies): `stop_children` reaps with
+    os.waitpid, SIGKILLs what ignores SIGINT past the grace, and a Ctrl-C during the stop is
+    raised only once every child is down."""
+    from swarm.common.spawn import stop_children
+
+    code = "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(60)"
+    stubborn = subprocess.Popen([sys.executable, "-c", code])
+    polite = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    time.sleep(0.5)  # both running their sleep (the stubborn one ignores SIGINT)
+    assert stubborn._waitpid_lock.acquire(False)  # the lost lock: held, never released
+    t0 = time.monotonic()
+    stop_children([stubborn, polite], grace=0.5)
+    assert time.monotonic() - t0 < 5
+    assert stubborn.returncode == -signal.SIGKILL and polite.returncode not in (None, 0)
+    for p in (stubborn, polite):
+        with pytest.raises(ChildProcessError):
+            os.waitpid(p.pid, os.WNOHANG)  # reaped: no zombie left
+
+    sleeper = subprocess.Popen([sys.executable, "-c", code])
+    time.sleep(0.5)
+    old = signal.signal(signal.SIGALRM, lambda s, f: os.kill(os.getpid(), signal.SIGINT))
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.1)  # a Ctrl-C in the middle of the stop
+        with pytest.raises(KeyboardInterrupt):
+            stop_children([sleeper], grace=0.5)
+    finally:
+        signal.signal(signal.SIGALRM, old)
+    assert sleeper.returncode == -signal.SIGKILL  # down before the interrupt was raised

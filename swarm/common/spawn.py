@@ -19,6 +19,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from types import FrameType
@@ -174,3 +175,54 @@ def tidy_logs(folder: Path, res: dict[str, Any], keep: bool = False) -> None:
         res["logs"] = str(folder)
         return
     shutil.rmtree(folder, ignore_errors=True)
+
+
+def _reap(p: subprocess.Popen[Any], block: bool) -> bool:
+    """Whether child `p` has exited, reaping it with os.waitpid (not Popen's own wait/poll:
+    a KeyboardInterrupt landing inside Popen.poll between its lock's acquire and `try` leaves
+    that lock held, and every later Popen.wait then blocks forever; seen in a test run)."""
+    if p.returncode is not None:
+        return True
+    try:
+        pid, status = os.waitpid(p.pid, 0 if block else os.WNOHANG)
+    except ChildProcessError:  # reaped elsewhere: its status is gone (Popen says 0 here too)
+        p.returncode = 0
+        return True
+    if pid != p.pid:
+        return False
+    p.returncode = os.waitstatus_to_exitcode(status)
+    return True
+
+
+def stop_children(procs: list[subprocess.Popen[Any]], grace: float = 2.0) -> None:
+    """SIGINT every child still running, give them `grace` seconds together, then SIGKILL the
+    rest; every one reaped on return. A Ctrl-C meanwhile is held and raised as
+    KeyboardInterrupt once they are all down (so no child outlives an interrupted stop)."""
+    held: list[int] = []
+    before = signal.getsignal(signal.SIGINT)
+    hold = threading.current_thread() is threading.main_thread() and before is not None
+    if hold:
+        signal.signal(signal.SIGINT, lambda s, f: held.append(s))
+    try:
+        for p in procs:
+            if not _reap(p, block=False):
+                try:
+                    p.send_signal(signal.SIGINT)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + grace
+        waiting = [p for p in procs if not _reap(p, block=False)]
+        while waiting and time.monotonic() < deadline:
+            time.sleep(0.01)
+            waiting = [p for p in waiting if not _reap(p, block=False)]
+        for p in waiting:
+            try:
+                p.kill()
+            except ProcessLookupError:
+                pass
+            _reap(p, block=True)
+    finally:
+        if hold:
+            signal.signal(signal.SIGINT, before)
+    if held:
+        raise KeyboardInterrupt

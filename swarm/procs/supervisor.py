@@ -34,6 +34,7 @@ from swarm.common.spawn import (
     cli_args,
     last_error,
     registry,
+    stop_children,
     tidy_logs,
     wait_port,
 )
@@ -214,19 +215,7 @@ class Supervisor:
             registry(self.run_cfg.run_id).unlink()
         except OSError:
             pass
-        for p in procs:
-            if p.poll() is None:
-                try:
-                    p.send_signal(signal.SIGINT)
-                except ProcessLookupError:
-                    pass
-        deadline = time.monotonic() + grace
-        for p in procs:
-            try:
-                p.wait(timeout=max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_children(procs, grace)
 
     def _handle(self, kind: str, key: str, payload: bytes | None) -> None:
         v = self.view
