@@ -278,8 +278,10 @@ class Supervisor:
         try:  # whatever happens, no process and no namespace of the run is left behind
             return self._supervise()
         finally:
-            self.stop_all()
-            self.topo.down()
+            try:  # (a Ctrl-C held during the stop is raised after it: the namespaces go anyway)
+                self.stop_all()
+            finally:
+                self.topo.down()
 
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()
