@@ -143,6 +143,14 @@ class ChainPlan(Policy):
         """Every receiver's move [R] (in `snap`'s order): a network's planner hint."""
         return self._chain(view, snap)[0]
 
+    def first_moves(self, view: View, snap: Snapshot) -> np.ndarray:
+        """`moves` as a one-hot [R, 9] bool: a network's planner hint (policies.infer.tokens,
+        `hint_planner` "chain-plan")."""
+        out = np.zeros((snap.size, 9), dtype=bool)
+        if snap.size:
+            out[np.arange(snap.size), self.moves(view, snap)] = True
+        return out
+
     def _chain(self, view: View, snap: Snapshot) -> tuple[np.ndarray, dict[tuple[int, int], Plan]]:
         """The chain run in id order: moves [R] and the plan each (group, receiver) sends."""
         pred = view.predecessor()

@@ -213,6 +213,38 @@ def test_a_team_beam_hint_is_the_one_move_team_beam_takes(light: bool) -> None:
     assert moved > 100
 
 
+def test_a_chain_plan_hint_is_chain_plans_move_and_runs_batched_only(tmp_path: Path) -> None:
+    """`hint_planner` "chain-plan": the 9 hint bits are one-hot at the move `chain-plan` (its
+    chain run over the batch, the light search of beam 8 and one round: ChainConfig(1, 8, 0,
+    8)) takes on the same views; a robot process would head its own chain, so a checkpoint with
+    that hint is refused for robots (one line) before anything is spawned."""
+    from policies.chain_plan import ChainConfig, ChainPlan
+    from policies.checkpoint import save_checkpoint
+    from policies.infer.tokens import HINT_BEAM, chain_search
+    from swarm.common.policy_spec import build_inference
+
+    assert ChainConfig(**chain_search(32, 4)) == ChainConfig()  # the full search is chain-plan's
+    cfg = WorldConfig(comm_range=5.0)
+    feats = Featurizer(cfg, crop=9, team_pool=3, memory=True, belief=True, hint=True,
+                       hint_planner="chain-plan", hint_search=HINT_BEAM)
+    moved = 0
+    for _view, acted, t, bits in hinted(cfg, feats, ChainPlan(cfg, ChainConfig(1, 8, 0, 8)), 8):
+        np.testing.assert_array_equal(bits.sum(1), 1.0)
+        np.testing.assert_array_equal(bits.argmax(1), acted[t.group, t.robot])
+        moved += int((bits.argmax(1) != 0).sum())
+    assert moved > 80
+    pol = make_policy("commattn", WorldConfig(), checkpoint=str(CKPT))
+    pol.widen(belief=True, hint=True)
+    pol.set_model(hint_planner="chain-plan")
+    save_checkpoint(tmp_path / "chain.pt", pol.payload())
+    with pytest.raises(ConfigError, match="chain-plan's hint runs batched only"):
+        build_inference("commattn", WorldConfig(), str(tmp_path / "chain.pt"))
+    r = swarm("run", "--headless", "--policy", "commattn", "--checkpoint",
+              str(tmp_path / "chain.pt"), "--episodes", "1")
+    assert r.returncode == 2 and "runs batched only" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
 @pytest.mark.parametrize("changes", [{"belief": True}, {"belief": True, "hint": True}])
 def test_a_widened_checkpoint_acts_as_before_and_numpy_equals_torch(changes: dict) -> None:
     """`widen(belief=True)` (and `hint`) adds zero columns: the same actions as the checkpoint;

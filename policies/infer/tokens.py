@@ -43,7 +43,7 @@ from world.decentral import View, heard_union
 REFERENCE_SIDE = 20  # the map side the coarse team map's block count is fixed by
 MAX_SIZE = 4096  # the largest layer width or window side a model config may ask for
 BELIEF_CAP = 16  # path lengths in the belief features are capped here (and scaled by it)
-HINT_PLANNERS = ("coordinated-frontier", "team-beam")  # what `ModelConfig.hint_planner` names
+HINT_PLANNERS = ("coordinated-frontier", "team-beam", "chain-plan")  # `ModelConfig.hint_planner`
 HINT_BEAM = {"beam": 8, "passes": 1}  # the hint's `team-beam` search by default (hint_beam, ..)
 
 
@@ -78,11 +78,17 @@ class ModelConfig:
     """Whose suggestion the hint is: "coordinated-frontier" (the moves above) or "team-beam"
     (ours: the one move `team-beam` takes on the same belief, with a light search of beam 8
     and one pass, HINT_BEAM; the same 9 inputs, one-hot). Changes no weight shape (`swarm train
-    --init CK --hint-planner team-beam` swaps it); checkpoints older than it load with the first."""
+    --init CK --hint-planner team-beam` swaps it); checkpoints older than it load with the first.
+    "chain-plan" (ours): the move `chain-plan` takes, its chain run over the batch's receivers
+    (batched evaluation and training only: a robot process would need the plan in its
+    hidden-state message)."""
     hint_beam: int = 8
-    """Beam width of the "team-beam" hint's search (HINT_BEAM; `team-beam` itself: 24)."""
+    """Beam width of the "team-beam" hint's search (HINT_BEAM; `team-beam` itself: 24); of a
+    "chain-plan" hint, its chain head's beam (inside a chain: at most 16; `chain-plan` itself:
+    32)."""
     hint_passes: int = 1
-    """Rounds of prioritized planning of the "team-beam" hint (`team-beam` itself: 2)."""
+    """Rounds of prioritized planning of the "team-beam" hint (`team-beam` itself: 2); a
+    "chain-plan" hint's local-search rounds of a chain head (`chain-plan` itself: 4)."""
 
     def __post_init__(self) -> None:
         """Every size an integer in [1, MAX_SIZE] (`team_pool` may be 0) and every switch a
@@ -233,6 +239,20 @@ class CellTable:
         return cell, (self.row_in[y][:, :, None] & self.col_in[x][:, None, :]).reshape(r, -1)
 
 
+def chain_search(hint_beam: int, hint_passes: int) -> dict[str, int]:
+    """A `chain-plan` hint's search from the model's two hint fields: beam 8 and one pass (the
+    default) is `ChainConfig(1, 8, 0, 8)`, beam 32 and 4 passes `chain-plan`'s own search."""
+    return {"head_iters": hint_passes, "head_beam": hint_beam, "iters": 0,
+            "beam": min(hint_beam, 16)}
+
+
+def chain_hint(cfg: WorldConfig, search: dict[str, int]) -> Any:
+    """`chain-plan` as a hint planner (model fields `hint_beam`, `hint_passes`)."""
+    from policies.chain_plan import ChainConfig, ChainPlan
+
+    return ChainPlan(cfg, ChainConfig(**chain_search(search["beam"], search["passes"])))
+
+
 class Featurizer:
     """Turns a View into `Tokens` for its receivers; member_dim + pair_dim is the token width."""
 
@@ -257,6 +277,8 @@ class Featurizer:
                 from policies.team_beam import TeamBeam
 
                 self.hint = TeamBeam(cfg, CentralConfig(**(hint_search or HINT_BEAM)))
+            elif hint_planner == "chain-plan":
+                self.hint = chain_hint(cfg, hint_search or HINT_BEAM)
             elif hint_planner == "coordinated-frontier":
                 from policies.coordinated_frontier import CoordinatedFrontier
 

@@ -83,7 +83,7 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
              ) -> list[dict[str, Any]]:
     """Evaluate each policy of `cfg.policy` on the same episodes; summaries in order."""
     from swarm.bench.micro import NullProgress
-    from swarm.common.policy_spec import effective_checkpoint
+    from swarm.common.policy_spec import effective_checkpoint, shown
     from swarm.learn.evaluate import evaluate
 
     built = built if built is not None else eval_policies(world, cfg)
@@ -95,7 +95,7 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
         res = evaluate(world, policy, cfg.seed, cfg.episodes, batch=cfg.batch, greedy=cfg.greedy,
                        on_progress=progress.advance, faults=faults, tick_s=cfg.tick_timeout)
         out.append({**res.summary(world), "policy": name,
-                    "checkpoint": effective_checkpoint(name, cfg.checkpoint),
+                    "checkpoint": shown(effective_checkpoint(name, cfg.checkpoint)),
                     "decentralized": bool(policy.decentralized),
                     **({"faults": faults.describe()} if faults is not None else {})})
     return out

@@ -42,7 +42,17 @@ def load_class(name: str) -> type[Policy]:
         raise ConfigError(f"policy {name!r} is registered but cannot be imported: {exc}") from None
 
 
-SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints"
+ROOT = Path(__file__).resolve().parents[2]
+SHIPPED = ROOT / "checkpoints"
+
+
+def shown(path: str | None) -> str | None:
+    """A path as a result file records it: relative to the repository root when inside it
+    (so a committed result names no machine's directories), else as given."""
+    if path is None:
+        return None
+    p = Path(path).resolve()
+    return str(p.relative_to(ROOT)) if p.is_relative_to(ROOT) else path
 
 
 def effective_checkpoint(name: str, checkpoint: str | None) -> str | None:
@@ -89,6 +99,12 @@ def build_inference(name: str, cfg: WorldConfig, checkpoint: str | None = None) 
 
     checkpoint = effective_checkpoint(name, checkpoint)
     try:
-        return inference_class(name)(cfg, checkpoint=checkpoint)
+        policy = inference_class(name)(cfg, checkpoint=checkpoint)
     except CheckpointError as exc:
         raise ConfigError(str(exc)) from None
+    model = policy.model_cfg  # type: ignore[attr-defined]
+    if getattr(model, "hint", False) and model.hint_planner == "chain-plan":
+        # its hint runs the chain over every robot at once; a robot process would head its own
+        raise ConfigError(f"{checkpoint}: a network with chain-plan's hint runs batched only "
+                          "(swarm eval, swarm train), not in robot processes")
+    return policy

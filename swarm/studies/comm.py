@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from policies.base import Policy
-from swarm.common.policy_spec import SHIPPED, build_policy
+from swarm.common.policy_spec import SHIPPED, build_policy, shown
 from swarm.common.report import header, md_table, paired, paired_cell, write_item
 from swarm.learn.evaluate import EvalResult, evaluate
 from swarm.net.faults import plan_from_table
@@ -85,7 +85,7 @@ def paired_conditions(picks: Sequence[int], specs: dict[str, tuple[str, str | No
                           batch) for name, (policy, _) in specs.items()}
         row: dict[str, Any] = {"condition": label, "episodes": episodes,
                                "seconds": time.time() - t0,
-                               "checkpoints": {n: c for n, c in ckpts.items() if c}}
+                               "checkpoints": {n: shown(c) for n, c in ckpts.items() if c}}
         for name, res in el.items():
             row[name] = {"elratio": float(res.elratio.mean()),
                          "success": float(res.success.mean())}
@@ -153,7 +153,7 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
             lead, se = paired(first, res.elratio)  # the same episodes
             rows.append({"condition": label, "policy": name, "episodes": episodes,
                          "size": size, "robots": wc.n_robots, "horizon": wc.horizon,
-                         "checkpoint": ckpt or "",
+                         "checkpoint": shown(ckpt) if ckpt else "",
                          "comm_range": "inf" if math.isinf(wc.comm_range) else wc.comm_range,
                          "faults": ";".join(f"{k}={v}" for k, v in faults.items()),
                          "elratio_mean": s["elratio_mean"], "elratio_std": s["elratio_std"],

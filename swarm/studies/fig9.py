@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from swarm.common.policy_spec import SHIPPED, build_policy
+from swarm.common.policy_spec import SHIPPED, build_policy, shown
 from swarm.common.report import header, md_table, write_item
 from swarm.learn.evaluate import evaluate
 from world.config import WorldConfig, replace, to_dict
@@ -61,7 +61,7 @@ def fig9(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                              "comm_range": "inf" if math.isinf(r) else r,
                              "episodes": episodes, "success_rate": s["success_rate"],
                              "elratio_mean": s["elratio_mean"], "elratio_std": s["elratio_std"],
-                             "checkpoint": str(ckpt)})
+                             "checkpoint": shown(str(ckpt))})
                 if progress is not None:
                     progress.advance(episodes)
     note = (f"Success rate (elratio >= 0.9 and no block collision) and mean elratio over "

@@ -26,7 +26,7 @@ from swarm.bench.micro import (
     timing_stats,
 )
 from swarm.common import atomic
-from swarm.common.policy_spec import SHIPPED, build_policy
+from swarm.common.policy_spec import SHIPPED, build_policy, shown
 from swarm.common.report import header, md_table, paired, paired_cell, write_item
 from swarm.learn.curves import moving_mean, read_curve
 from swarm.learn.evaluate import evaluate
@@ -366,7 +366,7 @@ def fig8(cfg: ReproConfig, command: str) -> dict[str, Any]:
         axes[0].set_title("Fig. 8: training curves")
 
     meta = {"item": "fig8", "command": command, "seed": cfg.seed, "smooth": cfg.smooth,
-            "curves": {n: str(cfg.curve(n)) for n in names}}
+            "curves": {n: shown(str(cfg.curve(n))) for n in names}}
     return {"item": "fig8", "rows": rows,
             "files": write_item(Path(cfg.out or "."), "fig8", rows, md, draw, meta, ncols=2)}
 
