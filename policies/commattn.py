@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from policies.features import Members, TokenEmbed, bigru, rows
-from policies.infer.nets import CommAttnConfig, NumpyCommAttn
+from policies.infer.nets import CommAttnConfig, NumpyCommAttn, hint_prior
 from policies.learned import LearnedPolicy
 from world.core import N_ACTIONS
 
@@ -36,6 +36,7 @@ class Encoded:
     keys: torch.Tensor  # [R, M, K] W_h h_j + b, precomputed for the matching net
     mask: torch.Tensor  # [R, M] bool
     mine: torch.Tensor  # [R, 2H (+E)] the receiver's own h_i (and token embedding x_i)
+    prior: torch.Tensor | None = None  # [R, 9] added to the logits (model hint_prior), or None
 
 
 @dataclass
@@ -83,7 +84,8 @@ class CommAttn(nn.Module):
         if self.cfg.self_input:  # also the receiver's own token embedding (a skip past the BiGRU)
             mine = torch.cat([mine, rows(x, members.start + members.self_pos)], dim=-1)
         keys = seq.padded(self.match_h(seq.flat))
-        return Encoded(h=seq.padded(), keys=keys, mask=mask, mine=mine)
+        return Encoded(h=seq.padded(), keys=keys, mask=mask, mine=mine,
+                       prior=hint_prior(self.cfg, members.own_feats))
 
     def decode(self, enc: Encoded, s_prev: torch.Tensor, a_prev: torch.Tensor,
                with_value: bool = True) -> DecodeOut:
@@ -95,6 +97,8 @@ class CommAttn(nn.Module):
         own = [enc.mine] if self.cfg.self_input else []
         state = self.cell(torch.cat([emb, context], dim=-1), s_prev)
         logits = self.policy(torch.cat([emb, state, context, *own], dim=-1))
+        if enc.prior is not None:
+            logits = logits + enc.prior
         value = self.baseline(state, context, enc.mine) if with_value else logits.new_zeros(0)
         return DecodeOut(logits, value, state, context, alpha)
 
@@ -114,13 +118,14 @@ class CommAttn(nn.Module):
         if len(robot) and (np.diff(robot) < 0).any():
             raise ValueError("chain needs receivers in id-major order")
         sizes = np.bincount(robot, minlength=1).tolist() if len(robot) else []
+        priors = enc.prior.split(sizes) if enc.prior is not None else [None] * len(sizes)
         blocks = zip(sizes, enc.h.split(sizes), enc.keys.split(sizes), enc.mask.split(sizes),
-                     enc.mine.split(sizes), strict=True)
+                     enc.mine.split(sizes), priors, strict=True)
         states: list[torch.Tensor] = []
         actions: list[torch.Tensor] = []
         outs: list[DecodeOut] = []
         lo = 0
-        for size, h, keys, mask, mine in blocks:
+        for size, h, keys, mask, mine, prior in blocks:
             if size == 0:
                 continue
             pr = pred[lo:lo + size]
@@ -131,7 +136,8 @@ class CommAttn(nn.Module):
                 at = pr.clamp(0, lo - 1)
                 s_prev = torch.where(has[:, None], rows(torch.cat(states), at), s_prev)
                 a_prev = torch.where(has, rows(torch.cat(actions), at), a_prev)
-            out = self.decode(Encoded(h, keys, mask, mine), s_prev, a_prev, with_value=False)
+            out = self.decode(Encoded(h, keys, mask, mine, prior), s_prev, a_prev,
+                              with_value=False)
             states.append(out.state)
             actions.append(choose(slice(lo, lo + size), out.logits))
             outs.append(out)

@@ -62,6 +62,10 @@ class LearnedPolicy(InferencePolicy):
             self.net.load_state_dict({k: torch.as_tensor(v) for k, v in weights.items()})
         return {k: v.detach().numpy() for k, v in self.net.state_dict(keep_vars=True).items()}
 
+    def set_model(self, **changes: Any) -> None:
+        super().set_model(**changes)
+        self.net.cfg = self.model_cfg  # (the torch network reads hint_prior from it)
+
     def widen(self, **changes: Any) -> None:
         """Change model-config fields that add inputs to the receiver's own token (`belief`),
         keeping every weight: the own embedding gains zero columns for the new inputs (they

@@ -288,6 +288,55 @@ def test_a_widened_checkpoint_acts_as_before_and_numpy_equals_torch(changes: dic
         np.testing.assert_array_equal(wide.features(view).own_feats, kept.own_feats)
 
 
+def test_a_hint_prior_adds_to_the_hinted_logits_in_numpy_torch_and_training() -> None:
+    """Model field `hint_prior`: the numpy network's logits are the prior-free ones plus the
+    prior on the hint bits, the torch network's equal them, the trainer's log-probs equal the
+    acting ones, a prior of 64 makes every greedy move a hinted one; bad values are one line."""
+    from policies.infer.nets import CommAttnConfig
+    from swarm.learn.rollout import collect
+
+    for bad in (-1.0, 65, float("nan"), True, "8"):
+        with pytest.raises(ConfigError, match="hint_prior must be a number in"):
+            CommAttnConfig(belief=True, hint=True, hint_prior=bad)
+    with pytest.raises(ConfigError, match="hint_prior sets an --init checkpoint's"):
+        TrainConfig(hint_prior=8)
+    with pytest.raises(ConfigError, match="hint_prior must be -1"):
+        TrainConfig(init=str(CKPT), hint_prior=70)
+    cfg = WorldConfig()
+    pol = make_policy("commattn", cfg, checkpoint=str(CKPT))
+    pol.widen(belief=True, hint=True)
+    with torch.no_grad():
+        own = pol.net.embed.own.weight
+        own[:, -9:] = 0.05 * torch.randn(own.shape[0], 9,
+                                         generator=torch.Generator().manual_seed(1))
+    view = played(cfg, 2, 10)[-1]
+
+    def logits(prior: float, forced: bool = True) -> tuple[np.ndarray, ...]:
+        pol.set_model(hint_prior=prior)
+        pol.reset(2)
+        pol.remember(view)
+        tok = pol.features(view)
+        pick = (lambda rows, lg: np.zeros(len(lg), dtype=np.int64)) if forced else \
+            (lambda rows, lg: lg.argmax(-1))
+        out, acts = pol.np.chain(pol.np.encode(tok), tok.robot, pred_rows([view], tok), pick)
+        return out.logits, acts, tok.own_feats[:, -9:]
+
+    plain, _, bits = logits(0.0)
+    assert bits.sum() > 0
+    with_prior, _, _ = logits(2.5)
+    np.testing.assert_allclose(with_prior, plain + 2.5 * bits, rtol=1e-5, atol=1e-5)
+    greedy, acts, bits = logits(2.5, forced=False)
+    pol.reset(2)
+    logits_t, _ = pol.torch_logits(view)
+    np.testing.assert_allclose(greedy, logits_t.numpy(), rtol=1e-5, atol=1e-5)
+    roll = collect(pol, cfg, 7, np.arange(2))
+    with torch.no_grad():
+        ev = pol.evaluate(roll.views, roll.actions, roll.inputs)
+    assert np.abs(ev.logp.numpy() - roll.logp[ev.tick, ev.group, ev.robot]).max() < 2e-5
+    _, acts, bits = logits(64.0, forced=False)
+    assert bits[np.arange(len(acts)), acts].all()
+
+
 def test_widen_refuses_other_changes_and_leaves_the_network_alone() -> None:
     cfg = WorldConfig()
     pol = make_policy("commattn", cfg, checkpoint=str(CKPT))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -119,6 +120,15 @@ class CommAttnConfig(ModelConfig):
     learn to find oneself (3x faster early learning in pilots)."""
 
 
+def hint_prior(cfg: ModelConfig, own: Any) -> Any:
+    """The logit prior [R, 9] of model field `hint_prior`: that many on each receiver's hinted
+    move (the own features' last 9 columns, one-hot), or None (no hint, or a prior of 0).
+    Numpy or torch, as `own` is."""
+    if not (getattr(cfg, "hint", False) and getattr(cfg, "hint_prior", 0.0)) or own is None:
+        return None
+    return own[:, -N_ACTIONS:] * float(cfg.hint_prior)  # (float32 stays float32)
+
+
 @dataclass
 class Encoded:
     """Encoder output of R receivers over their members (numpy)."""
@@ -127,9 +137,11 @@ class Encoded:
     keys: np.ndarray  # [R, M, K] W_h h_j + b, precomputed for the matching net
     mask: np.ndarray  # [R, M] bool
     mine: np.ndarray  # [R, 2H (+E)] the receiver's own h_i (and token embedding x_i)
+    prior: np.ndarray | None = None  # [R, 9] added to the logits (model hint_prior), or None
 
     def rows(self, lo: int, hi: int) -> Encoded:
-        return Encoded(self.h[lo:hi], self.keys[lo:hi], self.mask[lo:hi], self.mine[lo:hi])
+        return Encoded(self.h[lo:hi], self.keys[lo:hi], self.mask[lo:hi], self.mine[lo:hi],
+                       None if self.prior is None else self.prior[lo:hi])
 
 
 @dataclass
@@ -169,7 +181,8 @@ class NumpyCommAttn(NumpyNet):
             mine = np.concatenate([mine, x[t.own_row]], axis=-1)
         h, mask = t.padded(flat)
         keys, _ = t.padded(linear(w, "match_h", flat))
-        return Encoded(h=h, keys=keys, mask=mask, mine=mine)
+        return Encoded(h=h, keys=keys, mask=mask, mine=mine,
+                       prior=hint_prior(self.cfg, t.own_feats))
 
     def decode(self, enc: Encoded, s_prev: np.ndarray, a_prev: np.ndarray,
                value: bool = True) -> Step:
@@ -186,6 +199,8 @@ class NumpyCommAttn(NumpyNet):
         own = [enc.mine] if self.cfg.self_input else []
         state = gru_cell(w, "cell", np.concatenate([emb, context], axis=-1), s_prev)
         logits = mlp(w, "policy", np.concatenate([emb, state, context, *own], axis=-1))
+        if enc.prior is not None:
+            logits = logits + enc.prior
         b = mlp(w, "value", np.concatenate([state, context, *own], axis=-1))[:, 0] if value else \
             np.zeros(len(state), dtype=np.float32)
         return Step(logits, b, state, context, alpha)

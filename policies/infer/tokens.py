@@ -89,6 +89,11 @@ class ModelConfig:
     hint_passes: int = 1
     """Rounds of prioritized planning of the "team-beam" hint (`team-beam` itself: 2); a
     "chain-plan" hint's local-search rounds of a chain head (`chain-plan` itself: 4)."""
+    hint_prior: float = 0.0
+    """Added to the logit of the hinted move (ours; CommAttn): 0, the hint is an input like any
+    other; large, the network follows its planner and departs from it only where its own
+    logits prefer another move by more than this. Changes no weight shape (`swarm train --init
+    CK --model '{"hint_prior": 8}'` sets it); in [0, 64]."""
 
     def __post_init__(self) -> None:
         """Every size an integer in [1, MAX_SIZE] (`team_pool` may be 0) and every switch a
@@ -107,6 +112,10 @@ class ModelConfig:
                 if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= MAX_SIZE:
                     raise ConfigError(f"model {f.name} must be an integer in [{lo}, {MAX_SIZE}], "
                                       f"got {v!r}")
+        prior = getattr(self, "hint_prior", 0.0)
+        if isinstance(prior, bool) or not isinstance(prior, int | float) or not 0 <= prior <= 64:
+            raise ConfigError(f"model hint_prior must be a number in [0, 64], got {prior!r}")
+        self.hint_prior = float(prior)
         for name, hi in (("hint_beam", 64), ("hint_passes", 4)):  # (a robot's time per tick)
             if not 1 <= getattr(self, name, 1) <= hi:
                 raise ConfigError(f"model {name} must be an integer in [1, {hi}], "

@@ -139,8 +139,8 @@ LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_no
                         "max_grad_norm", "threads", "chunk_ticks", "algo", "ppo_epochs")
 
 # TrainConfig fields that only the batched trainer implements
-BATCH_TRAIN_FIELDS = ("init", "team_memory", "belief", "hint", "hint_planner", "model",
-                      "imitate", "imitate_samples")
+BATCH_TRAIN_FIELDS = ("init", "team_memory", "belief", "hint", "hint_planner", "hint_prior",
+                      "model", "imitate", "imitate_samples")
 
 
 def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[Any, Any]:

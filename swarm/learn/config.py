@@ -41,6 +41,10 @@ class TrainConfig:
     """Set the planner behind the hint of an --init checkpoint: "team-beam" (its one move, ours)
     or "coordinated-frontier" (see ModelConfig.hint_planner); "" keeps the checkpoint's. The
     inputs keep their width and weights. A fresh network takes it in --model."""
+    hint_prior: float = -1.0
+    """Set an --init checkpoint's `hint_prior` (ModelConfig.hint_prior, ours: added to the
+    hinted move's logit) to this, in [0, 64]; -1 keeps the checkpoint's. A fresh network takes
+    it in --model."""
     train_loss: float = 0.0
     """Fault-aware training: drop each robot-to-robot message (trajectory and hidden-state)
     with this probability, with the swarm radio's seeded loss model (0: no faults)."""
@@ -167,6 +171,14 @@ class TrainConfig:
                 raise ConfigError("train hint_planner sets an --init checkpoint's hint; a fresh "
                                   "network takes --model '{\"belief\": true, \"hint\": true, "
                                   "\"hint_planner\": \"team-beam\"}'")
+        if self.hint_prior != -1.0:
+            if isinstance(self.hint_prior, bool) or not 0 <= self.hint_prior <= 64:
+                raise ConfigError(f"train hint_prior must be -1 (keep) or a number in [0, 64], "
+                                  f"got {self.hint_prior!r}")
+            if not self.init:
+                raise ConfigError("train hint_prior sets an --init checkpoint's; a fresh network "
+                                  "takes --model '{\"belief\": true, \"hint\": true, "
+                                  "\"hint_prior\": 8}'")
         if self.model:
             self.model_config()
         if self.imitate:

@@ -127,6 +127,10 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
             if not policy.model_cfg.hint:
                 raise ConfigError("train hint_planner needs a network with the hint (--hint true)")
             policy.set_model(hint_planner=cfg.hint_planner)
+        if cfg.hint_prior != -1.0:
+            if not policy.model_cfg.hint:
+                raise ConfigError("train hint_prior needs a network with the hint (--hint true)")
+            policy.set_model(hint_prior=cfg.hint_prior)
         opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)
         out.mkdir(parents=True, exist_ok=True)  # (only once the run is known to start)
         curves.start()
