@@ -105,6 +105,10 @@ class ChainPlan(Policy):
         # (group, robot) -> (episode, tick, the plan it sent): one entry per robot of a group,
         # so a long run does not grow it (a key per episode would)
         self.memory: dict[tuple[int, int], tuple[int, int, Plan]] = {}
+        # as a network's hint in a robot process (policies.infer.policy): the predecessors'
+        # plans received, (group, predecessor) -> plan, and what the last chain sent
+        self.given: dict[tuple[int, int], Plan] = {}
+        self.last_sent: dict[tuple[int, int], Plan] = {}
 
     @property
     def words(self) -> int:
@@ -157,11 +161,12 @@ class ChainPlan(Policy):
         if view.chain_ok is not None:
             pred = np.where(view.chain_ok, pred, -1)
         out = np.zeros(snap.size, dtype=np.int64)
-        sent: dict[tuple[int, int], Plan] = {}
+        sent: dict[tuple[int, int], Plan] = dict(self.given)  # (plans from outside the view)
         for k in np.lexsort((snap.i, snap.g)):  # down the chain: ids in order within a group
             g, i = int(snap.g[k]), int(snap.i[k])
             got = sent.get((g, int(pred[g, i])), {}) if pred[g, i] >= 0 else {}
             out[k], sent[(g, i)] = self._decide(view, snap, int(k), got)
+        self.last_sent = sent
         return out, sent
 
     # ------------------------------------------------------------- one robot (a robot process)

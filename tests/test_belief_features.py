@@ -213,15 +213,12 @@ def test_a_team_beam_hint_is_the_one_move_team_beam_takes(light: bool) -> None:
     assert moved > 100
 
 
-def test_a_chain_plan_hint_is_chain_plans_move_and_runs_batched_only(tmp_path: Path) -> None:
+def test_a_chain_plan_hint_is_chain_plans_move() -> None:
     """`hint_planner` "chain-plan": the 9 hint bits are one-hot at the move `chain-plan` (its
     chain run over the batch, the light search of beam 8 and one round: ChainConfig(1, 8, 0,
-    8)) takes on the same views; a robot process would head its own chain, so a checkpoint with
-    that hint is refused for robots (one line) before anything is spawned."""
+    8)) takes on the same views; beam 32 and 4 passes are `chain-plan`'s own search."""
     from policies.chain_plan import ChainConfig, ChainPlan
-    from policies.checkpoint import save_checkpoint
     from policies.infer.tokens import HINT_BEAM, chain_search
-    from swarm.common.policy_spec import build_inference
 
     assert ChainConfig(**chain_search(32, 4)) == ChainConfig()  # the full search is chain-plan's
     cfg = WorldConfig(comm_range=5.0)
@@ -233,16 +230,20 @@ def test_a_chain_plan_hint_is_chain_plans_move_and_runs_batched_only(tmp_path: P
         np.testing.assert_array_equal(bits.argmax(1), acted[t.group, t.robot])
         moved += int((bits.argmax(1) != 0).sum())
     assert moved > 80
-    pol = make_policy("commattn", WorldConfig(), checkpoint=str(CKPT))
-    pol.widen(belief=True, hint=True)
-    pol.set_model(hint_planner="chain-plan")
-    save_checkpoint(tmp_path / "chain.pt", pol.payload())
-    with pytest.raises(ConfigError, match="chain-plan's hint runs batched only"):
-        build_inference("commattn", WorldConfig(), str(tmp_path / "chain.pt"))
-    r = swarm("run", "--headless", "--policy", "commattn", "--checkpoint",
-              str(tmp_path / "chain.pt"), "--episodes", "1")
-    assert r.returncode == 2 and "runs batched only" in r.stderr, r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1
+    # a chained network with it sends its decoder state, then the plan; a robot checks both
+    from policies.infer.nets import CommAttnConfig
+    from policies.infer.policy import inference_class
+
+    net = inference_class("commattn")(cfg, model=CommAttnConfig(
+        belief=True, hint=True, hint_planner="chain-plan"))
+    view = played(cfg, 1, 4)[-1]
+    state = net.decide(view).state[0]
+    assert state.shape == (cfg.n_robots, 64 + cfg.n_robots * 7)
+    for i in range(cfg.n_robots):
+        assert net.state_ok(state[i], view.tick)
+        bad = state[i].copy()
+        bad[64 + 1] = cfg.cells  # its first row's first cell off the grid
+        assert not net.state_ok(bad, view.tick)
 
 
 @pytest.mark.parametrize("changes", [{"belief": True}, {"belief": True, "hint": True}])
@@ -349,18 +350,26 @@ def test_widen_refuses_other_changes_and_leaves_the_network_alone() -> None:
 
 
 @pytest.mark.procs
-@pytest.mark.parametrize("changes", [{"belief": True}, {"belief": True, "hint": True}])
+@pytest.mark.parametrize("changes", [{"belief": True}, {"belief": True, "hint": True},
+                                     {"belief": True, "hint": True, "planner": "chain-plan"}])
 def test_a_belief_network_in_the_swarm_equals_the_batched_eval(tmp_path: Path,
                                                                changes: dict) -> None:
     """Robot processes fold their own belief maps from what they heard (and run coordinated
-    frontier on them for the hint): a widened checkpoint whose new weights matter acts in the
-    swarm exactly as in the batched evaluator (sampled, so every probability counts)."""
+    frontier on them for the hint; or `chain-plan`, its plan riding in the hidden-state message
+    after the decoder state, with a hint_prior): a widened checkpoint whose new weights matter
+    acts in the swarm exactly as in the batched evaluator (sampled, so every probability
+    counts)."""
     from policies.checkpoint import save_checkpoint
     from swarm.learn.evaluate import evaluate
 
     cfg = WorldConfig(n_robots=6)
+    changes = dict(changes)
+    planner = changes.pop("planner", None)
     pol = make_policy("commattn", cfg, checkpoint=str(CKPT))
     pol.widen(**changes)
+    if planner:
+        pol.set_model(hint_planner=planner, hint_prior=3.0)
+        assert pol.state_size == 64 + 6 * (2 + 5)  # the decoder state, then the plan
     extra = 162 + (9 if changes.get("hint") else 0)
     with torch.no_grad():
         own = pol.net.embed.own.weight

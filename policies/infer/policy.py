@@ -247,9 +247,36 @@ class InferencePolicy(Policy):
             remember(views, self.cfg)
 
     @property
+    def plan_hint(self) -> Any:
+        """The `chain-plan` hint planner of a chained network that reads it, else None: its
+        chain runs beside the network's, so its plan rides in the hidden-state message after
+        the decoder state."""
+        hint = self.features.hint
+        return hint if self.chained and getattr(hint, "name", "") == "chain-plan" else None
+
+    @property
     def state_size(self) -> int:
-        """Floats in a hidden-state message (chained policies)."""
-        return self.model_cfg.state if self.chained else 0  # type: ignore[attr-defined]
+        """Floats in a hidden-state message (chained policies): the decoder state, then the
+        plan of a `chain-plan` hint."""
+        if not self.chained:
+            return 0
+        plan = self.plan_hint
+        return self.model_cfg.state + (0 if plan is None else plan.state_size)  # type: ignore[attr-defined]
+
+    def state_ok(self, state: np.ndarray, tick: int) -> bool:
+        plan = self.plan_hint
+        return plan is None or plan.state_ok(
+            np.asarray(state)[self.model_cfg.state:], tick)  # type: ignore[attr-defined]
+
+    def _with_plans(self, state: np.ndarray, group: np.ndarray, robot: np.ndarray) -> np.ndarray:
+        """Decoder states [R, S] followed by the plan each receiver's hint chain sent."""
+        plan = self.plan_hint
+        if plan is None:
+            return state
+        return np.concatenate([state, np.stack([plan.encode(plan.last_sent[(int(g), int(i))])
+                                                for g, i in zip(group, robot, strict=True)])
+                               if len(group) else np.zeros((0, plan.state_size), np.float32)],
+                              axis=1)
 
     # ------------------------------------------------------------- acting
     def act(self, view: View, greedy: bool = True) -> np.ndarray:
@@ -285,7 +312,7 @@ class InferencePolicy(Policy):
         value[g, i] = out.value
         self.last_probs = probs
         state = np.zeros(shape + (self.state_size,), dtype=np.float32)
-        state[g, i] = out.state
+        state[g, i] = self._with_plans(out.state, g, i)
         context = np.zeros(shape + (out.context.shape[1],), dtype=np.float32)
         context[g, i] = out.context
         return Decision(actions, probs, value, state, context, kept,
@@ -315,11 +342,42 @@ class InferencePolicy(Policy):
         if (view.receivers.sum(1) != 1).any():
             raise ValueError("act_with_chain needs exactly one receiver per group")
         self.remember(view)
+        if self.plan_hint is not None:  # its hint needs the predecessor's plan: later
+            g, i = np.nonzero(view.receivers)  # (group order: one receiver per group)
+            return Prepared(view, None, None, predecessor_of(view.hears[g, i], i), greedy, None)
         tokens = self.features(view)
         pred = predecessor_of(view.hears[tokens.group, tokens.robot], tokens.robot)
         noise = None if greedy else gumbel(view, tokens.group, tokens.robot)
         return Prepared(view, tokens, self.np.encode(tokens), pred,  # type: ignore[attr-defined]
                         greedy, noise)
+
+    def _plan_features(self, prepared: Prepared, pred_state: np.ndarray | None) -> Prepared:
+        """`prepare_chain`'s features for a network with a `chain-plan` hint, once the
+        predecessors' plans (after their decoder states in `pred_state`) are known."""
+        hint, s, view = self.plan_hint, self.model_cfg.state, prepared.view  # type: ignore[attr-defined]
+        g, i = np.nonzero(view.receivers)  # one receiver per group
+        p = predecessor_of(view.hears[g, i], i)
+        if view.chain_ok is not None:
+            p = np.where(view.chain_ok[g, i], p, -1)
+        given = {}
+        for k in np.flatnonzero(p >= 0):
+            if pred_state is None:
+                raise ValueError("a receiver has a predecessor but no hidden-state message "
+                                 "was given")
+            row = np.asarray(pred_state, np.float32).reshape(view.groups, -1)[g[k]]
+            plan = hint.decode(row[s:], view.tick)
+            if plan is None:
+                raise ValueError("the predecessor's plan fails its checks (state_ok)")
+            given[(int(g[k]), int(p[k]))] = plan
+        hint.given = given
+        try:
+            tokens = self.features(view)
+        finally:
+            hint.given = {}
+        pred = predecessor_of(view.hears[tokens.group, tokens.robot], tokens.robot)
+        noise = None if prepared.greedy else gumbel(view, tokens.group, tokens.robot)
+        return prepared._replace(tokens=tokens, encoded=self.np.encode(tokens),  # type: ignore[attr-defined]
+                                 pred=pred, noise=noise)
 
     def act_with_chain(self, view: View, pred_state: np.ndarray | None,
                        pred_action: np.ndarray | None, greedy: bool = True,
@@ -342,6 +400,8 @@ class InferencePolicy(Policy):
                     view, prepared.tokens.group, prepared.tokens.robot))
         elif prepared.view is not view:
             raise ValueError("prepared for another view")
+        if prepared.tokens is None:
+            prepared = self._plan_features(prepared, pred_state)
         tokens, p = prepared.tokens, prepared.pred
         net: NumpyCommAttn = self.np  # type: ignore[assignment]
         if view.chain_ok is not None:  # lost or late hidden-state message: no predecessor
@@ -354,6 +414,7 @@ class InferencePolicy(Policy):
                 raise ValueError("a receiver has a predecessor but no hidden-state message "
                                  "was given")
             ps = np.asarray(pred_state, dtype=np.float32).reshape(view.groups, -1)[tokens.group]
+            ps = ps[:, :self.model_cfg.state] if self.plan_hint is not None else ps  # type: ignore[attr-defined]
             pa = np.asarray(pred_action, dtype=np.int64).reshape(view.groups)[tokens.group]
             if ((pa < 0) | (pa >= N_ACTIONS))[has].any():
                 raise ValueError("predecessor action must lie in 0..8")
@@ -367,7 +428,8 @@ class InferencePolicy(Policy):
         actions = np.zeros(view.receivers.shape, dtype=np.int64)
         actions[tokens.group, tokens.robot] = a
         self._after = (view, tokens, out)
-        state = out.state if view.groups == 1 else out.state[np.argsort(tokens.group)]
+        state = self._with_plans(out.state, tokens.group, tokens.robot)
+        state = state if view.groups == 1 else state[np.argsort(tokens.group)]
         return actions, state.copy()
 
 
@@ -375,9 +437,10 @@ class Prepared(NamedTuple):
     """`prepare_chain`'s output: what a chained decision needs before the predecessor speaks."""
 
     view: View
-    tokens: Tokens
-    encoded: Encoded
+    tokens: Tokens | None  # None (and encoded, noise) until a chain-plan hint has its plan
+    encoded: Encoded | None
     pred: np.ndarray  # [R] each receiver's predecessor id (-1: none), chain_ok not applied
+    # (in group order while tokens is None)
     greedy: bool
     noise: np.ndarray | None  # [R, 9] Gumbel noise when sampling
 

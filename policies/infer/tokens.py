@@ -79,9 +79,8 @@ class ModelConfig:
     (ours: the one move `team-beam` takes on the same belief, with a light search of beam 8
     and one pass, HINT_BEAM; the same 9 inputs, one-hot). Changes no weight shape (`swarm train
     --init CK --hint-planner team-beam` swaps it); checkpoints older than it load with the first.
-    "chain-plan" (ours): the move `chain-plan` takes, its chain run over the batch's receivers
-    (batched evaluation and training only: a robot process would need the plan in its
-    hidden-state message)."""
+    "chain-plan" (ours): the move `chain-plan` takes, its chain run beside CommAttn's (in a
+    robot process its plan rides in the hidden-state message after the decoder state)."""
     hint_beam: int = 8
     """Beam width of the "team-beam" hint's search (HINT_BEAM; `team-beam` itself: 24); of a
     "chain-plan" hint, its chain head's beam (inside a chain: at most 16; `chain-plan` itself:

@@ -99,12 +99,6 @@ def build_inference(name: str, cfg: WorldConfig, checkpoint: str | None = None) 
 
     checkpoint = effective_checkpoint(name, checkpoint)
     try:
-        policy = inference_class(name)(cfg, checkpoint=checkpoint)
+        return inference_class(name)(cfg, checkpoint=checkpoint)
     except CheckpointError as exc:
         raise ConfigError(str(exc)) from None
-    model = policy.model_cfg  # type: ignore[attr-defined]
-    if getattr(model, "hint", False) and model.hint_planner == "chain-plan":
-        # its hint runs the chain over every robot at once; a robot process would head its own
-        raise ConfigError(f"{checkpoint}: a network with chain-plan's hint runs batched only "
-                          "(swarm eval, swarm train), not in robot processes")
-    return policy
