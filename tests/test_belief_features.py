@@ -289,6 +289,36 @@ def test_a_widened_checkpoint_acts_as_before_and_numpy_equals_torch(changes: dic
         np.testing.assert_array_equal(wide.features(view).own_feats, kept.own_feats)
 
 
+def test_robots_passing_a_chain_plan_hint_on_decide_as_the_batch() -> None:
+    """A network with `chain-plan`'s hint, one policy per robot deciding in id order from its
+    own view and its predecessor's message (decoder state, then plan), sampled (its prepare
+    made greedy, as a robot process may), gives the batch's actions and messages."""
+    from policies.infer.nets import CommAttnConfig
+    from policies.infer.policy import inference_class
+
+    cfg = WorldConfig(n_robots=5)
+    model = CommAttnConfig(belief=True, hint=True, hint_planner="chain-plan", hint_prior=1.5)
+    make = inference_class("commattn")
+    batch, robots = make(cfg, model=model), [make(cfg, model=model) for _ in range(5)]
+    chained = 0
+    for view in played(cfg, 1, 7, seed=4):
+        want = batch.decide(view, greedy=False)
+        sent: dict[int, tuple[np.ndarray, int]] = {}
+        for i in range(cfg.n_robots):
+            rv = robot_view(cfg, view.seed, 0, view.tick, i, heard_by(cfg, view, 0, i), 0.0)
+            prepared = robots[i].prepare_chain(rv, greedy=True)
+            p = int(prepared.pred[0])
+            state, action = sent[p] if p >= 0 else (None, None)
+            chained += p >= 0
+            acts, out = robots[i].act_with_chain(
+                rv, None if p < 0 else state[None], None if p < 0 else np.array([action]),
+                greedy=False, prepared=prepared)
+            sent[i] = (out[0], int(acts[0, i]))
+            assert acts[0, i] == want.actions[0, i]
+            np.testing.assert_array_equal(out[0], want.state[0, i])
+    assert chained > 10
+
+
 def test_a_hint_prior_adds_to_the_hinted_logits_in_numpy_torch_and_training() -> None:
     """Model field `hint_prior`: the numpy network's logits are the prior-free ones plus the
     prior on the hint bits, the torch network's equal them, the trainer's log-probs equal the

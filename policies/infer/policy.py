@@ -396,6 +396,7 @@ class InferencePolicy(Policy):
             if prepared is not None and prepared.view is not view:
                 raise ValueError("prepared for another view")
             prepared = self.prepare_chain(view, greedy) if prepared is None else \
+                prepared._replace(greedy=greedy) if prepared.tokens is None else \
                 prepared._replace(greedy=greedy, noise=None if greedy else gumbel(
                     view, prepared.tokens.group, prepared.tokens.robot))
         elif prepared.view is not view:
