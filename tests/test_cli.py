@@ -87,6 +87,8 @@ def test_eval_is_deterministic_and_frontier_beats_random(tmp_path: Path) -> None
     ["eval", "--policy", "random", "--config", "{tmp}/malformed.toml"],
     ["bench", "env", "--batch", "0,4"],
     ["bench", "policy", "--policies", "random,bogus"],
+    ["bench", "policy", "--policies", "random", "--checkpoint", "commattn=x.pt"],
+    ["bench", "policy", "--policies", "commattn", "--checkpoint", "x.pt"],
     ["bench", "swarm", "--repeats", "0"],
     ["bench", "swarm", "--repeats", "2", "--delivery", "radio", "--robots", "0"],
     ["repro", "fig99", "--out", "{tmp}/o"],  # fig9 became an item (issue 16)
@@ -171,10 +173,12 @@ def test_bench_policy_one_robot_times_a_robots_decision(tmp_path: Path) -> None:
     """`--one-robot`: a chained learned policy and a planner, each robot with its own policy."""
     out = tmp_path / "one.json"
     r = swarm("bench", "policy", "--policies", "commattn,nearest-frontier", "--decisions", "12",
-              "--warmup", "0", "--robots", "3", "--one-robot", "--json", str(out))
+              "--warmup", "0", "--robots", "3", "--one-robot", "--json", str(out),
+              "--checkpoint", f"commattn={ROOT / 'checkpoints' / 'commattn.pt'}")
     assert r.returncode == 0, r.stderr
     data = json.loads(out.read_text())
     assert data["one_robot"] is True and "one robot" in r.stdout
+    assert data["checkpoints"] == {"commattn": "checkpoints/commattn.pt"}  # (as recorded)
     for row in data["rows"]:
         assert row["decisions"] == 12 and row["bar_ms"] is None
         assert 0 < row["min_ms"] <= row["median_ms"] <= row["max_ms"]

@@ -165,7 +165,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from swarm.bench import micro as bench
     from swarm.cli.console import env_bench_table, kv_table, policy_bench_table, rollout_bench_table
-    from swarm.common.policy_spec import build_policy
+    from swarm.common.policy_spec import build_policy, shown
 
     tables = file_tables(args.config)
     world = world_config(args, tables)
@@ -225,10 +225,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
                      {"policies": args.policies, "decisions": args.decisions,
                       "warmup": args.warmup, "seed": args.seed, "json": args.json,
                       "one_robot": args.one_robot}, where)
+        ckpts = _checkpoint_pairs(args.checkpoint) or {}
+        for name in ckpts:
+            if name not in cfg.policies:
+                raise ConfigError(f"--checkpoint {name}=...: {name!r} is not among --policies")
         for name in cfg.policies:  # fail on an unloadable policy before timing anything
-            build_policy(name, world)
+            build_policy(name, world, ckpts.get(name))
         with RichProgress(err) as progress:
-            result = bench.bench_policy(world, cfg, progress)
+            result = bench.bench_policy(world, cfg, progress, ckpts)
+        result["checkpoints"] = {n: shown(c) for n, c in ckpts.items()}
         out.print(policy_bench_table(result))
     if cfg.json:
         atomic.write_json(cfg.json, {**result, "command": _command()})
@@ -326,6 +331,8 @@ def add_parsers(sub: Any) -> None:
                    help="time one robot's decision as a robot process makes it (numpy networks, "
                         "its own view; chained: prepare, then decode with its predecessor's "
                         "message) instead of the team's")
+    b.add_argument("--checkpoint", action="append", metavar="NAME=FILE",
+                   help="checkpoint of a learned policy (repeatable; default: the shipped one)")
     add_common(b)
     add_world(b)
     b.set_defaults(func=cmd_bench)
