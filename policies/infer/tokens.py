@@ -92,7 +92,7 @@ class ModelConfig:
     """Added to the logit of the hinted move (ours; CommAttn): 0, the hint is an input like any
     other; large, the network follows its planner and departs from it only where its own
     logits prefer another move by more than this. Changes no weight shape (`swarm train --init
-    CK --model '{"hint_prior": 8}'` sets it); in [0, 64]."""
+    CK --hint-prior 8` sets it; a fresh network takes it in --model); in [0, 64]."""
 
     def __post_init__(self) -> None:
         """Every size an integer in [1, MAX_SIZE] (`team_pool` may be 0) and every switch a
