@@ -109,6 +109,7 @@ class ChainPlan(Policy):
         # plans received, (group, predecessor) -> plan, and what the last chain sent
         self.given: dict[tuple[int, int], Plan] = {}
         self.last_sent: dict[tuple[int, int], Plan] = {}
+        self._decoded: tuple[tuple[int, bytes], Plan | None] | None = None  # see decode
 
     @property
     def words(self) -> int:
@@ -226,7 +227,17 @@ class ChainPlan(Policy):
         return rows.ravel()
 
     def decode(self, state: np.ndarray, tick: int) -> Plan | None:
-        """The plan in a message for tick `tick`, or None if any field is out of range."""
+        """The plan in a message for tick `tick`, or None if any field is out of range. The
+        last message's result is kept: a robot checks its predecessor's message on arrival
+        (`state_ok`) and then reads it, one decode (callers do not change a plan)."""
+        key = (tick, np.asarray(state).tobytes())
+        if self._decoded is not None and self._decoded[0] == key:
+            return self._decoded[1]
+        plan = self._decode(state, tick)
+        self._decoded = (key, plan)
+        return plan
+
+    def _decode(self, state: np.ndarray, tick: int) -> Plan | None:
         cfg = self.cfg
         rows = np.asarray(state, dtype=np.float64)
         if rows.shape != (self.state_size,) or not np.isfinite(rows).all():
