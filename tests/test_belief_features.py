@@ -319,6 +319,33 @@ def test_robots_passing_a_chain_plan_hint_on_decide_as_the_batch() -> None:
     assert chained > 10
 
 
+def test_a_learners_refold_of_a_chain_plan_hint_gives_the_acting_features() -> None:
+    """The learner rebuilds a recorded episode's features on a fresh network (swarm.learn.join:
+    remember_episode, then the features tick by tick): with `chain-plan`'s hint, whose head
+    warm-starts from the plan it sent last tick, they equal the ones the batch acted on, under
+    lost hidden-state messages too (chain_ok)."""
+    from swarm.learn.rollout import collect
+    from swarm.net.faults import plan_from_table
+
+    cfg = WorldConfig(n_robots=5)
+
+    def network() -> object:
+        pol = make_policy("commattn", cfg, checkpoint=str(CKPT))
+        pol.widen(belief=True, hint=True)
+        pol.set_model(hint_planner="chain-plan", hint_prior=2.0)
+        return pol
+
+    faults = plan_from_table({"loss": 0.3, "seed": 2}, 2)
+    roll = collect(network(), cfg, 9, np.arange(2), faults=faults)
+    assert any(v.chain_ok is not None and not v.chain_ok.all() for v in roll.views)
+    learner = network()
+    for view in roll.views:
+        view.belief = view.team_visited = None
+    learner.remember_episode(roll.views)
+    for view, kept in zip(roll.views, roll.inputs, strict=True):
+        np.testing.assert_array_equal(learner.features(view).own_feats, kept.own_feats)
+
+
 def test_a_hint_prior_adds_to_the_hinted_logits_in_numpy_torch_and_training() -> None:
     """Model field `hint_prior`: the numpy network's logits are the prior-free ones plus the
     prior on the hint bits, the torch network's equal them, the trainer's log-probs equal the
