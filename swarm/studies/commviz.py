@@ -23,11 +23,12 @@ import torch
 
 from policies.commattn import CommAttnPolicy
 from policies.learned import Decision, LearnedPolicy
+from swarm.common.policy_spec import SHIPPED
 from world import core
 from world.config import WorldConfig
 from world.decentral import View, batch_view
 
-CHECKPOINT = Path(__file__).resolve().parents[2] / "checkpoints" / "commattn.pt"
+CHECKPOINT = SHIPPED / "commattn.pt"
 ACTION_NAMES = ["stay", "N", "NE", "E", "SE", "S", "SW", "W", "NW"]
 
 
