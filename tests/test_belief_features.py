@@ -37,6 +37,17 @@ def played(cfg: WorldConfig, groups: int, ticks: int, seed: int = 3) -> list:
     return views
 
 
+def assert_refold_acts_as_kept(learner: object, roll: object) -> None:
+    """The learner's refold of a rollout's views (swarm.learn.join: the memories folded
+    afresh, then the features) gives the own features kept when the rollout acted."""
+    for view in roll.views:  # type: ignore[attr-defined]
+        view.belief = view.team_visited = None
+    learner.remember_episode(roll.views)  # type: ignore[attr-defined]
+    for view, kept in zip(roll.views, roll.inputs, strict=True):  # type: ignore[attr-defined]
+        np.testing.assert_array_equal(learner.features(view).own_feats,  # type: ignore[attr-defined]
+                                      kept.own_feats)
+
+
 def hinted(cfg: WorldConfig, feats: Featurizer, planner: object, ticks: int) -> Iterator:
     """(the view, the planner's actions [G, N], the tokens, their 9 hint bits) at every tick
     of 2 groups' random play, the hint computed on the belief the batch folds."""
@@ -282,11 +293,7 @@ def test_a_widened_checkpoint_acts_as_before_and_numpy_equals_torch(changes: dic
         ev = wide.evaluate(roll.views, roll.actions, roll.inputs)
     # (float32 sums in two orders: ~1e-6 typical, the largest of ~600 decisions near 1e-5)
     assert np.abs(ev.logp.numpy() - roll.logp[ev.tick, ev.group, ev.robot]).max() < 2e-5
-    for view in roll.views:
-        view.belief = view.team_visited = None
-    wide.remember_episode(roll.views)
-    for view, kept in zip(roll.views, roll.inputs, strict=True):
-        np.testing.assert_array_equal(wide.features(view).own_feats, kept.own_feats)
+    assert_refold_acts_as_kept(wide, roll)
 
 
 def test_robots_passing_a_chain_plan_hint_on_decide_as_the_batch() -> None:
@@ -339,11 +346,7 @@ def test_a_learners_refold_of_a_chain_plan_hint_gives_the_acting_features() -> N
     roll = collect(network(), cfg, 9, np.arange(2), faults=faults)
     assert any(v.chain_ok is not None and not v.chain_ok.all() for v in roll.views)
     learner = network()
-    for view in roll.views:
-        view.belief = view.team_visited = None
-    learner.remember_episode(roll.views)
-    for view, kept in zip(roll.views, roll.inputs, strict=True):
-        np.testing.assert_array_equal(learner.features(view).own_feats, kept.own_feats)
+    assert_refold_acts_as_kept(learner, roll)
 
 
 def test_a_hint_prior_adds_to_the_hinted_logits_in_numpy_torch_and_training() -> None:
