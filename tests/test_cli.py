@@ -302,11 +302,11 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
     r = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg), "--seed", "2")
     assert r.returncode == 0, r.stderr
     rows = list(csv.DictReader((tmp_path / "comm.csv").open()))
-    assert len(rows) == 11 * 3 and {row["policy"] for row in rows} == {
+    assert len(rows) == 12 * 3 and {row["policy"] for row in rows} == {
         "commattn", "coordinated-frontier", "central"}
     small = [row for row in rows if row["size"] == "20x20"]
     central = {float(row["elratio_mean"]) for row in small if row["policy"] == "central"}
-    assert len(small) == 9 * 3 and len(central) == 1  # a perfect radio: no fault changes it
+    assert len(small) == 10 * 3 and len(central) == 1  # a perfect radio: no fault changes it
     ref = {row["condition"]: float(row["elratio_mean"]) for row in rows
            if row["policy"] == "central"}
     for row in rows:

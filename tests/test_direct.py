@@ -41,6 +41,7 @@ MIX = {"loss": "0.2", "latency": "120ms", "jitter": "60ms", "bandwidth": "1.5kB/
        "partition": "0/1-3"}
 TABLES = [{}, {"loss": 0.3, "latency": "100ms", "jitter": "80ms"},
           {"bandwidth": "300B/s", "burst": 400, "overflow": "drop", "loss": 0.1},
+          {"bandwidth": "400B/s", "burst": 300, "overflow": "expire", "compute": "30ms"},
           {"bandwidth": "900B/s", "burst": 300, "partition": "0-2/3-5", "latency": "60ms",
            "compute": "30ms"}]
 

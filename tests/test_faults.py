@@ -95,12 +95,38 @@ def test_latency_budget_and_jitter_distribution() -> None:
 
 def test_token_bucket_queues_and_drops_at_the_configured_rate() -> None:
     q = TokenBucket(rate=1000.0, depth=200.0)
-    waits = [q.send(100, now=0.01 * k, queue=True) for k in range(100)]  # 10 kB/s offered
+    waits = [q.send(100, now=0.01 * k) for k in range(100)]  # 10 kB/s offered, queued
     assert waits[0] == 0.0 and waits[-1] == pytest.approx((100 * 100 - 200 - 1000 * 0.99) / 1000,
                                                            rel=0.05)
     d = TokenBucket(rate=1000.0, depth=200.0)
-    sent = [d.send(100, now=0.01 * k, queue=False) is not None for k in range(1000)]
+    sent = [d.send(100, now=0.01 * k, overflow="drop") is not None for k in range(1000)]
     assert np.mean(sent) == pytest.approx(0.1, abs=0.01)  # 1 kB/s of 10 kB/s gets through
+    e = TokenBucket(rate=1000.0, depth=200.0)  # expire: queued only while it leaves in time
+    waits = [e.send(100, now=0.01 * k, overflow="expire", deadline=0.01 * k + 0.05)
+             for k in range(1000)]
+    kept = [w for w in waits if w is not None]
+    assert max(kept) <= 0.05 + 1e-9 and np.mean([w is not None for w in waits]) == pytest.approx(
+        0.1, abs=0.01)  # the rate still holds, and nothing waits past its deadline
+    assert e.send(10_000, now=20.0, overflow="expire", deadline=20.5) is None  # costs nothing:
+    assert e.send(200, now=20.0, overflow="expire", deadline=20.0) == 0.0  # the bucket is full
+
+
+def test_expire_keeps_trajectories_on_time_under_a_cap_that_queues_them_late() -> None:
+    """At 60 B/s (a 2-s tick carries 120 bytes) a 108-byte trajectory and a 128-byte hidden
+    state do not both fit: queued, the hidden state delays the next trajectories past their
+    deadline and every copy comes late; expired, the hidden state is never sent (counted as
+    dropped_bw) and every trajectory arrives on time."""
+    from swarm.net.channel import DROPPED, LATE, OK, VirtualChannel
+
+    for overflow, traj_fate, hidden_fate in (("queue", LATE, LATE), ("expire", OK, DROPPED)):
+        ch = VirtualChannel(plan_from_table({"bandwidth": "60B/s", "overflow": overflow}, 0, 3),
+                            3, 2.0)
+        senders = np.ones((1, 3), dtype=bool)
+        for t in range(10):
+            tr = ch.traj(np.array([0]), t, senders, np.full((1, 3), 108.0))
+            hi = ch.hidden(np.array([0]), t, senders, np.full((1, 3), 128.0))
+        off = ~np.eye(3, dtype=bool)
+        assert (tr.fate[0][off] == traj_fate).all() and (hi.fate[0][off] == hidden_fate).all()
 
 
 def test_radio_bundles_arrive_after_latency_and_late_copies_are_cut() -> None:

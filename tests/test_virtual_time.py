@@ -27,8 +27,8 @@ KINDS = {
     "bandwidth": {"bandwidth": "400B/s", "burst": 200},
     "partition": {"partition": "0-1/2-3"},
     "compute": {"compute-ms": "150", "latency": "15ms"},
-    "mix": {"loss": "0.2", "latency": "120ms", "jitter": "60ms", "bandwidth": "1.5kB/s",
-            "partition": "0/1-3"},
+    "mix": {"loss": "0.2", "latency": "120ms", "jitter": "60ms", "bandwidth": "800B/s",
+            "overflow": "expire", "partition": "0/1-3"},  # (queue: "bandwidth")
 }
 
 
@@ -79,6 +79,8 @@ def test_virtual_swarm_equals_batched_eval_under_each_fault(tmp_path: Path, poli
         assert m["late"] + m["dropped_bw"] > 0  # the plan bites: some copies came too late
     if kind in ("loss", "mix"):
         assert m["lost"] > 0
+    if policy == "commattn" and kind == "mix":  # its states outgrow the cap: some expire
+        assert m["dropped_bw"] > 0
 
 
 @pytest.mark.procs
@@ -154,6 +156,7 @@ def test_train_takes_the_fault_flags_of_run_and_eval(tmp_path: Path) -> None:
     {"loss": 0.3, "latency": "400ms", "jitter": "300ms"},
     {"bandwidth": "300B/s", "burst": 400, "overflow": "drop", "loss": 0.1},
     {"bandwidth": "200B/s", "burst": 300, "partition": "0-3/4-9"},
+    {"bandwidth": "250B/s", "overflow": "expire", "compute": "300ms", "latency": "200ms"},
 ])
 def test_one_hidden_message_at_a_time_equals_the_batched_channel(table: dict) -> None:
     """The world decides each hidden-state message as it arrives (`hidden_from`, O(N)); the

@@ -271,8 +271,10 @@ def add_fault_flags(p: argparse.ArgumentParser, process: bool = True) -> None:
     g.add_argument("--jitter", metavar="DUR", help="extra uniform delay in [0, DUR), e.g. 10ms")
     g.add_argument("--loss", metavar="P", help="message loss probability, e.g. 0.1")
     g.add_argument("--bandwidth", metavar="RATE", help="per-robot radio cap, e.g. 2kB/s")
-    g.add_argument("--overflow", choices=["queue", "drop"],
-                   help="what the bandwidth cap does with excess messages (default queue)")
+    g.add_argument("--overflow", choices=["queue", "drop", "expire"],
+                   help="what the bandwidth cap does with excess messages: queue them "
+                        "(default), drop them, or expire them (queue, but never send one "
+                        "that would leave the queue after its deadline)")
     g.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other, "
                    "e.g. 0-4/5-9")
     g.add_argument("--compute-ms", type=float, metavar="MS",

@@ -5,7 +5,8 @@ Times are milliseconds from the episode's start. Tick t starts at `t * tick_ms`;
 its trajectory message, then (chained policies) its hidden-state message, at
 `t * tick_ms + compute_ms[j]` (its modelled compute time, `LinkFault.compute_ms`). A copy
 j -> i arrives at send + queue + latency + jitter, where the queue is the sender's token bucket
-(`bandwidth` bytes/s, `burst` deep, emptied at every episode's start) in virtual time, and the
+(`bandwidth` bytes/s, `burst` deep, full at every episode's start; `expire`: a message that
+would leave it after its deadline is discarded unsent) in virtual time, and the
 latency and jitter draws are those of `swarm.net.faults.delay_ms`. It is on time when it
 arrives by the tick's deadline: `traj_frac * tick_ms` after the tick's start for trajectory
 messages, `hidden_frac * tick_ms` for hidden-state messages. Loss and partitions are
@@ -54,6 +55,7 @@ class VirtualChannel:
         self.rate = np.array([f.bandwidth for f in per])  # bytes/s, 0: no cap
         self.depth = np.array([f.burst or f.bandwidth for f in per])
         self.drop = np.array([f.overflow == "drop" for f in per])
+        self.expire = np.array([f.overflow == "expire" for f in per])
         self.capped = bool((self.rate > 0).any())
         grp = plan.group_of(n)
         self._cut = grp[:, None] != grp[None, :]  # [receiver, sender] in different groups
@@ -70,8 +72,10 @@ class VirtualChannel:
         """[N] when each robot sends at tick t."""
         return t * self.tick_ms + self.compute_ms
 
-    def _queue(self, senders: np.ndarray, sizes: np.ndarray, now: np.ndarray) -> np.ndarray:
-        """Charge the senders' buckets [G, N]; ms each message waits (0 unqueued, NaN dropped)."""
+    def _queue(self, senders: np.ndarray, sizes: np.ndarray, now: np.ndarray,
+               deadline_ms: float) -> np.ndarray:
+        """Charge the senders' buckets [G, N]; ms each message waits (0 unqueued, NaN dropped:
+        `drop` when it does not fit, `expire` when it would leave after `deadline_ms`)."""
         q = np.zeros(senders.shape)
         if not self.capped:
             return q
@@ -80,7 +84,8 @@ class VirtualChannel:
         refill = np.where(np.isnan(self.last), 0.0, now - self.last)
         tokens = np.minimum(self.depth[None], self.tokens + rate * refill)
         fits = tokens >= sizes
-        dropped = capped & ~fits & self.drop[None]
+        expired = self.expire[None] & (now + (sizes - tokens) / rate > deadline_ms)
+        dropped = capped & ~fits & (self.drop[None] | expired)
         new = np.where(dropped, tokens, tokens - sizes)
         q = np.where(capped & ~fits & ~dropped, -new / rate, 0.0)
         q[dropped] = np.nan
@@ -132,7 +137,7 @@ class VirtualChannel:
                sizes: np.ndarray) -> Fates:
         g, n = senders.shape
         now = np.broadcast_to(self.send_ms(t)[None], (g, n))
-        q = self._queue(senders, sizes, now)
+        q = self._queue(senders, sizes, now, self.deadline_ms(kind, t))
         if self.plan.zero:
             keep, delay = np.ones((g, n, n), dtype=bool), np.zeros((g, n, n))
         else:
@@ -144,15 +149,17 @@ class VirtualChannel:
         fate[:, idx, idx] = OK
         return Fates(fate, arrival, senders & (q > 0))
 
-    def charge(self, t: int, sender: int, size: float) -> float:
-        """Charge one message of `sender` (group 0) sent at tick t to its token bucket: the ms
-        it waits for tokens (0: none), NaN if the cap drops it. A bucket is its sender's own
-        state, so a robot charges its own in direct delivery and stamps its messages with it."""
+    def charge(self, t: int, sender: int, size: float, kind: int) -> float:
+        """Charge one message of `kind` of `sender` (group 0) sent at tick t to its token
+        bucket: the ms it waits for tokens (0: none), NaN if the cap drops it. A bucket is its
+        sender's own state, so a robot charges its own in direct delivery and stamps its
+        messages with it."""
         senders = np.zeros((1, self.n), dtype=bool)
         senders[0, sender] = True
         sizes = np.zeros((1, self.n))
         sizes[0, sender] = size
-        return float(self._queue(senders, sizes, self.send_ms(t)[None])[0, sender])
+        return float(self._queue(senders, sizes, self.send_ms(t)[None],
+                                 self.deadline_ms(kind, t))[0, sender])
 
     def _pair(self, kind: int, episode: int, t: int, sel: tuple[object, object],
               cut: np.ndarray | bool, send: np.ndarray | float, queue_ms: np.ndarray | float,
@@ -198,7 +205,8 @@ class VirtualChannel:
         """Fates [N] of one hidden-state message of `sender` (one group) to every receiver:
         column `sender` of `hidden()` for that sender alone, in O(N) (a swarm's world decides
         each message as it arrives)."""
-        return self.column(KIND_HIDDEN, episode, t, sender, self.charge(t, sender, size))
+        return self.column(KIND_HIDDEN, episode, t, sender,
+                           self.charge(t, sender, size, KIND_HIDDEN))
 
     def traj(self, episodes: np.ndarray, t: int, senders: np.ndarray,
              sizes: np.ndarray) -> Fates:

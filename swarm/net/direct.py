@@ -139,10 +139,13 @@ class DirectLink:
         if self.real:
             now = time.monotonic() if now is None else now
             self.arrived[(kind, self.ep, self.t, self.robot)] = now
-            w = wall_queue(self.wall_buckets, self.channel.plan, self.robot, len(payload), now)
+            frac = TRAJ_FRAC if kind == K_TRAJ else HIDDEN_FRAC
+            w = wall_queue(self.wall_buckets, self.channel.plan, self.robot, len(payload), now,
+                           self.t0 + frac * self.budget_s)
             q = math.nan if w is None else 1e3 * w
         else:
-            q = self.channel.charge(self.t, self.robot, len(payload))
+            q = self.channel.charge(self.t, self.robot, len(payload),
+                                    KIND_TRAJ if kind == K_TRAJ else KIND_HIDDEN)
         st = Stamped(kind, self.ep, self.t, self.robot, DROPPED_Q if math.isnan(q) else q,
                      payload)
         msg: Traj | Hidden = (Traj if kind == K_TRAJ else Hidden).unpack(payload, self.cfg)

@@ -24,6 +24,7 @@ from world.noise import uniform
 
 STREAM_LOSS, STREAM_JITTER = 11, 12
 KIND_TRAJ, KIND_HIDDEN = 0, 1
+OVERFLOWS = ("queue", "drop", "expire")  # what a bandwidth cap does with a message over it
 
 
 @dataclass(frozen=True)
@@ -41,7 +42,10 @@ class LinkFault:
     burst: float = 0.0
     """Token-bucket depth in bytes (0: one second's worth of `bandwidth`)."""
     overflow: str = "queue"
-    """What the token bucket does with a message that exceeds the cap: `queue` or `drop`."""
+    """What the token bucket does with a message that exceeds the cap: `queue` it (it waits for
+    tokens), `drop` it, or `expire` it: queue it unless it would leave the queue after its
+    tick's deadline, when it is discarded unsent and costs no tokens (a sender that stays
+    silent when its link cannot carry the message in time; DDS's LIFESPAN at the writer)."""
     compute_ms: float = 0.0
     """Virtual clock: the sender's modelled compute time, from a tick's start to its sends
     (a sender's property: set it for all robots or per robot)."""
@@ -55,8 +59,9 @@ class LinkFault:
                 raise ConfigError(f"{name} must lie in [0, 1e12], got {getattr(self, name)}")
         if not 0.0 <= self.loss <= 1.0:
             raise ConfigError(f"loss must be in [0, 1], got {self.loss}")
-        if self.overflow not in ("queue", "drop"):
-            raise ConfigError(f"overflow must be 'queue' or 'drop', got {self.overflow!r}")
+        if self.overflow not in OVERFLOWS:
+            raise ConfigError(f"overflow must be one of {', '.join(OVERFLOWS)}, "
+                              f"got {self.overflow!r}")
 
     @property
     def zero(self) -> bool:

@@ -16,6 +16,7 @@ loss, partition and the latency draw come from swarm.net.faults.delivery_mask/de
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,7 +36,7 @@ class LinkStats:
     cut: int = 0  # partition
     late: int = 0
     queued: int = 0  # delayed by the bandwidth cap
-    dropped_bw: int = 0  # dropped by the bandwidth cap (overflow = drop)
+    dropped_bw: int = 0  # dropped by the bandwidth cap (overflow = drop or expire)
 
 
 @dataclass
@@ -135,32 +136,37 @@ class TokenBucket:
         self.tokens = depth
         self.last: float | None = None
 
-    def send(self, size: int, now: float, queue: bool) -> float | None:
-        """Seconds the message waits for tokens (0 if none), or None if dropped."""
+    def send(self, size: int, now: float, overflow: str = "queue",
+             deadline: float = math.inf) -> float | None:
+        """Seconds the message waits for tokens (0 if none), or None if dropped (`drop`: it
+        does not fit; `expire`: it would leave the queue after `deadline`); a dropped message
+        costs no tokens."""
         if self.last is not None:
             self.tokens = min(self.depth, self.tokens + self.rate * (now - self.last))
         self.last = now
         if self.tokens >= size:
             self.tokens -= size
             return 0.0
-        if not queue:
+        wait = (size - self.tokens) / self.rate
+        if overflow == "drop" or (overflow == "expire" and now + wait > deadline):
             return None
         self.tokens -= size  # goes negative: the queue ahead of later messages
-        return -self.tokens / self.rate
+        return wait
 
 
 def wall_queue(buckets: dict[int, TokenBucket], plan: FaultPlan, sender: int, size: int,
-               now: float) -> float | None:
+               now: float, deadline: float = math.inf) -> float | None:
     """Seconds a message of `sender` sent at wall time `now` waits in its token bucket (kept in
-    `buckets`), None if its cap drops it: the real clock's cap, for the radio and for a robot
-    charging its own bucket in direct delivery."""
+    `buckets`), None if its cap drops it (or, `expire`, if it would leave after `deadline`):
+    the real clock's cap, for the radio and for a robot charging its own bucket in direct
+    delivery."""
     f = plan.per_robot.get(sender, plan.default)
     if f.bandwidth <= 0:
         return 0.0
     b = buckets.get(sender)
     if b is None or b.rate != f.bandwidth:
         b = buckets[sender] = TokenBucket(f.bandwidth, f.burst or f.bandwidth)
-    return b.send(size, now, f.overflow == "queue")
+    return b.send(size, now, f.overflow, deadline)
 
 
 class Radio:
@@ -183,8 +189,9 @@ class Radio:
         if self.channel is not None:
             self.channel = VirtualChannel(plan, self.cfg.n_robots, self.tick_s)
 
-    def _queue_delay(self, sender: int, size: int, now: float) -> float | None:
-        return wall_queue(self.buckets, self.plan, sender, size, now)
+    def _queue_delay(self, sender: int, size: int, now: float,
+                     deadline: float) -> float | None:
+        return wall_queue(self.buckets, self.plan, sender, size, now, deadline)
 
     def bundles(self, ep: int, t: int, positions: np.ndarray,
                 senders: dict[int, tuple[bytes, float]], deadline: float
@@ -208,7 +215,7 @@ class Radio:
             grp = plan.group_of(n) if plan.partition else np.zeros(n, dtype=np.int64)
             delay = delay_ms(plan, eps, t, n, KIND_TRAJ, self._lat, self._jit)[0] / 1e3
             for j, (payload, t_recv) in senders.items():
-                q = self._queue_delay(j, len(payload), t_recv)
+                q = self._queue_delay(j, len(payload), t_recv, deadline)
                 for i in np.flatnonzero(hears[:, j]):
                     if i == j:
                         continue
@@ -279,7 +286,7 @@ class Radio:
         eps = np.array([ep])
         fate = delivery_mask(plan, eps, t, n, KIND_HIDDEN)[0]
         delay = delay_ms(plan, eps, t, n, KIND_HIDDEN, self._lat, self._jit)[0] / 1e3
-        q = self._queue_delay(sender, size, now)
+        q = self._queue_delay(sender, size, now, deadline)
         out = []
         for i in receivers:
             if not fate[i, sender]:

@@ -27,7 +27,8 @@ from swarm.learn.evaluate import EvalResult, evaluate
 from swarm.net.faults import plan_from_table
 from world.config import WorldConfig, replace, scaled_blocks, to_dict
 
-# (label, world changes, [faults] table): the conditions, scarcest communication last
+# (label, world changes, [faults] table): the conditions; tables and the figure show the 20 x 20
+# ones first (`shown_order`), then the harder tasks
 CONDITIONS: tuple[tuple[str, dict[str, Any], dict[str, Any]], ...] = (
     ("range 10 (default)", {}, {}),
     ("range 5", {"comm_range": 5.0}, {}),
@@ -42,10 +43,23 @@ CONDITIONS: tuple[tuple[str, dict[str, Any], dict[str, Any]], ...] = (
                             **scaled_blocks(40, 40)}, {}),
     ("40 x 40, 50 robots", {"height": 40, "width": 40, "n_robots": 50, "horizon": 24,
                             **scaled_blocks(40, 40)}, {}),
+    # added later, so the indices the results scripts were run with stay; shown after the cap
+    ("cap 60 B/s, expire", {}, {"bandwidth": "60B/s", "burst": 240, "overflow": "expire"}),
 )
 POLICIES = ("commattn", "coordinated-frontier", "central")
 # checkpoints fine-tuned on a map size (the shipped ones were trained on 20 x 20)
 MAP_CHECKPOINTS = {("commattn", 40, 40): SHIPPED / "scale" / "commattn_40x40_n20.pt"}
+
+
+def shown_order() -> list[str]:
+    """The conditions' labels as tables and the figure show them: the default-size map's
+    (communication scarcer and scarcer, a cap next to its `expire` twin) before the harder
+    tasks."""
+    small = [c[0] for c in CONDITIONS if c[1].get("height") is None]
+    at = small.index("cap 60 B/s") + 1
+    small = [c for c in small if c != "cap 60 B/s, expire"]
+    return small[:at] + ["cap 60 B/s, expire"] + small[at:] + [
+        c[0] for c in CONDITIONS if c[1].get("height") is not None]
 
 
 def checkpoint_for(name: str, wc: WorldConfig, given: str | None) -> str | None:
@@ -166,13 +180,15 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
     md = header("Where communication matters", command, seed,
                 f"Elratio on {episodes} held-out dynamic-map episodes per point (batched, the "
                 "radio's virtual-time model for loss and the bandwidth cap, ticks of "
-                f"{tick_s:g} s); `central` pools every robot's observations (a perfect radio), "
+                f"{tick_s:g} s; a capped sender queues what exceeds its cap, or with "
+                "`expire` never sends a message that would leave its queue after the tick's "
+                "deadline); `central` pools every robot's observations (a perfect radio), "
                 "so it is the same under every fault. The 40 x 40 conditions scale the blocks "
                 "by area and keep the robot-steps per cell (20 robots x 60 steps, 50 x 24); "
                 "CommAttn runs its 40 x 40 fine-tuned checkpoint there (column `checkpoint` "
                 f"of the CSV). The last columns: {policies[0]}'s elratio minus the other's, "
                 "episode by episode, with the standard error of that paired mean.")
-    conds = [c[0] for c in CONDITIONS]
+    conds = shown_order()
     cell = {(r["policy"], r["condition"]): r for r in rows}
     def fmt(r: dict[str, Any]) -> str:
         return f"{r['elratio_mean']:.3f} ({100 * r['success_rate']:.0f}%)"
