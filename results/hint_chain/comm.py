@@ -9,7 +9,10 @@ with `--overflow expire`?
     .venv/bin/python results/hint_chain/comm.py OUT.json I [I ...] [--episodes K]
 
 I: indices into `swarm.studies.comm.CONDITIONS` (6: cap 60 B/s, queued; 11: the same cap with
-`expire`); ~8 min a condition on one core. `comm.json` holds 6 and 11.
+`expire`); ~25 min a condition on one core. `comm.json` holds 11 (6 was stopped unfinished).
+`--pair-only` runs the network and `chain-plan` alone (~12 min a condition; the other two are
+in `results/planners/chain_plan_comm.json`, same episodes): `comm_pair_a.json` (range 5,
+range 3) and `comm_pair_b.json` (loss 30%, loss 50%).
 """
 import sys
 
@@ -19,4 +22,10 @@ EPISODES, SEED = 100, 0
 CKPT = "results/hint_chain/chain_prior16_checkpoint.pt"
 SPECS = {"chain-hint": ("commattn", CKPT), "chain-plan": ("chain-plan", None),
          "team-beam": ("team-beam", None), "coordinated-frontier": ("coordinated-frontier", None)}
-paired_script(sys.argv[1:], "results/hint_chain/comm.py", SPECS, SEED, EPISODES, checkpoint=CKPT)
+argv = sys.argv[1:]
+pair_only = "--pair-only" in argv
+if pair_only:  # (the JSON's `command` then lacks the flag; `pair_only` records it)
+    argv.remove("--pair-only")
+    SPECS = {k: SPECS[k] for k in ("chain-hint", "chain-plan")}
+paired_script(argv, "results/hint_chain/comm.py", SPECS, SEED, EPISODES, checkpoint=CKPT,
+              pair_only=pair_only)
