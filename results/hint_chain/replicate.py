@@ -7,6 +7,13 @@ process per policy (one per core), then the pairing, from the repository root:
     .venv/bin/python results/hint_chain/replicate.py chain-plan 1 0 300 runs/rep_plan.npy; wait
     .venv/bin/python results/hint_chain/replicate.py pair results/hint_chain/replicate_seed1.json \\
         runs/rep_net.npy runs/rep_plan.npy
+
+A sixth argument I runs under `swarm repro comm`'s condition I (`swarm.studies.comm.CONDITIONS`:
+its world and `[faults]`, the fault draws seeded by SEED as there), e.g. range 5 on episodes
+100-399 of seed 0, past the 100 of `comm_pair_a.json` (`range5_100_400.json`); `pair` takes
+NET PLAN pairs, concatenated:
+
+    .venv/bin/python results/hint_chain/replicate.py net 0 100 150 runs/r5_net_a.npy 1 & ...
 """
 
 from __future__ import annotations
@@ -21,7 +28,9 @@ from policies import make_policy
 from swarm.common.atomic import write_json
 from swarm.common.report import paired
 from swarm.learn.evaluate import evaluate
-from world.config import WorldConfig
+from swarm.net.faults import plan_from_table
+from swarm.studies.comm import CONDITIONS
+from world.config import WorldConfig, replace
 
 CKPT = "results/hint_chain/chain_prior16_checkpoint.pt"
 
@@ -30,9 +39,11 @@ def main(argv: list[str]) -> None:
     torch.set_num_threads(1)
     cfg = WorldConfig()
     if argv[0] == "pair":
-        out, net_npy, plan_npy = argv[1:4]
-        net, plan = np.load(net_npy), np.load(plan_npy)
-        meta = json.loads(open(net_npy + ".json").read())
+        out, nets, plans = argv[1], argv[2::2], argv[3::2]  # NET PLAN [NET PLAN ...]
+        net = np.concatenate([np.load(f) for f in nets], axis=1)
+        plan = np.concatenate([np.load(f) for f in plans], axis=1)
+        meta = {"episodes": "; ".join(json.loads(open(f + ".json").read())["episodes"]
+                                      for f in nets)}
         diff, se = paired(net[0], plan[0])
         result = {"command": "results/hint_chain/replicate.py " + " ".join(argv),
                   "checkpoint": CKPT, "episodes": meta["episodes"],
@@ -45,12 +56,17 @@ def main(argv: list[str]) -> None:
         print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=1))
         return
     what, seed, first, count, out = argv[0], int(argv[1]), int(argv[2]), int(argv[3]), argv[4]
+    plan, where = None, ""
+    if len(argv) > 5:
+        label, changes, faults = CONDITIONS[int(argv[5])]
+        cfg, where = replace(cfg, **changes), f", condition {label!r}"
+        plan = plan_from_table({**faults, "seed": seed}, seed) if faults else None
     policy = (make_policy("commattn", cfg, checkpoint=CKPT) if what == "net"
               else make_policy(what, cfg))
-    res = evaluate(cfg, policy, seed, count, first_episode=first)
+    res = evaluate(cfg, policy, seed, count, first_episode=first, faults=plan)
     np.save(out, np.stack([res.elratio, res.success.astype(np.float64)]))
     with open(out + ".json", "w") as f:
-        json.dump({"episodes": f"seed {seed}, episodes {first}-{first + count - 1}"}, f)
+        json.dump({"episodes": f"seed {seed}, episodes {first}-{first + count - 1}{where}"}, f)
 
 
 if __name__ == "__main__":
