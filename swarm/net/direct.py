@@ -132,6 +132,11 @@ class DirectLink:
             self.arrived.pop(key, None)
         self.decided, self.early = set(), {}
 
+    def own_deadline(self, kind: int) -> float:
+        """Real clock: when a message of `kind` (K_TRAJ or K_HIDDEN) of this tick is late, in
+        monotonic seconds (the radio's fractions of this robot's budget from its observation)."""
+        return self.t0 + (TRAJ_FRAC if kind == K_TRAJ else HIDDEN_FRAC) * self.budget_s
+
     def stamp(self, kind: int, payload: bytes, now: float | None = None) -> bytes:
         """This robot's message of the current tick in its envelope, charged to its bucket (a
         trajectory first, then the hidden state: the radio's order; on the real clock at the
@@ -139,9 +144,8 @@ class DirectLink:
         if self.real:
             now = time.monotonic() if now is None else now
             self.arrived[(kind, self.ep, self.t, self.robot)] = now
-            frac = TRAJ_FRAC if kind == K_TRAJ else HIDDEN_FRAC
             w = wall_queue(self.wall_buckets, self.channel.plan, self.robot, len(payload), now,
-                           self.t0 + frac * self.budget_s)
+                           self.own_deadline(kind))
             q = math.nan if w is None else 1e3 * w
         else:
             q = self.channel.charge(self.t, self.robot, len(payload),
@@ -247,7 +251,7 @@ class DirectLink:
             sent = np.array([1e3 * self.arrived.get((K_TRAJ, self.ep, self.t, j), self.t0)
                              for j in range(n)])
             fate, arrival = self.channel.row_at(KIND_TRAJ, self.ep, self.t, self.robot, sent, q,
-                                                1e3 * (self.t0 + TRAJ_FRAC * self.budget_s))
+                                                1e3 * self.own_deadline(K_TRAJ))
         else:
             fate = self.channel.row(KIND_TRAJ, self.ep, self.t, self.robot, q)
         rows = np.array([self.robot])
@@ -282,7 +286,7 @@ class DirectLink:
                 f, arrival = self.channel.row_at(
                     KIND_HIDDEN, self.ep, self.t, self.robot,
                     np.full(self.n, 1e3 * self.arrived.get(k, self.t0)), np.full(self.n, q),
-                    1e3 * (self.t0 + HIDDEN_FRAC * self.budget_s))
+                    1e3 * self.own_deadline(K_HIDDEN))
                 fate = int(f[pred])
                 now = time.monotonic() if now is None else now
                 if fate == OK and arrival[pred] / 1e3 > now:
