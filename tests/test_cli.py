@@ -323,6 +323,21 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
     assert {row["checkpoint"] for row in big if row["policy"] == "commattn"} == {tuned}
 
 
+def test_a_given_checkpoint_runs_on_every_map_size() -> None:
+    """`repro comm` and the paired scripts pick a checkpoint per condition: the one the user
+    gave wins everywhere (it is never swapped silently for the 40 x 40 fine-tuned one); without
+    one, the fine-tuned one on its map size, else the shipped default."""
+    from swarm.common.policy_spec import SHIPPED
+    from swarm.studies.comm import checkpoint_for
+    from world.config import WorldConfig, replace
+
+    small, large = WorldConfig(), replace(WorldConfig(), height=40, width=40)
+    assert checkpoint_for("commattn", large, "mine.pt") == "mine.pt"
+    assert checkpoint_for("commattn", large, None) == str(SHIPPED / "scale/commattn_40x40_n20.pt")
+    assert checkpoint_for("commattn", small, None) == str(SHIPPED / "commattn.pt")
+    assert checkpoint_for("central", large, None) is None
+
+
 @pytest.mark.procs
 def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_path: Path) -> None:
     """The results scripts' command line (`swarm.studies.comm.paired_script`): bad arguments
@@ -347,7 +362,8 @@ def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_pa
     assert [row["condition"] for row in rows] == ["range 5", "40 x 40, 50 robots"]
     assert len(r.stdout.strip().splitlines()) == 2 and rows[0]["episodes"] == 2
     tuned = "checkpoints/scale/commattn_40x40_n20.pt"
-    assert rows[1]["checkpoints"] == {"commattn": tuned} and rows[0]["checkpoints"] == {}
+    assert rows[1]["checkpoints"] == {"commattn": tuned}
+    assert rows[0]["checkpoints"] == {"commattn": "checkpoints/commattn.pt"}
     mean, se = rows[0]["nearest_frontier_minus_commattn"]
     assert mean == pytest.approx(rows[0]["nearest-frontier"]["elratio"]
                                  - rows[0]["commattn"]["elratio"]) and se >= 0

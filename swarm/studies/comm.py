@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from policies.base import Policy
-from swarm.common.policy_spec import SHIPPED, build_policy, shown
+from swarm.common.policy_spec import SHIPPED, build_policy, effective_checkpoint, shown
 from swarm.common.report import header, md_table, paired, paired_cell, write_item
 from swarm.learn.evaluate import EvalResult, evaluate
 from swarm.net.faults import plan_from_table
@@ -63,10 +63,13 @@ def shown_order() -> list[str]:
 
 
 def checkpoint_for(name: str, wc: WorldConfig, given: str | None) -> str | None:
-    """`given` on the default map size; on another size the checkpoint fine-tuned there, if
-    one is shipped (else `given`, run unchanged: the features are egocentric)."""
+    """`given` if any, on every map size; else the checkpoint fine-tuned on the condition's
+    map size if one is shipped, else the shipped default (None for a policy without weights;
+    a checkpoint runs unchanged on another size, the features are egocentric)."""
+    if given is not None:
+        return given
     tuned = MAP_CHECKPOINTS.get((name, wc.height, wc.width))
-    return str(tuned) if tuned is not None and tuned.is_file() else given
+    return str(tuned) if tuned is not None and tuned.is_file() else effective_checkpoint(name, None)
 
 
 def under(wc: WorldConfig, faults: dict[str, Any], policy: Policy, seed: int, episodes: int,

@@ -382,8 +382,9 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
     if item == "comm":
         from swarm.studies.comm import comm
 
+        # only a checkpoint given here: else comm picks the shipped one per map size
         return comm(world or WorldConfig(), out, command, cfg.seed, cfg.comm_episodes,
-                    checkpoints={"commattn": ckpt}, batch=cfg.batch)
+                    checkpoints={"commattn": cfg.checkpoints.get("commattn")}, batch=cfg.batch)
     if item == "fig10":
         res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt)
         names = ("fig10.png", "fig10.csv", "fig10_scores.csv", "fig10_scores.md")
