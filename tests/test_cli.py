@@ -323,6 +323,28 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
     assert {row["checkpoint"] for row in big if row["policy"] == "commattn"} == {tuned}
 
 
+@pytest.mark.procs
+def test_repro_comm_takes_the_policies_and_checkpoints_it_is_given(tmp_path: Path) -> None:
+    """`--comm-policies` chooses the study's policies (the first paired against the others) and a
+    given checkpoint runs on both map sizes; a bad name is a one-line error."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[repro]\ncomm_episodes = 2\n")
+    bad = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg),
+                "--comm-policies", "nearest-frontier,nope")
+    assert bad.returncode != 0 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
+    mine = "checkpoints/commattn_nomemory.pt"
+    r = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg), "--seed", "2",
+              "--comm-policies", "nearest-frontier,commattn", "--checkpoint", f"commattn={mine}")
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader((tmp_path / "comm.csv").open()))
+    assert [row["policy"] for row in rows[:2]] == ["nearest-frontier", "commattn"]
+    assert len(rows) == 12 * 2
+    assert {row["checkpoint"] for row in rows if row["policy"] == "commattn"} == {mine}
+    assert {row["gap_to_central"] for row in rows} == {""}  # no central: no gap
+    md = (tmp_path / "comm.md").read_text()
+    assert "nearest-frontier - commattn (paired)" in md and "fine-tuned" not in md
+
+
 def test_a_given_checkpoint_runs_on_every_map_size() -> None:
     """`repro comm` and the paired scripts pick a checkpoint per condition: the one the user
     gave wins everywhere (it is never swapped silently for the 40 x 40 fine-tuned one); without

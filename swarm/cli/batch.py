@@ -262,6 +262,7 @@ def cmd_repro(args: argparse.Namespace) -> int:
                   "robots": args.robots, "add_every": args.add_every,
                   "decisions": args.decisions, "batch": args.batch, "json": args.json,
                   "table2_episodes": args.table2_episodes,
+                  "comm_policies": args.comm_policies,
                   "curves": _checkpoint_pairs(args.curve, "--curve")},
                  "[repro]")
     items = repro.expand(args.item)
@@ -399,6 +400,9 @@ def add_parsers(sub: Any) -> None:
                    help="policies (default: the four learned, three frontier and random)")
     p.add_argument("--table2-episodes", type=int, metavar="K",
                    help="Table 2 held-out episodes per policy (default 1000)")
+    p.add_argument("--comm-policies", metavar="A,B,..",
+                   help="comm: policies compared, the first paired against the others "
+                        "(default commattn,coordinated-frontier,central)")
     p.add_argument("--checkpoint", action="append", metavar="NAME=FILE",
                    help="checkpoint of a learned policy (repeatable)")
     p.add_argument("--curve", action="append", metavar="NAME=FILE",

@@ -177,6 +177,10 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                          "success_rate": s["success_rate"],
                          "first_minus_elratio": lead,
                          "first_minus_elratio_se": se})
+    tuned = sorted({r["policy"] for r in rows if r["checkpoint"] and Path(r["checkpoint"]).name
+                    in {p.name for p in MAP_CHECKPOINTS.values()}})
+    ran = (f"{', '.join(tuned)} runs its 40 x 40 fine-tuned checkpoint there" if tuned else
+           "every learned policy runs its one checkpoint on both sizes")
     ref = {r["condition"]: r["elratio_mean"] for r in rows if r["policy"] == "central"}
     for r in rows:
         r["gap_to_central"] = ref[r["condition"]] - r["elratio_mean"] if ref else None
@@ -188,8 +192,8 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                 "deadline); `central` pools every robot's observations (a perfect radio), "
                 "so it is the same under every fault. The 40 x 40 conditions scale the blocks "
                 "by area and keep the robot-steps per cell (20 robots x 60 steps, 50 x 24); "
-                "CommAttn runs its 40 x 40 fine-tuned checkpoint there (column `checkpoint` "
-                f"of the CSV). The last columns: {policies[0]}'s elratio minus the other's, "
+                f"{ran} (column `checkpoint` of the CSV). The last columns: {policies[0]}'s "
+                "elratio minus the other's, "
                 "episode by episode, with the standard error of that paired mean.")
     conds = shown_order()
     cell = {(r["policy"], r["condition"]): r for r in rows}

@@ -30,6 +30,7 @@ from swarm.common.policy_spec import SHIPPED, build_policy, shown
 from swarm.common.report import header, md_table, paired, paired_cell, write_item
 from swarm.learn.curves import moving_mean, read_curve
 from swarm.learn.evaluate import evaluate
+from swarm.studies.comm import POLICIES as COMM_POLICIES
 from world.config import ConfigError, WorldConfig, replace, to_dict
 
 ITEMS = ("table1", "table2", "fig4", "fig5", "fig8", "fig9", "fig10", "fig11", "comm")
@@ -72,6 +73,9 @@ class ReproConfig:
     """Table 2: held-out episodes per policy (the paper: 1000)."""
     comm_episodes: int = 200
     """`comm`: held-out episodes per (policy, condition)."""
+    comm_policies: tuple[str, ...] = COMM_POLICIES
+    """`comm`: policies compared, the first one paired against each other (learned ones take
+    `checkpoints`; e.g. add `chain-plan`, or a network of your own as `commattn`)."""
     fig9_episodes: int = 1000
     """Fig. 9: held-out episodes per (policy, vision, comm range) point."""
     fig10_episodes: int = 200
@@ -101,6 +105,7 @@ class ReproConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "policies", name_list(self.policies))
+        object.__setattr__(self, "comm_policies", name_list(self.comm_policies))
         object.__setattr__(self, "robots", int_list(self.robots, "robots"))
         object.__setattr__(self, "add_every", int_list(self.add_every, "add_every"))
         for key in ("episodes", "decisions", "batch", "table2_episodes", "smooth",
@@ -382,9 +387,9 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
     if item == "comm":
         from swarm.studies.comm import comm
 
-        # only a checkpoint given here: else comm picks the shipped one per map size
+        # only the checkpoints given here: else comm picks the shipped one per map size
         return comm(world or WorldConfig(), out, command, cfg.seed, cfg.comm_episodes,
-                    checkpoints={"commattn": cfg.checkpoints.get("commattn")}, batch=cfg.batch)
+                    policies=cfg.comm_policies, checkpoints=cfg.checkpoints, batch=cfg.batch)
     if item == "fig10":
         res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt)
         names = ("fig10.png", "fig10.csv", "fig10_scores.csv", "fig10_scores.md")
@@ -420,8 +425,11 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
             sweep_worlds(world, item, cfg)  # raises ConfigError on an impossible point
     for name in cfg.policies if set(items) - {"fig8", "fig9", *ANALYSES} else ():  # fail early
         build_policy(name, world, cfg.checkpoint(name))
-    if set(items) & set(ANALYSES):
+    if set(items) & {"fig10", "fig11"}:
         build_policy("commattn", world, cfg.checkpoint("commattn"))
+    if "comm" in items:
+        for name in cfg.comm_policies:
+            build_policy(name, world, cfg.checkpoint(name))
     if "fig8" in items:
         for name in learned_of(cfg):
             if not cfg.curve(name).is_file():
