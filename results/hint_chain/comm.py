@@ -12,7 +12,8 @@ I: indices into `swarm.studies.comm.CONDITIONS` (6: cap 60 B/s, queued; 11: the 
 `expire`); ~25 min a condition on one core. `comm.json` holds 11 (6 was stopped unfinished).
 `--pair-only` runs the network and `chain-plan` alone (~12 min a condition; the other two are
 in `results/planners/chain_plan_comm.json`, same episodes): `comm_pair_a.json` (range 5,
-range 3), `comm_pair_b.json` (loss 30%, loss 50%), `_c` (the queued cap), `_d` (range 2).
+range 3), `comm_pair_b.json` (loss 30%, loss 50%), `_c` (the queued cap), `_d` (range 2),
+`_e` (range 3 + loss 50%), `_f` (both 40 x 40 tasks, `--episodes 30`).
 """
 import sys
 
