@@ -398,7 +398,10 @@ BAD_INPUTS = [
     ["robot", "--id", "0", "--run-id", "x", "--zenoh-mode", "client", "--connect",
      "tcp/127.0.0.1:1"],
     ["train", "--out", "{tmp}/t", "--lr", "nan"], ["train", "--out", "{tmp}/t", "--epochs", "0"],
-    ["eval", "--policy", "nope"], ["eval", "--json", "{tmp}"],
+    ["eval", "--policy", "nope"], ["eval", "--json", "{tmp}"], ["eval", "--seed", "-1"],
+    ["eval", "--seed", "99999999999999999999"], ["bench", "policy", "--seed", "-1"],
+    ["repro", "table1", "--out", "{tmp}/file"],  # (checked before the work, not after)
+    ["repro", "comm", "--out", "{tmp}/r", "--comm-policies", "nope"],
     # (permission bits say "writable" for root here: the check writes a probe file)
     ["eval", "--json", "/proc/swarm.json"], ["run", "--train", "--learner-out", "/proc/swarm"],
     ["fault", "--run", "nosuchrun", "--loss", "0.1"],

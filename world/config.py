@@ -17,6 +17,15 @@ class ConfigError(ValueError):
     """A bad configuration value or key; its message is one line meant for the user."""
 
 
+SEED_MAX = 2**31 - 1  # every seed keys numpy's SeedSequence and the msgpack int32 fields
+
+
+def check_seed(seed: Any, name: str = "seed") -> None:
+    """A seed is an int in [0, SEED_MAX]; anything else is a one-line ConfigError."""
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= SEED_MAX:
+        raise ConfigError(f"{name} must lie in [0, {SEED_MAX}], got {seed!r}")
+
+
 @dataclass(frozen=True)
 class WorldConfig:
     """Every size and weight of the dynamic exploration world; defaults are the paper's values."""

@@ -20,7 +20,7 @@ import numpy as np
 from policies import REGISTRY
 from swarm.common.policy_spec import build_inference, build_policy, resolve_policies
 from world import core
-from world.config import ConfigError, WorldConfig
+from world.config import ConfigError, WorldConfig, check_seed
 from world.decentral import View, batch_view, heard_by, robot_view
 
 # Project bars for `bench policy` (median ms per team decision, 10 robots).
@@ -88,6 +88,7 @@ class EnvBenchConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "batches", int_list(self.batches, "batches"))
+        check_seed(self.seed)
         _positive("repeats", self.repeats)
         _positive("episodes", self.episodes)
 
@@ -113,6 +114,7 @@ class PolicyBenchConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "policies", name_list(self.policies))
+        check_seed(self.seed)
         _positive("decisions", self.decisions)
         if self.warmup < 0:
             raise ConfigError(f"warmup must be >= 0, got {self.warmup}")

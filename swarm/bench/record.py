@@ -16,7 +16,7 @@ from typing import Any
 
 from swarm.procs.runconfig import RunConfig
 from swarm.procs.supervisor import SuperviseOptions, Supervisor
-from world.config import ConfigError, WorldConfig
+from world.config import ConfigError, WorldConfig, check_seed
 
 
 @dataclass(frozen=True)
@@ -39,6 +39,8 @@ class RecordBenchConfig:
     """Write the figures here."""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
+        check_seed(self.seed + self.pairs - 1, "seed + pairs - 1")
         if self.episodes < 1 or self.pairs < 1:
             raise ConfigError("bench record needs episodes >= 1 and pairs >= 1")
 

@@ -20,7 +20,7 @@ from typing import Any
 
 from swarm.procs.runconfig import RunConfig
 from swarm.procs.supervisor import SuperviseOptions, Supervisor
-from world.config import ConfigError, WorldConfig
+from world.config import ConfigError, WorldConfig, check_seed
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,7 @@ class SwarmBenchConfig:
     the secure mode's speed cost."""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         if self.episodes < 1 or not self.robots or min(self.robots) < 1:
             raise ConfigError("bench swarm needs episodes >= 1 and robot counts >= 1")
         if not 1 <= self.repeats <= 100:

@@ -11,7 +11,7 @@ import numpy as np
 
 from policies import make_policy
 from swarm.learn.config import TrainConfig
-from world.config import ConfigError, WorldConfig
+from world.config import ConfigError, WorldConfig, check_seed
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,7 @@ class TrainBenchConfig:
     """Write the figures to this JSON file."""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         for key in ("batch", "updates", "threads", "workers"):
             if not 1 <= getattr(self, key) <= 100_000:
                 raise ConfigError(f"{key} must lie in [1, 100000], got {getattr(self, key)}")

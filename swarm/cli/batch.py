@@ -23,13 +23,14 @@ from swarm.cli.common import (
     fault_table,
     file_tables,
     merged,
+    output_dir,
     output_file,
     world_config,
     world_given,
 )
 from swarm.common import atomic
 from swarm.common.flags import add_flags, given
-from world.config import ConfigError, WorldConfig, from_dict
+from world.config import ConfigError, WorldConfig, check_seed, from_dict
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,7 @@ class EvalConfig:
     """Write the results to this JSON file."""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         if self.episodes < 1:
             raise ConfigError(f"episodes must be >= 1, got {self.episodes}")
         if self.batch < 1:
@@ -262,12 +264,15 @@ def cmd_repro(args: argparse.Namespace) -> int:
                   "robots": args.robots, "add_every": args.add_every,
                   "decisions": args.decisions, "batch": args.batch, "json": args.json,
                   "table2_episodes": args.table2_episodes,
+                  "comm_episodes": args.comm_episodes,
                   "comm_policies": args.comm_policies,
                   "curves": _checkpoint_pairs(args.curve, "--curve")},
                  "[repro]")
     items = repro.expand(args.item)
     if not cfg.out:  # (before the progress display, whose closing would print a blank line)
         raise ConfigError("repro needs an output directory (--out DIR)")
+    output_dir(cfg.out, "--out")  # before the work, which can take hours
+    output_file(cfg.json)
     out, err = _consoles()
     with RichProgress(err) as progress:
         results = repro.run(items, world, cfg, _command(), progress)
@@ -395,11 +400,16 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("item", metavar="ITEM",
                    help="table1, table2, fig4, fig5, fig8, fig9, fig10, fig11, comm or all")
     p.add_argument("--out", metavar="DIR", help="output directory (required)")
-    p.add_argument("--episodes", type=int, metavar="K", help="episodes per point (default 200)")
+    p.add_argument("--episodes", type=int, metavar="K",
+                   help="Fig. 4 and Fig. 5 episodes per point (default 200; the other items "
+                        "have their own: --table2-episodes, --comm-episodes, and [repro] "
+                        "fig9_episodes, fig10_episodes, fig11_episodes in --config)")
     p.add_argument("--policies", metavar="A,B,..",
                    help="policies (default: the four learned, three frontier and random)")
     p.add_argument("--table2-episodes", type=int, metavar="K",
                    help="Table 2 held-out episodes per policy (default 1000)")
+    p.add_argument("--comm-episodes", type=int, metavar="K",
+                   help="comm: held-out episodes per policy and condition (default 200)")
     p.add_argument("--comm-policies", metavar="A,B,..",
                    help="comm: policies compared, the first paired against the others "
                         "(default commattn,coordinated-frontier,central)")

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from world.config import ConfigError
+from world.config import ConfigError, check_seed
 from world.noise import uniform
 
 STREAM_LOSS, STREAM_JITTER = 11, 12
@@ -282,7 +282,8 @@ def _plan(t: dict[str, Any], seed: int) -> FaultPlan:
         items = t.pop(kind, [])
         items = [items] if isinstance(items, str) else items
         process += [parse_process(kind, x) for x in items]
-    fseed = int(t.pop("seed", seed))
+    fseed = t.pop("seed", seed)
+    check_seed(fseed, "faults seed")
     default = link_fault_from(t)
     per_robot = {int(k): link_fault_from(v, default) for k, v in per_robot_t.items()}
     per_link = {}

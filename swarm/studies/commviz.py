@@ -315,8 +315,10 @@ def _rank(v: np.ndarray) -> np.ndarray:
 def spearman(a: np.ndarray, b: np.ndarray, rng: np.random.Generator | None = None,
              permutations: int = 0) -> tuple[float, float]:
     """Spearman rank correlation and, with `permutations`, its two-sided permutation p-value."""
+    if len(a) < 3:  # (undefined; also keeps numpy's empty-slice warnings out of the output)
+        return float("nan"), float("nan")
     ra, rb = _rank(a), _rank(b)
-    if len(ra) < 3 or not ra.any() or not rb.any():
+    if not ra.any() or not rb.any():
         return float("nan"), float("nan")
     rho = float((ra * rb).mean())
     if not permutations or rng is None:
@@ -438,7 +440,7 @@ def fig11(out_dir: str | Path, seed: int = 0, episodes: int = 500, *, map_episod
           _md_table(group_head, group_rows), "",
           "Spearman rank correlation across cells (rho, permutation p):", "",
           _md_table(["grouping", *(n for n, _ in norms)],
-                    [[g, *(f"{r:+.3f} (p={p:.3g})" for r, p in c.values())]
+                    [[g, *(f"{r:+.3f} (p={p:.3g})" if r == r else "n/a" for r, p in c.values())]
                      for g, c in corr.items()]), "",
           "Between blocks at equal openness: mean over free8 strata of (passage - other) cell "
           "means, weighted by n1 n0 / (n1 + n0), with se: " + ", ".join(

@@ -31,7 +31,7 @@ from swarm.common.report import header, md_table, paired, paired_cell, write_ite
 from swarm.learn.curves import moving_mean, read_curve
 from swarm.learn.evaluate import evaluate
 from swarm.studies.comm import POLICIES as COMM_POLICIES
-from world.config import ConfigError, WorldConfig, replace, to_dict
+from world.config import ConfigError, WorldConfig, check_seed, replace, to_dict
 
 ITEMS = ("table1", "table2", "fig4", "fig5", "fig8", "fig9", "fig10", "fig11", "comm")
 ANALYSES = ("fig10", "fig11", "comm")  # CommAttn's communication (swarm.studies.commviz, comm)
@@ -106,6 +106,7 @@ class ReproConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "policies", name_list(self.policies))
         object.__setattr__(self, "comm_policies", name_list(self.comm_policies))
+        check_seed(self.seed)
         object.__setattr__(self, "robots", int_list(self.robots, "robots"))
         object.__setattr__(self, "add_every", int_list(self.add_every, "add_every"))
         for key in ("episodes", "decisions", "batch", "table2_episodes", "smooth",
