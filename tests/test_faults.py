@@ -233,6 +233,36 @@ def test_live_fault_change_takes_effect_within_one_tick(tmp_path: Path) -> None:
 
 
 @pytest.mark.procs
+def test_a_live_fault_must_fit_the_run_and_a_crash_waits_for_its_tick(tmp_path: Path) -> None:
+    """`swarm fault` asks the run first: a partition or robot beyond its robots, or no run at
+    the endpoint, is one line and exit 2 with nothing sent; `--crash ROBOT@TICK` waits for run
+    tick TICK (it used to strike at once)."""
+    run_id, out = "livec", tmp_path / "r.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
+         "random", "--episodes", "4", "--horizon", "25", "--pace", "5", "--run-id", run_id,
+         "--json", str(out)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        at = json.loads(proc.stdout.readline())["status"]["run_tick"] + 40  # 8 s ahead
+        r = swarm("fault", "--run", run_id, "--crash", f"2@{at}", timeout=30)
+        assert r.returncode == 0, r.stderr
+        for bad in (("--partition", "0-1/2-9"), ("--crash", "7"),
+                    ("--loss", "0.1", "--connect", "tcp/127.0.0.1:1", "--wait", "0.5")):
+            r = swarm("fault", "--run", run_id, *bad, timeout=30)
+            assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    res = json.loads(out.read_text())
+    assert len(res["process_faults"]) == 1, res["process_faults"]
+    kind, when = res["process_faults"][0].split("@")
+    assert kind == "crash 2" and at <= int(when) <= at + 2  # (logged at the status that fired it)
+
+
+@pytest.mark.procs
 def test_experiment_sweep_writes_csv_png_and_resumes(tmp_path: Path) -> None:
     r = swarm("experiment", "deploy/experiments/tiny.toml", "--out", str(tmp_path), timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -290,6 +290,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
 
     if args.at_tick is not None and not 0 <= args.at_tick < 2**40:
         raise ConfigError(f"--at-tick must be a run tick >= 0, got {args.at_tick}")
+    if not 0.1 <= args.wait <= 3600:  # also NaN
+        raise ConfigError(f"--wait must lie in [0.1, 3600] s, got {args.wait}")
     table = fault_table(args, {})
     process = [f"{kind}:{text}" for kind in ("crash", "hang", "restart")
                for text in (getattr(args, kind) or [])]
@@ -317,7 +319,16 @@ def cmd_fault(args: argparse.Namespace) -> int:
     with open_session(opts) as session:
         import time
 
-        time.sleep(0.3)  # let the session join the run's network before the one put
+        from swarm.net.messages import BadMessage
+        from swarm.procs.robot import fetch_config
+
+        try:  # the run is there, and the faults fit it: else nothing is sent
+            run = fetch_config(session, keys, args.wait)
+        except (TimeoutError, BadMessage) as exc:
+            where = ", ".join(opts.connect or []) or "this network"
+            raise ConfigError(f"run {args.run} did not answer at {where} ({exc}); nothing "
+                              "was sent") from None
+        fault_table(args, {}, run.world.n_robots)  # a partition or robot beyond the run's
         sent_at = time.time()
         put_once(session, keys.control, pack_record(K_CONTROL, rec))
         time.sleep(0.1)
@@ -327,8 +338,13 @@ def cmd_fault(args: argparse.Namespace) -> int:
 
 def cmd_experiment(args: argparse.Namespace) -> int:
     from swarm.studies.experiment import main as experiment_main
+    from swarm.studies.experiment_plan import parse_seeds, plan
 
-    return experiment_main(args.file, args.resume, args.out)
+    seeds = None if args.seeds is None else parse_seeds(args.seeds)
+    sweep = plan(args.file, args.episodes, seeds)  # every run checked: one line, exit 2
+    out = args.out or sweep.exp.out
+    output_dir(out, "--out" if args.out else f"{args.file}: [experiment] out")
+    return experiment_main(sweep, out, args.resume)
 
 
 def add_parsers(sub: Any) -> None:
@@ -338,8 +354,15 @@ def add_parsers(sub: Any) -> None:
                                    "one real swarm run per (policy, value, seed); writes CSV, "
                                    "Markdown and PNG.")
     p.add_argument("file", metavar="FILE", help="TOML experiment file")
-    p.add_argument("--out", metavar="DIR", help="output directory (default: [experiment] out)")
-    p.add_argument("--resume", action="store_true", help="skip runs already in the CSV")
+    p.add_argument("--out", metavar="DIR",
+                   help="output directory (default: [experiment] out, for the shipped files "
+                        "the committed results/experiments)")
+    p.add_argument("--episodes", type=int, metavar="K",
+                   help="episodes per run (default: [run] episodes of FILE)")
+    p.add_argument("--seeds", metavar="A,B,..",
+                   help="seeds per point (default: [experiment] seeds of FILE)")
+    p.add_argument("--resume", action="store_true",
+                   help="skip runs already in the CSV (made with the same episodes and seeds)")
     p.add_argument("--seed", type=int, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_experiment)
 
@@ -387,6 +410,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--at-tick", type=int, metavar="K",
                    help="link faults apply from run tick K (default: the next tick); with the "
                         "virtual clock the change is then reproducible")
+    p.add_argument("--wait", type=float, default=5.0, metavar="S",
+                   help="seconds to wait for the run's world to answer (default 5)")
     add_fault_flags(p)
     zconfig.add_arguments(p)
     add_secure_flag(p)

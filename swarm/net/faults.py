@@ -137,7 +137,8 @@ class FaultPlan:
         out += [f"link {a}->{b}: {fmt(f)}" for (a, b), f in sorted(self.per_link.items())]
         if self.partition:
             out.append("partition " + "/".join(",".join(map(str, g)) for g in self.partition))
-        out += [f"{p.kind} {p.robot}@{p.tick}" for p in self.process]
+        out += [f"{p.kind} {p.robot}" + (f"@{p.tick}" if p.tick >= 0 else " at once")
+                for p in self.process]
         return out
 
     def to_record(self) -> dict[str, Any]:

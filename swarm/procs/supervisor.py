@@ -102,6 +102,7 @@ class Supervisor:
         self.faults = dict(faults or {})
         plan = plan_from_table(self.faults, run.seed)
         self.process_faults = sorted(plan.process, key=lambda p: p.tick)
+        self.run_tick = 0  # the world's run tick, from its last status
         self.hung: set[int] = set()
         self.fault_log: list[str] = []
         self.console = console or Console()
@@ -223,7 +224,8 @@ class Supervisor:
             if kind == "status":
                 rec = unpack_record(payload or b"", K_STATUS)
                 v.apply_status(rec)
-                while self.process_faults and self.process_faults[0].tick <= rec.get("run_tick", 0):
+                self.run_tick = max(self.run_tick, int(rec.get("run_tick", 0)))
+                while self.process_faults and self.process_faults[0].tick <= self.run_tick:
                     self._process_fault(self.process_faults.pop(0))
                 if self.opts.headless and self.opts.status_lines:
                     print(json.dumps({"status": rec}), flush=True)
@@ -237,9 +239,16 @@ class Supervisor:
                 v.learner = self.learner_status
             elif kind == "control":
                 rec = unpack_record(payload or b"", K_CONTROL)
-                for text in rec.get("process", []):
-                    kind_, _, rest = str(text).partition(":")
-                    self._process_fault(parse_process(kind_, rest))
+                faults = [parse_process(*str(text).partition(":")[::2])
+                          for text in rec.get("process", [])]
+                if any(not 0 <= f.robot < self.cfg.n_robots for f in faults):
+                    raise ValueError(f"a process fault names a robot beyond {self.cfg.n_robots}")
+                for f in faults:  # ROBOT@TICK waits for run tick TICK, ROBOT alone is now
+                    if f.tick < 0:
+                        self._process_fault(f)
+                    else:
+                        self.process_faults = sorted([*self.process_faults, f],
+                                                     key=lambda p: p.tick)
             elif kind in ("alive:live", "alive:dead"):
                 live, parts = kind == "alive:live", key.split("/")
                 if parts[-2] == "robot" and parts[-1].isdigit():
@@ -256,7 +265,7 @@ class Supervisor:
     def _process_fault(self, f: ProcessFault) -> None:
         """crash = SIGKILL, hang = SIGSTOP, restart = SIGCONT a hung robot or respawn a dead one."""
         p = self.robots.get(f.robot)
-        self.fault_log.append(f"{f.kind} {f.robot}@{self.view.ticks_done}")
+        self.fault_log.append(f"{f.kind} {f.robot}@{self.run_tick}")  # the last status's tick
         self.view.events = self.view.events[-5:] + [self.fault_log[-1]]
         if f.kind == "crash" and p is not None and p.poll() is None:
             p.kill()
