@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_started
 
 mcap = pytest.importorskip("mcap")  # the `record` extra (in `test` too)
 
@@ -442,6 +442,54 @@ def test_a_sigkilled_recorder_leaves_a_readable_file(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
 
 
+# ------------------------------------------------------------ a recorder started by hand
+@pytest.mark.procs
+def test_swarm_record_joins_a_local_run_by_its_id_late(tmp_path: Path) -> None:
+    """`swarm record --run-id R --out F` as the README shows it (no --connect) finds the run
+    this machine started, here after its first tick: replay names the ticks the file holds,
+    --verify refuses it in one line (it re-steps a run from its start), --from past its end too."""
+    f = tmp_path / "late.mcap"
+    run = swarm_started("run", "--headless", "--robots", "2", "--episodes", "3", "--horizon",
+                        "20", "--pace", "8", "--run-id", "rec15late", "--log-dir",
+                        str(tmp_path / "logs"))
+    try:
+        r = swarm("record", "--run-id", "rec15late", "--out", str(f), "--wait", "10", timeout=60)
+        assert r.returncode == 0, r.stderr[-1500:]
+        _, err = run.communicate(timeout=60)  # (its status lines drained, or it blocks)
+        assert run.returncode == 0, err[-1500:]
+    finally:
+        if run.poll() is None:
+            run.kill()
+    r = swarm("replay", str(f), "--speed", "0")
+    first, last = (int(x) for x in r.stdout.split("(ticks ")[1].split(";")[0].split(".."))
+    assert r.returncode == 0 and 0 < first < last == 60, r.stdout[-300:]
+    assert f"recording starts mid-run: at run tick {first}" in r.stderr
+    r = swarm("replay", str(f), "--verify")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"starts mid-run, at run tick {first} (episode {first // 20}" in r.stderr
+    r = swarm("replay", str(f), "--from", "500")
+    assert r.returncode == 2 and r.stderr.strip() == (
+        f"swarm: error: --from 500 is past the end of {f} (run ticks {first}..60)")
+
+
+def test_swarm_record_refuses_at_once_a_run_it_cannot_join(tmp_path: Path, capsys: Any) -> None:
+    """No local run of that id, or a secure one without --secure: one line, exit 2, no wait."""
+    from swarm.common.atomic import write_json
+    from swarm.common.spawn import registry
+
+    out, t0 = str(tmp_path / "x.mcap"), time.monotonic()
+    code, err = swarm_main("record", "--run-id", "rec15none", "--out", out, capsys=capsys)
+    assert code == 2 and "no running swarm 'rec15none' on this machine" in err, err
+    entry = write_json(registry("rec15tls"), {"hub": "tls/127.0.0.1:9", "pid": os.getpid()})
+    try:
+        code, err = swarm_main("record", "--run-id", "rec15tls", "--out", out, capsys=capsys)
+    finally:
+        entry.unlink()
+    assert code == 2 and err == ("swarm: error: run rec15tls is secure: give --secure DIR (the "
+                                 "recorder's certificate)")
+    assert time.monotonic() - t0 < 10 and not Path(out).exists()
+
+
 def _cmdline(pid: int) -> bytes:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes()
@@ -476,6 +524,10 @@ def test_bad_files_are_one_line_errors_with_status_2(tmp_path: Path, capsys: Any
                                    capsys=capsys)
             assert code == 2, (name, command, err)
             assert len(err.splitlines()) == 1 and why in err, (name, err)
+    for flags, why in ((["--from", "3"], "--from 3 is past the end of"),  # ticks 0..2
+                       (["--from", "2", "--until", "1"], "--until 1 is before --from 2")):
+        code, err = swarm_main("replay", str(good), "--speed", "0", *flags, capsys=capsys)
+        assert code == 2 and len(err.splitlines()) == 1 and why in err, (flags, err)
     r = swarm("replay", str(tmp_path / "cut.mcap"))  # and no traceback from the real CLI
     assert r.returncode == 2 and "Traceback" not in r.stderr
 

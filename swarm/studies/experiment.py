@@ -10,8 +10,10 @@ success and ticks/s against the fault level, one line per policy, error bars = s
 With `kernel = true` every run is `swarm run --netns` and the swept loss or bandwidth is applied
 by the kernel (swarm/net/kernel/netns.py) instead of the radio; `compare = "other.csv"` then
 also draws `<name>_compare.png` against another sweep of the same parameter (e.g. the radio's).
-With
-`record = true` every run's traffic is also recorded into `<name>-<k>.mcap` beside the CSV.
+With `record = true` every run's traffic is also recorded into `<name>-<k>.mcap` beside the CSV.
+`--episodes K` and `--seeds A,B` override `[run] episodes` and `[experiment] seeds` (a quick try
+of a shipped file, with `--out DIR`); the CSV's `episodes` column and the Markdown record them.
+The whole sweep is checked before the first run (swarm/studies/experiment_plan.py).
 """
 
 from __future__ import annotations
@@ -24,91 +26,22 @@ import shlex
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from swarm.common import atomic
-from swarm.net.faults import parse_rate, plan_from_table
-from swarm.net.kernel.netns import NetnsConfig, check_tools
+from swarm.net.faults import plan_from_table
 from swarm.procs.runconfig import RunConfig
 from swarm.procs.supervisor import SuperviseOptions, Supervisor
-from world.config import ConfigError, WorldConfig, from_dict, load_toml
+from swarm.studies.experiment_plan import ExperimentConfig, Sweep, check_resume, load, plan
+from world.config import WorldConfig
+
+__all__ = ["ExperimentConfig", "Sweep", "load", "main", "plan", "run_experiment"]
 
 COLUMNS = ("policy", "value", "seed", "elratio_mean", "elratio_std", "collisions_mean",
            "success_rate", "reward_mean", "ticks_per_s", "timeouts", "lost", "late", "cut",
-           "queued", "dropped_bw", "delivered", "clock", "twin", "wall_s")
+           "queued", "dropped_bw", "delivered", "clock", "twin", "wall_s", "episodes")
 KERNEL_COLUMNS = ("robots_lost", "never_joined", "startup_s", "error")  # kernel = true only
-
-
-@dataclass(frozen=True)
-class ExperimentConfig:
-    """The `[experiment]` table."""
-
-    parameter: str = "loss"
-    """The `[faults]` key swept."""
-    values: tuple[Any, ...] = (0.0, 0.1, 0.2, 0.3)
-    """Its values, in the file's units ("50ms", "2kB/s", "0-4/5-9", 0.1, ...)."""
-    policies: tuple[str, ...] = ("nearest-frontier",)
-    """Policies compared (one line each); `NAME:LABEL` is a variant of NAME with a checkpoint
-    of its own (`checkpoints = {"commattn:fault-trained" = "FILE"}`)."""
-    seeds: tuple[int, ...] = (0, 1)
-    """Seeds per point (error bars)."""
-    checkpoints: dict[str, str] = field(default_factory=dict)
-    """Checkpoint per learned policy."""
-    name: str = "experiment"
-    """Output file stem."""
-    out: str = "results/experiments"
-    """Output directory."""
-    label: str = ""
-    """x-axis label (default: the parameter)."""
-    kernel: bool = False
-    """Kernel-level realism: each run in network namespaces (root), the swept `loss` or
-    `bandwidth` applied by iptables / tc on the robot links and not by the radio."""
-    compare: str = ""
-    """With `kernel`: a CSV of the same sweep by the radio, drawn in `<name>_compare.png`."""
-    record: bool = False
-    """Record every run's traffic into `<out>/<name>-<k>.mcap` (`swarm replay`, `swarm trace`);
-    the CSV's `recording` column names each run's file."""
-
-    def __post_init__(self) -> None:
-        if not self.values or not self.policies or not self.seeds:
-            raise ConfigError("[experiment] needs values, policies and seeds")
-        for v in self.values:
-            plan_from_table({self.parameter: v})  # a bad value or key fails before any run
-            if self.kernel:
-                self.netns(v)
-
-    def netns(self, value: Any) -> NetnsConfig | None:
-        """The kernel faults of one point (None unless `kernel`)."""
-        if not self.kernel:
-            return None
-        if self.parameter == "loss":
-            return NetnsConfig(loss=float(value))
-        if self.parameter == "bandwidth":
-            return NetnsConfig(bandwidth=parse_rate(value))
-        raise ConfigError(f"[experiment] kernel = true sweeps loss or bandwidth, "
-                          f"not {self.parameter!r}")
-
-
-def load(path: str) -> tuple[WorldConfig, RunConfig, dict[str, Any], ExperimentConfig]:
-    data = load_toml(path)
-    unknown = set(data) - {"world", "run", "faults", "experiment"}
-    if unknown:
-        raise ConfigError(f"{path}: unknown table(s) {', '.join(sorted(unknown))}")
-    world = from_dict(WorldConfig, data.get("world", {}), "[world]")
-    run_t = dict(data.get("run", {}))
-    run_t.setdefault("run_id", "exp")
-    try:
-        run = from_dict(RunConfig, run_t, "[run]")
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    exp_t = dict(data.get("experiment", {}))
-    for key in ("values", "policies", "seeds"):
-        if key in exp_t:
-            exp_t[key] = tuple(exp_t[key])
-    exp = from_dict(ExperimentConfig, exp_t, "[experiment]")
-    return world, run, dict(data.get("faults", {})), exp
 
 
 def _read_rows(path: Path) -> list[dict[str, Any]]:
@@ -128,71 +61,61 @@ def _write_csv(path: Path, rows: list[dict[str, Any]],
     atomic.write_text(path, buf.getvalue())
 
 
-def run_experiment(path: str, resume: bool = False, out: str | None = None,
+def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
                    on_row: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
-    world, run, base_faults, exp = load(path)
-    out_dir = Path(out or exp.out)
+    """Run every point of a checked sweep not yet in `<out>/<name>.csv` (with `resume`),
+    rewriting the CSV after each; then the summary files."""
+    world, exp = sweep.world, sweep.exp
+    out_dir = Path(out)
     csv_path = out_dir / f"{exp.name}.csv"
     rows = _read_rows(csv_path) if resume else []
+    check_resume(rows, sweep, csv_path)  # a CSV of other episodes or seeds: one line, no run
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
     if exp.record:
-        from swarm.net.record.recording import need_mcap
-
-        need_mcap()
         columns = columns + ("recording",)
-    if exp.kernel:
-        check_tools(NetnsConfig(loss=0.5, bandwidth=1.0))  # one line now, not after a run
-    for policy in exp.policies:
-        for value in exp.values:
-            for seed in exp.seeds:
-                if (policy, str(value), str(seed)) in done:
-                    continue
-                faults = {**base_faults, exp.parameter: value}
-                if exp.kernel:  # the kernel does the damage; the radio's fault stays zero
-                    faults.pop(exp.parameter)
-                rid = f"exp-{exp.name}-{len(rows)}"[:60]
-                base = policy.split(":")[0]  # "commattn:fault-trained": a labelled variant
-                rc = dataclasses.replace(run, run_id=rid, policy=base, seed=int(seed),
-                                         checkpoint=exp.checkpoints.get(
-                                             policy, exp.checkpoints.get(base)))
-                recording = str(out_dir / f"{exp.name}-{len(rows)}.mcap") if exp.record else None
-                if recording:
-                    out_dir.mkdir(parents=True, exist_ok=True)
-                opts = SuperviseOptions(headless=True, status_lines=False,
-                                        netns=exp.netns(value), record=recording)
-                if exp.kernel:
-                    rc = dataclasses.replace(rc, clock="real")
-                t0 = time.monotonic()
-                try:
-                    res = Supervisor(world, rc, opts, faults=faults).supervise()
-                except RuntimeError as exc:  # kernel faults can keep every robot from joining
-                    if not exp.kernel:
-                        raise
-                    print(f"  {policy} {value} seed {seed}: failed: {exc}", file=sys.stderr)
-                    rows.append({"policy": policy, "value": value, "seed": seed,
-                                 "error": str(exc).split(";")[0]})
-                    _write_csv(csv_path, rows, columns)
-                    continue
-                m = res["messages"]
-                row = {"policy": policy, "value": value, "seed": seed,
-                       **{k: res.get(k) for k in ("elratio_mean", "elratio_std",
-                                                  "collisions_mean", "success_rate",
-                                                  "reward_mean", "ticks_per_s", "timeouts")},
-                       **{k: m.get(k) for k in ("lost", "late", "cut", "queued", "dropped_bw")},
-                       "delivered": m.get("traj_delivered"), "clock": rc.clock,
-                       "twin": twin(world, rc, faults, res) if rc.clock == "virtual" else "",
-                       "wall_s": round(time.monotonic() - t0, 2), "recording": recording}
-                if exp.kernel:
-                    row.update(robots_lost=res.get("robots_lost"), startup_s=res.get("startup_s"),
-                               never_joined=res["netns"]["never_joined"])
-                rows.append(row)
-                _write_csv(csv_path, rows, columns)
-                if on_row:
-                    on_row(row)
-    files = [str(csv_path), *write_summary(rows, exp, out_dir, path)]
+    for pt in sweep.points:
+        policy, value, seed, faults = pt.policy, pt.value, pt.seed, pt.faults
+        if (policy, str(value), str(seed)) in done:
+            continue
+        rc = dataclasses.replace(pt.run, run_id=f"exp-{exp.name}-{len(rows)}"[:60])
+        recording = str(out_dir / f"{exp.name}-{len(rows)}.mcap") if exp.record else None
+        if recording:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        opts = SuperviseOptions(headless=True, status_lines=False, netns=exp.netns(value),
+                                record=recording)
+        t0 = time.monotonic()
+        try:
+            res = Supervisor(world, rc, opts, faults=faults).supervise()
+        except RuntimeError as exc:  # kernel faults can keep every robot from joining
+            if not exp.kernel:
+                raise
+            print(f"  {policy} {value} seed {seed}: failed: {exc}", file=sys.stderr)
+            rows.append({"policy": policy, "value": value, "seed": seed,
+                         "episodes": rc.episodes, "error": str(exc).split(";")[0]})
+            _write_csv(csv_path, rows, columns)
+            continue
+        m = res["messages"]
+        row = {"policy": policy, "value": value, "seed": seed,
+               **{k: res.get(k) for k in ("elratio_mean", "elratio_std", "collisions_mean",
+                                          "success_rate", "reward_mean", "ticks_per_s",
+                                          "timeouts")},
+               **{k: m.get(k) for k in ("lost", "late", "cut", "queued", "dropped_bw")},
+               "delivered": m.get("traj_delivered"), "clock": rc.clock,
+               "twin": twin(world, rc, faults, res) if rc.clock == "virtual" else "",
+               "wall_s": round(time.monotonic() - t0, 2), "episodes": rc.episodes,
+               "recording": recording}
+        if exp.kernel:
+            row.update(robots_lost=res.get("robots_lost"), startup_s=res.get("startup_s"),
+                       never_joined=res["netns"]["never_joined"])
+        rows.append(row)
+        _write_csv(csv_path, rows, columns)
+        if on_row:
+            on_row(row)
+    files = [str(csv_path), *write_summary(rows, sweep, out_dir)]
     if exp.kernel and exp.compare:
-        files.append(write_comparison(rows, _read_rows(Path(exp.compare)), exp, out_dir, path))
+        files.append(write_comparison(rows, _read_rows(Path(exp.compare)), exp, out_dir,
+                                      sweep.source))
     return {"rows": rows, "files": files}
 
 
@@ -228,20 +151,22 @@ def _stats(rows: list[dict[str, Any]], policy: str, value: Any, key: str) -> tup
     return mean, math.sqrt(sum((x - mean) ** 2 for x in xs) / len(xs))
 
 
-def write_summary(rows: list[dict[str, Any]], exp: ExperimentConfig, out_dir: Path,
-                  source: str) -> list[str]:
-    """The Markdown table and the PNG of a finished (or partial) sweep."""
+def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> list[str]:
+    """The Markdown table and the PNG of a finished (or partial) sweep; the Markdown names the
+    command (with any `--episodes`/`--seeds` override), the seeds and the episodes per run."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    command = shlex.join(["swarm", "experiment", source])
+    exp = sweep.exp
+    command = shlex.join(["swarm", "experiment", sweep.source, *sweep.overrides])
     walls = [float(r["wall_s"]) for r in rows if r.get("wall_s") not in (None, "")]
     twins = [r.get("twin") for r in rows if r.get("twin")]
     same = sum(t == "identical" for t in twins)
     clocks = sorted({str(r.get("clock") or "real") for r in rows})
-    lines = [f"Made by `{command}` (seeds {', '.join(map(str, exp.seeds))}; clock "
+    lines = [f"Made by `{command}` (seeds {', '.join(map(str, exp.seeds))}; "
+             f"{sweep.run.episodes} episode{'s' * (sweep.run.episodes != 1)} per run; clock "
              f"{', '.join(clocks)}; {len(rows)} runs in {sum(walls):.0f} s of wall time"
              + (f"; batched twin identical in {same} of {len(twins)} runs" if twins else "")
              + ").", "",
@@ -324,8 +249,10 @@ def _save(fig: Any, png: Path) -> None:
     atomic.write_bytes(png, buf.getvalue())
 
 
-def main(argv_path: str, resume: bool, out: str | None) -> int:
-    res = run_experiment(argv_path, resume, out, on_row=lambda r: print(
+def main(sweep: Sweep, out: str, resume: bool) -> int:
+    """`swarm experiment`: run a checked sweep into directory `out`, one line per run on stderr,
+    the files written on stdout."""
+    res = run_experiment(sweep, out, resume, on_row=lambda r: print(
         f"  {r['policy']} {r['value']} seed {r['seed']}: elratio {r['elratio_mean']:.3f} "
         f"collisions {r['collisions_mean']:.1f} ticks/s {r['ticks_per_s']:.1f} "
         f"{r.get('twin') or ''}",

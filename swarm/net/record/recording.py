@@ -9,7 +9,9 @@ Layout of a recording (format FORMAT):
   payload bit-exact as it was on the wire; topic = key + `/json`, encoding `json` with a
   `jsonschema` schema per message kind (`swarm.net.record.msgjson`): the validated, decoded message;
 - every message: log time = wall clock at receipt (ns since the epoch), publish time = the
-  run's virtual time at its tick (ns), sequence = the run tick.
+  run's virtual time at its tick (ns), sequence = the run tick: its own for the kinds of
+  `TICKED`, the last one the recorder saw for the others (0 before any, as in a recorder that
+  joined a run late: `RawRecording.span` gives the ticks a recording holds).
 
 Chunks are small and flushed every `flush_s`, so a SIGKILLed recorder leaves every chunk
 flushed before it readable (`read(..., partial=True)`). The reader treats the file as hostile:
@@ -26,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from swarm.net.keys import Keys
 from swarm.net.messages import SCHEMA, BadMessage
 from swarm.net.record import msgjson
 from world.config import ConfigError, WorldConfig
@@ -37,6 +40,8 @@ RUN_RECORD, RESULT = "run_record.json", "result.json"
 JSON_SUFFIX = "/json"
 LIMIT = 256 << 20  # largest record or decompressed chunk a reader accepts
 MAGIC = b"\x89MCAP0\r\n"
+TICKED = frozenset({"obs", "traj", "bundle", "hidden", "radio_hidden", "action", "status"})
+"""Kinds whose payload names its own (episode, tick), so their sequence is their run tick."""
 
 
 class RecordingError(ConfigError):
@@ -195,6 +200,14 @@ class RawRecording:
             return json.loads(data)
         except ValueError:
             raise RecordingError(f"{self.path}: attachment {name} is not JSON") from None
+
+    def span(self) -> tuple[int, int] | None:
+        """(first, last) run tick of the messages that name their own (kinds `TICKED`), or None
+        when none does. A recorder started after the run began holds no tick 0."""
+        keys, kinds = Keys(self.meta.get("run_id", "")), {}
+        ticks = [m.tick for m in self.messages
+                 if kinds.setdefault(m.key, keys.kind_of(m.key)[0]) in TICKED]
+        return (min(ticks), max(ticks)) if ticks else None
 
 
 def read(path: str | Path, partial: bool = False) -> RawRecording:
