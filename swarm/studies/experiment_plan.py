@@ -1,0 +1,260 @@
+"""The experiment file of `swarm experiment` and the sweep it asks for, checked whole before the
+first process is spawned: every (policy, value, seed) run's config, fault plan and policy (its
+checkpoint loaded as a robot loads it), so a bad file is one line and exit 2, not a failed run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from swarm.common.policy_spec import build_inference
+from swarm.net.faults import parse_rate, plan_from_table
+from swarm.net.kernel.netns import NetnsConfig, check_tools
+from swarm.procs.runconfig import RunConfig
+from world.config import ConfigError, WorldConfig, from_dict, load_toml
+
+TABLES = ("world", "run", "faults", "experiment")
+REQUIRED = ("parameter", "values", "policies")  # what a sweep is; the rest has defaults
+_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """The `[experiment]` table."""
+
+    parameter: str = "loss"
+    """The `[faults]` key swept."""
+    values: tuple[Any, ...] = (0.0, 0.1, 0.2, 0.3)
+    """Its values, in the file's units ("50ms", "2kB/s", "0-4/5-9", 0.1, ...)."""
+    policies: tuple[str, ...] = ("nearest-frontier",)
+    """Policies compared (one line each); `NAME:LABEL` is a variant of NAME with a checkpoint
+    of its own (`checkpoints = {"commattn:fault-trained" = "FILE"}`)."""
+    seeds: tuple[int, ...] = (0, 1)
+    """Seeds per point (error bars); `--seeds A,B` overrides them."""
+    checkpoints: dict[str, str] = field(default_factory=dict)
+    """Checkpoint per learned policy."""
+    name: str = "experiment"
+    """Output file stem (and part of every run id)."""
+    out: str = "results/experiments"
+    """Output directory (`--out DIR` overrides it)."""
+    label: str = ""
+    """x-axis label (default: the parameter)."""
+    kernel: bool = False
+    """Kernel-level realism: each run in network namespaces (root), the swept `loss` or
+    `bandwidth` applied by iptables / tc on the robot links and not by the radio."""
+    compare: str = ""
+    """With `kernel`: a CSV of the same sweep by the radio, drawn in `<name>_compare.png`."""
+    record: bool = False
+    """Record every run's traffic into `<out>/<name>-<k>.mcap` (`swarm replay`, `swarm trace`);
+    the CSV's `recording` column names each run's file."""
+
+    def __post_init__(self) -> None:
+        if not self.values or not self.policies or not self.seeds:
+            raise ConfigError("[experiment] needs values, policies and seeds")
+        if not _NAME.fullmatch(self.name):
+            raise ConfigError(f"[experiment] name must be 1-64 letters, digits, '-' or '_' (it "
+                              f"names the output files and the runs), got {self.name!r}")
+        if not all(isinstance(p, str) and p for p in self.policies):
+            raise ConfigError(f"[experiment] policies must be names, got {list(self.policies)!r}")
+        if not all(isinstance(s, int) and not isinstance(s, bool) for s in self.seeds):
+            raise ConfigError(f"[experiment] seeds must be integers, got {list(self.seeds)!r}")
+        for key in ("values", "policies", "seeds"):
+            seen = [str(x) for x in getattr(self, key)]
+            twice = sorted({x for x in seen if seen.count(x) > 1})
+            if twice:
+                raise ConfigError(f"[experiment] {key} repeat {', '.join(twice)}")
+        stray = sorted(set(self.checkpoints) - set(self.policies)
+                       - {p.split(":")[0] for p in self.policies})
+        if stray:  # a misspelt key would leave its policy on the shipped checkpoint
+            raise ConfigError(f"[experiment] checkpoints names {', '.join(stray)}, not in "
+                              f"policies {', '.join(self.policies)}")
+        if self.compare and not self.kernel:
+            raise ConfigError("[experiment] compare needs kernel = true")
+        for v in self.values:
+            plan_from_table({self.parameter: v})  # a bad value or key fails before any run
+            if self.kernel:
+                self.netns(v)
+
+    def netns(self, value: Any) -> NetnsConfig | None:
+        """The kernel faults of one point (None unless `kernel`)."""
+        if not self.kernel:
+            return None
+        if self.parameter == "loss":
+            return NetnsConfig(loss=float(value))
+        if self.parameter == "bandwidth":
+            return NetnsConfig(bandwidth=parse_rate(value))
+        raise ConfigError(f"[experiment] kernel = true sweeps loss or bandwidth, "
+                          f"not {self.parameter!r}")
+
+    def checkpoint(self, policy: str) -> str | None:
+        """The checkpoint a policy (or `NAME:LABEL` variant) of the sweep is given, if any."""
+        return self.checkpoints.get(policy, self.checkpoints.get(policy.split(":")[0]))
+
+
+@dataclass(frozen=True)
+class Point:
+    """One run of the sweep."""
+
+    policy: str
+    """As the file names it (a `NAME:LABEL` variant included)."""
+    value: Any
+    """The swept parameter's value."""
+    seed: int
+    """The run's seed."""
+    run: RunConfig
+    """The run's config (its run id is set when it starts)."""
+    faults: dict[str, Any]
+    """The run's `[faults]` table (without the swept key when the kernel applies it)."""
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """An experiment file with the command line's overrides, every run of it checked."""
+
+    source: str
+    """The experiment file as given."""
+    world: WorldConfig
+    """`[world]`, the same for every run."""
+    run: RunConfig
+    """`[run]` with `--episodes` applied."""
+    exp: ExperimentConfig
+    """`[experiment]` with `--seeds` applied."""
+    points: tuple[Point, ...]
+    """Every run, in order: policies x values x seeds."""
+    overrides: tuple[str, ...] = ()
+    """The flags that changed the file's sweep (`--episodes 1 --seeds 0`), for the record."""
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """`--seeds A,B,..` -> the seeds; anything but comma-separated integers is a ConfigError."""
+    items = [s.strip() for s in str(text).split(",")]
+    if not all(re.fullmatch(r"\d+", s) for s in items):
+        raise ConfigError(f"--seeds must be integers >= 0 separated by commas, got {text!r}")
+    return tuple(int(s) for s in items)
+
+
+def read_file(path: str) -> dict[str, Any]:
+    """The experiment file's tables; a missing, unreadable or non-TOML file is one line."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"experiment file {path} is a directory; give a TOML file such as "
+                          "deploy/experiments/tiny.toml")
+    if not p.is_file():
+        raise ConfigError(f"experiment file not found: {path}")
+    try:
+        data = load_toml(p)
+    except OSError as exc:
+        raise ConfigError(f"experiment file {path}: {exc.strerror or exc}") from None
+    unknown = sorted(set(data) - set(TABLES))
+    if unknown:
+        raise ConfigError(f"{path}: unknown table(s) {', '.join(unknown)}; "
+                          f"known: {', '.join(TABLES)}")
+    for key, value in data.items():
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path}: '{key}' must be a table ([{key}])")
+    if "experiment" not in data:
+        raise ConfigError(f"{path}: no [experiment] table (it names the parameter swept, its "
+                          f"values and the policies; see deploy/experiments/tiny.toml)")
+    missing = [k for k in REQUIRED if k not in data["experiment"]]
+    if missing:
+        raise ConfigError(f"{path}: [experiment] needs {', '.join(missing)}")
+    return data
+
+
+def load(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None = None
+         ) -> tuple[WorldConfig, RunConfig, dict[str, Any], ExperimentConfig]:
+    """The file's tables as configs, `--episodes` and `--seeds` applied over `[run] episodes`
+    and `[experiment] seeds` (and checked as the file's values are)."""
+    data = read_file(path)
+    world = from_dict(WorldConfig, data.get("world", {}), "[world]")
+    run_t = dict(data.get("run", {}))
+    run_t.setdefault("run_id", "exp")
+    if episodes is not None:
+        if episodes < 1:
+            raise ConfigError(f"--episodes must be >= 1, got {episodes}")
+        run_t["episodes"] = episodes
+    try:
+        run = from_dict(RunConfig, run_t, "[run]")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    exp_t = dict(data["experiment"])
+    if seeds is not None:
+        exp_t["seeds"] = seeds
+    for key in ("values", "policies", "seeds"):
+        if key in exp_t:
+            if not isinstance(exp_t[key], (list, tuple)):
+                raise ConfigError(f"[experiment] {key} must be an array, got {exp_t[key]!r}")
+            exp_t[key] = tuple(exp_t[key])
+    ckpts = exp_t.get("checkpoints", {})
+    if not isinstance(ckpts, dict) or not all(isinstance(v, str) for v in ckpts.values()):
+        raise ConfigError(f"[experiment] checkpoints must be a table of files, got {ckpts!r}")
+    exp = from_dict(ExperimentConfig, exp_t, "[experiment]")
+    return world, run, dict(data.get("faults", {})), exp
+
+
+def plan(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None = None) -> Sweep:
+    """The sweep of experiment file `path`, every run checked as `swarm run` checks one before
+    it spawns anything: its config, its fault plan on this team, its policy and checkpoint."""
+    world, run, base_faults, exp = load(path, episodes, seeds)
+    plan_from_table(base_faults, n_robots=world.n_robots)
+    for policy in exp.policies:  # unknown, unreadable or the wrong shapes: one line now
+        try:
+            build_inference(policy.split(":")[0], world, exp.checkpoint(policy))
+        except ConfigError as exc:
+            raise ConfigError(f"[experiment] policy {policy!r}: {exc}") from None
+    faults_of: dict[str, dict[str, Any]] = {}
+    for value in exp.values:
+        faults = {**base_faults, exp.parameter: value}
+        try:
+            plan_from_table(faults, n_robots=world.n_robots)
+        except ConfigError as exc:
+            raise ConfigError(f"[experiment] {exp.parameter} = {value!r}: {exc}") from None
+        if exp.kernel:  # the kernel does the damage; the radio's fault stays zero
+            faults.pop(exp.parameter)
+        faults_of[str(value)] = faults
+    if exp.compare and not Path(exp.compare).is_file():
+        raise ConfigError(f"[experiment] compare: no such file {exp.compare}")
+    if exp.kernel:
+        check_tools(NetnsConfig(loss=0.5, bandwidth=1.0))  # root and the tools, before a run
+    if exp.record:
+        from swarm.net.record.recording import need_mcap
+
+        need_mcap()
+    points = []
+    for policy in exp.policies:
+        rc = dataclasses.replace(run, run_id=f"exp-{exp.name}-0"[:60],
+                                 policy=policy.split(":")[0],
+                                 checkpoint=exp.checkpoint(policy),
+                                 clock="real" if exp.kernel else run.clock)
+        for value in exp.values:
+            for seed in exp.seeds:
+                points.append(Point(policy, value, seed, dataclasses.replace(rc, seed=seed),
+                                    faults_of[str(value)]))
+    overrides = (*(("--episodes", str(episodes)) if episodes is not None else ()),
+                 *(("--seeds", ",".join(map(str, seeds))) if seeds is not None else ()))
+    return Sweep(path, world, run, exp, tuple(points), overrides)
+
+
+def check_resume(rows: list[dict[str, Any]], sweep: Sweep, csv_path: Path) -> None:
+    """`--resume` adds runs to a CSV of the same sweep only: its rows must have been made with
+    this sweep's episodes per run and seeds (older CSVs without an `episodes` column are taken
+    as they are)."""
+    if not rows:
+        return
+    if not {"policy", "value", "seed"} <= set(rows[0]):
+        raise ConfigError(f"--resume: {csv_path} is not a CSV of `swarm experiment`")
+    made = sorted({str(r.get("episodes")) for r in rows} - {"None", ""})
+    if made and made != [str(sweep.run.episodes)]:
+        raise ConfigError(f"--resume: {csv_path} holds runs of {', '.join(made)} episode(s) "
+                          f"each, this sweep's runs have {sweep.run.episodes}; give another "
+                          f"--out or the same --episodes")
+    seeds = [str(s) for s in sweep.exp.seeds]
+    other = sorted({str(r["seed"]) for r in rows} - set(seeds), key=lambda s: (len(s), s))
+    if other:
+        raise ConfigError(f"--resume: {csv_path} holds runs of seed(s) {', '.join(other)}, not "
+                          f"in this sweep's seeds {', '.join(seeds)}; give another --out or "
+                          f"the same --seeds")

@@ -1,0 +1,138 @@
+"""`swarm experiment FILE` as a user runs it: a bad file or flag is one line and exit 2 before
+any process is spawned; `--episodes`/`--seeds` shrink a sweep, are recorded, and keep
+`--resume` honest."""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+import pytest
+from conftest import ROOT, swarm
+
+from swarm.studies.experiment_plan import plan
+from world.config import ConfigError
+
+SHIPPED = sorted((ROOT / "deploy" / "experiments").glob("*.toml"))
+
+
+def sweep_file(tmp_path: Path, experiment: str, head: str = "[world]\nn_robots = 2\n\n"
+               "[run]\nepisodes = 3\n") -> str:
+    """A small experiment file: `head` (world and run tables) and the `[experiment]` lines."""
+    path = tmp_path / "sweep.toml"
+    path.write_text(head + ("\n[experiment]\n" + experiment if experiment else ""))
+    return str(path)
+
+
+BASE = 'name = "t"\nparameter = "loss"\nvalues = [0.0]\nseeds = [0]\n'
+BAD_FILES = {  # file's [experiment] lines (None: the file is empty) -> words of the error
+    "unknown policy": (BASE + 'policies = ["nearest-frontier", "nosuch"]\n',
+                       ["policy 'nosuch'", "unknown policy"]),
+    "missing checkpoint": (BASE + 'policies = ["commattn"]\ncheckpoints = {commattn = '
+                           '"/nope.pt"}\n', ["'commattn'", "/nope.pt"]),
+    "checkpoint of a policy not swept": (BASE + 'policies = ["nearest-frontier"]\n'
+                                         'checkpoints = {comattn = "checkpoints/commattn.pt"}\n',
+                                         ["checkpoints", "comattn"]),
+    "checkpoint of the wrong policy": (BASE + 'policies = ["commattn"]\ncheckpoints = '
+                                       '{commattn = "checkpoints/vain.pt"}\n', ["'vain'"]),
+    "partition beyond the team": ('name = "t"\nparameter = "partition"\nvalues = ["", "0-1/2-3"]'
+                                  '\npolicies = ["random"]\nseeds = [0]\n',
+                                  ["partition", "0-1/2-3", "robot"]),
+    "no parameter": ('values = [0.0]\npolicies = ["random"]\n', ["[experiment]", "parameter"]),
+    "seed not an integer": ('name = "t"\nparameter = "loss"\nvalues = [0.0]\n'
+                            'policies = ["random"]\nseeds = ["a"]\n', ["seeds", "integers"]),
+    "no [experiment] table": ("", ["no [experiment] table"]),
+}
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("case", list(BAD_FILES))
+def test_a_bad_sweep_is_one_line_and_exit_2_before_any_run(tmp_path: Path, case: str) -> None:
+    """What would fail in a robot process, or run a sweep nobody asked for, is refused first."""
+    lines, words = BAD_FILES[case]
+    out = tmp_path / "out"
+    r = swarm("experiment", sweep_file(tmp_path, lines), "--out", str(out), timeout=60)
+    assert r.returncode == 2, (r.returncode, r.stderr[-500:])
+    assert r.stderr.startswith("swarm: error: ") and len(r.stderr.strip().splitlines()) == 1
+    assert all(w in r.stderr for w in words), r.stderr
+    assert "logs in" not in r.stderr and not out.exists()  # nothing ran, nothing was written
+
+
+@pytest.mark.procs
+def test_an_empty_file_a_directory_or_no_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.toml"
+    empty.write_text("")
+    cases = {str(empty): "no [experiment] table", str(tmp_path): "is a directory",
+             str(tmp_path / "nope.toml"): "not found"}
+    for path, words in cases.items():
+        r = swarm("experiment", path, "--out", str(tmp_path / "out"), timeout=60)
+        assert r.returncode == 2 and words in r.stderr, (path, r.returncode, r.stderr[-500:])
+        assert len(r.stderr.strip().splitlines()) == 1 and path in r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("flags, words", [
+    (["--seeds", "a"], "--seeds must be integers"), (["--seeds", "0,,1"], "--seeds must be"),
+    (["--seeds", "1,1"], "seeds repeat 1"), (["--seeds", "9999999999"], "seed must lie"),
+    (["--episodes", "0"], "--episodes must be >= 1"),
+    (["--episodes", "x"], "argument --episodes: invalid int value")])
+def test_bad_episodes_or_seeds_flags_are_one_line_and_exit_2(flags: list[str],
+                                                              words: str) -> None:
+    r = swarm("experiment", "deploy/experiments/tiny.toml", "--out", "/nonexistent/x", *flags,
+              timeout=60)
+    assert r.returncode == 2 and words in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+def test_every_shipped_sweep_plans_and_shrinks_to_a_quick_try(path: Path) -> None:
+    """Each shipped file passes the checks, and `--episodes 1 --seeds 0` leaves one run per
+    (policy, value) of one episode."""
+    try:
+        full = plan(str(path))
+        quick = plan(str(path), episodes=1, seeds=(0,))
+    except ConfigError as exc:
+        if "--netns needs" in str(exc) and os.geteuid() != 0:
+            pytest.skip(str(exc))
+        raise
+    assert len(full.points) == len(full.exp.policies) * len(full.exp.values) * len(full.exp.seeds)
+    assert len(quick.points) == len(quick.exp.policies) * len(quick.exp.values)
+    assert {(p.run.episodes, p.run.seed) for p in quick.points} == {(1, 0)}
+    assert quick.overrides == ("--episodes", "1", "--seeds", "0")
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.procs
+def test_episodes_and_seeds_flags_override_the_file_and_keep_resume_honest(
+        tmp_path: Path) -> None:
+    """A quick try of a 3-seed, 3-episode file; the CSV and the Markdown record what ran, and
+    `--resume` refuses a CSV made with other episodes or seeds but extends one with more seeds."""
+    src = sweep_file(tmp_path, 'name = "quick"\nparameter = "loss"\nvalues = [0.0]\n'
+                     'policies = ["nearest-frontier"]\nseeds = [0, 1, 2]\n')
+    out = tmp_path / "out"
+    r = swarm("experiment", src, "--out", str(out), "--episodes", "1", "--seeds", "4",
+              timeout=240)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = _rows(out / "quick.csv")
+    assert [(r_["seed"], r_["episodes"], r_["twin"]) for r_ in rows] == [("4", "1", "identical")]
+    md = (out / "quick.md").read_text()
+    assert f"swarm experiment {src} --episodes 1 --seeds 4" in md
+    assert "seeds 4; 1 episode per run" in md
+    before = (out / "quick.csv").read_text()
+    for flags, words in ((["--seeds", "4"], "runs of 1 episode(s) each, this sweep's runs have 3"),
+                         (["--episodes", "1", "--seeds", "5"], "seed(s) 4, not in")):
+        r = swarm("experiment", src, "--out", str(out), "--resume", *flags, timeout=60)
+        assert r.returncode == 2 and words in r.stderr, r.stderr[-500:]
+        assert (out / "quick.csv").read_text() == before
+    r = swarm("experiment", src, "--out", str(out), "--resume", "--episodes", "1",
+              "--seeds", "4,5", timeout=240)
+    assert r.returncode == 0, r.stderr[-2000:]
+    after = _rows(out / "quick.csv")
+    assert after[0] == rows[0] and [(a["seed"], a["episodes"]) for a in after] == [
+        ("4", "1"), ("5", "1")]
