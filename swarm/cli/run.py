@@ -341,6 +341,9 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     from swarm.studies.experiment_plan import parse_seeds, plan
 
     seeds = None if args.seeds is None else parse_seeds(args.seeds)
+    if (args.episodes is not None or seeds is not None) and not args.out:
+        raise ConfigError("--episodes/--seeds need --out DIR: a shrunk sweep would overwrite "
+                          "the file's own results")
     sweep = plan(args.file, args.episodes, seeds)  # every run checked: one line, exit 2
     out = args.out or sweep.exp.out
     output_dir(out, "--out" if args.out else f"{args.file}: [experiment] out")
