@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -62,10 +63,16 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"checkpoint not found: {path}")
+    if not zipfile.is_zipfile(path):  # what torch.save writes; else torch's advice misleads
+        raise CheckpointError(f"checkpoint {path} is unreadable: not a torch checkpoint file "
+                              "(a .pt that swarm train wrote)")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling problem means "not a checkpoint"
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if first.startswith("Weights only load failed"):
+            first = "it holds objects beyond tensors and plain data (refused: loading them " \
+                    "could run code)"
         raise CheckpointError(f"checkpoint {path} is unreadable: {first}") from None
     return _checked(data, path)
 

@@ -316,7 +316,7 @@ def test_checkpoint_roundtrip_and_errors(name: str, tmp_path: Path) -> None:
         make_policy(name, SMALL, checkpoint=path)
     assert "\n" not in str(err.value)
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(CheckpointError, match="unreadable"):
+    with pytest.raises(CheckpointError, match="unreadable: not a torch checkpoint file"):
         make_policy(name, SMALL, checkpoint=tmp_path / "junk.pt")
 
 
