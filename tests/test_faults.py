@@ -36,7 +36,11 @@ def test_parsing_of_human_units() -> None:
     assert parse_duration_ms("50ms") == 50 and parse_duration_ms("0.2s") == 200
     assert parse_duration_ms("300") == 300
     assert parse_rate("2kB/s") == 2000 and parse_rate("500B/s") == 500
-    assert parse_rate("1MB/s") == 1e6
+    assert parse_rate("1MB/s") == 1e6 and parse_rate("2KiB/s") == 2048
+    with pytest.raises(ConfigError, match="b would be bits"):  # kilobits to most readers
+        parse_rate("2kb/s")
+    with pytest.raises(ConfigError, match="must be >= 0"):
+        parse_duration_ms("-5ms")
     assert parse_partition("0-4/5-9") == ((0, 1, 2, 3, 4), (5, 6, 7, 8, 9))
     p = parse_process("crash", "3@20")
     assert (p.kind, p.robot, p.tick) == ("crash", 3, 20)

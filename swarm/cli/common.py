@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import shlex
 import sys
 import tempfile
@@ -26,6 +27,12 @@ BENCH_TABLES = ("env", "policy", "swarm", "train", "rollout", "record")
 
 class _Parser(argparse.ArgumentParser):
     """ArgumentParser whose usage errors are one line: `swarm: error: ...`, exit 2."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # a negative value with a unit (`--latency -5ms`) is a value, so it reaches the value's
+        # own check (argparse would otherwise take it for an option: "expected one argument")
+        self._negative_number_matcher = re.compile(r"^-\d+(\.\d*)?[a-zA-Z/]*$|^-\.\d+$")
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"swarm: error: {message} (see {self.prog} --help)\n")

@@ -183,16 +183,22 @@ def parse_duration_ms(text: str) -> float:
     """`50ms`, `0.2s`, `300` (ms) -> milliseconds."""
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*(us|ms|s|)\s*", str(text).lower())
     if not m:
-        raise ConfigError(f"bad duration {text!r}: use e.g. 50ms or 0.2s")
+        why = "must be >= 0" if str(text).strip().startswith("-") else "use e.g. 50ms or 0.2s"
+        raise ConfigError(f"bad duration {text!r}: {why}")
     return float(m.group(1)) * _UNITS_TIME[m.group(2)]
 
 
 def parse_rate(text: str) -> float:
-    """`2kB/s`, `500B/s`, `1MB/s`, `2000` (bytes/s) -> bytes per second."""
-    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*(b|kb|mb|kib|mib)?(?:/s)?\s*", str(text).lower())
-    if not m:
-        raise ConfigError(f"bad bandwidth {text!r}: use e.g. 2kB/s")
-    return float(m.group(1)) * _UNITS_RATE[m.group(2) or "b"]
+    """`2kB/s`, `500B/s`, `1MB/s`, `2000` (bytes/s) -> bytes per second. The unit is bytes and
+    says so with a capital B: `2kb` (kilobits, to most readers) is refused, not guessed."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kKmM]i?)?(B|b)?(?:/s)?\s*", str(text))
+    if not m or (m.group(2) and not m.group(3)):
+        why = "must be >= 0" if str(text).strip().startswith("-") else "use e.g. 2kB/s"
+        raise ConfigError(f"bad bandwidth {text!r}: {why}")
+    if m.group(3) == "b":
+        raise ConfigError(f"bad bandwidth {text!r}: the unit is bytes, written B (e.g. 2kB/s); "
+                          "b would be bits")
+    return float(m.group(1)) * _UNITS_RATE[(m.group(2) or "").lower() + "b"]
 
 
 def parse_ids(text: str) -> tuple[int, ...]:
