@@ -405,6 +405,9 @@ BAD_INPUTS = [
     # (permission bits say "writable" for root here: the check writes a probe file)
     ["eval", "--json", "/proc/swarm.json"], ["run", "--train", "--learner-out", "/proc/swarm"],
     ["fault", "--run", "nosuchrun", "--loss", "0.1"],
+    ["run", "--robots", "3", "--attention", "7"], ["run", "--robots", "3", "--hosts", "9"],
+    ["eval", "--latency", "-5ms"], ["eval", "--bandwidth", "2kb/s"],
+    ["eval", "--policy", "commattn", "--checkpoint", "README.md"],
 ]
 
 

@@ -193,6 +193,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         output_file(args.record, "--record")
     if not (run.train and run.checkpoint is None):  # --train alone starts from fresh weights
         build_inference(run.policy, world, run.checkpoint)  # readable, right policy and shapes
+    if args.attention >= world.n_robots:
+        raise ConfigError(f"--attention {args.attention}: the team has robots "
+                          f"0..{world.n_robots - 1}")
+    if (args.hosts or 0) > world.n_robots:
+        raise ConfigError(f"--hosts {args.hosts} is more hosts than the {world.n_robots} robots "
+                          "(robots are dealt round robin: a host without one would be empty)")
     out, _ = _consoles()
     if args.pace is None and "pace" not in tables.get("run", {}) and not args.headless \
             and out.is_terminal:
