@@ -478,6 +478,9 @@ def test_swarm_record_refuses_at_once_a_run_it_cannot_join(tmp_path: Path, capsy
     from swarm.common.spawn import registry
 
     out, t0 = str(tmp_path / "x.mcap"), time.monotonic()
+    code, err = swarm_main("record", "--run-id", "r", "--out", out, "--wait", "nan",
+                           capsys=capsys)
+    assert code == 2 and "--wait must lie in [0.1, 3600] seconds, got nan" in err, err
     code, err = swarm_main("record", "--run-id", "rec15none", "--out", out, capsys=capsys)
     assert code == 2 and "no running swarm 'rec15none' on this machine" in err, err
     entry = write_json(registry("rec15tls"), {"hub": "tls/127.0.0.1:9", "pid": os.getpid()})

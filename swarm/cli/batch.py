@@ -131,8 +131,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     with RichProgress(err) as progress:
         summaries = run_eval(world, cfg, progress, faults, built)
     map_kind = f"dynamic (m={world.add_every})" if world.dynamic else "static"
+    shown = "; ".join(faults.describe()) if faults is not None else ""
     out.print(eval_table(summaries, f"eval: {world.n_robots} robots, {map_kind} map, "
-                                    f"{cfg.episodes} episodes, seed {cfg.seed}"))
+                                    f"{cfg.episodes} episodes, seed {cfg.seed}"
+                                    + (f"; faults: {shown}" if shown else "")))
     if cfg.json:
         if len(summaries) == 1:
             obj: dict[str, Any] = summaries[0]

@@ -59,7 +59,9 @@ def file_tables(path: str | None) -> dict[str, Any]:
     data = load_toml(path)
     for key, value in data.items():
         if key not in SECTIONS:
-            raise ConfigError(f"config file {path}: unknown table [{key}]; known: "
+            hint = " (an experiment file: run it with `swarm experiment FILE`)" \
+                if key == "experiment" else ""
+            raise ConfigError(f"config file {path}: unknown table [{key}]{hint}; known: "
                               f"{', '.join(SECTIONS)}")
         if not isinstance(value, dict):
             raise ConfigError(f"config file {path}: '{key}' must be a table ([{key}])")
@@ -271,9 +273,12 @@ def output_dir(path: str | None, flag: str) -> None:
         raise ConfigError(f"{flag} {path} is not writable ({exc.strerror or exc})") from None
 
 
-def add_fault_flags(p: argparse.ArgumentParser, process: bool = True) -> None:
-    """The fault flags of `swarm run`/`world`/`fault` (process faults too) and `swarm eval`."""
-    g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)")
+def add_fault_flags(p: argparse.ArgumentParser, process: bool = True, config: bool = True
+                    ) -> None:
+    """The fault flags of `swarm run`/`world`/`fault` (process faults too) and `swarm eval`;
+    `config`: the command reads `--config` (whose `[faults]` the flags override)."""
+    g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)"
+                             if config else "faults (see docs/DECISIONS.md)")
     g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms")
     g.add_argument("--jitter", metavar="DUR", help="extra uniform delay in [0, DUR), e.g. 10ms")
     g.add_argument("--loss", metavar="P", help="message loss probability, e.g. 0.1")

@@ -39,6 +39,9 @@ def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation"
             f"{100 * s['success_rate']:.1f}%",
             f"{s['planning_ms_per_decision']:.3f}",
         )
+    if any(not s.get("decentralized", True) for s in summaries):
+        table.caption = "* a reference planner, not decentralized (see README, Reference planners)"
+        table.caption_justify = "left"
     return table
 
 

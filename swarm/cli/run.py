@@ -421,7 +421,7 @@ def add_parsers(sub: Any) -> None:
                         "virtual clock the change is then reproducible")
     p.add_argument("--wait", type=float, default=5.0, metavar="S",
                    help="seconds to wait for the run's world to answer (default 5)")
-    add_fault_flags(p)
+    add_fault_flags(p, config=False)
     zconfig.add_arguments(p)
     add_secure_flag(p)
     p.set_defaults(func=cmd_fault)

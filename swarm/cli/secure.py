@@ -4,6 +4,7 @@ for the commands that open a session into a run (swarm.net.security holds the ru
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from swarm.cli.common import output_file
@@ -72,6 +73,10 @@ def cmd_audit(args: argparse.Namespace) -> int:
         raise ConfigError(f"--connect {endpoint}: expected tcp/HOST:PORT or tls/HOST:PORT")
     sec = None
     if args.secure:  # the witness is the recorder; the attacker holds robot I's credentials
+        mine = Path(args.secure) / f"robot-{args.attacker}.pem"
+        if Path(args.secure).is_dir() and not mine.is_file():  # a team smaller than the default
+            raise ConfigError(f"--as {args.attacker}: {mine} is missing; pick --as and --victim "
+                              "among the run's robots (defaults 3 and 4)")
         sec = Secure.load(args.secure, "recorder", args.run, need=(f"robot-{args.attacker}",))
     rep = audit_main(args.run, endpoint, sec, args.attacker, args.victim, args.duration,
                      args.stop)
