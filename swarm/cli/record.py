@@ -41,6 +41,20 @@ def _output_json(path: str | None, obj: dict[str, Any]) -> None:
         write_json(path, obj)
 
 
+def run_endpoint(args: argparse.Namespace, zopts: zconfig.ZenohOptions) -> zconfig.ZenohOptions:
+    """Without --connect (or --zenoh-config), the hub of the run of that id started on this
+    machine (its run file, as `swarm fault` finds it); a secure run needs --secure."""
+    if not zopts.connect and not zopts.config_file:
+        from swarm.common.spawn import lookup_run
+        from swarm.net.keys import Keys
+
+        zopts.connect = [lookup_run(Keys(args.run_id).run)]
+    if not args.secure and any(e.startswith("tls/") for e in zopts.connect):
+        raise ConfigError(f"run {args.run_id} is secure: give --secure DIR (the recorder's "
+                          "certificate)")
+    return zopts
+
+
 def cmd_record(args: argparse.Namespace) -> int:
     import logging
 
@@ -53,10 +67,13 @@ def cmd_record(args: argparse.Namespace) -> int:
     output_file(args.out, "--out")
     if not 0.01 <= args.flush <= 60:
         raise ConfigError(f"--flush must lie in [0.01, 60] seconds, got {args.flush}")
+    if not 0.1 <= args.wait <= 3600:  # also NaN
+        raise ConfigError(f"--wait must lie in [0.1, 3600] seconds, got {args.wait}")
+    zopts = run_endpoint(args, zconfig.from_args(args))
     try:
         from swarm.cli.secure import secure_options
 
-        zopts = secure_options(args, zconfig.from_args(args), "recorder", args.run_id)
+        zopts = secure_options(args, zopts, "recorder", args.run_id)
         stats = record_main(args.run_id, args.out, zopts, args.wait, args.flush)
     except TimeoutError as exc:
         raise ConfigError(str(exc)) from None
@@ -69,14 +86,32 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     if not (args.speed >= 0 and args.speed <= 1e6):
         raise ConfigError(f"--speed must be >= 0 (0: as fast as it goes), got {args.speed}")
-    if args.from_tick < 0 or (args.until is not None and args.until < args.from_tick):
-        raise ConfigError("--from must be >= 0 and --until >= --from")
+    if args.from_tick < 0:
+        raise ConfigError(f"--from must be a run tick >= 0, got {args.from_tick}")
+    if args.until is not None and args.until < args.from_tick:
+        raise ConfigError(f"--until {args.until} is before --from {args.from_tick}")
     output_file(args.json)
     rec = load(args.file, partial=args.partial)
+    first, last = rec.raw.span() or (0, rec.last_tick)
+    if args.verify and first > 0:
+        ep, t = divmod(first, rec.record.world.horizon)
+        raise ConfigError(f"{args.file} starts mid-run, at run tick {first} (episode "
+                          f"{rec.record.run.first_episode + ep} tick {t}: the recorder joined "
+                          "late); --verify re-steps a run from its start, so it needs a "
+                          "recording from run tick 0 (swarm run --record FILE)")
+    if not args.verify and args.from_tick > last:
+        raise ConfigError(f"--from {args.from_tick} is past the end of {args.file} (run ticks "
+                          f"{first}..{last})")
+    if not args.verify and args.until is not None and args.until < first:
+        raise ConfigError(f"--until {args.until} is before the start of {args.file} (run ticks "
+                          f"{first}..{last})")
     out, err = _consoles()
     if not rec.raw.complete:
         err.print(f"[yellow]partial recording[/]: the recorder stopped at run tick "
                   f"{rec.last_tick}; using the {len(rec.messages)} messages before the cut")
+    if first > 0:
+        err.print(f"[yellow]recording starts mid-run[/]: at run tick {first} (the recorder "
+                  "joined late)")
     if args.verify:
         from swarm.studies.verify import verify
 
@@ -102,6 +137,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                              until_tick=args.until, attention=args.attention)
     except KeyboardInterrupt:
         return 130
+    stats.first_tick = max(stats.first_tick, first)  # the ticks present, not asked for
     res = rec.result or {}
     _output_json(args.json, {"file": args.file, **vars(stats), "elratio": view.elratio,
                              "result": {k: res.get(k) for k in ("elratio_mean", "ticks",
@@ -132,8 +168,11 @@ def add_parsers(sub: Any) -> None:
     p = sub.add_parser("record", help="record a running swarm's traffic into an MCAP file",
                        description="Join run RUN_ID and write every message of it (raw msgpack "
                                    "and JSON) into FILE until the run ends; `swarm run --record "
-                                   "FILE` starts this for you.")
-    p.add_argument("--run-id", required=True, help="the run to record")
+                                   "FILE` starts this for you. A run started on this machine is "
+                                   "found by its id; elsewhere give --connect ENDPOINT.")
+    p.add_argument("--run-id", required=True,
+                   help="the run to record (without --connect: the `swarm run` of that id on "
+                        "this machine)")
     p.add_argument("--out", required=True, metavar="FILE", help="the MCAP file to write")
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the world")
     p.add_argument("--flush", type=float, default=0.5, metavar="S",
