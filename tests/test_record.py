@@ -1,22 +1,18 @@
 """Recordings (issue 15): a real run recorded into MCAP, read back with the `mcap` reader,
-verified, tampered with, replayed into a capture console, traced; a SIGKILLed recorder; a
-recorder started by hand, late; bad files; the attention field."""
+verified, tampered with, replayed into a capture console, traced; the attention field (the
+command-line cases: test_record_cli.py)."""
 
 from __future__ import annotations
 
 import io
 import json
-import os
 import signal
-import subprocess
-import sys
-import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import ROOT, swarm, swarm_started
+from conftest import ROOT, swarm
 
 mcap = pytest.importorskip("mcap")  # the `record` extra (in `test` too)
 
@@ -400,145 +396,6 @@ def test_trace_writes_tables_and_figures(recorded: dict[str, Any]) -> None:
 
 
 # ------------------------------------------------------------------------ a killed recorder
-@pytest.mark.procs
-def test_a_sigkilled_recorder_leaves_a_readable_file(tmp_path: Path) -> None:
-    f = tmp_path / "cut.mcap"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "2", "--episodes",
-         "2", "--pace", "25", "--run-id", "rec15kill", "--record", str(f), "--log-dir",
-         str(tmp_path / "logs")], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True)
-    try:
-        assert proc.stdout is not None
-        proc.stdout.readline()  # the first tick's status: the robots run, the recorder writes
-        size, deadline = f.stat().st_size, time.monotonic() + 30
-        while f.stat().st_size <= size and time.monotonic() < deadline:
-            time.sleep(0.05)  # until a chunk of messages is flushed
-        pids = [int(p) for p in os.listdir("/proc") if p.isdigit() and
-                b"record\0--run-id\0rec15kill" in _cmdline(int(p))]
-        assert pids, "no recorder process"
-        os.kill(pids[0], signal.SIGKILL)
-        rest, err = proc.communicate(timeout=90)
-        assert proc.returncode == 0, err[-1500:]  # the run went on without its recorder
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    res = json.loads(rest.strip().splitlines()[-1])["result"]
-    assert res["recording"]["exit"] == -signal.SIGKILL
-    # the mcap package's own stream reader reads every record up to the cut
-    from mcap.stream_reader import StreamReader
-
-    seen = 0
-    with pytest.raises(Exception), open(f, "rb") as fh:  # noqa: B017 (it ends mid-file)
-        for rec in StreamReader(fh).records:
-            seen += type(rec).__name__ == "Message"
-    assert seen > 0
-    r = swarm("replay", str(f), "--verify")
-    assert r.returncode == 2 and "truncated" in r.stderr and "--partial" in r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1
-    r = swarm("replay", str(f), "--verify", "--partial")
-    assert r.returncode == 0, r.stderr
-    r = swarm("trace", str(f), "--partial", "--out", str(tmp_path / "trace"))
-    assert r.returncode == 0, r.stderr
-
-
-def _cmdline(pid: int) -> bytes:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes()
-    except OSError:
-        return b""
-
-
-# ------------------------------------------------------------ a recorder started by hand
-@pytest.mark.procs
-def test_swarm_record_joins_a_local_run_by_its_id_late(tmp_path: Path) -> None:
-    """`swarm record --run-id R --out F` as the README shows it (no --connect) finds the run
-    this machine started, here after its first tick: replay names the ticks the file holds,
-    --verify refuses it in one line (it re-steps a run from its start), --from past its end too."""
-    f = tmp_path / "late.mcap"
-    run = swarm_started("run", "--headless", "--robots", "2", "--episodes", "3", "--horizon",
-                        "20", "--pace", "8", "--run-id", "rec15late", "--log-dir",
-                        str(tmp_path / "logs"))
-    try:
-        r = swarm("record", "--run-id", "rec15late", "--out", str(f), "--wait", "10", timeout=60)
-        assert r.returncode == 0, r.stderr[-1500:]
-        _, err = run.communicate(timeout=60)  # (its status lines drained, or it blocks)
-        assert run.returncode == 0, err[-1500:]
-    finally:
-        if run.poll() is None:
-            run.kill()
-    r = swarm("replay", str(f), "--speed", "0")
-    first, last = (int(x) for x in r.stdout.split("(ticks ")[1].split(";")[0].split(".."))
-    assert r.returncode == 0 and 0 < first < last == 60, r.stdout[-300:]
-    assert f"recording starts mid-run: at run tick {first}" in r.stderr
-    r = swarm("replay", str(f), "--verify")
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-    assert f"starts mid-run, at run tick {first} (episode {first // 20}" in r.stderr
-    r = swarm("replay", str(f), "--from", "500")
-    assert r.returncode == 2 and r.stderr.strip() == (
-        f"swarm: error: --from 500 is past the end of {f} (run ticks {first}..60)")
-
-
-def test_swarm_record_refuses_at_once_a_run_it_cannot_join(tmp_path: Path, capsys: Any) -> None:
-    """No local run of that id, or a secure one without --secure: one line, exit 2, at once
-    (not after --wait)."""
-    from swarm.common.atomic import write_json
-    from swarm.common.spawn import registry
-
-    out = str(tmp_path / "x.mcap")
-    code, err = swarm_main("record", "--run-id", "rec15none", "--out", out, "--wait", "3",
-                           capsys=capsys)
-    assert code == 2 and "no running swarm 'rec15none' on this machine" in err, err
-    entry = write_json(registry("rec15tls"), {"hub": "tls/127.0.0.1:9", "pid": os.getpid()})
-    try:
-        code, err = swarm_main("record", "--run-id", "rec15tls", "--out", out, "--wait", "3",
-                               capsys=capsys)
-    finally:
-        entry.unlink()
-    assert code == 2 and err == ("swarm: error: run rec15tls is secure: give --secure DIR (the "
-                                 "recorder's certificate)")
-    assert not Path(out).exists()
-    code, err = swarm_main("record", "--run-id", "r", "--out", out, "--wait", "nan",
-                           capsys=capsys)
-    assert code == 2 and "--wait must lie in [0.1, 3600] seconds, got nan" in err, err
-
-
-# ---------------------------------------------------------------------------- bad files
-@pytest.mark.procs  # one CLI subprocess at the end
-def test_bad_files_are_one_line_errors_with_status_2(tmp_path: Path, capsys: Any) -> None:
-    good = tmp_path / "good.mcap"
-    synthetic(good)
-    assert swarm_main("replay", str(good), "--speed", "0", capsys=capsys)[0] == 0
-    capsys.readouterr()
-    (tmp_path / "text.mcap").write_text("hello, not a recording\n" * 10)
-    cut = tmp_path / "cut.mcap"
-    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
-    other_schema = tmp_path / "schema.mcap"
-    rewrite(good, other_schema, edit_meta=lambda n, d: {**d, "schema": "99"}
-            if n == "swarm.recording" else d)
-    foreign = tmp_path / "foreign.mcap"
-    rewrite(good, foreign, rename=lambda t: t.replace("swarm/syn/world/obs/1",
-                                                      "swarm/other/world/obs/1"))
-    outside = tmp_path / "outside.mcap"
-    rewrite(good, outside, rename=lambda t: t.replace("obs/1", "obs/7"))
-    cases = {"text.mcap": "not an MCAP file", "cut.mcap": "truncated",
-             "schema.mcap": "schema version '99'", "foreign.mcap": "not a key of run syn",
-             "outside.mcap": "not a key of run syn", "missing.mcap": "cannot read"}
-    for name, why in cases.items():
-        for command in (["replay", "--verify"], ["replay"], ["trace", "--out", str(tmp_path)]):
-            code, err = swarm_main(command[0], str(tmp_path / name), *command[1:],
-                                   capsys=capsys)
-            assert code == 2, (name, command, err)
-            assert len(err.splitlines()) == 1 and why in err, (name, err)
-    for flags, why in ((["--from", "3"], "--from 3 is past the end of"),  # ticks 0..2
-                       (["--from", "2", "--until", "1"], "--until 1 is before --from 2")):
-        code, err = swarm_main("replay", str(good), "--speed", "0", *flags, capsys=capsys)
-        assert code == 2 and len(err.splitlines()) == 1 and why in err, (flags, err)
-    r = swarm("replay", str(tmp_path / "cut.mcap"))  # and no traceback from the real CLI
-    assert r.returncode == 2 and "Traceback" not in r.stderr
-
-
-# ----------------------------------------------------------------------- units, no processes
 def test_every_kind_has_a_json_form_that_fits_its_schema() -> None:
     cfg = WorldConfig(n_robots=3)
     traj = Traj(0, 2, 1, 3, 4, bytes(50), [3, 4], bytes(25)).pack()
@@ -601,3 +458,15 @@ def test_the_map_draws_whom_each_robot_attends_to_most() -> None:
     console = Console(file=io.StringIO(), width=160, record=True, color_system=None)
     console.print(render(v))
     assert "∙∙" not in console.export_text() and "attention" not in console.export_text()
+
+
+def test_the_recorder_reads_the_tick_of_every_message_kind() -> None:
+    """The recording's run tick comes from each message's (episode, tick): a direct-delivery
+    `Stamped` carries its inner kind first (it used to be read as (kind, episode))."""
+    from swarm.net.messages import K_TRAJ, Stamped, Traj
+    from swarm.procs.recorder import peek_ep_t
+
+    traj = Traj(3, 17, 1, 2, 2, b"\0" * 50, [], b"").pack()
+    assert peek_ep_t(traj) == (3, 17)
+    assert peek_ep_t(Stamped(K_TRAJ, 3, 17, 1, 0.0, traj).pack()) == (3, 17)
+    assert peek_ep_t(b"not msgpack") is None

@@ -28,7 +28,7 @@ import zenoh
 
 from swarm.net.inbox import DEFAULT_MAX_BYTES, DEFAULT_MAX_EVENTS, Inbox, query, tally
 from swarm.net.keys import Keys
-from swarm.net.messages import K_RESULT, K_STATUS, BadMessage, unpack_record
+from swarm.net.messages import K_RESULT, K_STAMPED, K_STATUS, BadMessage, unpack_record
 from swarm.net.record.recording import RecordingWriter
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunRecord
@@ -189,15 +189,17 @@ class Recorder:
 
 
 def peek_ep_t(payload: bytes) -> tuple[Any, Any] | None:
-    """(episode, tick) of a `[schema, kind, ep, t, ...]` payload without decoding the rest
-    (unchecked: only the recording's sequence numbers come from it)."""
+    """(episode, tick) of a `[schema, kind, ep, t, ...]` payload (a direct-delivery `Stamped`:
+    `[schema, K_STAMPED, inner kind, ep, t, ...]`) without decoding the rest (unchecked: only
+    the recording's sequence numbers come from it)."""
     try:
         u = msgpack.Unpacker(raw=False, max_buffer_size=len(payload) + 1)
         u.feed(payload)
         if u.read_array_header() < 4:
             return None
         u.skip()
-        u.skip()
+        if u.unpack() == K_STAMPED:
+            u.skip()
         return u.unpack(), u.unpack()
     except Exception:  # not msgpack, or not that shape: the last tick stands
         return None
