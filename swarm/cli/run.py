@@ -335,6 +335,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
             raise ConfigError(f"run {args.run} did not answer at {where} ({exc}); nothing "
                               "was sent") from None
         fault_table(args, {}, run.world.n_robots)  # a partition or robot beyond the run's
+        time.sleep(0.3)  # the world's subscriptions reach this session too before the one put
         sent_at = time.time()
         put_once(session, keys.control, pack_record(K_CONTROL, rec))
         time.sleep(0.1)
