@@ -423,6 +423,16 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
     assert run_pids(str(tmp_path)) == []
 
 
+@pytest.mark.procs
+def test_the_checked_flags_still_take_their_other_values() -> None:
+    """`--attention off` (no robot id to check against the team) runs: the team-size check of
+    `--attention` once compared None with an int."""
+    r = swarm("run", "--headless", "--robots", "2", "--episodes", "1", "--horizon", "4",
+              "--policy", "random", "--attention", "off", timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert json.loads(r.stdout.strip().splitlines()[-1])["result"]["completed"] == 1
+
+
 _BLAS_THREADS = """
 import os, sys
 if sys.argv[1] == "swarm":

@@ -193,7 +193,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         output_file(args.record, "--record")
     if not (run.train and run.checkpoint is None):  # --train alone starts from fresh weights
         build_inference(run.policy, world, run.checkpoint)  # readable, right policy and shapes
-    if args.attention >= world.n_robots:
+    if args.attention is not None and args.attention >= world.n_robots:  # (None: off)
         raise ConfigError(f"--attention {args.attention}: the team has robots "
                           f"0..{world.n_robots - 1}")
     if (args.hosts or 0) > world.n_robots:
