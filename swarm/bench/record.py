@@ -39,10 +39,10 @@ class RecordBenchConfig:
     """Write the figures here."""
 
     def __post_init__(self) -> None:
-        check_seed(self.seed)
-        check_seed(self.seed + self.pairs - 1, "seed + pairs - 1")
         if self.episodes < 1 or self.pairs < 1:
             raise ConfigError("bench record needs episodes >= 1 and pairs >= 1")
+        check_seed(self.seed)
+        check_seed(self.seed + self.pairs - 1, "seed + pairs - 1")  # (pair k runs seed + k)
 
 
 def _cpu() -> float:
