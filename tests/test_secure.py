@@ -270,6 +270,18 @@ def test_a_missing_certificate_is_one_line_before_any_process(certs: Path, tmp_p
     assert r.returncode == 2 and str(host / "robot-2.pem") in r.stderr
 
 
+@pytest.mark.procs
+def test_a_secure_run_records_and_its_recording_verifies(certs: Path, tmp_path: Path) -> None:
+    """`--secure` with `--record`: the recorder joins on TLS under its own identity (its
+    endpoint and config come from the supervisor), and the file verifies."""
+    out = tmp_path / "sec.mcap"
+    r = swarm("run", "--secure", str(certs), "--robots", "3", "--episodes", "1", "--horizon",
+              "8", "--policy", "random", "--headless", "--record", str(out), timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    v = swarm("replay", str(out), "--verify", timeout=60)
+    assert v.returncode == 0 and "every one as recorded" in v.stdout, v.stdout + v.stderr
+
+
 def _metrics(res: dict) -> dict:
     keys = ("elratio_mean", "reward_mean", "collisions_mean", "block_collisions_mean",
             "success_rate", "ticks", "timeouts", "robots_lost", "actions")

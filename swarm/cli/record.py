@@ -49,9 +49,9 @@ def run_endpoint(args: argparse.Namespace, zopts: zconfig.ZenohOptions) -> zconf
         from swarm.net.keys import Keys
 
         zopts.connect = [lookup_run(Keys(args.run_id).run)]
-    if not args.secure and any(e.startswith("tls/") for e in zopts.connect):
-        raise ConfigError(f"run {args.run_id} is secure: give --secure DIR (the recorder's "
-                          "certificate)")
+        if not args.secure and zopts.connect[0].startswith("tls/"):  # (a --zenoh-config, as
+            raise ConfigError(f"run {args.run_id} is secure: give --secure DIR (the "  # a
+                              "recorder's certificate)")  # secure run's own recorder has, is TLS)
     return zopts
 
 
