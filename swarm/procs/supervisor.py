@@ -239,8 +239,10 @@ class Supervisor:
                 v.learner = self.learner_status
             elif kind == "control":
                 rec = unpack_record(payload or b"", K_CONTROL)
-                faults = [parse_process(*str(text).partition(":")[::2])
-                          for text in rec.get("process", [])]
+                texts = rec.get("process", [])
+                if not isinstance(texts, list) or len(texts) > 64:
+                    raise ValueError("process faults must be a list of at most 64")
+                faults = [parse_process(*str(text).partition(":")[::2]) for text in texts]
                 if any(not 0 <= f.robot < self.cfg.n_robots for f in faults):
                     raise ValueError(f"a process fault names a robot beyond {self.cfg.n_robots}")
                 for f in faults:  # ROBOT@TICK waits for run tick TICK, ROBOT alone is now
@@ -364,6 +366,9 @@ class Supervisor:
         if self.recorder is not None:
             res["recording"] = {"path": self.opts.record, "exit": self.recorder.returncode}
         res["process_faults"] = self.fault_log
+        # scheduled for a tick the run never reached: named, not silently dropped
+        res["process_faults_pending"] = [f"{f.kind} {f.robot}@{f.tick}"
+                                         for f in self.process_faults]
         if self.zfiles:
             res["secure"] = {"certs": self.opts.secure, "hub": self.hub,
                              "configs": str(self.log_dir / "zenoh")}
