@@ -23,6 +23,7 @@ from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, RobotRollout, RolloutTick, Weights
 from swarm.net.messages import (
     K_CONTROL,
+    K_LSTATUS,
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
@@ -105,6 +106,7 @@ def hostile_payloads(keys: Keys) -> list[tuple[str, bytes]]:
     out: list[tuple[str, bytes]] = []
     for r in range(3):
         out += [(keys.obs(r), Obs(0, 1, r, 1, 1, v5, 0.0, False, 1e300).pack()),
+                (keys.obs(r), Obs(0, 0, r, 1, 1, v5, 0.0, False, 100.0, version=-3).pack()),
                 (keys.obs(r), Obs(0, 1, r, 99, 1, v5, 0.0, False, 100.0).pack()),
                 (keys.obs(r), Obs(-1, 1, r, 1, 1, v5, float("nan"), False, 100.0).pack()),
                 (keys.obs(r), Obs(0, 10**9, r, 1, 1, v5, 0.0, False, 100.0).pack()),
@@ -129,6 +131,10 @@ def hostile_payloads(keys: Keys) -> list[tuple[str, bytes]]:
             (keys.control, pack_record(K_CONTROL, {"faults_table": {"latency": "1e9s"}})),
             (keys.control, pack_record(K_CONTROL, {"process": ["crash:99@1", "bogus"]})),
             (keys.status, pack_record(K_STATUS, {"pos": "x", "alive": 5, "ep": "y"})),
+            (keys.learner_status, pack_record(K_LSTATUS, {  # the dashboard, a lockstep world
+                "version": -1, "last_closed": "x", "pending": 2**63, "update_due": 3,
+                "curve": "abc", "accounting": {"trained": "all"}})),
+            (keys.learner_status, pack_record(K_LSTATUS, {"curve": [0.5, "x"]})),
             (keys.end, pack_record(K_RESULT, {"run_id": "another-run"})),
             (keys.end, b"\x00"),
             (keys.episode, EpisodeRecord(0, np.full((2, 3), np.inf, np.float32),
@@ -205,7 +211,7 @@ def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Pa
     """Every process stays alive and counts what it refused; the run completes."""
     run_id = "fuzz1"
     proc = start_run(tmp_path, run_id, "--policy", "commattn", "--train", "--train-batch", "2",
-                     "--episodes", "6", "--pace", "16", "--tick-timeout", "1")
+                     "--train-sync", "--episodes", "6", "--pace", "16", "--tick-timeout", "1")
     try:
         hub = hub_of(run_id, proc)
         keys = Keys(run_id)
@@ -229,6 +235,8 @@ def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Pa
     res = json.loads((tmp_path / "r.json").read_text())
     assert res["completed"] == 6 and res["robot_crashes"] == 0 and res["robots_lost"] == 0
     assert res["messages"]["bad"] > 0  # the world refused forged trajectories, actions, control
+    assert res["messages"]["bad_by_key"].get(keys.learner_status, 0) > 0  # and learner statuses
+    assert res["train_sync"]["timeouts"] == 0
     assert all(r["bad"] > 0 and r["errors"] == 0 for r in res["robot_status"].values())
     assert res["supervisor_bad"] > 0
     assert res["learner"]["bad"] > 0

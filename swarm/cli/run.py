@@ -78,6 +78,9 @@ def _add_train_flags(p: argparse.ArgumentParser) -> None:
                    help="the learner's checkpoint and curve (default: LOG_DIR/learner)")
     g.add_argument("--rollout-loss", type=float, metavar="P",
                    help="drop each robot's episode record to the learner with probability P")
+    g.add_argument("--train-sync", action="store_true", default=None,
+                   help="lockstep: each episode waits for the learner to take the ones before it "
+                        "and uses its newest weights, so the run is a function of its seed")
 
 
 def _add_netns_flags(p: argparse.ArgumentParser) -> None:
@@ -119,7 +122,8 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
              "delivery": getattr(args, "delivery", None),
              "greedy": False if args.sample or getattr(args, "train", None) else None,
              "train": getattr(args, "train", None),
-             "rollout_loss": getattr(args, "rollout_loss", None)}
+             "rollout_loss": getattr(args, "rollout_loss", None),
+             "train_sync": getattr(args, "train_sync", None)}
     table = dict(tables.get("run", {}))
     given = {k: v for k, v in flags.items() if v is not None}
     data = {**table, **given}

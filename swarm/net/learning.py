@@ -4,6 +4,8 @@ rollout workers' episodes), with the same conventions as swarm.net.messages: msg
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -226,3 +228,105 @@ class EpisodeRollout:
         if out.logp is not None and not (np.isfinite(out.logp).all() and (out.logp <= 0).all()):
             raise BadMessage("log-probabilities must be finite and <= 0")
         return out
+
+
+# ------------------------------------------------------------------- the learner's status
+LSTATUS_COUNTS = ("version", "episodes", "updates", "pending", "ready", "stale_used",
+                  "stale_dropped", "incomplete", "bad", "worker_episodes", "rollout_bytes")
+ACCOUNTING = ("received", "trained", "pending", "stale_dropped", "incomplete", "rejected")
+MAX_COUNT = 2**62
+
+
+def check_learner_status(rec: dict[str, Any]) -> dict[str, Any]:
+    """A learner status record (swarm.procs.learner.Learner.status) with every field its readers
+    use in range: the supervisor's dashboard and result, a lockstep world. BadMessage (one line)
+    otherwise; the reader drops and counts it."""
+    for name in LSTATUS_COUNTS:
+        _int(rec.get(name, 0), f"learner status {name}", 0, MAX_COUNT)
+    _int(rec.get("last_closed", -1), "learner status last_closed", -1, MAX_COUNT)
+    if not isinstance(rec.get("update_due", False), bool):
+        raise BadMessage("learner status update_due must be a bool")
+    _float(rec.get("rollout_bytes_per_s", 0.0), "learner status rollout_bytes_per_s", 0.0, 1e15)
+    curve = rec.get("curve", [])
+    if not isinstance(curve, list) or len(curve) > 40:
+        raise BadMessage("learner status curve must be a list of at most 40 numbers")
+    for x in curve:
+        _float(x, "learner status curve value", -1e9, 1e9)
+    last = rec.get("last") or {}
+    acc = rec.get("accounting") or {}
+    if not isinstance(last, dict) or not isinstance(acc, dict):
+        raise BadMessage("learner status last and accounting must be maps")
+    for k in ("elratio", "reward", "loss"):
+        if last.get(k) is not None:
+            _float(last[k], f"learner status last {k}")
+    for k in ACCOUNTING:
+        _int(acc.get(k, 0), f"learner status accounting {k}", 0, MAX_COUNT)
+    return rec
+
+
+# ------------------------------------------------------------------- lockstep field training
+@dataclass
+class LearnerGate:
+    """Lockstep field training (`RunConfig.train_sync`, `swarm run --train --train-sync`): what
+    the world knows of its learner's progress, from the learner's status records.
+
+    Without lockstep, field training is asynchronous, as in IMPALA-style actor-learner systems:
+    robots play on while the learner trains and adopt a new version at their next episode
+    boundary, so which episodes land in which update (and how stale each is) depends on how fast
+    each process runs, and a run is not a function of its seed. With it, the world starts
+    episode e only when the learner has settled every episode before e (joined into its batch,
+    or counted incomplete, rejected or stale) and made any update due; tick 0's observations
+    name the learner's version, and a robot that has not got it fetches it before acting
+    (`RobotProcess.catch_up`). Every episode is played with the weights of all before it, as the
+    batched trainer's on-policy batches are, and two runs with one seed train the same weights;
+    the price is that robots idle while the learner joins each episode and runs each update.
+    The status record is hostile input like any message: each field is range-checked here."""
+
+    first_episode: int
+    version: int | None = None  # None until a status record came
+    last_closed: int = -1
+    joining: int = 0
+    update_due: bool = False
+    waits: int = 0  # episodes the world held back for the learner
+    wait_s: float = 0.0  # wall seconds it held them, summed
+    timeouts: int = 0  # episodes started anyway after the wait limit (the run is not lockstep)
+
+    def offer(self, rec: dict[str, Any]) -> None:
+        """Take a learner status record; BadMessage (nothing kept) unless it is whole and every
+        field is in range."""
+        if not {"version", "last_closed", "pending", "update_due"} <= set(rec):
+            raise BadMessage("learner status without version, last_closed, pending, update_due")
+        check_learner_status(rec)
+        if self.version is not None and rec["version"] < self.version:
+            return  # an older record overtaken by a newer one: versions only grow
+        self.version, self.last_closed = rec["version"], rec["last_closed"]
+        self.joining, self.update_due = rec["pending"], rec["update_due"]
+
+    def version_for(self, ep: int) -> int | None:
+        """The version episode `ep` is to be played with, None while the learner is behind."""
+        if self.version is None or self.joining or self.update_due:
+            return None
+        if ep > self.first_episode and self.last_closed < ep - 1:
+            return None
+        return self.version
+
+    def wait(self, ep: int, pump: Callable[[float], bool], limit: float,
+             stop: Callable[[], bool]) -> int | None:
+        """Pump the world's events until the learner is ready for `ep` (its version) or `limit`
+        seconds passed (None, counted in `timeouts`)."""
+        start = time.monotonic()
+        deadline = start + limit
+        held = False
+        while (v := self.version_for(ep)) is None and not stop() and \
+                time.monotonic() < deadline:
+            held = True
+            pump(min(deadline, time.monotonic() + 0.05))
+        self.waits += held
+        self.wait_s += time.monotonic() - start
+        if v is None and not stop():
+            self.timeouts += 1
+        return v
+
+    def summary(self) -> dict[str, Any]:
+        return {"waits": self.waits, "wait_s": round(self.wait_s, 3), "timeouts": self.timeouts,
+                "version": self.version}

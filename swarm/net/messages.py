@@ -116,18 +116,22 @@ class Obs:
     bucket: tuple[float, float] | None = None  # direct delivery under a bandwidth cap: the
     # robot's own token bucket (tokens, ms of its last charge) after its last action this
     # episode, as its action reported it; a restarted robot takes it up (`Action.bucket`)
+    version: int | None = None  # lockstep field training (`RunConfig.train_sync`), tick 0: the
+    # learner's weights version every robot must act with this episode; None (not sent) else
 
     def pack(self) -> bytes:
-        tail: tuple[Any, ...] = (self.live, self.faults, list(self.bucket or ()))
-        while tail and not tail[-1]:
-            tail = tail[:-1]
+        tail: list[Any] = [self.live, self.faults, list(self.bucket or ())]
+        if self.version is not None:
+            tail.append(self.version)
+        while tail and not tail[-1] and len(tail) < 4:  # empty trailing fields are not sent
+            tail.pop()
         return _pack(K_OBS, self.ep, self.t, self.robot, self.y, self.x, self.patch, self.reward,
                      self.done, self.budget_ms, *tail)
 
     @classmethod
     def unpack(cls, payload: bytes, cfg: WorldConfig) -> Obs:
         ep, t, robot, y, x, patch, reward, done, budget, *rest = _unpack(payload, K_OBS,
-                                                                        (9, 10, 11, 12))
+                                                                        (9, 10, 11, 12, 13))
         if not isinstance(done, bool):
             raise BadMessage("done must be a bool")
         live = b"" if not rest or rest[0] == b"" else _bytes(rest[0], "live",
@@ -139,7 +143,8 @@ class Obs:
                    _int(robot, "robot", 0, cfg.n_robots - 1), _int(y, "y", 0, cfg.height - 1),
                    _int(x, "x", 0, cfg.width - 1), _bytes(patch, "patch", cfg.vision ** 2),
                    _float(reward, "reward"), done, _float(budget, "budget_ms", 0.0, MAX_MS),
-                   live, faults, _bucket(rest[2] if len(rest) > 2 else None))
+                   live, faults, _bucket(rest[2] if len(rest) > 2 else None),
+                   None if len(rest) < 4 or rest[3] is None else _int(rest[3], "version", 0, BIG))
 
 
 @dataclass

@@ -32,14 +32,15 @@ class RobotRow:
     restarts: int = 0
     version: int = 0  # weights version in use (swarm run --train)
     weights_bad: int = 0
+    weights_late: int = 0  # train_sync episodes it began without the version the world named
     stalls: int = 0  # times the robot found itself stopped or starved (SIGSTOP, overload)
     rejoins: int = 0  # times it rejoined after its session dropped
     errors: int = 0  # ticks it could not decide on (skipped)
     compute_ms: float = 0.0  # mean planning time per decision, waits excluded
     wait_ms: float = 0.0  # mean time per decision waiting for the bundle and the predecessor
 
-    COUNTERS = ("msgs_in", "msgs_out", "bad", "missed", "version", "weights_bad", "stalls",
-                "rejoins", "errors")
+    COUNTERS = ("msgs_in", "msgs_out", "bad", "missed", "version", "weights_bad",
+                "weights_late", "stalls", "rejoins", "errors")
 
     def counters(self) -> dict[str, int]:
         """What a run's result reports of this robot (`robot_status`)."""
@@ -142,6 +143,7 @@ class SwarmView:
         row.bytes_out = int(rec.get("bytes_out", 0))
         row.version = int(rec.get("version", 0))
         row.weights_bad = int(rec.get("weights_bad", 0))
+        row.weights_late = int(rec.get("weights_late", 0))
         row.stalls = int(rec.get("stalls", 0))
         row.rejoins = int(rec.get("rejoins", 0))
         row.errors = int(rec.get("errors", 0))

@@ -151,6 +151,8 @@ class Learner:
         self.tc = tc
         self.pending: dict[int, dict[str, Any]] = {}  # ep -> {"world": rec, "robots": {}, "t": s}
         self.closed: set[int] = set()  # swarm episodes joined or given up
+        self.last_closed = -1  # the highest of them (a lockstep world waits for it: train_sync)
+        self.n_closed = 0
         self.ready: list[EpisodeRollout] = []
         self.weights_payload = weights_of(self.policy, self.version).pack()
         self.curve: list[float] = []
@@ -221,6 +223,8 @@ class Learner:
     def _close(self, ep: int) -> None:
         del self.pending[ep]
         self.closed.add(ep)
+        self.last_closed = max(self.last_closed, ep)
+        self.n_closed += 1
         if len(self.closed) > 100_000:  # a long run: forget the oldest half
             self.closed = set(sorted(self.closed)[50_000:])
 
@@ -239,9 +243,11 @@ class Learner:
         if not self.lc.gather_only:
             self.ready.append(er)
 
-    def join_ready(self, seed: int, force: bool = False) -> None:
-        """Join every pending episode whose records are all in (or whose wait timed out)."""
+    def join_ready(self, seed: int, force: bool = False) -> bool:
+        """Join every pending episode whose records are all in (or whose wait timed out); True
+        when one was settled."""
         now = time.monotonic()
+        before = self.n_closed
         for ep in sorted(self.pending):
             slot = self.pending[ep]
             wr = slot.get("world")
@@ -264,6 +270,7 @@ class Learner:
                 else:
                     self.c.incomplete += 1
                 log.warning("learner dropped episode %d: %s", ep, exc)
+        return self.n_closed != before
 
     # --- learning ---------------------------------------------------------------------------
     def maybe_update(self) -> bool:
@@ -337,6 +344,9 @@ class Learner:
                "stale_used": self.c.stale_used, "stale_dropped": self.c.stale_dropped,
                "incomplete": self.c.incomplete, "bad": self.c.bad,
                "accounting": self.accounting(),
+               # what a lockstep world (swarm.net.learning.LearnerGate) waits for
+               "last_closed": self.last_closed,
+               "update_due": not self.lc.gather_only and len(self.ready) >= self.tc.batch,
                "worker_episodes": self.c.worker_episodes,
                "rollout_bytes": self.c.rollout_bytes,
                "rollout_bytes_per_s": self.c.rollout_bytes / max(now - self.t0, 1e-9),
@@ -354,9 +364,9 @@ class Learner:
                 ev = inbox.next(0.05)
                 if ev is not None:
                     self.handle(ev.kind, ev.key, ev.payload or b"")
-                self.join_ready(seed)
-                self.maybe_update()
-                self.status()
+                settled = self.join_ready(seed)
+                updated = self.maybe_update()  # (an update publishes its status itself)
+                self.status(force=settled and not updated)  # a settled episode is told at once
             return self.finish(inbox, seed)
         except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (the supervisor stopping or gone)
             return self.finish(inbox, seed)

@@ -239,6 +239,18 @@ class RobotProcess:
             self.c.weights_bad += 1
             log.warning("robot %d rejected weights: %s", self.robot, exc)
 
+    def catch_up(self, version: int, tries: int = 5) -> None:
+        """Lockstep training (`train_sync`): the world named the version of this episode; one
+        still on its way is fetched from the learner's queryable. Not got: counted, played on."""
+        for _ in range(tries):
+            self.fetch_weights()
+            self.adopt_weights()
+            if self.version >= version:
+                return
+        self.c.weights_late += 1
+        log.warning("robot %d plays episode %d with weights version %d, not %d", self.robot,
+                    self.ep, self.version, version)
+
     def fetch_weights(self, timeout: float = 1.0) -> None:
         """A late joiner asks the learner for the current weights (none: keep its own)."""
         for reply in self.session.get(self.keys.weights, timeout=timeout):
@@ -281,6 +293,8 @@ class RobotProcess:
             self.record = []
             if self.train:
                 self.adopt_weights()  # never mid-episode
+                if obs.version is not None and self.version < obs.version:
+                    self.catch_up(obs.version)
         cell = obs.y * cfg.width + obs.x
         self.visited[cell] = True
         self.recent = (self.recent + [cell])[-cfg.recent_len:]
@@ -402,7 +416,8 @@ class RobotProcess:
                "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
                "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
                "latency_ms": self.c.last_latency_ms, "version": self.version,
-               "weights_bad": self.c.weights_bad, "rollouts_lost": self.c.rollouts_lost,
+               "weights_bad": self.c.weights_bad, "weights_late": self.c.weights_late,
+               "rollouts_lost": self.c.rollouts_lost,
                "stalls": self.c.stalls, "rejoins": self.c.rejoins, "errors": self.c.errors,
                "compute_ms": self.c.compute_ms / max(self.c.decisions, 1),
                "wait_ms": self.c.wait_ms / max(self.c.decisions, 1)}

@@ -22,6 +22,7 @@ class RobotCounters:
     missed_hidden: int = 0  # predecessor's hidden-state message lost or late: decoded without
     last_latency_ms: float = 0.0
     weights_bad: int = 0  # weights messages rejected (wrong policy, shape or version)
+    weights_late: int = 0  # train_sync episodes begun without the version the world named
     rollouts_lost: int = 0  # episode records dropped by the injected rollout loss
     stalls: int = 0  # times this process was stopped or starved (robot.STALL_S)
     rejoins: int = 0  # times the world's token came back after vanishing (session drop)

@@ -62,6 +62,11 @@ class RunConfig:
     rollout_loss: float = 0.0
     """With `train`: each robot drops its episode record with this probability (seeded, like
     the radio's loss), a fault on the rollout traffic to the learner."""
+    train_sync: bool = False
+    """With `train`: lockstep. The world starts an episode only once the learner has settled
+    every earlier one (trained on it, or counted it dropped) and made any update due, and every
+    robot acts with that weights version; the run is then a function of its seed, like the
+    batched trainer (swarm.net.learning.LearnerGate). The world waits `start_timeout` at most."""
 
     def __post_init__(self) -> None:
         from swarm.net.keys import check_run_id
@@ -88,6 +93,8 @@ class RunConfig:
             raise ConfigError(f"clock must be 'virtual' or 'real', got {self.clock!r}")
         if self.delivery not in ("radio", "direct"):
             raise ConfigError(f"delivery must be 'radio' or 'direct', got {self.delivery!r}")
+        if self.train_sync and not self.train:
+            raise ConfigError("train_sync needs train (--train-sync needs --train)")
         if not isinstance(self.policy, str) or not self.policy:
             raise ConfigError("policy must be a registry name")
 

@@ -44,6 +44,7 @@ from swarm.net.inbox import Inbox, put_once
 from swarm.net.kernel.hosts import topology
 from swarm.net.kernel.netns import NetnsConfig
 from swarm.net.keys import Keys
+from swarm.net.learning import check_learner_status
 from swarm.net.messages import (
     K_CONTROL,
     K_LSTATUS,
@@ -235,7 +236,8 @@ class Supervisor:
             elif kind == "result":
                 self.result = unpack_record(payload or b"", K_RESULT)
             elif kind == "lstatus":
-                self.learner_status = unpack_record(payload or b"", K_LSTATUS)
+                self.learner_status = check_learner_status(unpack_record(payload or b"",
+                                                                         K_LSTATUS))
                 v.learner = self.learner_status
             elif kind == "control":
                 rec = unpack_record(payload or b"", K_CONTROL)

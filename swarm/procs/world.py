@@ -29,9 +29,10 @@ from swarm.net.direct import DirectTally
 from swarm.net.faults import FaultPlan, plan_from_table
 from swarm.net.inbox import Inbox, publisher, tally
 from swarm.net.keys import Keys
-from swarm.net.learning import EpisodeRecord
+from swarm.net.learning import EpisodeRecord, LearnerGate
 from swarm.net.messages import (
     K_CONTROL,
+    K_LSTATUS,
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
@@ -99,6 +100,7 @@ class WorldProcess:
         self.tick_live: set[int] = set()
         self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
         self.learner_alive = not run.train  # a training run's first tick waits for its learner
+        self.gate = LearnerGate(run.first_episode) if run.train_sync else None  # lockstep
         self.bad: dict[str, int] = {}
         self.timeouts = 0
         self.fast_lane_ticks = 0  # ticks whose hidden-state messages went robot to robot
@@ -127,6 +129,8 @@ class WorldProcess:
             inbox.subscribe(k.robot_status("*"), "rstatus")
         if self.run_cfg.train:  # its token follows its subscriptions (swarm.procs.learner)
             inbox.liveliness(k.alive_learner, "learner")
+        if self.gate is not None:
+            inbox.subscribe(k.learner_status, "lstatus")
         return (inbox.subscribe(k.traj("*"), "traj")
                 .subscribe(k.hidden("*"), "hidden").subscribe(k.action("*"), "action")
                 .subscribe(k.control, "control").queryable(k.config, lambda: self._record)
@@ -195,9 +199,12 @@ class WorldProcess:
                 except ConfigError as exc:
                     self._count_bad(key, str(exc))
             return True
-        if kind == "rstatus" and self.direct is not None:  # the counters of direct delivery
+        if kind in ("rstatus", "lstatus"):  # direct delivery's counters; the learner's progress
             try:
-                self.direct.offer(unpack_record(payload or b"", K_RSTATUS))
+                if kind == "lstatus":
+                    self.gate.offer(unpack_record(payload or b"", K_LSTATUS))  # type: ignore
+                elif self.direct is not None:
+                    self.direct.offer(unpack_record(payload or b"", K_RSTATUS))
             except BadMessage as exc:
                 self._count_bad(key, str(exc))
             return True
@@ -253,49 +260,40 @@ class WorldProcess:
 
     def _forward_hidden(self, msg: Hidden, payload: bytes, tick: TickInbox) -> None:
         t0 = time.perf_counter()
-        try:
-            self._forward_hidden_now(msg, payload, tick)
-        finally:
-            self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
-
-    def _forward_hidden_now(self, msg: Hidden, payload: bytes, tick: TickInbox) -> None:
         if self.virtual:  # its fate is known now: the message, or word that it will not come
             for i, on_time in self.radio.virtual_hidden(msg.ep, msg.t, msg.robot, len(payload)):
                 self._put(self.keys.inbox_hidden(i),
                           payload if on_time else Hidden.miss(msg.ep, msg.t, msg.robot).pack())
                 self.radio.counters.hidden_delivered += on_time
-            return
-        for i, when in self.radio.hidden_deliveries(msg.ep, msg.t, msg.robot, len(payload),
-                                                    time.monotonic(), tick.hidden_deadline):
-            self._schedule(when, self.keys.inbox_hidden(i), payload)
-            self.radio.counters.hidden_delivered += 1
+        else:
+            for i, when in self.radio.hidden_deliveries(msg.ep, msg.t, msg.robot, len(payload),
+                                                        time.monotonic(), tick.hidden_deadline):
+                self._schedule(when, self.keys.inbox_hidden(i), payload)
+                self.radio.counters.hidden_delivered += 1
+        self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
 
     def _deliver(self, state: core.WorldState, tick: TickInbox) -> None:
         t0 = time.perf_counter()
-        self._deliver_now(state, tick)
-        self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
-
-    def _deliver_now(self, state: core.WorldState, tick: TickInbox) -> None:
-        lay = core.Layout.of(self.cfg)
+        yx = core.Layout.of(self.cfg).to_yx(state.pos[0])
         if self.virtual:
-            heard = self.radio.virtual_bundles(tick.ep, tick.t, lay.to_yx(state.pos[0]),
+            heard = self.radio.virtual_bundles(tick.ep, tick.t, yx,
                                                {j: p for j, (p, _) in tick.traj.items()})
             for i, payloads in heard.items():
                 succ = self.radio.successors(i) if tick.fast_lane else None
                 self._put(self.keys.inbox(i), Bundle(tick.ep, tick.t, i, payloads, succ).pack())
-            tick.delivered = True
-            for msg, payload in tick.hidden.values():
-                self._forward_hidden(msg, payload, tick)
-            return
-        bundles = self.radio.bundles(tick.ep, tick.t, lay.to_yx(state.pos[0]), tick.traj,
-                                     tick.traj_deadline)
-        for i, (when, payloads) in bundles.items():
-            self._schedule(when, self.keys.inbox(i), Bundle(tick.ep, tick.t, i, payloads).pack())
+        else:
+            bundles = self.radio.bundles(tick.ep, tick.t, yx, tick.traj, tick.traj_deadline)
+            for i, (when, payloads) in bundles.items():
+                self._schedule(when, self.keys.inbox(i),
+                               Bundle(tick.ep, tick.t, i, payloads).pack())
         tick.delivered = True
-        for msg, payload in tick.hidden.values():
+        self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
+        for msg, payload in tick.hidden.values():  # (timed on their own)
             self._forward_hidden(msg, payload, tick)
 
-    def play_episode(self, ep: int) -> tuple[core.WorldState, list[np.ndarray], int]:
+    def play_episode(self, ep: int, version: int | None = None
+                     ) -> tuple[core.WorldState, list[np.ndarray], int]:
+        """Play episode `ep` (`version`: the learner's, named at tick 0 in lockstep training)."""
         cfg, keys = self.cfg, self.keys
         state = core.reset(cfg, self.run_cfg.seed, [ep])
         lay = core.Layout.of(cfg)
@@ -319,10 +317,8 @@ class WorldProcess:
                     obs_faults = msgpack.packb(self.fault_table)
             self._due.clear()  # nothing of an older tick is ever delivered
             state.alive[0] = self.alive
-            t = state.t
-            yx = lay.to_yx(state.pos[0])
+            t, done, yx = state.t, state.done, lay.to_yx(state.pos[0])
             patch = core.patches(cfg, state)[0]
-            done = state.done
             start = time.monotonic()
             # virtual clock: lateness is decided in virtual time, so the world waits for every
             # live robot, up to the watchdog; real clock: the tick deadline is on the wall
@@ -340,7 +336,7 @@ class WorldProcess:
                 self._put(keys.obs(int(i)), Obs(ep, t, int(i), int(yx[i, 0]), int(yx[i, 1]),
                                                  patch[i].tobytes(), float(state.last_reward[0, i]),
                                                  bool(done), budget_ms, live, obs_faults,
-                                                 held).pack())
+                                                 held, version if t == 0 else None).pack())
             if done and self.run_cfg.train and rewards:
                 m = core.metrics(cfg, state)
                 rec = EpisodeRecord(ep, np.stack(rewards).astype(np.float32), np.stack(acted),
@@ -427,7 +423,9 @@ class WorldProcess:
             ticks, t0 = 0, time.monotonic()
             rc = self.run_cfg
             for ep in range(rc.first_episode, rc.first_episode + rc.episodes):
-                state, acts, n = self.play_episode(ep)
+                version = None if self.gate is None else self.gate.wait(
+                    ep, self._pump, rc.start_timeout, lambda: self.stop)
+                state, acts, n = self.play_episode(ep, version)
                 ticks += n
                 if self.stop:
                     break
@@ -485,6 +483,8 @@ class WorldProcess:
             "robots_lost": int((self.ever_alive & ~self.alive).sum()),
             "actions": [a.tolist() for a in actions],
         })
+        if self.gate is not None:
+            out["train_sync"] = self.gate.summary()
         return out
 
 

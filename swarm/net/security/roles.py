@@ -100,7 +100,7 @@ def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[s
                            k.result, k.end, k.episode),
                       serve=(k.config,), token=(k.alive_world,), watch=(k.alive_robot("*"),),
                       subscribe=(k.traj("*"), k.hidden("*"), k.action("*"), k.control,
-                                 k.robot_status("*"))),
+                                 k.robot_status("*"), k.learner_status)),  # (train_sync)
         "supervisor": Role(put=(k.control,), watch=(alive_all,),
                            subscribe=(k.status, k.robot_status("*"), k.result, k.control,
                                       k.learner_status)),
