@@ -389,7 +389,8 @@ def test_every_played_episode_ends_in_exactly_one_learner_counter(tmp_path: Path
 
 
 BAD_INPUTS = [
-    ["run", "--seed", "-1"], ["run", "--first-episode", "-5"], ["run", "--tick-timeout", "nan"],
+    ["run", "--seed", "-1"], ["run", "--train-sync"], ["run", "--first-episode", "-5"],
+    ["run", "--tick-timeout", "nan"],
     ["run", "--partition", "0-4/5-12"], ["run", "--crash", "20@5"], ["run", "--pace", "-1"],
     ["run", "--json", "{tmp}"], ["run", "--json", "/nonexistent/dir/x.json"],
     ["run", "--log-dir", "{tmp}/file"], ["run", "--policy", "commattn", "--checkpoint",
