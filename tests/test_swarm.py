@@ -148,6 +148,36 @@ def test_ctrl_c_leaves_no_process_behind() -> None:
     assert time.monotonic() - t0 < 3.5
 
 
+_EARLY_SIGINT = """
+import importlib.abc, os, signal, sys
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # as a shell without job control starts `cmd &`
+
+
+class Interrupt(importlib.abc.MetaPathFinder):  # Ctrl-C while the command modules load
+    def find_spec(self, name, path=None, target=None):
+        if name == "swarm.cli.batch":
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+
+
+sys.meta_path.insert(0, Interrupt())
+from swarm.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.procs
+def test_a_ctrl_c_while_the_cli_loads_is_not_lost() -> None:
+    """A SIGINT that lands while `swarm` is still importing its command modules, in a process
+    started with SIGINT ignored: once lost for good (the run went on to its end); now the run
+    never starts: one line, exit 130."""
+    r = subprocess.run([sys.executable, "-c", _EARLY_SIGINT, "run", "--headless", "--robots", "2",
+                        "--policy", "random", "--episodes", "1000", "--run-id", "earlyint"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 130 and r.stderr.strip() == "swarm: interrupted", r.stderr[-2000:]
+    assert run_procs("earlyint") == []
+
+
 @pytest.mark.procs
 def test_two_runs_side_by_side_do_not_cross_talk(tmp_path: Path) -> None:
     procs = []
