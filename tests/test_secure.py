@@ -334,3 +334,67 @@ def test_deploy_templates_are_what_the_generator_makes() -> None:
     for name, text in templates().items():
         assert (ROOT / "deploy" / name).read_text() == text, f"deploy/{name} is stale"
         zenoh.Config.from_file(str(ROOT / "deploy" / name))
+
+
+# ------------------------------------------------------ flags checked against the run, at once
+@pytest.mark.procs
+def test_audit_checks_its_robot_ids_against_the_runs_team(tmp_path: Path) -> None:
+    """`--as`/`--victim` outside the run's team are one line, exit 2, before any attack; the
+    defaults on a 4-robot team are two of its robots (robot 3 forging a robot 4 that does not
+    exist passed the audit)."""
+    import signal
+
+    proc = swarm_started("run", "--robots", "4", "--episodes", "500", "--pace", "20",
+                         "--headless", "--run-id", "auditteam", "--log-dir", str(tmp_path / "l"))
+    try:
+        for flags, why in ((["--as", "9"], "--as 9 is not a robot of the run: its team has "
+                                           "robots 0..3"),
+                           (["--victim", "77"], "--victim 77 is not a robot of the run")):
+            r = swarm("audit", "--run", "auditteam", *flags, timeout=60)
+            assert r.returncode == 2 and r.stderr.count("\n") == 1 and why in r.stderr, r.stderr
+            assert "verdict" not in r.stdout
+        r = swarm("audit", "--run", "auditteam", "--duration", "0.5", "--json",
+                  str(tmp_path / "a.json"), timeout=90)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    rep = json.loads((tmp_path / "a.json").read_text())
+    assert (rep["attacker"], rep["victim"]) == ("robot-2", 3), rep
+    # a plain run: the forged actions of a robot that exists reach its subscribers
+    assert r.returncode == 1 and rep["sessions"]["plain_tcp"]["delivered"]["action"] > 0
+
+
+def test_flags_that_do_nothing_or_do_not_parse_are_refused(tmp_path: Path) -> None:
+    """`swarm router --router-id` without --secure; a file given as --secure DIR; endpoints
+    that are no endpoint, checked when parsed by every command that takes them."""
+    r = swarm("router", "--router-id", "2", timeout=30)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "--router-id" in r.stderr and "--secure" in r.stderr
+    f = tmp_path / "somefile"
+    f.write_text("not a directory\n")
+    r = swarm("run", "--secure", str(f), "--robots", "2", "--headless", timeout=30)
+    assert r.returncode == 2 and f"--secure {f} is not a directory" in r.stderr, r.stderr
+    bad = "tcp/127.0.0.1:notaport"
+    for cmd in (["rollout-worker", "--run-id", "x", "--connect", bad],
+                ["router", "--listen", bad], ["robot", "--id", "0", "--run-id", "x",
+                                              "--connect", bad],
+                ["fault", "--run", "x", "--loss", "0.1", "--connect", bad],
+                ["record", "--run-id", "x", "--out", str(tmp_path / "r.mcap"), "--connect", bad],
+                ["audit", "--run", "x", "--connect", bad]):
+        r = swarm(*cmd, timeout=30)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, (cmd, r.stderr)
+        assert f"'{bad}': port 'notaport' is not a number" in r.stderr, (cmd, r.stderr)
+    for e, why in (("tcp/127.0.0.1", "expected PROTO/HOST:PORT"), ("foo/bar", "unknown protocol"),
+                   ("tcp/localhost:70000", "port '70000'")):
+        r = swarm("router", "--listen", e, timeout=30)
+        assert r.returncode == 2 and why in r.stderr, (e, r.stderr)
+
+
+def test_a_refused_certs_command_leaves_no_directory(tmp_path: Path) -> None:
+    out = tmp_path / "c5"
+    r = swarm("certs", "--out", str(out), "--robots", "2", "--host", "bad host!")
+    assert r.returncode == 2 and "--host 'bad host!'" in r.stderr, r.stderr
+    assert not out.exists()

@@ -43,9 +43,14 @@ def cmd_router(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         stream=sys.stderr, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     zopts = zconfig.from_args(args)
+    if args.router_id is not None and not args.secure:
+        raise ConfigError("--router-id names this router's identity under --secure DIR; "
+                          "without --secure it does nothing")
     if args.secure:  # on a real host: its own identity polices this host's clients
         if not args.run_id:
             raise ConfigError("swarm router --secure needs --run-id (the run its ACL admits)")
+        if args.router_id is None:
+            args.router_id = 1
         if not 1 <= args.router_id <= 64:
             raise ConfigError(f"--router-id must lie in [1, 64], got {args.router_id}")
         zopts = secure_options(args, zopts, f"router-{args.router_id}", args.run_id)
@@ -63,7 +68,7 @@ def add_parsers(sub: Any) -> None:
                                    "other hosts' routers (a Python session in router mode).")
     p.add_argument("--run-id", help="declare a liveliness token under the run's keys")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
-    p.add_argument("--router-id", type=int, default=1, metavar="H",
+    p.add_argument("--router-id", type=int, default=None, metavar="H",
                    help="with --secure: this router's identity router-H (default 1; "
                         "`swarm certs --routers R` makes router-1..R)")
     zconfig.add_arguments(p)

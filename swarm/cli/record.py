@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
 from swarm.cli.common import _consoles, output_dir, output_file
@@ -26,6 +27,10 @@ def attention_focus(text: str) -> int | None:
     if text.isdigit():
         return int(text)
     raise argparse.ArgumentTypeError(f"expected all, off or a robot id, got {text!r}")
+
+
+ATTN_UNSET = -2  # `swarm replay` without --attention (-1 is `all`, its default)
+MAX_SPEED = 1e6  # `swarm replay --speed`: times the recorded pace
 
 
 def add_attention_flag(p: argparse.ArgumentParser) -> None:
@@ -84,14 +89,29 @@ def cmd_record(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from swarm.studies.replay import load, replay
 
-    if not (args.speed >= 0 and args.speed <= 1e6):
-        raise ConfigError(f"--speed must be >= 0 (0: as fast as it goes), got {args.speed}")
+    if args.verify:  # it re-steps the run: nothing is played, so these would do nothing
+        given = [flag for flag, v in (("--speed", args.speed), ("--from", args.from_tick),
+                                      ("--until", args.until)) if v is not None]
+        given += ["--attention"] if args.attention != ATTN_UNSET else []
+        if given:
+            raise ConfigError(f"{given[0]} does nothing with --verify (it re-steps the run "
+                              "without playing it); drop it or drop --verify")
+    args.speed = 1.0 if args.speed is None else args.speed
+    args.from_tick = 0 if args.from_tick is None else args.from_tick
+    args.attention = -1 if args.attention == ATTN_UNSET else args.attention
+    if not 0 <= args.speed <= MAX_SPEED:  # also NaN
+        raise ConfigError(f"--speed must lie in [0, {MAX_SPEED:.0f}] times the recorded pace "
+                          f"(0: as fast as it goes), got {args.speed:g}")
     if args.from_tick < 0:
         raise ConfigError(f"--from must be a run tick >= 0, got {args.from_tick}")
     if args.until is not None and args.until < args.from_tick:
         raise ConfigError(f"--until {args.until} is before --from {args.from_tick}")
     output_file(args.json)
     rec = load(args.file, partial=args.partial)
+    n = rec.record.world.n_robots
+    if args.attention is not None and args.attention >= n:  # as `swarm run` refuses it
+        raise ConfigError(f"--attention {args.attention}: run {rec.record.run.run_id} has "
+                          f"robots 0..{n - 1}")
     first, last = rec.raw.span() or (0, rec.last_tick)
     if args.verify and first > 0:
         ep, t = divmod(first, rec.record.world.horizon)
@@ -124,7 +144,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                    "divergence": None if div is None else vars(div) | {"line": div.line()}}
         _output_json(args.json, summary)
         for note in report.notes:
-            err.print(f"note: {note}")
+            err.print(f"note: {note}", soft_wrap=True)
         if div is not None:
             print(f"swarm: verify: {args.file}: {div.line()}", file=sys.stderr)
             return 1
@@ -148,18 +168,40 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _new_dirs(path: str) -> Path | None:
+    """The outermost directory of `path` that does not exist yet (None: it exists)."""
+    target = Path(path).absolute()
+    if target.exists():
+        return None
+    while not target.parent.exists():
+        target = target.parent
+    return target
+
+
 def cmd_trace(args: argparse.Namespace) -> int:
+    import shutil
+
     from swarm.studies.replay import load
     from swarm.studies.trace import trace
 
-    output_dir(args.out, "--out")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise ConfigError(f"--out {args.out} exists and is not a directory")
     output_file(args.json)
-    rec = load(args.file, partial=args.partial)
-    res = trace(rec, args.out)
+    rec = load(args.file, partial=args.partial)  # a bad file fails before --out is made
+    made = _new_dirs(args.out)
+    try:
+        output_dir(args.out, "--out")
+        res = trace(rec, args.out)
+    except BaseException:
+        if made is not None:  # a failed trace leaves no folder behind
+            shutil.rmtree(made, ignore_errors=True)
+        raise
     _output_json(args.json, res)
-    out, _ = _consoles()
+    out, err = _consoles()
     for f in res["files"]:
         out.print(f"wrote {f}")
+    for note in res["notes"]:
+        err.print(f"note: {note}")
     return 0
 
 
@@ -189,9 +231,10 @@ def add_parsers(sub: Any) -> None:
                                    "dashboard, no network needed; --verify re-steps the world "
                                    "(and, in virtual time, the radio) and checks every record.")
     p.add_argument("file", metavar="FILE", help="an MCAP recording")
-    p.add_argument("--speed", type=float, default=1.0, metavar="X",
-                   help="x times the recorded pace (0: as fast as it goes; default 1)")
-    p.add_argument("--from", dest="from_tick", type=int, default=0, metavar="TICK",
+    p.add_argument("--speed", type=float, default=None, metavar="X",
+                   help="x times the recorded pace, in [0, 1e6] (0: as fast as it goes; "
+                        "default 1)")
+    p.add_argument("--from", dest="from_tick", type=int, default=None, metavar="TICK",
                    help="fast-forward to run tick TICK, then play at --speed")
     p.add_argument("--until", type=int, metavar="TICK", help="stop (the frame stays) after TICK")
     p.add_argument("--verify", action="store_true",
@@ -201,7 +244,7 @@ def add_parsers(sub: Any) -> None:
                    help="use a recording cut short (a killed recorder) up to its last chunk")
     p.add_argument("--json", metavar="FILE", help="write what was replayed or verified")
     add_attention_flag(p)
-    p.set_defaults(func=cmd_replay)
+    p.set_defaults(func=cmd_replay, attention=ATTN_UNSET)  # (refused with --verify if given)
 
     p = sub.add_parser("trace", help="per-link, per-robot and per-kind figures of a recording",
                        description="CSV and PNG of a recording: link delivery matrix, latency "

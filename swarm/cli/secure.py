@@ -59,33 +59,59 @@ def cmd_audit(args: argparse.Namespace) -> int:
     from swarm.common.spawn import lookup_run
     from swarm.net.keys import Keys
     from swarm.net.security.audit import main as audit_main
+    from swarm.net.security.audit import team_ids
     from swarm.net.security.tls import Secure
+    from swarm.net.zconfig import check_endpoint
 
     Keys(args.run)
-    if not 0 <= args.attacker < 4096 or not 0 <= args.victim < 4096 or \
-            args.attacker == args.victim:
+    for flag, v in (("--as", args.attacker), ("--victim", args.victim)):
+        if v is not None and not 0 <= v < 4096:
+            raise ConfigError(f"{flag} must be a robot id, got {v}")
+    if args.attacker is not None and args.attacker == args.victim:
         raise ConfigError("--as and --victim must be two different robot ids")
     if not 0.1 <= args.duration <= 600:
         raise ConfigError(f"--duration must lie in [0.1, 600] s, got {args.duration}")
     output_file(args.json)
-    endpoint = args.connect or lookup_run(args.run)
+    endpoint = check_endpoint(args.connect) if args.connect else lookup_run(args.run)
     if not endpoint.startswith(("tcp/", "tls/")):
         raise ConfigError(f"--connect {endpoint}: expected tcp/HOST:PORT or tls/HOST:PORT")
-    sec = None
-    if args.secure:  # the witness is the recorder; the attacker holds robot I's credentials
-        mine = Path(args.secure) / f"robot-{args.attacker}.pem"
-        if Path(args.secure).is_dir() and not mine.is_file():  # a team smaller than the default
-            raise ConfigError(f"--as {args.attacker}: {mine} is missing; pick --as and --victim "
-                              "among the run's robots (defaults 3 and 4)")
-        sec = Secure.load(args.secure, "recorder", args.run, need=(f"robot-{args.attacker}",))
-    rep = audit_main(args.run, endpoint, sec, args.attacker, args.victim, args.duration,
-                     args.stop)
+    if endpoint.startswith("tls/") and not args.secure:
+        raise ConfigError(f"run {args.run} is secure ({endpoint}): give --secure DIR (the "
+                          "witness uses the recorder identity)")
+    sec = Secure.load(args.secure, "recorder", args.run) if args.secure else None
+    attacker, victim = team_ids(_team_size(args.run, endpoint, sec), args.attacker, args.victim)
+    if sec is not None:  # the witness is the recorder; the attacker holds robot I's credentials
+        mine = Path(args.secure) / f"robot-{attacker}.pem"
+        if not mine.is_file():  # certificates made for a smaller team than the run's
+            raise ConfigError(f"--as {attacker}: {mine} is missing; pick --as and --victim "
+                              "among the robots of the certificate directory")
+        sec = Secure.load(args.secure, "recorder", args.run, need=(f"robot-{attacker}",))
+    rep = audit_main(args.run, endpoint, sec, attacker, victim, args.duration, args.stop)
     _print_audit(rep)
     if args.json:
         from swarm.common.atomic import write_json
 
         write_json(args.json, rep)
     return 0 if rep["verdict"] == "pass" else 1
+
+
+AUDIT_WAIT_S = 10.0  # how long `swarm audit` waits for the world to serve the run's record
+
+
+def _team_size(run_id: str, endpoint: str, sec: Any) -> int:
+    """The number of robots of run `run_id`, from the record its world serves (as `swarm fault`
+    fetches it), asked by the audit's witness identity; ConfigError if it does not answer."""
+    from swarm.net.keys import Keys
+    from swarm.net.messages import BadMessage
+    from swarm.net.security.audit import witness_session
+    from swarm.procs.robot import fetch_config
+
+    with witness_session(endpoint, sec) as session:
+        try:
+            return fetch_config(session, Keys(run_id), AUDIT_WAIT_S).world.n_robots
+        except (TimeoutError, BadMessage) as exc:
+            raise ConfigError(f"run {run_id} did not answer at {endpoint} ({exc}); nothing "
+                              "was sent") from None
 
 
 def _print_audit(rep: dict[str, Any]) -> None:
@@ -143,10 +169,12 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--connect", metavar="ENDPOINT",
                    help="the run's hub endpoint (default: the local registry of `swarm run`)")
     add_secure_flag(p)
-    p.add_argument("--as", dest="attacker", type=int, default=3, metavar="I",
-                   help="robot identity the attacker holds (default 3)")
-    p.add_argument("--victim", type=int, default=4, metavar="J",
-                   help="robot whose action is forged (default 4)")
+    p.add_argument("--as", dest="attacker", type=int, default=None, metavar="I",
+                   help="robot identity the attacker holds, one of the run's robots (default "
+                        "3; on a team of fewer than 5, its second to last robot)")
+    p.add_argument("--victim", type=int, default=None, metavar="J",
+                   help="robot whose action is forged, one of the run's robots (default 4; on "
+                        "a team of fewer than 5, its last robot)")
     p.add_argument("--duration", type=float, default=2.0, metavar="S",
                    help="seconds each session forges actions (default 2)")
     p.add_argument("--stop", action="store_true",

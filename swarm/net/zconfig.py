@@ -88,8 +88,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="extra Zenoh setting applied last (repeatable)")
 
 
+IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")  # PROTO/HOST:PORT
+OTHER_PROTOCOLS = ("unixsock-stream", "unixpipe", "vsock", "serial")  # PROTO/ADDRESS
+
+
+def check_endpoint(endpoint: str, flag: str = "--connect") -> str:
+    """A Zenoh endpoint `PROTO/ADDRESS[?METADATA][#CONFIG]`, checked as it is parsed: a known
+    protocol and, for an IP one, HOST:PORT with a port in [1, 65535] ([0, 65535] to listen on:
+    0 is an ephemeral port). Zenoh itself takes `tcp/127.0.0.1:notaport` and fails only when the
+    session opens (a refused connection or no answer, far from the flag): a ConfigError names
+    the flag instead."""
+    proto, sep, rest = str(endpoint).partition("/")
+    address = re.split(r"[?#]", rest, maxsplit=1)[0]
+    form = f"{flag} {endpoint!r}: expected PROTO/HOST:PORT, e.g. tcp/127.0.0.1:7447"
+    if not sep or not proto or not address:
+        raise ConfigError(form)
+    if proto in OTHER_PROTOCOLS:
+        return endpoint
+    if proto not in IP_PROTOCOLS:
+        raise ConfigError(f"{flag} {endpoint!r}: unknown protocol {proto!r} (one of "
+                          f"{', '.join(IP_PROTOCOLS + OTHER_PROTOCOLS)})")
+    host, colon, port = address.rpartition(":")
+    if not colon or not host or host in ("[]",) or any(c.isspace() for c in host) or (
+            host.startswith("[") != host.endswith("]")):
+        raise ConfigError(form)
+    lo = 0 if flag == "--listen" else 1
+    if not (port.isascii() and port.isdigit() and lo <= int(port) <= 65535):
+        raise ConfigError(f"{flag} {endpoint!r}: port {port!r} is not a number in "
+                          f"[{lo}, 65535]")
+    return endpoint
+
+
 def from_args(args: argparse.Namespace) -> ZenohOptions:
     """The options of the flags, checked at once (before any session or process exists)."""
+    for flag, endpoints in (("--connect", args.connect), ("--listen", args.listen)):
+        for e in endpoints:
+            check_endpoint(e, flag)
     opts = ZenohOptions(mode=args.zenoh_mode, connect=list(args.connect),
                         listen=list(args.listen), config_file=args.zenoh_config,
                         cfg=list(args.cfg))

@@ -9,10 +9,18 @@ and PNG.
 - `robots.csv`, `latency.png`: per robot, the wall time from its observation to its action as
   the recorder heard them (its decision latency, waits included) and the compute time it
   reported per decision (`planning_ms`), as quantiles and histograms.
-- `kinds.csv`: messages and bytes per message kind.
+- `kinds.csv`: messages and bytes per message kind (direct delivery's stamped messages as
+  `direct_traj` and `direct_hidden`).
 - `elratio.csv`, `elratio.png`: elratio after every tick, one line per episode.
 - `attention.csv`, `attention.png` (CommAttn robots that report attention): mean attention
   weight per (receiver, distance to the sender in cells, rounded), over the members it heard.
+
+A `--delivery direct` recording holds no bundle and no forward: each receiver decides its copies
+itself. Whom each robot heard comes with its action (`Action.heard`), which gives the trajectory
+copies per link and the members attention is over; the dropped, late and queued copies per link
+are the robots' own counters, from their last status records (`DirectTally`, as the world sums
+them). Which hidden-state copies each link delivered is nowhere in such a recording: those cells
+are left empty and the notes (`notes.txt`, printed) say so, with the robots' totals.
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ import numpy as np
 
 from swarm.common import atomic
 from swarm.common.report import csv_text, save_png
+from swarm.net.direct import DirectTally
 from swarm.net.messages import (
     K_RSTATUS,
     K_STATUS,
@@ -65,13 +74,21 @@ class Trace:
         self.elratio: list[tuple[int, int, int, float]] = []
         self.attn: list[tuple[int, int, int, list[float]]] = []  # (ep, t, robot, weights)
         self.bad = 0
+        self.direct = rec.record.run.delivery == "direct"
+        self.tally = DirectTally(n) if self.direct else None  # the robots' own link counters
+        self.heard_actions = 0  # direct: actions that said whom their robot heard
         for m in rec.messages:
-            self.kinds[m.kind][0] += 1
-            self.kinds[m.kind][1] += len(m.payload)
+            kind = m.kind
+            if kind == "direct":  # a stamped trajectory or hidden-state message, by its key
+                kind = "direct_hidden" if m.key.endswith("/dhidden") else "direct_traj"
+            self.kinds[kind][0] += 1
+            self.kinds[kind][1] += len(m.payload)
             try:
                 self._take(m)
             except (BadMessage, KeyError, TypeError, ValueError, IndexError, OverflowError):
                 self.bad += 1
+        if self.tally is not None and self.tally.latest:
+            self.links = self.tally.faulted_links()  # fresher than the world's last status
 
     def _take(self, m: Any) -> None:
         cfg = self.cfg
@@ -85,6 +102,15 @@ class Trace:
             t0 = self.obs_at.get((a.ep, a.t, a.robot))
             if t0 is not None:
                 self.latency[a.robot].append((m.wall_ns - t0) / 1e6)
+            if self.direct and a.heard:  # whom it heard: direct delivery's bundle
+                bits = np.unpackbits(np.frombuffer(a.heard, dtype=np.uint8),
+                                     count=cfg.n_robots)
+                senders = np.flatnonzero(bits).tolist()
+                self.heard[(a.ep, a.t, a.robot)] = senders
+                self.heard_actions += 1
+                for j in senders:
+                    if j != a.robot:
+                        self.delivered[0, j, a.robot] += 1
         elif m.kind == "bundle":
             b = Bundle.unpack(m.payload, cfg)
             senders = [Traj.unpack(p, cfg).robot for p in b.trajs]
@@ -108,6 +134,8 @@ class Trace:
             if "attn" in rs:
                 self.attn.append((int(rs["ep"]), int(rs["attn_t"]), int(rs["robot"]),
                                   [float(x) for x in rs["attn"]]))
+            if self.tally is not None and "direct" in rs:
+                self.tally.offer(rs)
 
     # ------------------------------------------------------------------------------- tables
     def link_rows(self) -> list[dict[str, Any]]:
@@ -119,11 +147,35 @@ class Trace:
                 if i == j or not (dt or dh or any(faults)):
                     continue
                 tried = dt + faults[1] + faults[2]
+                unknown = self.direct  # no forward in the file: each receiver decided them
                 rows.append({"sender": j, "receiver": i, "delivered_traj": dt,
-                             "delivered_hidden": dh, "hidden_missed": int(self.hidden_missed[j, i]),
+                             "delivered_hidden": "" if unknown else dh,
+                             "hidden_missed": "" if unknown else int(self.hidden_missed[j, i]),
                              "dropped": faults[1], "late": faults[2], "queued": faults[3],
                              "delivery_ratio": round(dt / tried, 4) if tried else ""})
         return rows
+
+    def notes(self) -> list[str]:
+        """What this recording cannot say (left empty in the CSVs rather than drawn as zeros)."""
+        if not self.direct:
+            return []
+        out = ["direct delivery: which hidden-state copies each link delivered is not in the "
+               "recording (each receiver decides its copies and reports only totals), so "
+               "links.csv leaves delivered_hidden and hidden_missed empty; dropped and late count "
+               "both kinds, from the robots' own per-link counters"]
+        if self.tally is not None and self.tally.latest:
+            tot = self.tally.totals()
+            missed = sum(tot["by_kind"]["hidden"][k] for k in ("lost", "cut", "late",
+                                                                "dropped_bw"))
+            out.append(f"the robots reported {tot['hidden_delivered']} hidden-state copies "
+                       f"delivered and {missed} missed in all (robots {tot['reported']})")
+        else:
+            out.append("no robot status record with direct counters: dropped, late and queued "
+                       "per link are unknown")
+        if not self.heard_actions:
+            out.append("no action says whom its robot heard: trajectory copies per link and "
+                       "attention per sender distance are unknown")
+        return out
 
     def robot_rows(self) -> list[dict[str, Any]]:
         rows = []
@@ -252,6 +304,10 @@ def trace(rec: Recording, out: str | Path) -> dict[str, Any]:
 
         save_png(out / "attention.png", draw_attention, ncols=2)
         files.append(out / "attention.png")
+    notes = tr.notes()
+    if notes:
+        atomic.write_text(out / "notes.txt", "\n".join(notes) + "\n")
+        files.append(out / "notes.txt")
     return {"files": [str(f) for f in files], "links": len(links), "robots": n,
             "kinds": {r["kind"]: r["bytes"] for r in kinds}, "attention_samples": len(tr.attn),
-            "bad": tr.bad, "messages": len(rec.messages)}
+            "bad": tr.bad, "messages": len(rec.messages), "notes": notes}

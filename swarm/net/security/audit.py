@@ -39,6 +39,7 @@ from swarm.net.learning import Weights
 from swarm.net.messages import K_CONTROL, Action, pack_record
 from swarm.net.security.tls import Secure
 from swarm.net.zconfig import zenoh_reason
+from world.config import ConfigError
 
 MARK_MS = 4242.4242  # planning_ms of a forged action: no robot plans this long
 FORGED = ("action", "weights", "control")
@@ -88,18 +89,7 @@ class Audit:
 
     # --- the witness ------------------------------------------------------------------------
     def _witness(self) -> zenoh.Session:
-        ep = self.endpoint
-        tls = None
-        if self.secure is not None:
-            tls = self.secure.tls("recorder")
-        elif ep.startswith("tls/"):
-            raise RuntimeError("the run's endpoint is TLS: give --secure DIR (the witness "
-                               "uses the recorder identity)")
-        try:
-            return zenoh.open(_conf(ep, tls))
-        except zenoh.ZError as exc:
-            raise RuntimeError(f"the witness cannot join the run at {ep}: "
-                               f"{zenoh_reason(exc)}") from None
+        return witness_session(self.endpoint, self.secure)
 
     def _seen(self, sample: zenoh.Sample) -> None:
         payload = sample.payload.to_bytes()
@@ -226,6 +216,43 @@ class Audit:
                 "verdict": "pass" if accepted == 0 and witnessed and
                 all(not a.connected for a in self.attempts if not a.name.startswith("valid_"))
                 else "fail"}
+
+
+def witness_session(endpoint: str, secure: Secure | None) -> zenoh.Session:
+    """The witness's session into the run at `endpoint` (the recorder identity with `secure`;
+    it may also ask the world for the run's record, which `swarm audit` checks --as and
+    --victim against before any attack); RuntimeError if it cannot join."""
+    tls = None
+    if secure is not None:
+        tls = secure.tls("recorder")
+    elif endpoint.startswith("tls/"):
+        raise RuntimeError("the run's endpoint is TLS: give --secure DIR (the witness "
+                           "uses the recorder identity)")
+    try:
+        return zenoh.open(_conf(endpoint, tls))
+    except zenoh.ZError as exc:
+        raise RuntimeError(f"the witness cannot join the run at {endpoint}: "
+                           f"{zenoh_reason(exc)}") from None
+
+
+def team_ids(n: int, attacker: int | None, victim: int | None) -> tuple[int, int]:
+    """(attacker, victim) robot ids within a team of `n` robots: a given id is checked against
+    the team (ConfigError naming its flag), a missing one chosen in it (robot 3 forging robot
+    4's action on a team of at least 5; on a smaller team its last two robots)."""
+    if n < 2:
+        raise ConfigError(f"the run has {n} robot: --as and --victim must be two different "
+                          "robots of its team")
+    for flag, v in (("--as", attacker), ("--victim", victim)):
+        if v is not None and not 0 <= v < n:
+            raise ConfigError(f"{flag} {v} is not a robot of the run: its team has robots "
+                              f"0..{n - 1}")
+    if attacker is None:
+        attacker = next(i for i in (min(3, n - 2), *range(n)) if i != victim)
+    if victim is None:
+        victim = next(i for i in (min(4, n - 1), *range(n)) if i != attacker)
+    if attacker == victim:
+        raise ConfigError("--as and --victim must be two different robot ids")
+    return attacker, victim
 
 
 def _obs_tick(payload: bytes) -> tuple[int, int]:

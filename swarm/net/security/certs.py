@@ -256,10 +256,12 @@ def make_certs(out: str | Path, robots: int, workers: int = 0, hosts: list[str] 
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a directory")
+    check_hosts(list(hosts or []))  # everything that can be checked first: a refused
+    crypto()  # command leaves no directory behind
+    old = read_roster(out) if out.is_dir() else {}
+    hosts = check_hosts(list(dict.fromkeys([*old.get("hosts", []), *(hosts or [])])))
     out.mkdir(parents=True, exist_ok=True, mode=0o700)
     os.chmod(out, 0o700)
-    old = read_roster(out)
-    hosts = check_hosts(list(dict.fromkeys([*old.get("hosts", []), *(hosts or [])])))
     robots = max(robots, int(old.get("robots", 0)))
     workers = max(workers, int(old.get("workers", 0)))
     routers = max(routers, int(old.get("routers", 0)))

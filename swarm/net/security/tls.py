@@ -46,6 +46,9 @@ class Secure:
         """Read the roster of `cert_dir` and check every file the session (and `need`, the
         identities it will start) reads: one line naming the first file missing or unsafe."""
         d = Path(cert_dir).expanduser().resolve()
+        if d.exists() and not d.is_dir():
+            raise ConfigError(f"--secure {cert_dir} is not a directory (give the directory "
+                              f"`swarm certs --out DIR --robots N` made)")
         if not d.is_dir():
             raise ConfigError(f"--secure {cert_dir}: no such directory (make it with "
                               f"`swarm certs --out {cert_dir} --robots N`)")
