@@ -62,7 +62,8 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
 
     path = Path(path)
     if not path.is_file():
-        raise CheckpointError(f"checkpoint not found: {path}")
+        raise CheckpointError(f"checkpoint {path} is a directory, not a checkpoint file"
+                              if path.is_dir() else f"checkpoint not found: {path}")
     if not zipfile.is_zipfile(path):  # what torch.save writes; else torch's advice misleads
         raise CheckpointError(f"checkpoint {path} is unreadable: not a torch checkpoint file "
                               "(a .pt that swarm train wrote)")
@@ -83,7 +84,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
     path = Path(path)
     if not path.is_file():
-        raise CheckpointError(f"checkpoint not found: {path}")
+        raise CheckpointError(f"checkpoint {path} is a directory, not a checkpoint file"
+                              if path.is_dir() else f"checkpoint not found: {path}")
     try:
         data = load_pt(path)
     except PtFileError as exc:

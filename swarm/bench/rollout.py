@@ -9,6 +9,7 @@ process is stopped before the next K. Figures are medians of `repeats` windows o
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import statistics
 import subprocess
 import tempfile
@@ -21,7 +22,8 @@ from typing import Any
 import zenoh
 
 from swarm.bench.micro import int_list
-from swarm.common.spawn import child_env, cli_args, wait_port
+from swarm.common.spawn import child_env, cli_args, last_error, wait_port
+from swarm.learn.config import check_worker
 from swarm.net.keys import Keys
 from swarm.net.messages import K_LSTATUS, BadMessage, unpack_record
 from swarm.net.zconfig import ZenohOptions, free_port
@@ -50,8 +52,21 @@ class RolloutBenchConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "workers", int_list(self.workers, "workers"))
-        if self.batch < 1 or self.threads < 1 or self.seconds <= 0 or self.repeats < 1:
-            raise ConfigError("batch, threads, repeats must be >= 1 and seconds > 0")
+        if (self.repeats < 1 or not 0 < self.seconds <= 3600  # (also NaN)
+                or not 0 <= self.warmup <= 3600):
+            raise ConfigError("bench rollout: repeats must be >= 1, seconds in (0, 3600] and "
+                              "warmup in [0, 3600]")
+        # what the learner and every worker would refuse, refused before any is spawned
+        check_worker(0, self.batch, self.threads, 0, 30.0)
+        from policies import policy_class
+
+        try:
+            learned = policy_class(self.policy).learned
+        except ValueError as exc:  # an unknown name
+            raise ConfigError(str(exc)) from None
+        if not learned:
+            raise ConfigError(f"bench rollout needs a learned policy (the workers sample it and "
+                              f"a learner takes its weights), not {self.policy!r}")
 
 
 def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
@@ -76,7 +91,11 @@ def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
             cli_args("learner", "--run-id", run_id, "--policy", cfg.policy, "--gather-only",
                      "--out", str(tmp / f"learner{k}"), "--zenoh-mode", "router", "--listen", hub),
             stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, env=child_env()))
-        wait_port("127.0.0.1", port, procs[0], 60.0, "learner")
+        try:
+            wait_port("127.0.0.1", port, procs[0], 60.0, "learner")
+        except (RuntimeError, TimeoutError) as exc:
+            why = last_error(Path(log.name))
+            raise RuntimeError(f"{exc}{': ' + why if why else ''}; see {log.name}") from None
         with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
             sub = session.declare_subscriber(Keys(run_id).learner_status, on_status)
             for w in range(k):
@@ -92,10 +111,12 @@ def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
                     if status and status[-1][1] > 0:
                         break
                 if any(p.poll() is not None for p in procs):
-                    raise RuntimeError(f"a bench process exited early; see {log.name}")
+                    why = last_error(Path(log.name))
+                    raise RuntimeError(f"a bench process exited early"
+                                       f"{': ' + why if why else ''}; see {log.name}")
                 time.sleep(0.1)
             else:
-                raise RuntimeError("no episode reached the learner within 120 s")
+                raise RuntimeError(f"no episode reached the learner within 120 s; see {log.name}")
             time.sleep(cfg.warmup)
             rates, byte_rates = [], []
             for _ in range(cfg.repeats):
@@ -122,10 +143,14 @@ def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
 
 
 def bench_rollout(cfg: RolloutBenchConfig, on_row: Any = None) -> dict[str, Any]:
+    """Every worker count of `cfg`, measured; the processes' logs go to a temporary folder,
+    removed after a good run and kept after a failed one (its error names the log)."""
     rows = []
-    with tempfile.TemporaryDirectory(prefix="swarm-bench-rollout-") as tmp:
+    tmp = Path(tempfile.mkdtemp(prefix="swarm-bench-rollout-"))
+    ok = False
+    try:
         for k in cfg.workers:
-            row = measure(k, cfg, Path(tmp))
+            row = measure(k, cfg, tmp)
             if rows:
                 row["speedup"] = row["episodes_per_s"] / max(rows[0]["episodes_per_s"], 1e-9)
             else:
@@ -133,4 +158,11 @@ def bench_rollout(cfg: RolloutBenchConfig, on_row: Any = None) -> dict[str, Any]
             rows.append(row)
             if on_row:
                 on_row(row)
+        ok = True
+    except KeyboardInterrupt:
+        ok = True  # nothing failed: nothing to read
+        raise
+    finally:
+        if ok:
+            shutil.rmtree(tmp, ignore_errors=True)
     return {"config": dataclasses.asdict(cfg), "rows": rows}

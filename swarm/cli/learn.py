@@ -11,12 +11,12 @@ from swarm.cli.common import (
     add_common,
     add_world,
     file_tables,
-    output_dir,
     output_file,
     world_config,
 )
-from swarm.cli.run import _logging, learner_configs
+from swarm.cli.run import LEARNER_TRAIN_FIELDS, _logging, learner_configs
 from swarm.cli.secure import add_secure_flag, secure_options
+from swarm.learn.config import MAX_WORKER_BATCH, MAX_WORKER_ID, check_worker
 from swarm.net import zconfig
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError
@@ -26,24 +26,32 @@ def cmd_learner(args: argparse.Namespace) -> int:
     from swarm.procs.learner import main as learner_main
 
     _logging(args.verbose)
-    if args.spec:
+    if args.spec:  # `swarm run --train`: the spec's train table is whole, every field meant
         rec = RunRecord.read(args.spec)
         world, seed = rec.world, rec.run.seed
         tables = {"learner": rec.learner or {}, "train": rec.train or {}}
+        given = None
     else:
         tables = file_tables(args.config)
         world = world_config(args, tables)
         seed = args.seed or 0
+        # what `--resume` holds against the checkpoint: the [train] keys of the file and the
+        # flags given (threads is always set for this machine, see learner_configs)
+        flags = [k for k in LEARNER_TRAIN_FIELDS if getattr(args, f"train_{k}", None) is not None]
+        given = {*tables.get("train", {}), "threads", *flags}
     lc, tc = learner_configs(args, tables)
     if not lc.out:
         raise ConfigError("swarm learner needs --out DIR")
     if lc.resume and not (Path(lc.out) / "checkpoint.pt").is_file():
         raise ConfigError(f"--resume: {Path(lc.out) / 'checkpoint.pt'} does not exist")
-    output_dir(lc.out, "--out")
+    if lc.resume and not args.spec and args.checkpoint:
+        raise ConfigError("--checkpoint gives a new learner its first weights; --resume goes on "
+                          "from OUT/checkpoint.pt (drop one of them)")
     output_file(args.json)
     try:
         zopts = secure_options(args, zconfig.from_args(args), "learner", lc.run_id)
-        status = learner_main(world, lc, tc, zopts, seed)
+        # checks everything first; creates --out only once they passed (and the session opened)
+        status = learner_main(world, lc, tc, zopts, seed, given=given)
     except KeyboardInterrupt:
         return 130
     if args.json:
@@ -57,8 +65,7 @@ def cmd_rollout_worker(args: argparse.Namespace) -> int:
     from swarm.procs.rollout_worker import main as worker_main
 
     _logging(args.verbose)
-    if args.batch < 1 or args.threads < 1:
-        raise ConfigError("--batch and --threads must be >= 1")
+    check_worker(args.worker_id, args.batch, args.threads, args.max_batches, args.wait)
     try:
         zopts = secure_options(args, zconfig.from_args(args), f"worker-{args.worker_id}",
                                args.run_id)
@@ -84,11 +91,14 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--policy", help="learned policy (default commattn)")
     p.add_argument("--checkpoint", metavar="FILE", help="initial weights")
     p.add_argument("--out", metavar="DIR", help="checkpoint.pt, curve.csv, log.jsonl go here")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument("--resume", action="store_true",
+                   help="continue from OUT/checkpoint.pt with its train settings (a loss flag "
+                        "that differs from them is refused; only --threads may change)")
     p.add_argument("--max-staleness", type=int, metavar="K",
-                   help="drop episodes more than K versions old (default 1)")
+                   help="drop episodes more than K >= 0 versions old (default 1)")
     p.add_argument("--join-timeout", type=float, metavar="S",
-                   help="seconds to wait for an episode's robot records (default 5)")
+                   help="seconds to wait for an episode's robot records, in [0.01, 3600] "
+                        "(default 5)")
     p.add_argument("--gather-only", action="store_true", help="count episodes, never update")
     g = p.add_argument_group("loss (override [train] of --config)")
     g.add_argument("--batch", dest="train_batch", type=int, metavar="B",
@@ -113,11 +123,16 @@ def add_parsers(sub: Any) -> None:
                                    "publish them to it (scale training out across cores and "
                                    "hosts).")
     p.add_argument("--run-id", required=True, help="the learner's run id")
-    p.add_argument("--worker-id", type=int, default=0, help="distinct per worker (its seed)")
-    p.add_argument("--batch", type=int, default=16, help="episodes per batch (default 16)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    p.add_argument("--max-batches", type=int, default=0, help="stop after this many (0: never)")
-    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the learner")
+    p.add_argument("--worker-id", type=int, default=0,
+                   help=f"distinct per worker (its seed), in [0, {MAX_WORKER_ID}] (default 0)")
+    p.add_argument("--batch", type=int, default=16,
+                   help=f"episodes per batch, collected at once, in [1, {MAX_WORKER_BATCH}] "
+                        f"(default 16)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads, 1-256 (default 1)")
+    p.add_argument("--max-batches", type=int, default=0,
+                   help="stop after this many (default 0: never)")
+    p.add_argument("--wait", type=float, default=30.0, metavar="S",
+                   help="seconds to wait for the learner, in [0.1, 3600] (default 30)")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
     add_secure_flag(p)

@@ -14,6 +14,10 @@ from typing import Any
 from swarm.common.flags import add_flags, from_flags
 from world.config import ConfigError, from_dict
 
+PPO_FIELDS = ("gae_lambda", "ppo_epochs", "ppo_clip")
+"""TrainConfig fields only `algo = "ppo"` reads: set to anything but their default for another
+estimator, they are refused (they would silently do nothing)."""
+
 
 @dataclass
 class TrainConfig:
@@ -151,6 +155,13 @@ class TrainConfig:
                 raise ConfigError(f"train {name} must lie in [{lo}, {hi}], got {v!r}")
         if self.algo not in ("reinforce", "ppo"):
             raise ConfigError(f"train algo must be reinforce or ppo, got {self.algo!r}")
+        if self.algo != "ppo":  # PPO's own settings, set for another estimator, would do nothing
+            ppo_only = [f"{f.name} = {getattr(self, f.name)!r}" for f in dataclasses.fields(self)
+                        if f.name in PPO_FIELDS and getattr(self, f.name) != f.default]
+            if ppo_only:
+                raise ConfigError(f"train {', '.join(ppo_only)} only applies with algo ppo "
+                                  f"(--algo ppo; swarm run: --train-algo ppo), but algo is "
+                                  f"{self.algo!r}")
         if self.imitate and self.algo == "ppo":
             raise ConfigError("train imitate needs algo reinforce (its loss is not a surrogate)")
         if self.imitate_samples > 1 and not self.imitate:
@@ -235,6 +246,26 @@ def resumed(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | Non
         raise ConfigError(f"--resume --epochs {changes['epochs']}: {where} has already done "
                           f"{done} epochs")
     return dataclasses.replace(saved, **changes)
+
+
+# ---------------------------------------------------------------------------- rollout worker
+MAX_WORKER_ID = 2**31 - 1
+"""Worker ids are seeds (and go on the wire as msgpack ints): [0, MAX_WORKER_ID]."""
+MAX_WORKER_BATCH = 4096
+"""Episodes a rollout worker collects at once, all in its memory (the paper's batch is 288)."""
+
+
+def check_worker(worker_id: int, batch: int, threads: int, max_batches: int,
+                 wait: float) -> None:
+    """A rollout worker's options (`swarm rollout-worker`), checked before anything starts:
+    ConfigError, one line."""
+    for flag, v, lo, hi in (("--worker-id", worker_id, 0, MAX_WORKER_ID),
+                            ("--batch", batch, 1, MAX_WORKER_BATCH), ("--threads", threads, 1, 256),
+                            ("--max-batches", max_batches, 0, 2**31 - 1)):
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise ConfigError(f"{flag} must be an integer in [{lo}, {hi}], got {v!r}")
+    if isinstance(wait, bool) or not isinstance(wait, (int, float)) or not 0.1 <= wait <= 3600:
+        raise ConfigError(f"--wait must lie in [0.1, 3600] s, got {wait}")  # (also NaN)
 
 
 # --------------------------------------------------------------------------------------- CLI

@@ -32,7 +32,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
+import tempfile
 import time
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,12 +47,12 @@ import zenoh
 from policies import policy_class
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from swarm.learn.config import TrainConfig
-from swarm.learn.curves import CurveLog
+from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
 from swarm.learn.weights import weights_of
 from swarm.net.inbox import Inbox, publisher, tally
-from swarm.net.keys import Keys
+from swarm.net.keys import Keys, check_run_id
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
@@ -85,6 +88,42 @@ class LearnerConfig:
     seed: int = 0
     """Seed of fresh initial weights."""
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.run_id, str):
+            raise ConfigError(f"learner run_id must be a string, got {self.run_id!r}")
+        check_run_id(self.run_id)
+        for name, lo, hi in (("max_staleness", 0, 10**6), ("seed", 0, 2**31 - 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(f"learner {name} must be an integer in [{lo}, {hi}], got {v!r}")
+        for name, lo, hi in (("join_timeout", 0.01, 3600.0), ("status_every", 0.01, 3600.0)):
+            v = getattr(self, name)
+            if (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                    or not lo <= v <= hi):
+                raise ConfigError(f"learner {name} must lie in [{lo}, {hi}] seconds, got {v!r}")
+
+
+LEARNER_MAY_CHANGE = ("threads",)
+"""What a resumed learner's TrainConfig may change: how many torch threads, never its math."""
+
+
+def resumed_train(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | None,
+                  out: Path) -> TrainConfig:
+    """The TrainConfig a resumed learner goes on with: the checkpoint's (`saved`), with the
+    `given` fields of `asked` that may change (None: every field of `asked` is meant). A given
+    field that would change the run's math is a one-line ConfigError naming every such field,
+    as `swarm train --resume` does: the checkpoint's optimizer state and curve belong to it."""
+    names = [f.name for f in dataclasses.fields(TrainConfig) if given is None or f.name in given]
+    differ = [f"{n} = {getattr(asked, n)!r} (its checkpoint: {getattr(saved, n)!r})" for n in names
+              if n not in LEARNER_MAY_CHANGE and getattr(asked, n) != getattr(saved, n)]
+    if differ:
+        raise ConfigError(f"--resume continues the learner in {out} as it was trained: "
+                          f"{', '.join(differ)} (only {', '.join(LEARNER_MAY_CHANGE)} may "
+                          f"change; a new --out with --checkpoint {out / 'checkpoint.pt'} starts "
+                          f"another run from its weights)")
+    return dataclasses.replace(saved, **{n: getattr(asked, n) for n in names
+                                         if n in LEARNER_MAY_CHANGE})
+
 
 @dataclass
 class LearnerCounters:
@@ -106,48 +145,52 @@ class LearnerCounters:
 
 
 class Learner:
-    """One learner of one run; `run(stop)` loops until `stop()` is true or it is interrupted."""
+    """One learner of one run: `Learner(...)` checks everything and loads the weights (nothing
+    written yet), `open_out()` makes its directory, `run(session, seed, stop)` loops until
+    `stop()` is true or it is interrupted."""
 
     def __init__(self, cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig,
-                 session: zenoh.Session) -> None:
+                 given: Collection[str] | None = None) -> None:
+        """`given`: the TrainConfig fields the user set (None: every field of `tc` is meant),
+        which `--resume` holds against the checkpoint's (see `resumed_train`)."""
         if not lc.out:
             raise ConfigError("the learner needs an output directory (--out DIR)")
-        self.cfg, self.lc, self.session = cfg, lc, session
+        self.cfg, self.lc = cfg, lc
         self.keys = Keys(lc.run_id)
         self.out = Path(lc.out)
-        self.out.mkdir(parents=True, exist_ok=True)
+        if self.out.exists() and not self.out.is_dir():
+            raise ConfigError(f"--out {self.out} exists and is not a directory")
         self.ckpt = self.out / "checkpoint.pt"
         self.curves = CurveLog(self.out)
         self.c = LearnerCounters()
         self.version = 0
-        torch.set_num_threads(tc.threads)
-        cls = policy_class(lc.policy)
+        try:
+            cls = policy_class(lc.policy)
+        except ValueError as exc:  # an unknown name
+            raise ConfigError(str(exc)) from None
         if not cls.learned:
             raise ConfigError(f"policy {lc.policy!r} is not a learned policy")
-        if lc.resume and not self.ckpt.exists():
-            raise ConfigError(f"--resume: {self.ckpt} does not exist (nothing to resume)")
         if lc.resume:
-            data = load_checkpoint(self.ckpt)
-            state = data.get("learner")
+            if not self.ckpt.is_file():
+                raise ConfigError(f"--resume: {self.ckpt} does not exist (nothing to resume)")
+            state = load_checkpoint(self.ckpt).get("learner")
             if state is None:
                 raise CheckpointError(f"{self.ckpt} holds no learner state; cannot resume")
+            saved = from_dict(TrainConfig, state["train"], where="checkpoint train config")
+            tc = resumed_train(saved, tc, given, self.out)
             self.policy = cls(cfg, checkpoint=self.ckpt)
-            tc = from_dict(TrainConfig, state["train"], where="checkpoint train config")
             self.opt = torch.optim.Adam(self.policy.net.parameters(), lr=tc.lr)
             self.opt.load_state_dict(state["optimizer"])
             self.version = int(state["version"])
             known = {f.name for f in dataclasses.fields(LearnerCounters)}
             self.c = LearnerCounters(**{k: v for k, v in state["counters"].items() if k in known})
-            self.curves.resume(self.version)
-            log.warning("learner resumed at version %d", self.version)
         else:
             if self.ckpt.exists() and not lc.gather_only:
                 raise ConfigError(f"{self.out} already holds a learner; pass --resume")
             torch.manual_seed(lc.seed)
             self.policy = cls(cfg, checkpoint=lc.checkpoint) if lc.checkpoint else cls(cfg)
             self.opt = torch.optim.Adam(self.policy.net.parameters(), lr=tc.lr)
-            if not lc.gather_only:
-                self.curves.start()
+        torch.set_num_threads(tc.threads)
         self.tc = tc
         self.pending: dict[int, dict[str, Any]] = {}  # ep -> {"world": rec, "robots": {}, "t": s}
         self.closed: set[int] = set()  # swarm episodes joined or given up
@@ -155,14 +198,39 @@ class Learner:
         self.n_closed = 0
         self.ready: list[EpisodeRollout] = []
         self.weights_payload = weights_of(self.policy, self.version).pack()
-        self.curve: list[float] = []
+        self.curve: list[float] = []  # the dashboard's sparkline: elratio per update
         self.t0 = time.monotonic()
         self._last_status = 0.0
         self.last_row: dict[str, Any] = {}
 
+    def open_out(self) -> None:
+        """Make the output directory (only now: a learner that fails its checks leaves nothing
+        behind) and start the curve, or, resumed, cut it back to the checkpoint and reload the
+        sparkline and last row from it."""
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=self.out):  # permission bits do not say it for root
+                pass
+        except OSError as exc:
+            raise ConfigError(f"--out {self.out} is not writable ({exc.strerror or exc})") from None
+        if self.lc.resume:
+            self.curves.resume(self.version)
+            try:
+                cols = read_curve(self.curves.csv)
+            except (ConfigError, OSError, ValueError):  # no curve, or no row yet
+                cols = {}
+            if cols:
+                self.curve = cols["elratio"][-40:]
+                self.last_row = {k: cols[k][-1] for k in ("elratio", "reward", "loss")
+                                 if cols.get(k)}
+            log.warning("learner resumed at version %d", self.version)
+        elif not self.lc.gather_only:
+            self.curves.start()
+
     # --- network ----------------------------------------------------------------------------
-    def _declare(self) -> Inbox:
-        k, s = self.keys, self.session
+    def _declare(self, session: zenoh.Session) -> Inbox:
+        self.session = session
+        k, s = self.keys, session
         self.weights_pub = publisher(s, k.weights)
         self.status_pub = publisher(s, k.learner_status)
         return (Inbox(s).subscribe(k.rollout("*"), "robot").subscribe(k.episode, "world")
@@ -356,8 +424,9 @@ class Learner:
         self.status_pub.put(pack_record(K_LSTATUS, rec))
         return rec
 
-    def run(self, seed: int, stop: Any = lambda: False) -> dict[str, Any]:
-        inbox = self._declare()
+    def run(self, session: zenoh.Session, seed: int, stop: Any = lambda: False
+            ) -> dict[str, Any]:
+        inbox = self._declare(session)
         try:
             self.weights_pub.put(self.weights_payload)  # late joiners also query it
             while not stop():
@@ -375,8 +444,12 @@ class Learner:
 
 
 def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptions,
-         seed: int, stop: Any = lambda: False) -> dict[str, Any]:
-    """Open a session and learn until interrupted (or `stop()`); returns the last status."""
+         seed: int, stop: Any = lambda: False, given: Collection[str] | None = None
+         ) -> dict[str, Any]:
+    """Check and load (before anything is opened or written), open a session, make the output
+    directory and learn until interrupted (or `stop()`); returns the last status. `given`: see
+    `Learner`."""
+    learner = Learner(cfg, lc, tc, given)
     with open_session(zopts) as session:
-        learner = Learner(cfg, lc, tc, session)
-        return learner.run(seed, stop)
+        learner.open_out()
+        return learner.run(session, seed, stop)

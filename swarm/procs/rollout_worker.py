@@ -5,9 +5,9 @@ run's configuration and current weights, then loops: collect `batch` episodes wi
 actions (the batched trainer's `collect`, one process, `threads` torch threads), put each as an
 `EpisodeRollout` on `rollout/episode`, adopt any newer weights between batches. Worker K plays
 episodes of its own seed (the train offset + run seed + K + 1, never an evaluation seed), so
-workers on several hosts never repeat each other's episodes. It exits
-after `max_batches` or on Ctrl-C; while the learner is gone it goes on with its last weights
-(what it sends meanwhile is lost, as on any pub/sub link without a subscriber).
+workers on several hosts never repeat each other's episodes. It exits after `max_batches` (0:
+never) or on Ctrl-C; while the learner is gone it goes on with its last weights (what it sends
+meanwhile is lost, as on any pub/sub link without a subscriber).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from policies import policy_class
-from swarm.learn.config import TrainConfig
+from swarm.learn.config import TrainConfig, check_worker
 from swarm.learn.join import episodes_of
 from swarm.learn.rollout import collect
 from swarm.learn.weights import adopt
@@ -37,6 +37,7 @@ log = logging.getLogger("swarm.worker")
 
 def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
          threads: int = 1, max_batches: int = 0, wait: float = 30.0) -> dict[str, Any]:
+    check_worker(worker_id, batch, threads, max_batches, wait)
     keys = Keys(run_id)
     torch.set_num_threads(threads)
     with open_session(zopts) as session:
