@@ -45,6 +45,8 @@ BAD = [  # (argv, what the one line must say); {tmp}/o must not exist afterwards
     (["learner", "--out", "{tmp}/o", "--policy", "nearest-frontier"], "not a learned policy"),
     (["learner", "--out", "{tmp}/o", "--policy", "nope"], "unknown policy"),
     (["learner", "--out", "{tmp}/o", "--checkpoint", "{tmp}"], "is a directory"),
+    (["eval", "--policy", "commattn", "--checkpoint", "{tmp}", "--episodes", "1"],
+     "is a directory"),
     (["rollout-worker", "--run-id", "x", "--worker-id", "99999999999999999999"], "--worker-id"),
     (["rollout-worker", "--run-id", "x", "--worker-id", "-1"], "--worker-id"),
     (["rollout-worker", "--run-id", "x", "--wait", "nan"], "--wait"),
