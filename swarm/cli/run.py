@@ -13,6 +13,14 @@ import secrets
 import sys
 from typing import Any
 
+from swarm.cli.checks import (
+    EXIT_INCOMPLETE,
+    check_clock,
+    check_fault_ticks,
+    check_training,
+    check_wait,
+    status_tick,
+)
 from swarm.cli.common import (
     _consoles,
     add_common,
@@ -187,6 +195,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     run = run_config(args, tables)
     faults = fault_table(args, tables, world.n_robots)
     # everything the run needs, checked before a process is spawned: one line, exit 2
+    check_training(args, tables, run)
+    check_clock(args, tables, run, faults)
+    check_fault_ticks(faults, run, world)
     output_file(args.json)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")
@@ -226,7 +237,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         lc, tc = learner_configs(argparse.Namespace(
             train_batch=args.train_batch, train_algo=args.train_algo,
             train_ppo_epochs=args.train_ppo_epochs), tables)
-        learning = {"learner": {**dataclasses.asdict(lc), "out": args.learner_out},
+        learning = {"learner": {**dataclasses.asdict(lc), "out": args.learner_out or lc.out},
                     "train": dataclasses.asdict(tc)}
     try:
         res = supervise(world, run, opts, console=out, faults=faults, learning=learning)
@@ -248,7 +259,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                   f"robots lost {res.get('robots_lost')}")
         if args.json:
             out.print(f"wrote {args.json}")
-    return 0
+    return EXIT_INCOMPLETE if res.get("completed", 0) < run.episodes else 0
 
 
 def cmd_world(args: argparse.Namespace) -> int:
@@ -263,6 +274,7 @@ def cmd_world(args: argparse.Namespace) -> int:
         tables = file_tables(args.config)
         world, run = world_config(args, tables), run_config(args, tables)
         faults = fault_table(args, tables, world.n_robots)
+        check_clock(args, tables, run, faults)
     zopts = secure_options(args, zconfig.from_args(args), "world", run.run_id, world.n_robots)
     output_file(args.json)
     if not args.spec:
@@ -277,8 +289,11 @@ def cmd_world(args: argparse.Namespace) -> int:
 
 
 def cmd_robot(args: argparse.Namespace) -> int:
+    from swarm.net.keys import check_run_id
     from swarm.procs.robot import main as robot_main
 
+    check_run_id(args.run_id)
+    check_wait(args.wait)
     _logging(args.verbose)
     try:
         zopts = secure_options(args, zconfig.from_args(args), f"robot-{args.id}", args.run_id)
@@ -291,25 +306,28 @@ def cmd_robot(args: argparse.Namespace) -> int:
 
 
 def cmd_fault(args: argparse.Namespace) -> int:
-    """Change the faults of a running swarm: link faults go to the world (applied from the next
-    tick), process faults to the supervisor (applied at once)."""
+    """Change the faults of a running swarm: link faults go to the world (from the next tick, or
+    --at-tick), process faults to the supervisor (at once, or at ROBOT@TICK)."""
 
     from swarm.common.spawn import lookup_run
-    from swarm.net.keys import Keys
+    from swarm.net.keys import Keys, check_run_id
     from swarm.net.messages import K_CONTROL, pack_record
 
+    check_run_id(args.run)  # before asking the network about it
     if args.at_tick is not None and not 0 <= args.at_tick < 2**40:
         raise ConfigError(f"--at-tick must be a run tick >= 0, got {args.at_tick}")
-    if not 0.1 <= args.wait <= 3600:  # also NaN
-        raise ConfigError(f"--wait must lie in [0.1, 3600] s, got {args.wait}")
+    check_wait(args.wait)
     table = fault_table(args, {})
     process = [f"{kind}:{text}" for kind in ("crash", "hang", "restart")
                for text in (getattr(args, kind) or [])]
     link = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
-    if args.clear:
-        link = {}
+    if args.clear and link:
+        raise ConfigError(f"--clear removes every link fault, so it takes none: use --replace "
+                          f"to set {', '.join(sorted(link))} alone")
     if not link and not process and not args.clear:
         raise ConfigError("no fault given (see swarm fault --help)")
+    if args.at_tick is not None and not (link or args.clear):
+        raise ConfigError("--at-tick times link faults; a process fault takes ROBOT@TICK")
     opts = zconfig.from_args(args)
     if not opts.connect:
         opts.connect = [lookup_run(args.run)]
@@ -332,6 +350,10 @@ def cmd_fault(args: argparse.Namespace) -> int:
         from swarm.net.messages import BadMessage
         from swarm.procs.robot import fetch_config
 
+        # the run's tick, from its status (an operator of a --secure run may not read it)
+        ticks: list[int] = []
+        sub = None if args.at_tick is None or args.secure else session.declare_subscriber(
+            keys.status, lambda s: ticks.append(status_tick(s.payload.to_bytes())))
         try:  # the run is there, and the faults fit it: else nothing is sent
             run = fetch_config(session, keys, args.wait)
         except (TimeoutError, BadMessage) as exc:
@@ -339,7 +361,23 @@ def cmd_fault(args: argparse.Namespace) -> int:
             raise ConfigError(f"run {args.run} did not answer at {where} ({exc}); nothing "
                               "was sent") from None
         fault_table(args, {}, run.world.n_robots)  # a partition or robot beyond the run's
+        check_fault_ticks(table, run.run, run.world, args.at_tick)  # or a tick beyond its end
+        if run.run.clock == "real" and "compute" in link:
+            raise ConfigError(f"run {args.run} is on the real clock: --compute-ms models compute "
+                              "time on the virtual clock; nothing was sent")
         time.sleep(0.3)  # the world's subscriptions reach this session too before the one put
+        deadline = time.monotonic() + args.wait
+        while sub is not None and max(ticks, default=-1) < 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        now = max(ticks, default=-1)
+        if args.at_tick is not None and args.at_tick <= now:
+            raise ConfigError(f"--at-tick {args.at_tick}: run {args.run} is at tick {now} "
+                              f"already; give a later tick (or none: the next); nothing was sent")
+        if args.at_tick is not None and now < 0:
+            print(f"swarm: warning: --at-tick {args.at_tick} not checked against run "
+                  f"{args.run}'s tick (no status read); if it has passed, the change applies "
+                  "at the next tick, counted late in the result's fault_changes",
+                  file=sys.stderr, flush=True)
         sent_at = time.time()
         put_once(session, keys.control, pack_record(K_CONTROL, rec))
         time.sleep(0.1)
@@ -382,7 +420,11 @@ def add_parsers(sub: Any) -> None:
 
     p = sub.add_parser("run", help="spawn world + N robot processes over Zenoh, live dashboard",
                        description="The distributed swarm: one world process and N robot "
-                                   "processes, each with its own Zenoh session, on loopback.")
+                                   "processes, each with its own Zenoh session, on loopback. "
+                                   "Exit status: 0 every episode done, 2 bad input (nothing "
+                                   f"run), {EXIT_INCOMPLETE} stopped before every episode "
+                                   "completed (a stop on the run's control key; the result says "
+                                   "stopped: control), 130 interrupted.")
     add_common(p)
     add_world(p)
     _add_run_flags(p)
@@ -423,7 +465,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--clear", action="store_true", help="remove every link fault")
     p.add_argument("--at-tick", type=int, metavar="K",
                    help="link faults apply from run tick K (default: the next tick); with the "
-                        "virtual clock the change is then reproducible")
+                        "virtual clock the change is then reproducible. A tick the run has "
+                        "passed or will never reach is refused (nothing sent)")
     p.add_argument("--wait", type=float, default=5.0, metavar="S",
                    help="seconds to wait for the run's world to answer (default 5)")
     add_fault_flags(p, config=False)
@@ -438,7 +481,8 @@ def add_robot_parser(sub: Any) -> None:
                        description="Join run RUN_ID as robot ID; the config comes from the world.")
     p.add_argument("--id", type=int, required=True, help="robot id 0..N-1")
     p.add_argument("--run-id", required=True, help="the run to join (printed by `swarm world`)")
-    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the world")
+    p.add_argument("--wait", type=float, default=30.0, metavar="S",
+                   help="seconds to wait for the world, in [0.1, 3600] (default 30)")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
     add_secure_flag(p)

@@ -16,6 +16,7 @@ import logging
 import os
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -39,7 +40,7 @@ from swarm.common.spawn import (
     wait_port,
 )
 from swarm.learn.weights import fresh_checkpoint
-from swarm.net.faults import ProcessFault, parse_process, plan_from_table
+from swarm.net.faults import MAX_PENDING, ProcessFault, check_control, plan_from_table
 from swarm.net.inbox import Inbox, put_once
 from swarm.net.kernel.hosts import topology
 from swarm.net.kernel.netns import NetnsConfig
@@ -240,13 +241,10 @@ class Supervisor:
                                                                          K_LSTATUS))
                 v.learner = self.learner_status
             elif kind == "control":
-                rec = unpack_record(payload or b"", K_CONTROL)
-                texts = rec.get("process", [])
-                if not isinstance(texts, list) or len(texts) > 64:
-                    raise ValueError("process faults must be a list of at most 64")
-                faults = [parse_process(*str(text).partition(":")[::2]) for text in texts]
-                if any(not 0 <= f.robot < self.cfg.n_robots for f in faults):
-                    raise ValueError(f"a process fault names a robot beyond {self.cfg.n_robots}")
+                faults = check_control(unpack_record(payload or b"", K_CONTROL),
+                                       self.run_cfg.seed, self.cfg.n_robots).process
+                if len(self.process_faults) + len(faults) > MAX_PENDING:
+                    raise ValueError(f"{MAX_PENDING} process faults wait already")
                 for f in faults:  # ROBOT@TICK waits for run tick TICK, ROBOT alone is now
                     if f.tick < 0:
                         self._process_fault(f)
@@ -269,21 +267,26 @@ class Supervisor:
     def _process_fault(self, f: ProcessFault) -> None:
         """crash = SIGKILL, hang = SIGSTOP, restart = SIGCONT a hung robot or respawn a dead one."""
         p = self.robots.get(f.robot)
-        self.fault_log.append(f"{f.kind} {f.robot}@{self.run_tick}")  # the last status's tick
-        self.view.events = self.view.events[-5:] + [self.fault_log[-1]]
-        if f.kind == "crash" and p is not None and p.poll() is None:
+        up = p is not None and p.poll() is None
+        note = ""  # a fault with nothing to act on is logged as such, never as done
+        if f.kind == "crash" and p is not None and up:
             p.kill()
-        elif f.kind == "hang" and p is not None and p.poll() is None:
+            self.hung.discard(f.robot)
+        elif f.kind == "hang" and p is not None and up and f.robot not in self.hung:
             p.send_signal(signal.SIGSTOP)
             self.hung.add(f.robot)
-        elif f.kind == "restart":
-            if f.robot in self.hung and p is not None and p.poll() is None:
-                p.send_signal(signal.SIGCONT)
-                self.hung.discard(f.robot)
-                self.restarts += 1  # resumed: it rejoins the run (counted by the robot too)
-            elif p is None or p.poll() is not None:
-                self.restarts += 1
-                self.spawn_robot(f.robot)
+        elif f.kind == "restart" and p is not None and up and f.robot in self.hung:
+            p.send_signal(signal.SIGCONT)
+            self.hung.discard(f.robot)
+            self.restarts += 1  # resumed: it rejoins the run (counted by the robot too)
+        elif f.kind == "restart" and not up:
+            self.restarts += 1
+            self.spawn_robot(f.robot)
+        else:
+            note = " (not down: nothing done)" if f.kind == "restart" else \
+                f" ({'hung' if f.kind == 'hang' else 'down'} already: nothing done)"
+        self.fault_log.append(f"{f.kind} {f.robot}@{self.run_tick}{note}")  # last status's tick
+        self.view.events = self.view.events[-5:] + [self.fault_log[-1]]
 
     def supervise(self) -> dict[str, Any]:
         if self.topo is None:
@@ -368,6 +371,10 @@ class Supervisor:
         if self.recorder is not None:
             res["recording"] = {"path": self.opts.record, "exit": self.recorder.returncode}
         res["process_faults"] = self.fault_log
+        if res.get("stopped"):  # a stop on the control key ended the run early: said, not hidden
+            print(f"swarm: run {self.run_cfg.run_id} was stopped by a control message after "
+                  f"{res.get('completed', 0)} of {self.run_cfg.episodes} episodes",
+                  file=sys.stderr, flush=True)
         # scheduled for a tick the run never reached: named, not silently dropped
         res["process_faults_pending"] = [f"{f.kind} {f.robot}@{f.tick}"
                                          for f in self.process_faults]

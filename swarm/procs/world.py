@@ -26,7 +26,7 @@ import zenoh
 from policies import CHAINED
 from swarm.learn.evaluate import EvalResult
 from swarm.net.direct import DirectTally
-from swarm.net.faults import FaultPlan, plan_from_table
+from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control, plan_from_table
 from swarm.net.inbox import Inbox, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, LearnerGate
@@ -67,9 +67,10 @@ class WorldProcess:
         self.cfg, self.run_cfg, self.session = cfg, run, session
         self.keys = Keys(run.run_id)
         self.inbox: Inbox | None = None
-        self.fault_table = dict(faults or {})  # human-unit [faults] table; live changes merge in
-        self._record = RunRecord(cfg, run, self.fault_table).pack()  # served to the robots
-        self.radio = Radio(cfg, plan_from_table(self.fault_table, run.seed))
+        # the human-unit [faults] table in force, and the live changes waiting for their tick
+        self.faults = FaultSchedule(dict(faults or {}), run.seed, cfg.n_robots)
+        self._record = RunRecord(cfg, run, self.faults.table).pack()  # served to the robots
+        self.radio = Radio(cfg, plan_from_table(self.faults.table, run.seed))
         self.virtual = run.clock == "virtual"
         # virtual clock + chain: a tick also waits for every hidden-state message, so each one
         # is charged to its sender's bucket in order (swarm.net.channel), as in the evaluator
@@ -82,8 +83,6 @@ class WorldProcess:
         self.direct = DirectTally(cfg.n_robots) if run.delivery == "direct" else None
         if self.virtual:
             self.radio.use_virtual_clock(run.tick_timeout)
-        self._pending_at = -1  # run tick from which the pending plan applies
-        self._pending_plan: FaultPlan | None = None
         self._due: list[tuple[float, int, str, bytes]] = []  # scheduled radio deliveries
         self._seq = 0
         self.run_tick = 0
@@ -179,25 +178,15 @@ class WorldProcess:
             self.learner_alive = kind == "learner:live"
             return True
         if kind == "control":
-            try:
-                rec = unpack_record(payload or b"", K_CONTROL)
-            except BadMessage as exc:
+            try:  # the whole record checked before any field is acted on
+                ctl = check_control(unpack_record(payload or b"", K_CONTROL), self.run_cfg.seed,
+                                    self.cfg.n_robots)
+            except (BadMessage, ConfigError) as exc:
                 self._count_bad(key, str(exc))
                 return True
-            if rec.get("stop"):
-                self.stop = True
-            if isinstance(rec.get("faults_table"), dict):
-                table = rec["faults_table"] if rec.get("replace") else {
-                    **self.fault_table, **rec["faults_table"]}
-                table = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
-                try:
-                    self._pending_plan = plan_from_table(table, self.run_cfg.seed,
-                                                         self.cfg.n_robots)
-                    at = rec.get("at_tick", -1)
-                    self._pending_at = at if isinstance(at, int) and 0 <= at < 2**40 else -1
-                    self.fault_table = table
-                except ConfigError as exc:
-                    self._count_bad(key, str(exc))
+            self.stop |= ctl.stop
+            if ctl.table is not None and not self.faults.add(ctl, self.run_tick):
+                self._count_bad(key, f"{MAX_PENDING} fault changes wait already")
             return True
         if kind in ("rstatus", "lstatus"):  # direct delivery's counters; the learner's progress
             try:
@@ -308,13 +297,13 @@ class WorldProcess:
                 time.sleep(max(0.0, next_tick - time.monotonic()))
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
             obs_faults = b""
-            if self._pending_plan is not None and self.run_tick >= self._pending_at:
-                self.radio.set_plan(self._pending_plan)
-                log.info("faults now: %s", "; ".join(self._pending_plan.describe()) or "none")
-                self._pending_plan = None
-                self._record = RunRecord(cfg, self.run_cfg, self.fault_table).pack()
+            plan = self.faults.due(self.run_tick)  # each live change at its own tick
+            if plan is not None:
+                self.radio.set_plan(plan)
+                log.info("faults now: %s", "; ".join(plan.describe()) or "none")
+                self._record = RunRecord(cfg, self.run_cfg, self.faults.table).pack()
                 if self.direct is not None:  # the robots hold the plan: this tick's obs carry it
-                    obs_faults = msgpack.packb(self.fault_table)
+                    obs_faults = msgpack.packb(self.faults.table)
             self._due.clear()  # nothing of an older tick is ever delivered
             state.alive[0] = self.alive
             t, done, yx = state.t, state.done, lay.to_yx(state.pos[0])
@@ -455,6 +444,8 @@ class WorldProcess:
                 actions: list[Any], ticks: int, wall: float) -> dict[str, Any]:
         rc = self.run_cfg
         out: dict[str, Any] = {"policy": rc.policy, "run_id": rc.run_id, "completed": len(parts)}
+        if self.stop:  # only a control record stops a world before its last episode
+            out["stopped"] = "control"
         if parts:
             res = EvalResult.of(rc.policy, rc.seed,
                                 np.arange(rc.first_episode, rc.first_episode + len(parts)),
@@ -477,7 +468,7 @@ class WorldProcess:
             "clock": rc.clock, "virtual_s": ticks * rc.tick_timeout if rc.clock == "virtual"
             else None, "delivery": rc.delivery,
             "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad)},
-            "faults": self.radio.plan.to_record(),
+            "faults": self.radio.plan.to_record(), "fault_changes": self.faults.summary(),
             "timeouts": self.timeouts,
             "fast_lane_ticks": self.fast_lane_ticks,
             "robots_lost": int((self.ever_alive & ~self.alive).sum()),

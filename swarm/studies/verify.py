@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from swarm.learn.evaluate import EvalResult
-from swarm.net.faults import plan_from_table
+from swarm.net.faults import MAX_PENDING, Control, check_control, link_table, plan_from_table
 from swarm.net.messages import (
     K_CONTROL,
     K_STATUS,
@@ -189,7 +189,19 @@ class Auditor:
                                      "the last with a status, is not checked (the cut may have "
                                      "lost some of its messages)")
         self.ticks, self.status, self.control = ticks, status, control
-        self.pending: list[tuple[int, dict]] = list(control)
+        # the changes the world took: the same whole-record check (a record it dropped, a stop
+        # beside a bad table for one, changes nothing here either), in its order: by the tick
+        # asked for, then arrival; one without a tick is placed by the status showing it
+        self.pending: list[tuple[int, Control]] = []
+        for idx, rec in control:
+            try:
+                ctl = check_control(rec, self.run.seed, self.cfg.n_robots)
+            except ConfigError:
+                continue
+            if ctl.table is not None and len(self.pending) < MAX_PENDING:
+                self.pending.append((idx, ctl))
+        self.pending.sort(key=lambda item: (item[1].at_tick if item[1].at_tick >= 0 else 2**62,
+                                            item[0]))
         if not self.virtual:
             self.report.notes.append("real clock: deliveries depend on wall time; the radio is "
                                      "not re-run, the world is")
@@ -234,19 +246,15 @@ class Auditor:
         st = self.status.get((ep, t + 1), (0, {}))[1]
         for item in list(self.pending):
             _, ctl = item
-            if not isinstance(ctl.get("faults_table"), dict):
-                self.pending.remove(item)
-                continue
-            table = ctl["faults_table"] if ctl.get("replace") else {**self.table,
-                                                                    **ctl["faults_table"]}
-            table = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
+            assert ctl.table is not None
+            table = link_table(ctl.table if ctl.replace else {**self.table, **ctl.table})
             try:
                 plan = plan_from_table(table, self.run.seed, self.cfg.n_robots)
             except ConfigError:
-                self.pending.remove(item)  # the world rejected it too
+                if ctl.at_tick >= 0 and run_tick >= ctl.at_tick:
+                    self.pending.remove(item)  # unfit merged onto the table in force: dropped
                 continue
-            at = ctl.get("at_tick", -1)
-            due = run_tick >= at if isinstance(at, int) and at >= 0 else \
+            due = run_tick >= ctl.at_tick if ctl.at_tick >= 0 else \
                 st.get("faults") == plan.describe()
             if due:
                 self.pending.remove(item)

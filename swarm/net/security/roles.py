@@ -107,7 +107,8 @@ def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[s
         "learner": Role(put=(k.weights, k.learner_status), serve=(k.weights, k.learner_config),
                         token=(k.alive_learner,),
                         subscribe=(k.rollout("*"), k.episode, k.worker_episodes)),
-        "operator": Role(put=(k.control,), query=(k.config,)),  # (checks a fault fits the run)
+        # (checks a fault fits the run, and that its --at-tick is still ahead)
+        "operator": Role(put=(k.control,), query=(k.config,), subscribe=(k.status,)),
         "recorder": Role(subscribe=(f"{k.base}/**",), watch=(alive_all,),
                          query=(k.config, k.learner_config),
                          token=(k.alive_recorder,)),

@@ -1,0 +1,90 @@
+"""Checks of `swarm run`, `world`, `robot` and `fault` flags that need more than one flag or the
+run's record: a setting that would be silently dropped, or a fault the run can never reach, is
+one line and exit 2 before anything is spawned or sent."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from swarm.procs.runconfig import RunConfig
+from world.config import ConfigError, WorldConfig
+
+TRAIN_FLAGS = ("train_batch", "train_algo", "train_ppo_epochs", "learner_out", "rollout_loss",
+               "train_sync")
+EXIT_INCOMPLETE = 3  # `swarm run`: fewer episodes completed than asked (a stop on its control key)
+
+
+def check_wait(value: float, flag: str = "--wait") -> None:
+    """A wait in seconds: finite, in [0.1, 3600] (NaN or inf would wait for ever)."""
+    if not 0.1 <= value <= 3600:  # also NaN
+        raise ConfigError(f"{flag} must lie in [0.1, 3600] s, got {value}")
+
+
+def check_clock(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig,
+                faults: dict[str, Any]) -> None:
+    """A setting of one clock given with the other is refused, never silently dropped: --netns
+    runs on the real clock; --watchdog and compute times model the virtual one."""
+    from swarm.net.faults import plan_from_table
+
+    netns, file_run = bool(getattr(args, "netns", False)), tables.get("run", {})
+    if netns and (getattr(args, "clock", None) or file_run.get("clock")) == "virtual":
+        raise ConfigError("--netns runs on the real clock (the kernel decides when a packet "
+                          "arrives): drop --clock virtual")
+    if not netns and run.clock != "real":
+        return
+    why = "--netns (the real clock)" if netns else "--clock real"
+    if getattr(args, "watchdog", None) is not None or "watchdog" in file_run:
+        raise ConfigError(f"--watchdog is a virtual-clock setting (the real clock waits "
+                          f"--tick-timeout for a tick's actions): not with {why}")
+    plan = plan_from_table(faults, run.seed)
+    if any(f.compute_ms for f in (plan.default, *plan.per_robot.values(),
+                                  *plan.per_link.values())):
+        raise ConfigError(f"--compute-ms (faults compute) models compute time on the virtual "
+                          f"clock; with {why} the robots' own compute time counts: drop it")
+
+
+def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig,
+                      at_tick: int | None = None) -> None:
+    """A fault for a run tick the run never reaches is refused: its ticks are 0 .. episodes x
+    horizon - 1."""
+    from swarm.net.faults import plan_from_table
+
+    last = run.episodes * world.horizon - 1
+    late = [f"--{p.kind} {p.robot}@{p.tick}" for p in plan_from_table(faults).process
+            if p.tick > last] + ([f"--at-tick {at_tick}"] if (at_tick or 0) > last else [])
+    if late:
+        raise ConfigError(f"{late[0]} is beyond the run's last tick {last} ({run.episodes} "
+                          f"episode(s) x {world.horizon} ticks)")
+
+
+def check_training(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig) -> None:
+    """Training flags need --train (checked before any folder is made); a learner folder that
+    holds a learner already is refused before any spawn (the learner would refuse it)."""
+    given = [f"--{k.replace('_', '-')}" for k in TRAIN_FLAGS if getattr(args, k, None)
+             is not None]
+    if not run.train:
+        if given or run.rollout_loss:
+            raise ConfigError(f"{(given or ['[run] rollout_loss'])[0]} is a training setting: "
+                              "it needs --train")
+        return
+    lt = tables.get("learner", {})
+    out = args.learner_out or lt.get("out") or (args.log_dir and str(Path(args.log_dir,
+                                                                           "learner")))
+    if out and (Path(out) / "checkpoint.pt").exists() and not lt.get("gather_only"):
+        raise ConfigError(f"learner folder {out} already holds a learner (checkpoint.pt): give "
+                          "a new --learner-out (swarm run starts a fresh learner; `swarm learner "
+                          "--resume` continues one in a run started by hand)")
+
+
+
+def status_tick(payload: bytes) -> int:
+    """The run tick of a world status record (-1 when it is not one)."""
+    from swarm.net.messages import K_STATUS, BadMessage, unpack_record
+
+    try:
+        tick = unpack_record(payload, K_STATUS).get("run_tick")
+    except BadMessage:
+        return -1
+    return tick if type(tick) is int and 0 <= tick < 2**40 else -1

@@ -1,0 +1,223 @@
+"""Inputs around faults and runs that used to be silently dropped or overridden: each is now
+refused in one line before anything runs, or acted on and said; live fault changes queue, each
+at its own tick; a control record is checked whole, and a run stopped by one says so."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import msgpack
+import pytest
+import zenoh
+from conftest import ROOT, swarm
+
+from swarm.common.spawn import lookup_run
+from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control
+from swarm.net.keys import Keys
+from swarm.net.messages import K_CONTROL, pack_record
+from swarm.net.zconfig import ZenohOptions
+from world.config import ConfigError
+
+
+def _refused(*args: str, why: str) -> None:
+    r = swarm(*args, timeout=60)
+    assert r.returncode == 2, (args, r.returncode, r.stderr[-800:])
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("swarm: error: ") and why in lines[0], lines
+
+
+# ------------------------------------------------------------------ refused before a spawn
+
+
+def test_clock_settings_given_to_the_other_clock_are_refused() -> None:
+    """--compute-ms models compute time on the virtual clock; --watchdog is a virtual-clock
+    setting; --netns runs on the real clock: each given with the other clock is one line."""
+    _refused("run", "--headless", "--compute-ms", "5", "--clock", "real", why="--compute-ms")
+    _refused("world", "--compute-ms", "5", "--clock", "real", why="--compute-ms")
+    _refused("run", "--headless", "--netns", "--clock", "virtual", why="drop --clock virtual")
+    _refused("run", "--headless", "--clock", "real", "--watchdog", "5", why="--watchdog")
+
+
+def test_training_flags_need_train_and_make_no_folder(tmp_path: Path) -> None:
+    out = tmp_path / "learner"
+    for flags in (["--train-batch", "4"], ["--rollout-loss", "0.2"], ["--learner-out", str(out)],
+                  ["--train-algo", "ppo"], ["--train-ppo-epochs", "2"]):
+        _refused("run", "--headless", *flags, why=f"{flags[0]} is a training setting")
+    assert not out.exists()
+
+
+def test_a_learner_folder_holding_a_learner_is_refused_before_any_spawn(tmp_path: Path) -> None:
+    out = tmp_path / "learner"
+    out.mkdir()
+    (out / "checkpoint.pt").write_bytes(b"a learner's checkpoint")
+    logs = tmp_path / "logs"
+    _refused("run", "--headless", "--train", "--robots", "2", "--episodes", "1",
+             "--learner-out", str(out), "--log-dir", str(logs), why="already holds a learner")
+    assert not logs.exists()  # refused before the supervisor made anything
+
+
+def test_a_process_fault_beyond_the_runs_last_tick_is_refused() -> None:
+    _refused("run", "--headless", "--episodes", "1", "--crash", "1@99999",
+             why="beyond the run's last tick 29")
+    _refused("run", "--headless", "--episodes", "2", "--horizon", "10", "--hang", "0@20",
+             why="--hang 0@20 is beyond the run's last tick 19")
+
+
+def test_robot_wait_must_be_finite_and_positive() -> None:
+    for wait in ("nan", "inf", "0"):
+        _refused("robot", "--id", "0", "--run-id", "r1", "--wait", wait, why="--wait")
+
+
+def test_swarm_fault_checks_its_flags_before_the_network() -> None:
+    _refused("fault", "--run", "bad id!", "--loss", "0.1", why="bad run id")
+    _refused("fault", "--run", "nosuch", "--clear", "--loss", "0.5", why="--clear")
+    _refused("fault", "--run", "nosuch", "--at-tick", "5", "--crash", "1", why="--at-tick")
+
+
+# ------------------------------------------------------------- control records, in process
+
+
+def test_a_control_record_is_checked_whole_before_any_field_acts() -> None:
+    for rec in ({"stop": "no"}, {"stop": 1}, {"stop": False},
+                {"stop": True, "faults_table": {"loss": 7}},
+                {"stop": True, "process": ["crash:9"]},
+                {"stop": True, "at_tick": True, "faults_table": {}},
+                {"stop": True, "replace": "yes", "faults_table": {}},
+                {"stop": True, "bogus": 1}, {"process": ["bogus:1"]}):
+        with pytest.raises(ConfigError):
+            check_control(rec, 0, 3)
+    c = check_control({"stop": True, "faults_table": {"loss": "0.5", "crash": ["1@3"]},
+                       "at_tick": 50, "process": ["restart:1@5"]}, 0, 3)
+    assert c.stop and c.table == {"loss": "0.5"} and c.at_tick == 50
+    assert [(p.kind, p.robot, p.tick) for p in c.process] == [("restart", 1, 5)]
+
+
+def test_queued_changes_apply_each_at_its_own_tick_onto_the_table_in_force() -> None:
+    s = FaultSchedule({"jitter": "5ms"}, 0, 3)
+    s.add(check_control({"faults_table": {"loss": 0.5}, "at_tick": 50}, 0, 3), 10)
+    s.add(check_control({"faults_table": {"latency": "50ms"}, "at_tick": 70}, 0, 3), 20)
+    assert all(s.due(t) is None for t in range(50))
+    assert s.due(50).describe() == ["all: latency 0+5ms loss 0.5"]
+    assert all(s.due(t) is None for t in range(51, 70))
+    assert s.due(70).describe() == ["all: latency 50+5ms loss 0.5"]
+    s.add(check_control({"faults_table": {"loss": 0.1}, "at_tick": 60, "replace": True}, 0,
+                        3), 80)  # passed already: at the next tick, counted late
+    assert s.due(81).describe() == ["all: loss 0.1"]
+    assert [(c["tick"], c["at_tick"]) for c in s.summary()["changes"]] == \
+        [(50, 50), (70, 70), (81, 60)]
+    assert s.summary()["late"] == 1
+    for k in range(MAX_PENDING):
+        assert s.add(check_control({"faults_table": {"loss": 0.2}, "at_tick": 1000 + k}, 0, 3),
+                     90)
+    assert not s.add(check_control({"faults_table": {"loss": 0.3}}, 0, 3), 90)
+    assert s.summary()["dropped"] == 1 and len(s.summary()["pending"]) == MAX_PENDING
+
+
+# ------------------------------------------------------------------ the real swarm, live
+
+
+def _start(run_id: str, out: Path, *args: str) -> tuple[subprocess.Popen[str], list[dict]]:
+    """A headless run, once its first status is out; a thread keeps reading its status lines
+    (a full pipe would stall the supervisor) into the list returned."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "2", "--policy",
+         "random", "--run-id", run_id, "--json", str(out), *args],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    statuses: list[dict] = []
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if line.startswith('{"status"'):
+                statuses.append(json.loads(line)["status"])
+
+    threading.Thread(target=read, daemon=True).start()
+    deadline = time.monotonic() + 120
+    while not statuses and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert statuses, proc.stderr.read() if proc.stderr else "no status"  # type: ignore
+    return proc, statuses
+
+
+@pytest.mark.procs
+def test_two_live_changes_for_later_ticks_both_apply_each_at_its_tick(tmp_path: Path) -> None:
+    """Two `swarm fault --at-tick` (loss from T1, latency from T2) both apply, at their own
+    ticks (one used to overwrite the other); a tick passed, or beyond the run, is refused with
+    nothing sent; a restart of a robot that is up is logged as a no-op; the run's recording
+    verifies (`replay --verify` applies the queued changes by the world's rules)."""
+    run_id, out, mcap = "fqueue", tmp_path / "r.json", tmp_path / "q.mcap"
+    proc, statuses = _start(run_id, out, "--episodes", "4", "--pace", "5", "--restart", "1@3",
+                            "--record", str(mcap))
+    try:
+        t1, t2 = 60, 80
+        sent = [subprocess.Popen([sys.executable, "-m", "swarm.cli", "fault", "--run", run_id,
+                                  *a], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                 text=True)
+                for a in (("--loss", "0.5", "--at-tick", str(t1)),
+                          ("--latency", "50ms", "--at-tick", str(t2)),
+                          ("--loss", "0.9", "--at-tick", "0"),
+                          ("--crash", "1@99999"), ("--loss", "0.9", "--at-tick", "120"))]
+        res = [(p.wait(timeout=60), *p.communicate()) for p in sent]
+        assert [r[0] for r in res] == [0, 0, 2, 2, 2], res
+        assert "already" in res[2][2] and "beyond the run's last tick 119" in res[3][2]
+        assert "--at-tick 120 is beyond" in res[4][2]
+        assert proc.wait(timeout=120) == 0, proc.stderr.read()[-2000:]  # type: ignore
+        time.sleep(0.5)  # the reader has the last lines
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    result = json.loads(out.read_text())
+    ch = result["fault_changes"]
+    assert [(c["tick"], c["at_tick"], c["faults"]) for c in ch["changes"]] == [
+        (t1, t1, ["all: loss 0.5"]), (t2, t2, ["all: latency 50+0ms loss 0.5"])]
+    assert ch["late"] == ch["dropped"] == 0
+    by_tick = {s["run_tick"]: [f for f in s["faults"] if not f.startswith("restart")]
+               for s in statuses}  # status k: tick k - 1 played; its link faults
+    assert by_tick[t1] == [] and by_tick[t1 + 1] == ["all: loss 0.5"]
+    assert by_tick[t2] == ["all: loss 0.5"] and by_tick[t2 + 1] == ["all: latency 50+0ms loss 0.5"]
+    assert result["process_faults"][0].startswith("restart 1@")
+    assert result["process_faults"][0].endswith("(not down: nothing done)")
+    assert result["robot_restarts"] == 0 and result["messages"]["bad"] == 0
+    v = swarm("replay", str(mcap), "--verify", timeout=120)
+    assert v.returncode == 0 and "every one as recorded" in v.stdout, v.stdout + v.stderr
+
+
+@pytest.mark.procs
+def test_only_a_checked_stop_ends_a_run_and_the_run_says_so(tmp_path: Path) -> None:
+    """`stop: "no"`, or a stop beside a bad faults table, is dropped and counted; a real stop
+    ends the run with `stopped: control` in the result, a note on stderr and exit 3."""
+    run_id, out = "fstop", tmp_path / "r.json"
+    proc, _ = _start(run_id, out, "--episodes", "50", "--pace", "10")
+    keys = Keys(run_id)
+    try:
+        conf = ZenohOptions(mode="client", connect=[lookup_run(run_id)]).to_config()
+        with zenoh.open(conf) as session:
+            time.sleep(0.5)
+            session.put(keys.control, msgpack.packb([1, K_CONTROL, {"stop": "no"}]))
+            session.put(keys.control, pack_record(K_CONTROL, {"stop": True,
+                                                              "faults_table": {"loss": 7}}))
+            time.sleep(2.0)
+            assert proc.poll() is None  # neither stopped it
+            session.put(keys.control, pack_record(K_CONTROL, {"stop": True}))
+            proc.wait(timeout=60)
+            err = proc.stderr.read()  # type: ignore[union-attr]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 3, err[-2000:]
+    assert f"swarm: run {run_id} was stopped by a control message" in err
+    res = json.loads(out.read_text())
+    assert res["stopped"] == "control" and res["completed"] < 50
+    assert res["messages"]["bad_by_key"][keys.control] == 2
+    assert res["supervisor_bad"] == 2  # (the supervisor checks the whole record too)
+
+
+def test_run_help_names_the_exit_status_of_a_stopped_run() -> None:
+    r = swarm("run", "--help")
+    assert r.returncode == 0 and "3 stopped before every episode" in " ".join(r.stdout.split())
+
