@@ -94,9 +94,11 @@ class RunConfig:
         if self.delivery not in ("radio", "direct"):
             raise ConfigError(f"delivery must be 'radio' or 'direct', got {self.delivery!r}")
         if self.train_sync and not self.train:
-            raise ConfigError("train_sync needs train (--train-sync needs --train)")
+            raise ConfigError("--train-sync is a training setting: it needs --train ([run] "
+                              "train_sync needs train)")
         if self.rollout_loss and not self.train:
-            raise ConfigError("rollout_loss needs train (--rollout-loss needs --train)")
+            raise ConfigError("--rollout-loss is a training setting: it needs --train ([run] "
+                              "rollout_loss needs train)")
         if not isinstance(self.policy, str) or not self.policy:
             raise ConfigError("policy must be a registry name")
 
