@@ -151,21 +151,21 @@ def test_two_live_changes_for_later_ticks_both_apply_each_at_its_tick(tmp_path: 
     nothing sent; a restart of a robot that is up is logged as a no-op; the run's recording
     verifies (`replay --verify` applies the queued changes by the world's rules)."""
     run_id, out, mcap = "fqueue", tmp_path / "r.json", tmp_path / "q.mcap"
-    proc, statuses = _start(run_id, out, "--episodes", "4", "--pace", "5", "--restart", "1@3",
+    proc, statuses = _start(run_id, out, "--episodes", "3", "--pace", "10", "--restart", "1@3",
                             "--record", str(mcap))
     try:
-        t1, t2 = 60, 80
+        t1, t2 = 50, 70
         sent = [subprocess.Popen([sys.executable, "-m", "swarm.cli", "fault", "--run", run_id,
                                   *a], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                  text=True)
                 for a in (("--loss", "0.5", "--at-tick", str(t1)),
                           ("--latency", "50ms", "--at-tick", str(t2)),
                           ("--loss", "0.9", "--at-tick", "0"),
-                          ("--crash", "1@99999"), ("--loss", "0.9", "--at-tick", "120"))]
+                          ("--crash", "1@99999"), ("--loss", "0.9", "--at-tick", "90"))]
         res = [(p.wait(timeout=60), *p.communicate()) for p in sent]
         assert [r[0] for r in res] == [0, 0, 2, 2, 2], res
-        assert "already" in res[2][2] and "beyond the run's last tick 119" in res[3][2]
-        assert "--at-tick 120 is beyond" in res[4][2]
+        assert "already" in res[2][2] and "beyond the run's last tick 89" in res[3][2]
+        assert "--at-tick 90 is beyond" in res[4][2]
         assert proc.wait(timeout=120) == 0, proc.stderr.read()[-2000:]  # type: ignore
         time.sleep(0.5)  # the reader has the last lines
     finally:

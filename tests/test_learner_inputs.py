@@ -89,7 +89,7 @@ def test_ppo_settings_need_the_ppo_estimator() -> None:
                                           ("status_every", float("inf")), ("seed", -1),
                                           ("seed", 2**40), ("run_id", "a/b"), ("run_id", "")])
 def test_learner_config_ranges_are_one_line_errors(field: str, value: object) -> None:
-    from swarm.procs.learner import LearnerConfig
+    from swarm.learn.config import LearnerConfig
 
     with pytest.raises(ConfigError) as err:
         from_dict(LearnerConfig, {field: value}, "[learner]")
@@ -102,9 +102,10 @@ def test_learner_config_ranges_are_one_line_errors(field: str, value: object) ->
 def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A learner directory after 3 real updates (batch 2, policy vain on SMALL): checkpoint,
     curve.csv with 3 rows, and the world file its CLI resume reads."""
+    from swarm.learn.config import LearnerConfig
     from swarm.learn.join import episodes_of
     from swarm.learn.rollout import collect
-    from swarm.procs.learner import Learner, LearnerConfig
+    from swarm.procs.learner import Learner
 
     tmp = tmp_path_factory.mktemp("trained")
     fields = ("height", "width", "n_static", "n_dynamic", "n_robots", "horizon", "add_every",
@@ -130,7 +131,8 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_resume_holds_the_given_train_settings_against_the_checkpoint(trained: Path) -> None:
     """A given setting that differs from the checkpoint's is refused, each named; equal ones and
     threads (not the run's math) pass; settings not given keep the checkpoint's."""
-    from swarm.procs.learner import Learner, LearnerConfig
+    from swarm.learn.config import LearnerConfig
+    from swarm.procs.learner import Learner
 
     lc = LearnerConfig(run_id="resumed", policy="vain", out=str(trained / "l"), resume=True)
     with pytest.raises(ConfigError, match=r"batch = 4 .*lr = 0.5") as err:

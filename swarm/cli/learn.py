@@ -23,8 +23,6 @@ from world.config import ConfigError
 
 
 def cmd_learner(args: argparse.Namespace) -> int:
-    from swarm.procs.learner import main as learner_main
-
     _logging(args.verbose)
     if args.spec:  # `swarm run --train`: the spec's train table is whole, every field meant
         rec = RunRecord.read(args.spec)
@@ -48,6 +46,8 @@ def cmd_learner(args: argparse.Namespace) -> int:
         raise ConfigError("--checkpoint gives a new learner its first weights; --resume goes on "
                           "from OUT/checkpoint.pt (drop one of them)")
     output_file(args.json)
+    from swarm.procs.learner import main as learner_main  # (torch: after the checks)
+
     try:
         zopts = secure_options(args, zconfig.from_args(args), "learner", lc.run_id)
         # checks everything first; creates --out only once they passed (and the session opened)
@@ -62,10 +62,10 @@ def cmd_learner(args: argparse.Namespace) -> int:
 
 
 def cmd_rollout_worker(args: argparse.Namespace) -> int:
-    from swarm.procs.rollout_worker import main as worker_main
-
     _logging(args.verbose)
     check_worker(args.worker_id, args.batch, args.threads, args.max_batches, args.wait)
+    from swarm.procs.rollout_worker import main as worker_main  # (torch: after the checks)
+
     try:
         zopts = secure_options(args, zconfig.from_args(args), f"worker-{args.worker_id}",
                                args.run_id)

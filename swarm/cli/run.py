@@ -157,8 +157,7 @@ BATCH_TRAIN_FIELDS = ("init", "team_memory", "belief", "hint", "hint_planner", "
 
 def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[Any, Any]:
     """LearnerConfig and TrainConfig from `[learner]` / `[train]` of the file and the flags."""
-    from swarm.learn.config import TrainConfig
-    from swarm.procs.learner import LearnerConfig
+    from swarm.learn.config import LearnerConfig, TrainConfig
 
     lflags = {"run_id": getattr(args, "run_id", None), "policy": getattr(args, "policy", None),
               "checkpoint": getattr(args, "checkpoint", None), "out": getattr(args, "out", None),

@@ -6,12 +6,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from swarm.common.flags import add_flags, from_flags
+from swarm.net.keys import check_run_id
 from world.config import ConfigError, from_dict
 
 PPO_FIELDS = ("gae_lambda", "ppo_epochs", "ppo_clip")
@@ -280,3 +282,43 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def from_args(args: argparse.Namespace, base: TrainConfig | None = None) -> TrainConfig:
     """TrainConfig from parsed flags over `base` (e.g. a TOML [train] table)."""
     return from_flags(TrainConfig, args, base)
+
+
+@dataclass
+class LearnerConfig:
+    """What a learner does (TOML table `[learner]`; the loss settings come from `[train]`)."""
+
+    run_id: str = "run"
+    """The run whose rollouts it gathers."""
+    policy: str = "commattn"
+    """Learned policy trained."""
+    checkpoint: str | None = None
+    """Initial weights (a policy checkpoint); without one, fresh weights from `seed`."""
+    out: str | None = None
+    """Directory of the learner's checkpoint.pt, curve.csv and log.jsonl (required)."""
+    resume: bool = False
+    """Continue from OUT/checkpoint.pt (version, optimizer and counters)."""
+    max_staleness: int = 1
+    """Use episodes at most this many versions behind the current one; drop older ones."""
+    join_timeout: float = 5.0
+    """Seconds after the world's episode record to wait for the robots' records."""
+    gather_only: bool = False
+    """Gather and count episodes without updating (rollout benchmarks)."""
+    status_every: float = 0.5
+    """Seconds between status records on learner/status."""
+    seed: int = 0
+    """Seed of fresh initial weights."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.run_id, str):
+            raise ConfigError(f"learner run_id must be a string, got {self.run_id!r}")
+        check_run_id(self.run_id)
+        for name, lo, hi in (("max_staleness", 0, 10**6), ("seed", 0, 2**31 - 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(f"learner {name} must be an integer in [{lo}, {hi}], got {v!r}")
+        for name, lo, hi in (("join_timeout", 0.01, 3600.0), ("status_every", 0.01, 3600.0)):
+            v = getattr(self, name)
+            if (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                    or not lo <= v <= hi):
+                raise ConfigError(f"learner {name} must lie in [{lo}, {hi}] seconds, got {v!r}")

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import tempfile
 import time
 from collections.abc import Collection
@@ -46,13 +45,13 @@ import zenoh
 
 from policies import policy_class
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from swarm.learn.config import TrainConfig
+from swarm.learn.config import LearnerConfig, TrainConfig
 from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
 from swarm.learn.weights import weights_of
 from swarm.net.inbox import Inbox, publisher, tally
-from swarm.net.keys import Keys, check_run_id
+from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
@@ -63,46 +62,6 @@ log = logging.getLogger("swarm.learner")
 
 
 # ------------------------------------------------------------------------------ the learner
-@dataclass
-class LearnerConfig:
-    """What a learner does (TOML table `[learner]`; the loss settings come from `[train]`)."""
-
-    run_id: str = "run"
-    """The run whose rollouts it gathers."""
-    policy: str = "commattn"
-    """Learned policy trained."""
-    checkpoint: str | None = None
-    """Initial weights (a policy checkpoint); without one, fresh weights from `seed`."""
-    out: str | None = None
-    """Directory of the learner's checkpoint.pt, curve.csv and log.jsonl (required)."""
-    resume: bool = False
-    """Continue from OUT/checkpoint.pt (version, optimizer and counters)."""
-    max_staleness: int = 1
-    """Use episodes at most this many versions behind the current one; drop older ones."""
-    join_timeout: float = 5.0
-    """Seconds after the world's episode record to wait for the robots' records."""
-    gather_only: bool = False
-    """Gather and count episodes without updating (rollout benchmarks)."""
-    status_every: float = 0.5
-    """Seconds between status records on learner/status."""
-    seed: int = 0
-    """Seed of fresh initial weights."""
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.run_id, str):
-            raise ConfigError(f"learner run_id must be a string, got {self.run_id!r}")
-        check_run_id(self.run_id)
-        for name, lo, hi in (("max_staleness", 0, 10**6), ("seed", 0, 2**31 - 1)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                raise ConfigError(f"learner {name} must be an integer in [{lo}, {hi}], got {v!r}")
-        for name, lo, hi in (("join_timeout", 0.01, 3600.0), ("status_every", 0.01, 3600.0)):
-            v = getattr(self, name)
-            if (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-                    or not lo <= v <= hi):
-                raise ConfigError(f"learner {name} must lie in [{lo}, {hi}] seconds, got {v!r}")
-
-
 LEARNER_MAY_CHANGE = ("threads",)
 """What a resumed learner's TrainConfig may change: how many torch threads, never its math."""
 
