@@ -527,14 +527,14 @@ def test_a_secure_run_on_three_hosts_keeps_a_foreign_robot_out_at_its_hosts_rout
 
 
 def _live_change_run(tmp: Path, run_id: str, at: int, *extra: str) -> dict:
-    """A 4-robot CommAttn run (3 episodes, paced) whose link faults change live at run tick
+    """A 4-robot CommAttn run (2 episodes, paced) whose link faults change live at run tick
     `at` (`swarm fault --at-tick`, sent at tick 5)."""
     import sys
 
     out = tmp / f"{run_id}.json"
     proc = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "4", "--episodes",
-         "3", "--seed", "3", "--checkpoint", CKPT, "--run-id", run_id, "--pace", "20",
+         "2", "--seed", "3", "--checkpoint", CKPT, "--run-id", run_id, "--pace", "20",
          "--json", str(out), *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
