@@ -48,6 +48,18 @@ def policy_class(name: str) -> type[Policy]:
     return getattr(importlib.import_module(module), cls)
 
 
+def check_learned(name: str, what: str) -> None:
+    """A one-line ConfigError unless `name` is a registered learned policy (`what` needs one)."""
+    from world.config import ConfigError
+
+    try:
+        learned = policy_class(name).learned
+    except ValueError as exc:  # an unknown name
+        raise ConfigError(str(exc)) from None
+    if not learned:
+        raise ConfigError(f"{what} needs a learned policy, not {name!r}")
+
+
 def learned_names() -> tuple[str, ...]:
     """Registry names of the learned (torch) policies, in registry order (imports them)."""
     return tuple(name for name in REGISTRY if policy_class(name).learned)

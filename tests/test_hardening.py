@@ -389,6 +389,10 @@ def test_every_played_episode_ends_in_exactly_one_learner_counter(tmp_path: Path
 
 
 BAD_INPUTS = [
+    ["bench", "train", "--threads", "99999"], ["bench", "train", "--policy", "nearest-frontier"],
+    ["bench", "env", "--batch", "99999999999"], ["bench", "env", "--batch", "1,,2"],
+    ["bench", "rollout", "--workers", "99999"], ["bench", "env", "--json", "{tmp}"],
+    ["bench", "policy", "--json", "/nonexistent/dir/x.json"],
     ["run", "--seed", "-1"], ["run", "--train-sync"], ["run", "--first-episode", "-5"],
     ["run", "--tick-timeout", "nan"],
     ["run", "--partition", "0-4/5-12"], ["run", "--crash", "20@5"], ["run", "--pace", "-1"],

@@ -389,10 +389,11 @@ def test_short_field_training_improves_mean_reward(tmp_path: Path) -> None:
     earn a higher mean reward than the initial ones on 400 held-out sampled episodes.
 
     Lockstep (`--train-sync`): the run is a function of its seed, so this gain is one figure,
-    -72.1 to -61.75 (+10.4; +14.0 after 480 episodes), on every run, loaded machine or not. (Asynchronous, it was not: which
-    episodes landed in which update, and how stale, depended on timing; six runs gave +11 to
-    +18 and one CI run beside another test run +1.8.) Judged by a batched evaluation of both
-    weight sets on the same episodes, not by the run's own per-update curve."""
+    -72.1 to -61.75 (+10.4; +14.0 after 480 episodes), on every run, loaded machine or not.
+    (Asynchronous, it was not: which episodes landed in which update, and how stale, depended
+    on timing; six runs gave +11 to +18 and one CI run beside another test run +1.8.) Judged
+    by a batched evaluation of both weight sets on the same episodes, not by the run's own
+    per-update curve."""
     toml = tmp_path / "tiny.toml"
     world = dict(height=6, width=6, n_static=3, n_dynamic=0, dynamic=False, n_robots=2,
                  horizon=8, vision=3, comm_range=float("inf"), recent_len=4)

@@ -48,16 +48,18 @@ class NullProgress:
         pass
 
 
-def int_list(value: Any, name: str) -> tuple[int, ...]:
-    """'1,64,1024', [1, 64] or 5 -> a non-empty tuple of positive ints (ConfigError otherwise)."""
+def int_list(value: Any, name: str, hi: int = 16384) -> tuple[int, ...]:
+    """'1,64,1024', [1, 64] or 5 -> a non-empty tuple of distinct ints in [1, hi] (ConfigError
+    otherwise: an empty entry or a repeat is a typo, not a row to drop or run twice)."""
     items = value.split(",") if isinstance(value, str) else value
     items = items if isinstance(items, (list, tuple)) else [items]
     try:
-        out = tuple(int(v) for v in items if str(v).strip() != "")
+        out = tuple(int(str(v).strip()) for v in items)
     except (TypeError, ValueError):
         raise ConfigError(f"{name} must be comma-separated integers, got {value!r}") from None
-    if not out or min(out) < 1:
-        raise ConfigError(f"{name} must hold positive integers, got {value!r}")
+    if not out or min(out) < 1 or max(out) > hi or len(set(out)) != len(out):
+        shown = value if isinstance(value, str) else ",".join(str(v) for v in items)
+        raise ConfigError(f"{name} must be distinct integers in [1, {hi}], got {shown}")
     return out
 
 
@@ -66,9 +68,10 @@ def name_list(value: Any) -> tuple[str, ...]:
     return tuple(resolve_policies(value if isinstance(value, str) else list(value)))
 
 
-def _positive(name: str, value: int) -> None:
-    if value < 1:
-        raise ConfigError(f"{name} must be >= 1, got {value}")
+def _positive(name: str, value: int, hi: int = 1_000_000) -> None:
+    """A count in [1, hi]: a huge one would run for days, not fail."""
+    if not 1 <= value <= hi:
+        raise ConfigError(f"{name} must lie in [1, {hi}], got {value}")
 
 
 @dataclass(frozen=True)
@@ -89,7 +92,7 @@ class EnvBenchConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "batches", int_list(self.batches, "batches"))
         check_seed(self.seed)
-        _positive("repeats", self.repeats)
+        _positive("repeats", self.repeats, 1000)
         _positive("episodes", self.episodes)
 
 
@@ -116,8 +119,8 @@ class PolicyBenchConfig:
         object.__setattr__(self, "policies", name_list(self.policies))
         check_seed(self.seed)
         _positive("decisions", self.decisions)
-        if self.warmup < 0:
-            raise ConfigError(f"warmup must be >= 0, got {self.warmup}")
+        if not 0 <= self.warmup <= 100_000:
+            raise ConfigError(f"warmup must lie in [0, 100000], got {self.warmup}")
 
 
 def copy_state(state: core.WorldState) -> core.WorldState:

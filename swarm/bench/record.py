@@ -39,8 +39,10 @@ class RecordBenchConfig:
     """Write the figures here."""
 
     def __post_init__(self) -> None:
-        if self.episodes < 1 or self.pairs < 1:
-            raise ConfigError("bench record needs episodes >= 1 and pairs >= 1")
+        for name, hi in (("episodes", 10_000), ("pairs", 1000)):
+            if not 1 <= getattr(self, name) <= hi:
+                raise ConfigError(f"bench record: {name} must lie in [1, {hi}], got "
+                                  f"{getattr(self, name)}")
         check_seed(self.seed)
         check_seed(self.seed + self.pairs - 1, "seed + pairs - 1")  # (pair k runs seed + k)
 

@@ -51,22 +51,20 @@ class RolloutBenchConfig:
     json: str | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "workers", int_list(self.workers, "workers"))
-        if (self.repeats < 1 or not 0 < self.seconds <= 3600  # (also NaN)
-                or not 0 <= self.warmup <= 3600):
-            raise ConfigError("bench rollout: repeats must be >= 1, seconds in (0, 3600] and "
-                              "warmup in [0, 3600]")
+        object.__setattr__(self, "workers", int_list(self.workers, "workers", 64))
+        if not 1 <= self.repeats <= 1000:
+            raise ConfigError(f"bench rollout: repeats must lie in [1, 1000], got {self.repeats}")
+        for name, lo_open in (("seconds", True), ("warmup", False)):
+            v = getattr(self, name)  # (NaN fails both comparisons)
+            if not ((0 < v) if lo_open else (0 <= v)) or not v <= 3600:
+                raise ConfigError(f"bench rollout: {name} must lie in "
+                                  f"{'(' if lo_open else '['}0, 3600], got {v}")
         # what the learner and every worker would refuse, refused before any is spawned
         check_worker(0, self.batch, self.threads, 0, 30.0)
-        from policies import policy_class
+        from policies import check_learned
 
-        try:
-            learned = policy_class(self.policy).learned
-        except ValueError as exc:  # an unknown name
-            raise ConfigError(str(exc)) from None
-        if not learned:
-            raise ConfigError(f"bench rollout needs a learned policy (the workers sample it and "
-                              f"a learner takes its weights), not {self.policy!r}")
+        # (the workers sample it and a learner takes its weights)
+        check_learned(self.policy, "bench rollout")
 
 
 def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:

@@ -35,9 +35,13 @@ class TrainBenchConfig:
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
-        for key in ("batch", "updates", "threads", "workers"):
-            if not 1 <= getattr(self, key) <= 100_000:
-                raise ConfigError(f"{key} must lie in [1, 100000], got {getattr(self, key)}")
+        for key, hi in (("batch", 100_000), ("updates", 100_000), ("threads", 256),
+                        ("workers", 64)):
+            if not 1 <= getattr(self, key) <= hi:
+                raise ConfigError(f"{key} must lie in [1, {hi}], got {getattr(self, key)}")
+        from policies import check_learned
+
+        check_learned(self.policy, "bench train")
 
 
 def bench_train(policy: str = "commattn", batch: int = 288, updates: int = 3, threads: int = 2,

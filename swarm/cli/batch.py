@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from swarm.bench.train import TrainBenchConfig
@@ -175,6 +176,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     world = world_config(args, tables)
     table = tables.get("bench", {}).get(args.what, {})
     where = f"[bench.{args.what}]"
+    # where the figures go, checked before the benchmark runs (a bad path lost them at the end)
+    output_file(getattr(args, "json", None) or table.get("json"))
+    if args.what == "record" and (getattr(args, "out", None) or table.get("out")):
+        out_path = Path(args.out or table["out"])
+        if out_path.exists() and not out_path.is_dir():
+            raise ConfigError(f"--out {out_path} is a file, not a directory")
     out, err = _consoles()
     if args.what == "env":
         cfg = merged(bench.EnvBenchConfig, table,
