@@ -26,6 +26,7 @@ from world.decentral import View, batch_view, heard_by, robot_view
 # Project bars for `bench policy` (median ms per team decision, 10 robots).
 POLICY_BARS_MS: dict[str, float] = {
     "nearest-frontier": 1.0, "coordinated-frontier": 3.0, "cost-utility": 3.0,
+    "commattn": 3.0,  # (the README's Speed table: its bar for the learned policy)
 }
 ENV_BAR = (1024, 4_000_000.0)  # agent-steps/s wanted at this batch size (N = 10)
 

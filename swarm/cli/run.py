@@ -420,7 +420,8 @@ def add_parsers(sub: Any) -> None:
     p = sub.add_parser("run", help="spawn world + N robot processes over Zenoh, live dashboard",
                        description="The distributed swarm: one world process and N robot "
                                    "processes, each with its own Zenoh session, on loopback. "
-                                   "Exit status: 0 every episode done, 2 bad input (nothing "
+                                   "Exit status: 0 every episode done, 1 a process of the run "
+                                   "failed (its log named), 2 bad input (nothing "
                                    f"run), {EXIT_INCOMPLETE} stopped before every episode "
                                    "completed (a stop on the run's control key; the result says "
                                    "stopped: control), 130 interrupted.")
