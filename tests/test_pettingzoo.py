@@ -86,6 +86,12 @@ def test_reset_keys_episodes_by_seed_and_counter() -> None:
     assert starts(again) == starts(first)
     other, _ = env.reset(seed=10)
     assert starts(other) != starts(first)
+    numpy_seed, _ = env.reset(seed=np.int64(9))  # numpy's ints are seeds too
+    assert starts(numpy_seed) == starts(first)
+    for bad in ({"seed": 1.5}, {"seed": -1}, {"options": {"episode": 2**70}},
+                {"options": {"episode": "3"}}):  # never truncated, wrapped or overflowed
+        with pytest.raises(ValueError, match="seed|episode"):
+            env.reset(**bad)
 
 
 def test_observation_features_mean_what_the_docs_say() -> None:

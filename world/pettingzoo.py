@@ -38,7 +38,7 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
                       "pip install 'commattn-swarm[pettingzoo]'") from exc
 
 from world import core
-from world.config import WorldConfig, from_dict
+from world.config import WorldConfig, check_seed, from_dict
 from world.decentral import View, batch_view
 
 
@@ -80,6 +80,15 @@ def encode(cfg: WorldConfig, view: View) -> np.ndarray:
                           axis=-1, dtype=np.float32)
 
 
+def _whole(v: Any, name: str) -> int:
+    """A seed or an episode number: an int (numpy's too) in [0, 2**31 - 1], never truncated
+    (1.5 is not seed 1); a one-line ValueError (ConfigError) otherwise."""
+    if isinstance(v, np.integer):
+        v = int(v)
+    check_seed(v, name)
+    return int(v)
+
+
 class SwarmParallelEnv(ParallelEnv[str, np.ndarray, int]):
     """N robots exploring one generated episode; a thin per-agent view of `world.core`."""
 
@@ -115,10 +124,10 @@ class SwarmParallelEnv(ParallelEnv[str, np.ndarray, int]):
         A new seed restarts the episode counter at 0, so reset(seed=s) is always episode 0 of s.
         """
         if seed is not None:
-            self.world_seed = int(seed)
+            self.world_seed = _whole(seed, "seed")
             self.episode = -1
         if options and "episode" in options:
-            self.episode = int(options["episode"])
+            self.episode = _whole(options["episode"], "episode")
         else:
             self.episode += 1
         self.world = core.reset(self.cfg, self.world_seed, [self.episode])
