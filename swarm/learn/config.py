@@ -228,20 +228,27 @@ RESUME_MAY_CHANGE = ("epochs", "workers", "threads")
 math (the update is the same for any worker count, up to float rounding)."""
 
 
+def held_to_checkpoint(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | None,
+                       may_change: Collection[str], where: str, restart: str) -> dict[str, Any]:
+    """What a resumed run takes from `asked`: its `given` fields (None: every field is meant)
+    that are in `may_change`. Every other given field must equal the checkpoint's (`saved`): the
+    checkpoint's optimizer state and curve belong to it; else one ConfigError naming each."""
+    names = [f.name for f in dataclasses.fields(TrainConfig) if given is None or f.name in given]
+    differ = [f"{n} = {getattr(asked, n)!r} differs from its {getattr(saved, n)!r}"
+              for n in names if n not in may_change and getattr(asked, n) != getattr(saved, n)]
+    if differ:
+        raise ConfigError(f"--resume continues {where} as it was trained: {', '.join(differ)} "
+                          f"(only {', '.join(may_change)} may change; {restart})")
+    return {n: getattr(asked, n) for n in names if n in may_change}
+
+
 def resumed(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | None,
             done: int, where: str) -> TrainConfig:
     """The config a resumed run goes on with: `saved` (the checkpoint's) with the `given` fields
     of `asked` that `--resume` may change (None: every field of `asked` is meant). ConfigError,
     one line, for a given field that would change the run itself, or epochs already `done`."""
-    names = [f.name for f in dataclasses.fields(TrainConfig)] if given is None else list(given)
-    for name in names:
-        theirs, ours = getattr(saved, name), getattr(asked, name)
-        if name not in RESUME_MAY_CHANGE and ours != theirs:
-            raise ConfigError(f"--resume continues {where} as it was trained: "
-                              f"{name} = {ours!r} differs from its {theirs!r} (only "
-                              f"{', '.join(RESUME_MAY_CHANGE)} may change; a new --out with "
-                              f"--init starts another run from its weights)")
-    changes = {name: getattr(asked, name) for name in names if name in RESUME_MAY_CHANGE}
+    changes = held_to_checkpoint(saved, asked, given, RESUME_MAY_CHANGE, where,
+                                 "a new --out with --init starts another run from its weights")
     if given is None:  # the Python API's old contract: epochs only ever extend a run
         changes["epochs"] = max(asked.epochs, saved.epochs)
     if changes.get("epochs", saved.epochs) < done:

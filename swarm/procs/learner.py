@@ -45,7 +45,7 @@ import zenoh
 
 from policies import policy_class
 from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from swarm.learn.config import LearnerConfig, TrainConfig
+from swarm.learn.config import LearnerConfig, TrainConfig, held_to_checkpoint
 from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
@@ -72,16 +72,10 @@ def resumed_train(saved: TrainConfig, asked: TrainConfig, given: Collection[str]
     `given` fields of `asked` that may change (None: every field of `asked` is meant). A given
     field that would change the run's math is a one-line ConfigError naming every such field,
     as `swarm train --resume` does: the checkpoint's optimizer state and curve belong to it."""
-    names = [f.name for f in dataclasses.fields(TrainConfig) if given is None or f.name in given]
-    differ = [f"{n} = {getattr(asked, n)!r} (its checkpoint: {getattr(saved, n)!r})" for n in names
-              if n not in LEARNER_MAY_CHANGE and getattr(asked, n) != getattr(saved, n)]
-    if differ:
-        raise ConfigError(f"--resume continues the learner in {out} as it was trained: "
-                          f"{', '.join(differ)} (only {', '.join(LEARNER_MAY_CHANGE)} may "
-                          f"change; a new --out with --checkpoint {out / 'checkpoint.pt'} starts "
-                          f"another run from its weights)")
-    return dataclasses.replace(saved, **{n: getattr(asked, n) for n in names
-                                         if n in LEARNER_MAY_CHANGE})
+    return dataclasses.replace(saved, **held_to_checkpoint(
+        saved, asked, given, LEARNER_MAY_CHANGE, f"the learner in {out}",
+        f"a new --out with --checkpoint {out / 'checkpoint.pt'} starts another run from its "
+        f"weights"))
 
 
 @dataclass
