@@ -148,7 +148,6 @@ class Learner:
         self.pending: dict[int, dict[str, Any]] = {}  # ep -> {"world": rec, "robots": {}, "t": s}
         self.closed: set[int] = set()  # swarm episodes joined or given up
         self.last_closed = -1  # the highest of them (a lockstep world waits for it: train_sync)
-        self.n_closed = 0
         self.ready: list[EpisodeRollout] = []
         self.weights_payload = weights_of(self.policy, self.version).pack()
         self.curve: list[float] = []  # the dashboard's sparkline: elratio per update
@@ -245,7 +244,6 @@ class Learner:
         del self.pending[ep]
         self.closed.add(ep)
         self.last_closed = max(self.last_closed, ep)
-        self.n_closed += 1
         if len(self.closed) > 100_000:  # a long run: forget the oldest half
             self.closed = set(sorted(self.closed)[50_000:])
 
@@ -268,13 +266,14 @@ class Learner:
         """Join every pending episode whose records are all in (or whose wait timed out); True
         when one was settled."""
         now = time.monotonic()
-        before = self.n_closed
+        settled = False
         for ep in sorted(self.pending):
             slot = self.pending[ep]
             wr = slot.get("world")
             if wr is None:  # robots' records whose world record never came: give up on them
                 if force or now - slot["first"] > 4 * self.lc.join_timeout:
                     self._close(ep)
+                    settled = True
                     self.c.incomplete += 1
                     log.warning("learner dropped episode %d: no world record", ep)
                 continue
@@ -283,6 +282,7 @@ class Learner:
             if not complete and not force and now - slot["t"] < self.lc.join_timeout:
                 continue
             self._close(ep)
+            settled = True
             try:
                 self._accept(join(self.cfg, seed, wr, slot["robots"]))
             except BadMessage as exc:
@@ -291,7 +291,7 @@ class Learner:
                 else:
                     self.c.incomplete += 1
                 log.warning("learner dropped episode %d: %s", ep, exc)
-        return self.n_closed != before
+        return settled
 
     # --- learning ---------------------------------------------------------------------------
     def maybe_update(self) -> bool:
