@@ -16,12 +16,6 @@ TRAIN_FLAGS = ("train_batch", "train_algo", "train_ppo_epochs", "learner_out", "
 EXIT_INCOMPLETE = 3  # `swarm run`: fewer episodes completed than asked (a stop on its control key)
 
 
-def check_wait(value: float, flag: str = "--wait") -> None:
-    """A wait in seconds: finite, in [0.1, 3600] (NaN or inf would wait for ever)."""
-    if not 0.1 <= value <= 3600:  # also NaN
-        raise ConfigError(f"{flag} must lie in [0.1, 3600] s, got {value}")
-
-
 def check_clock(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig,
                 faults: dict[str, Any]) -> None:
     """A setting of one clock given with the other is refused, never silently dropped: --netns

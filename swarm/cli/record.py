@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.cli.common import _consoles, output_dir, output_file
+from swarm.common.flags import check_wait
 from swarm.net import zconfig
 from world.config import ConfigError
 
@@ -72,8 +73,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     output_file(args.out, "--out")
     if not 0.01 <= args.flush <= 60:
         raise ConfigError(f"--flush must lie in [0.01, 60] seconds, got {args.flush}")
-    if not 0.1 <= args.wait <= 3600:  # also NaN
-        raise ConfigError(f"--wait must lie in [0.1, 3600] seconds, got {args.wait}")
+    check_wait(args.wait)
     zopts = run_endpoint(args, zconfig.from_args(args))
     try:
         from swarm.cli.secure import secure_options

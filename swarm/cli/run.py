@@ -18,7 +18,6 @@ from swarm.cli.checks import (
     check_clock,
     check_fault_ticks,
     check_training,
-    check_wait,
     status_tick,
 )
 from swarm.cli.common import (
@@ -35,6 +34,7 @@ from swarm.cli.common import (
 from swarm.cli.hosts import add_hosts_flag, hosts_option
 from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, secure_options
+from swarm.common.flags import check_wait
 from swarm.common.policy_spec import build_inference
 from swarm.net import zconfig
 from swarm.net.inbox import put_once

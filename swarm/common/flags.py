@@ -14,7 +14,7 @@ import inspect
 import itertools
 from typing import Any
 
-from world.config import replace
+from world.config import ConfigError, replace
 
 
 @functools.cache
@@ -70,3 +70,10 @@ def from_flags(cls: type, args: argparse.Namespace, base: Any = None,
                dest_prefix: str = "") -> Any:
     """`base` (default: the defaults of `cls`) with every flag that was given applied."""
     return replace(base if base is not None else cls(), **given(cls, args, dest_prefix))
+
+
+def check_wait(value: Any, flag: str = "--wait") -> None:
+    """A wait in seconds (`swarm fault|robot|record|rollout-worker --wait`): a number in
+    [0.1, 3600]; NaN or inf would wait for ever. One-line ConfigError otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.1 <= value <= 3600:
+        raise ConfigError(f"{flag} must lie in [0.1, 3600] seconds, got {value}")  # (NaN too)

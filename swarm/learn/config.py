@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from swarm.common.flags import add_flags, from_flags
+from swarm.common.flags import add_flags, check_wait, from_flags
 from swarm.net.keys import check_run_id
 from world.config import ConfigError, from_dict
 
@@ -273,8 +273,7 @@ def check_worker(worker_id: int, batch: int, threads: int, max_batches: int,
                             ("--max-batches", max_batches, 0, 2**31 - 1)):
         if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
             raise ConfigError(f"{flag} must be an integer in [{lo}, {hi}], got {v!r}")
-    if isinstance(wait, bool) or not isinstance(wait, (int, float)) or not 0.1 <= wait <= 3600:
-        raise ConfigError(f"--wait must lie in [0.1, 3600] s, got {wait}")  # (also NaN)
+    check_wait(wait)
 
 
 # --------------------------------------------------------------------------------------- CLI
