@@ -122,7 +122,7 @@ def test_kernel_loss_makes_messages_late_or_robots_lost(tmp_path: Path) -> None:
     and past the 1 s Zenoh lease, closed sessions (robots lost, or none joining at all). The
     radio itself loses nothing."""
     conf = tmp_path / "run.toml"
-    conf.write_text("[run]\nstart_timeout = 15.0\n")
+    conf.write_text("[run]\nstart_timeout = 6.0\n")
     damage = {}
     for loss in ("0", "0.3"):
         out = tmp_path / f"{loss}.json"

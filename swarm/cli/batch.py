@@ -150,7 +150,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_train(args: argparse.Namespace) -> int:
     from swarm.learn import config as train_config
-    from swarm.learn import trainer as train
 
     tables = file_tables(args.config)
     world = world_config(args, tables)
@@ -161,6 +160,14 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, faults=json.dumps(faults))
     asked = {*tables.get("train", {}), *given(train_config.TrainConfig, args),
              *(["faults"] if faults else [])}  # what --resume checks against the checkpoint
+    ckpt = Path(args.out) / "checkpoint.pt"
+    if args.resume and ckpt.is_file():  # a refused resume costs no torch import
+        from policies.checkpoint import read_checkpoint
+
+        train_config.resume_point(read_checkpoint(ckpt), cfg, asked, world,
+                                  world_given(args, tables), str(args.out))
+    from swarm.learn import trainer as train
+
     out, _ = _consoles()
     train.main(cfg, world, args.out, resume=args.resume, console=out, given=asked,
                world_given=world_given(args, tables))

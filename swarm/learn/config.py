@@ -14,7 +14,7 @@ from typing import Any
 
 from swarm.common.flags import add_flags, check_wait, from_flags
 from swarm.net.keys import check_run_id
-from world.config import ConfigError, from_dict
+from world.config import ConfigError, WorldConfig, from_dict
 
 PPO_FIELDS = ("gae_lambda", "ppo_epochs", "ppo_clip")
 """TrainConfig fields only `algo = "ppo"` reads: set to anything but their default for another
@@ -255,6 +255,31 @@ def resumed(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | Non
         raise ConfigError(f"--resume --epochs {changes['epochs']}: {where} has already done "
                           f"{done} epochs")
     return dataclasses.replace(saved, **changes)
+
+
+def resume_point(data: dict[str, Any], cfg: TrainConfig, given: Collection[str] | None,
+                 world: WorldConfig, world_given: Collection[str] | None,
+                 where: str) -> tuple[TrainConfig, WorldConfig, dict[str, Any]]:
+    """What `swarm train --resume` goes on with, from a checkpoint's `data` (torch's or the
+    torch-free reader's): its config with the flags that may change (`resumed`), its world (a
+    `world_given` field that differs is refused; None: all are given) and its trainer state.
+    CheckpointError or ConfigError, one line."""
+    from policies.checkpoint import CheckpointError
+
+    tr = data.get("train")
+    if not isinstance(tr, dict):
+        raise CheckpointError(f"{where}/checkpoint.pt holds no trainer state; cannot resume")
+    saved = from_dict(TrainConfig, tr["config"], where="checkpoint train config")
+    cfg = resumed(saved, cfg, given, tr["epoch"], where)
+    theirs = from_dict(WorldConfig, data["world"], where="checkpoint world")
+    names = [f.name for f in dataclasses.fields(WorldConfig)] if world_given is None \
+        else sorted(world_given)
+    key = next((k for k in names if getattr(world, k) != getattr(theirs, k)), None)
+    if key is not None:
+        raise ConfigError(f"--resume continues {where} on the world it was trained on: "
+                          f"{key} = {getattr(world, key)!r} differs from its "
+                          f"{getattr(theirs, key)!r}")
+    return cfg, theirs, tr
 
 
 # ---------------------------------------------------------------------------- rollout worker

@@ -21,16 +21,16 @@ import numpy as np
 import torch
 
 from policies import LEARNED, make_policy
-from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from policies.checkpoint import load_checkpoint, save_checkpoint
 from policies.learned import LearnedPolicy
-from swarm.learn.config import TrainConfig, resumed
+from swarm.learn.config import TrainConfig, resume_point
 from swarm.learn.curriculum import Curriculum
 from swarm.learn.curves import CurveLog, plot_curve
 from swarm.learn.evaluate import evaluate
 from swarm.learn.parallel import ParallelUpdater
 from swarm.learn.rollout import collect, train_faults
 from swarm.learn.update import update
-from world.config import ConfigError, WorldConfig, from_dict
+from world.config import ConfigError, WorldConfig
 
 
 def _progress_line(row: dict[str, Any], total: int) -> str:
@@ -81,20 +81,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
     epoch0, upd = 0, 0
     if resume and ckpt_path.exists():
         data = load_checkpoint(ckpt_path)
-        tr = data.get("train")
-        if tr is None:
-            raise CheckpointError(f"{ckpt_path} holds no trainer state; cannot resume")
-        saved = from_dict(TrainConfig, tr["config"], where="checkpoint train config")
-        cfg = resumed(saved, cfg, given, tr["epoch"], str(out))
-        theirs = from_dict(WorldConfig, data["world"], where="checkpoint world")
-        names = [f.name for f in dataclasses.fields(WorldConfig)] if world_given is None \
-            else sorted(world_given)
-        key = next((k for k in names if getattr(world, k) != getattr(theirs, k)), None)
-        if key is not None:
-            raise ConfigError(f"--resume continues {out} on the world it was trained on: "
-                              f"{key} = {getattr(world, key)!r} differs from its "
-                              f"{getattr(theirs, key)!r}")
-        world = theirs
+        cfg, world, tr = resume_point(data, cfg, given, world, world_given, str(out))
         torch.set_num_threads(cfg.threads)
         policy = make_policy(cfg.policy, world, checkpoint=ckpt_path)
         opt = torch.optim.Adam(policy.net.parameters(), lr=cfg.lr)

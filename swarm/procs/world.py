@@ -16,6 +16,7 @@ from __future__ import annotations
 import heapq
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -27,7 +28,7 @@ from policies import CHAINED
 from swarm.learn.evaluate import EvalResult
 from swarm.net.direct import DirectTally
 from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control, plan_from_table
-from swarm.net.inbox import Inbox, publisher, tally
+from swarm.net.inbox import Event, Inbox, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, LearnerGate
 from swarm.net.messages import (
@@ -104,6 +105,7 @@ class WorldProcess:
         self.timeouts = 0
         self.fast_lane_ticks = 0  # ticks whose hidden-state messages went robot to robot
         self.late = 0
+        self._held: deque[Event] = deque()  # events read between ticks, for the tick's loop
         self.stop = False
         self.on_status = on_status
         self._pubs: dict[str, zenoh.Publisher] = {}
@@ -165,11 +167,31 @@ class WorldProcess:
         """Handle one queued event (or due delivery) before `deadline`; False when it passed."""
         assert self.inbox is not None
         self._flush_due()
+        if self._held:
+            return self._handle(self._held.popleft(), tick)
         wait_until = min(deadline, self._due[0][0]) if self._due else deadline
         ev = self.inbox.next(wait_until - time.monotonic())
         if ev is None:
             self._flush_due()
             return time.monotonic() < deadline
+        return self._handle(ev, tick)
+
+    def _idle(self, until: float) -> None:
+        """Between ticks, until `until`: a control is acted on as it comes, so a fault change
+        that arrived before a tick starts applies from that tick; any other event waits for the
+        tick's own loop, as before (liveness, say, must not change the tick's observations)."""
+        assert self.inbox is not None
+        for _ in range(10_000):  # (a flood cannot hold the tick back for ever)
+            ev = self.inbox.next(until - time.monotonic())
+            if ev is None:
+                return
+            if ev.kind == "control":
+                self._handle(ev, None)
+            else:
+                self._held.append(ev)
+
+    def _handle(self, ev: Event, tick: TickInbox | None) -> bool:
+        """Act on one event (`tick`: the tick in play, None between ticks); True."""
         kind, key, payload = ev
         if kind in ("robot:live", "robot:dead"):
             self._liveness(kind == "robot:live", key)
@@ -197,8 +219,6 @@ class WorldProcess:
             except BadMessage as exc:
                 self._count_bad(key, str(exc))
             return True
-        if tick is None:
-            return True
         try:
             msg: Any = SCHEMA[kind].unpack(payload or b"", self.cfg)
             if Keys.robot_of(key) != msg.robot:
@@ -206,7 +226,7 @@ class WorldProcess:
         except (BadMessage, KeyError, ValueError) as exc:
             self._count_bad(key, str(exc))
             return True
-        if (msg.ep, msg.t) != (tick.ep, tick.t):
+        if tick is None or (msg.ep, msg.t) != (tick.ep, tick.t):  # (between ticks: a past one)
             self.late += 1
             return True
         if kind == "traj":
@@ -293,8 +313,8 @@ class WorldProcess:
         next_tick = time.monotonic()
         self.radio.new_episode()
         while True:
+            self._idle(next_tick if self.run_cfg.pace > 0 else 0.0)
             if self.run_cfg.pace > 0:
-                time.sleep(max(0.0, next_tick - time.monotonic()))
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
             obs_faults = b""
             plan = self.faults.due(self.run_tick)  # each live change at its own tick
