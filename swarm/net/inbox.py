@@ -9,6 +9,7 @@ event instead of growing without bound under a flood.
 
 from __future__ import annotations
 
+import heapq
 import queue
 import time
 from collections.abc import Callable
@@ -154,3 +155,34 @@ def put_once(session: zenoh.Session, key: str, payload: bytes) -> None:
     `Session.put` defaults to DROP, which would lose a stop or a fault change silently on a
     congested link."""
     session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+
+class Outbox:
+    """Payloads put at later wall-clock (monotonic) times, in order of time, then of scheduling:
+    the real clock's radio latency. `put(key, payload)` is the process's publisher."""
+
+    def __init__(self, put: Callable[[str, bytes], None]) -> None:
+        self._put = put
+        self._due: list[tuple[float, int, str, bytes]] = []
+        self._seq = 0
+
+    def schedule(self, when: float, key: str, payload: bytes) -> None:
+        if when <= time.monotonic():
+            self._put(key, payload)
+        else:
+            self._seq += 1
+            heapq.heappush(self._due, (when, self._seq, key, payload))
+
+    def flush(self) -> None:
+        """Put every payload whose time has come."""
+        now = time.monotonic()
+        while self._due and self._due[0][0] <= now:
+            _, _, key, payload = heapq.heappop(self._due)
+            self._put(key, payload)
+
+    def until(self, deadline: float) -> float:
+        """The earlier of `deadline` and the next payload's time."""
+        return min(deadline, self._due[0][0]) if self._due else deadline
+
+    def clear(self) -> None:
+        self._due.clear()

@@ -13,7 +13,6 @@ payload is dropped and counted with its key, never raised.
 
 from __future__ import annotations
 
-import heapq
 import logging
 import time
 from collections import deque
@@ -28,7 +27,7 @@ from policies import CHAINED
 from swarm.learn.evaluate import EvalResult
 from swarm.net.direct import DirectTally
 from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control, plan_from_table
-from swarm.net.inbox import Event, Inbox, publisher, tally
+from swarm.net.inbox import Event, Inbox, Outbox, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, LearnerGate
 from swarm.net.messages import (
@@ -84,8 +83,7 @@ class WorldProcess:
         self.direct = DirectTally(cfg.n_robots) if run.delivery == "direct" else None
         if self.virtual:
             self.radio.use_virtual_clock(run.tick_timeout)
-        self._due: list[tuple[float, int, str, bytes]] = []  # scheduled radio deliveries
-        self._seq = 0
+        self._outbox = Outbox(self._put)  # the real clock's radio deliveries, at their times
         self.run_tick = 0
         self.planning_ms = 0.0  # robots' reported planning time, summed
         # where a tick's wall time goes, summed over ticks (ms): publishing observations,
@@ -166,13 +164,13 @@ class WorldProcess:
     def _pump(self, deadline: float, tick: TickInbox | None = None) -> bool:
         """Handle one queued event (or due delivery) before `deadline`; False when it passed."""
         assert self.inbox is not None
-        self._flush_due()
+        self._outbox.flush()
         if self._held:
             return self._handle(self._held.popleft(), tick)
-        wait_until = min(deadline, self._due[0][0]) if self._due else deadline
+        wait_until = self._outbox.until(deadline)
         ev = self.inbox.next(wait_until - time.monotonic())
         if ev is None:
-            self._flush_due()
+            self._outbox.flush()
             return time.monotonic() < deadline
         return self._handle(ev, tick)
 
@@ -254,19 +252,6 @@ class WorldProcess:
                 self.direct.took(msg, self.radio.delivered)
         return True
 
-    def _schedule(self, when: float, key: str, payload: bytes) -> None:
-        if when <= time.monotonic():
-            self._put(key, payload)
-        else:
-            self._seq += 1
-            heapq.heappush(self._due, (when, self._seq, key, payload))
-
-    def _flush_due(self) -> None:
-        now = time.monotonic()
-        while self._due and self._due[0][0] <= now:
-            _, _, key, payload = heapq.heappop(self._due)
-            self._put(key, payload)
-
     def _forward_hidden(self, msg: Hidden, payload: bytes, tick: TickInbox) -> None:
         t0 = time.perf_counter()
         if self.virtual:  # its fate is known now: the message, or word that it will not come
@@ -277,7 +262,7 @@ class WorldProcess:
         else:
             for i, when in self.radio.hidden_deliveries(msg.ep, msg.t, msg.robot, len(payload),
                                                         time.monotonic(), tick.hidden_deadline):
-                self._schedule(when, self.keys.inbox_hidden(i), payload)
+                self._outbox.schedule(when, self.keys.inbox_hidden(i), payload)
                 self.radio.counters.hidden_delivered += 1
         self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
 
@@ -293,7 +278,7 @@ class WorldProcess:
         else:
             bundles = self.radio.bundles(tick.ep, tick.t, yx, tick.traj, tick.traj_deadline)
             for i, (when, payloads) in bundles.items():
-                self._schedule(when, self.keys.inbox(i),
+                self._outbox.schedule(when, self.keys.inbox(i),
                                Bundle(tick.ep, tick.t, i, payloads).pack())
         tick.delivered = True
         self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
@@ -324,7 +309,7 @@ class WorldProcess:
                 self._record = RunRecord(cfg, self.run_cfg, self.faults.table).pack()
                 if self.direct is not None:  # the robots hold the plan: this tick's obs carry it
                     obs_faults = msgpack.packb(self.faults.table)
-            self._due.clear()  # nothing of an older tick is ever delivered
+            self._outbox.clear()  # nothing of an older tick is ever delivered
             state.alive[0] = self.alive
             t, done, yx = state.t, state.done, lay.to_yx(state.pos[0])
             patch = core.patches(cfg, state)[0]
