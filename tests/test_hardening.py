@@ -259,6 +259,22 @@ def test_a_hung_robot_rejoins_after_it_is_resumed(tmp_path: Path) -> None:
 
 
 @pytest.mark.procs
+def test_a_hung_robot_holds_no_other_robot_back_in_virtual_time(tmp_path: Path) -> None:
+    """Virtual clock, a watchdog as short as the lease: a robot hung before its trajectory held
+    the others' bundles until the watchdog, and then they missed the tick too (all counted as
+    timeouts, all frozen). Now the others get a watchdog of their own to decide."""
+    r = swarm("run", "--headless", "--robots", "3", "--episodes", "1", "--policy",
+              "nearest-frontier", "--hang", "1@5", "--restart", "1@12", "--watchdog", "1",
+              "--run-id", "hangv", "--json", str(tmp_path / "r.json"), timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    missed = {i for line in r.stdout.splitlines() if '"status"' in line
+              for i in json.loads(line)["status"]["timeouts"]}
+    assert missed <= {1}, missed
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["completed"] == 1 and res["timeouts"] <= 1 and res["robot_restarts"] == 1
+
+
+@pytest.mark.procs
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
 def test_the_supervisors_death_ends_every_process_of_its_run(tmp_path: Path, sig: int) -> None:
     run_id = f"die{int(sig)}"

@@ -160,3 +160,21 @@ def test_bad_files_are_one_line_errors_with_status_2(tmp_path: Path, capsys: Any
 
 
 # ----------------------------------------------------------------------- units, no processes
+
+
+@pytest.mark.procs
+def test_a_recorder_waiting_for_its_world_stops_on_ctrl_c(tmp_path: Path) -> None:
+    """Ctrl-C while `swarm record` still waits for the run's world (its `--wait`) ends it at once
+    with 130 and no file; it used to wait the whole --wait out."""
+    out = tmp_path / "w.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "record", "--run-id", "nowhere",
+                             "--connect", "tcp/127.0.0.1:9", "--out", str(out), "--wait", "60"],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(2.0)  # loaded, session open, asking for the world
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 130, proc.communicate()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert not out.exists()

@@ -198,15 +198,18 @@ def test_two_runs_side_by_side_do_not_cross_talk(tmp_path: Path) -> None:
 
 @pytest.mark.procs
 def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
-    """`swarm world` + `swarm robot` by hand (the README's two-terminal start); kill the world."""
+    """`swarm world` + `swarm robot` by hand (the README's two-terminal start): a robot that
+    never came is named in the result (and on stderr); a second process with a robot's or the
+    world's id is refused in one line; kill the world."""
     from swarm.net.zconfig import free_port
 
     hub = f"tcp/127.0.0.1:{free_port()}"
-    out = tmp_path / "world.json"
+    out, conf = tmp_path / "world.json", tmp_path / "run.toml"
+    conf.write_text("[run]\nstart_timeout = 4.0\n")
     world = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "world", "--run-id", "manual", "--robots", "2",
-         "--policy", "random", "--episodes", "1", "--listen", hub, "--json", str(out)],
-        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        [sys.executable, "-m", "swarm.cli", "world", "--run-id", "manual", "--robots", "3",
+         "--policy", "random", "--episodes", "1", "--listen", hub, "--json", str(out),
+         "--config", str(conf)], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     robots = [subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "robot", "--id", str(i), "--run-id", "manual",
          "--connect", hub], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -214,7 +217,8 @@ def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
     try:
         assert world.wait(timeout=60) == 0
         res = json.loads(out.read_text())
-        assert res["completed"] == 1 and res["timeouts"] == 0
+        assert res["completed"] == 1 and res["timeouts"] == 0 and res["never_joined"] == [2]
+        assert b"robots [2] not alive" in world.stderr.read()  # type: ignore[union-attr]
         for r in robots:  # the world is gone: robots leave by themselves
             assert r.wait(timeout=10) == 0
         # Second round: SIGKILL a world mid-run; its robots must still exit on their own.
@@ -226,7 +230,14 @@ def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
             [sys.executable, "-m", "swarm.cli", "robot", "--id", str(i), "--run-id", "manual2",
              "--connect", hub], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             for i in range(2)]
-        time.sleep(4.0)
+        time.sleep(3.0)
+        dups = [subprocess.Popen([sys.executable, "-m", "swarm.cli", *args, "--run-id", "manual2",
+                                  "--connect", hub], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+                for args in (["robot", "--id", "1"], ["world", "--robots", "2"])]
+        for d, who in zip(dups, ("robot 1 of run manual2", "a world of run manual2"), strict=True):
+            err = d.communicate(timeout=60)[1]
+            assert d.returncode == 2 and f"{who} is running already" in err, err
+            assert err.strip().splitlines()[-1].startswith("swarm: error:"), err  # one line
         assert all(r.poll() is None for r in robots)
         world.kill()
         for r in robots:

@@ -72,7 +72,8 @@ def test_virtual_swarm_equals_batched_eval_under_each_fault(tmp_path: Path, poli
     res = _run(tmp_path, f"v{kind}{policy[:4]}", policy, KINDS[kind])
     assert res["clock"] == "virtual" and res["timeouts"] == 0
     swarm_actions = np.array(res["actions"])
-    assert np.array_equal(swarm_actions, _batched(policy, KINDS[kind]))
+    assert np.array_equal(swarm_actions, _batched(policy, KINDS[kind])), {
+        k: res.get(k) for k in ("never_joined", "robot_crashes", "robots_lost", "logs")}
     assert res["fast_lane_ticks"] == 0  # link faults: every hidden-state copy via the radio
     m = res["messages"]
     if kind in ("latency", "bandwidth", "compute", "mix"):

@@ -45,7 +45,8 @@ def oracle(cfg: WorldConfig, n: int, cert_limit: float = 20.0) -> dict:
     a = lambda k: np.array([r[k] for r in rows], dtype=float)  # noqa: E731
     # the evaluator's own figures for the same plans
     ev = _evaluate()(cfg, make_policy("oracle", cfg, search=search), 0, n, batch=n)
-    return {"policy": "oracle", "episodes": n, "seed": 0, "search": search.__dict__,
+    knobs = {k: None if v == float("inf") else v for k, v in search.__dict__.items()}  # (JSON)
+    return {"policy": "oracle", "episodes": n, "seed": 0, "search": knobs,
             "elratio_mean": a("elratio").mean(), "elratio_std": a("elratio").std(),
             "evaluator_elratio_mean": float(ev.elratio.mean()),
             "success_rate": a("success").mean(),

@@ -9,7 +9,7 @@ cd "$(dirname "$0")/../.."
 for spec in 20:60 30:40 50:24; do
   n=${spec%%:*}; t=${spec##*:}
   out="results/scale/eval_40x40_n${n}_t${t}"
-  [ -f "$out.json" ] && continue  # done already
+  if [ -f "$out.json" ]; then echo "$out.json exists: skipped (delete it to re-run)"; continue; fi
   policies=random,nearest-frontier,commattn,commnet,vain,bicnet
   [ "$n" = 20 ] && policies=random,nearest-frontier,coordinated-frontier,commattn,commnet,vain,bicnet
   .venv/bin/swarm eval --policy "$policies" --size 40x40 --robots "$n" --horizon "$t" \
@@ -18,7 +18,7 @@ done
 for spec in 30:40 50:24; do
   n=${spec%%:*}; t=${spec##*:}
   out="results/scale/eval_40x40_n${n}_t${t}_coordinated"
-  [ -f "$out.json" ] && continue
+  if [ -f "$out.json" ]; then echo "$out.json exists: skipped (delete it to re-run)"; continue; fi
   .venv/bin/swarm eval --policy coordinated-frontier --size 40x40 --robots "$n" --horizon "$t" \
     --episodes 100 --batch 100 --seed 0 --json "$out.json" > "$out.txt" 2>/dev/null
 done

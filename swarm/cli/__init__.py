@@ -61,7 +61,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not die_with_parent():
         terminate_as_interrupt()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # named after the subcommand whose --help lists what it takes
+        prog = " ".join(["swarm", *(getattr(args, k, None) or "" for k in ("command", "what"))])
+        parser.exit(2, f"swarm: error: unrecognized arguments: {' '.join(extra)} "
+                       f"(see {prog.strip()} --help)\n")
     if getattr(args, "func", None) is None:
         parser.print_help(sys.stderr)
         return 2

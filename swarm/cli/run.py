@@ -274,6 +274,11 @@ def cmd_world(args: argparse.Namespace) -> int:
         world, run = world_config(args, tables), run_config(args, tables)
         faults = fault_table(args, tables, world.n_robots)
         check_clock(args, tables, run, faults)
+        kinds = [k for k in ("crash", "hang", "restart") if faults.get(k)]
+        if kinds:
+            raise ConfigError(f"[faults] {', '.join(kinds)}: a world started by hand does not "
+                              "run robot processes, so it cannot signal them (swarm run's "
+                              "supervisor does; by hand, kill or stop the robot yourself)")
     zopts = secure_options(args, zconfig.from_args(args), "world", run.run_id, world.n_robots)
     output_file(args.json)
     if not args.spec:
@@ -284,6 +289,10 @@ def cmd_world(args: argparse.Namespace) -> int:
         return 130
     if args.json:
         write_json(args.json, res)
+    if res.get("stopped") and not args.spec:  # (spawned, the supervisor says it)
+        print(f"swarm world: stopped by a control record after {res['completed']} of "
+              f"{run.episodes} episodes", file=sys.stderr)
+        return EXIT_INCOMPLETE
     return 0
 
 
@@ -445,11 +454,14 @@ def add_parsers(sub: Any) -> None:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("world", help="the world process (grid, clock, radio), by hand",
-                       description="Run the world process; robots join with `swarm robot`.")
+                       description="Run the world process; robots join with `swarm robot`. Exit "
+                                   f"status: 0 every episode played, 2 bad input, "
+                                   f"{EXIT_INCOMPLETE} stopped by a control record, 130 "
+                                   "interrupted.")
     add_common(p)
     add_world(p)
     _add_run_flags(p)
-    add_fault_flags(p)
+    add_fault_flags(p, process=False)  # (crash, hang, restart: the supervisor's, swarm run)
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)

@@ -116,11 +116,15 @@ class Inbox:
         self.close()
 
 
-def query(session: zenoh.Session, key: str, timeout: float, what: str = "") -> bytes:
+def query(session: zenoh.Session, key: str, timeout: float, what: str = "",
+          stop: Callable[[], bool] = lambda: False) -> bytes:
     """The first reply's payload to a query on `key`, retried until `timeout` seconds; a
-    one-line TimeoutError naming `what` (default: the key) when nobody answers."""
+    one-line TimeoutError naming `what` (default: the key) when nobody answers, and
+    KeyboardInterrupt once `stop()` (a signal handler's flag) is true."""
     deadline = time.monotonic() + timeout
     while True:
+        if stop():
+            raise KeyboardInterrupt
         left = deadline - time.monotonic()
         for reply in session.get(key, timeout=max(0.05, min(1.0, left))):
             if reply.ok is not None:
@@ -186,3 +190,12 @@ class Outbox:
 
     def clear(self) -> None:
         self._due.clear()
+
+
+def check_free(session: zenoh.Session, key: str, what: str, timeout: float = 2.0) -> None:
+    """A process taking an id: ConfigError (one line) if a liveliness token on `key` is up
+    anywhere this session reaches (`what`, say "robot 3 of run R", is running already)."""
+    from world.config import ConfigError
+
+    if any(r.ok is not None for r in session.liveliness().get(key, timeout=timeout)):
+        raise ConfigError(f"{what} is running already (its liveliness token is up)")

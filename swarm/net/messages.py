@@ -4,8 +4,8 @@ nothing else packs or unpacks a payload.
 Each payload is a msgpack array `[SCHEMA, kind, ...fields]`. `unpack` validates types, ranges
 and sizes against the run's world config and raises `BadMessage` (a one-line reason); the
 callers drop and count such payloads, they never crash. Trajectory messages are compact: the
-visited bitmap is bit-packed (H*W/8 bytes) and the patch is v*v bytes, 108 bytes in all on the
-default 20 x 20 map.
+visited bitmap is bit-packed (H*W/8 bytes) and the patch is v*v bytes: at most 112 bytes in all
+on the default 20 x 20 map (102 on average).
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ import numpy as np
 
 from swarm.net.channel import FATES, OK, VirtualChannel
 from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, delay_ms, delivery_mask, link_arrays
-from swarm.net.messages import Action, Hidden
+from swarm.net.messages import Action, Bundle, Hidden
 from world.config import WorldConfig
 from world.decentral import neighbourhood, predecessor
 
@@ -330,6 +330,33 @@ class Radio:
         self.pred = predecessor(ok[None])[0]
         payloads = [senders.get(j, b"") for j in range(n)]
         return {i: [payloads[j] for j in np.flatnonzero(ok[i]).tolist()] for i in senders}
+
+    def bundle_sends(self, tick: TickInbox, positions: np.ndarray
+                     ) -> list[tuple[float, int, bytes]]:
+        """(when, receiver, packed Bundle) for the trajectory messages of `tick`: all at once
+        (0.0) on the virtual clock, a fast-lane tick's naming each receiver's successors; at
+        their wall-clock arrival times on the real one."""
+        ep, t = tick.ep, tick.t
+        if self.channel is not None:
+            heard = self.virtual_bundles(ep, t, positions,
+                                         {j: p for j, (p, _) in tick.traj.items()})
+            return [(0.0, i, Bundle(ep, t, i, msgs, self.successors(i) if tick.fast_lane
+                                    else None).pack()) for i, msgs in heard.items()]
+        sends = self.bundles(ep, t, positions, tick.traj, tick.traj_deadline)
+        return [(when, i, Bundle(ep, t, i, msgs).pack()) for i, (when, msgs) in sends.items()]
+
+    def hidden_sends(self, msg: Hidden, payload: bytes, now: float, deadline: float
+                     ) -> list[tuple[float, int, bytes]]:
+        """(when, successor, payload) for a hidden-state message: on the virtual clock all at
+        once, a lost or late copy replaced by word that it will not come (`Hidden.miss`)."""
+        if self.channel is not None:
+            fates = self.virtual_hidden(msg.ep, msg.t, msg.robot, len(payload))
+            self.counters.hidden_delivered += sum(ok for _, ok in fates)
+            miss = Hidden.miss(msg.ep, msg.t, msg.robot).pack()
+            return [(0.0, i, payload if ok else miss) for i, ok in fates]
+        sends = self.hidden_deliveries(msg.ep, msg.t, msg.robot, len(payload), now, deadline)
+        self.counters.hidden_delivered += len(sends)
+        return [(when, i, payload) for i, when in sends]
 
     def virtual_hidden(self, ep: int, t: int, sender: int, size: int) -> list[tuple[int, bool]]:
         """(successor, on time) for the hidden-state message `sender` sent at tick t; charged

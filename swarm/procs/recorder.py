@@ -87,7 +87,8 @@ class Recorder:
         inbox = Inbox(self.session)
         try:
             rec = RunRecord.unpack(query(self.session, self.keys.config, self.wait_world,
-                                         f"world answered on {self.keys.config}"),
+                                         f"world answered on {self.keys.config}",
+                                         lambda: self.stop),
                                    f"run record from {self.keys.config}")
             w = RecordingWriter(self.out, self.keys.run, rec.to_record(), rec.world,
                                 rec.run.clock, rec.run.tick_timeout, flush_s=self.flush_s)

@@ -20,7 +20,7 @@ import zenoh
 
 from policies.base import Policy
 from swarm.common.policy_spec import build_inference
-from swarm.net.inbox import Inbox, publisher, query, tally
+from swarm.net.inbox import Inbox, check_free, publisher, query, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import RolloutTick
 from swarm.net.messages import (
@@ -322,13 +322,17 @@ class RobotProcess:
         self.c.msgs_out += 1
         self.c.bytes_out += len(traj)
         # Act before the world's deadline whatever is missing (a late message is never used).
-        deadline = t_recv + 0.95 * obs.budget_ms / 1e3
+        budget = 0.95 * obs.budget_ms / 1e3
+        virtual = self.run_cfg.clock == "virtual"
         w0 = time.perf_counter()
-        bundle = self._wait("bundle", obs.ep, obs.t, None, deadline)
+        # virtual clock: the world holds the bundles up to its watchdog for a robot that hung
+        # before sending, then gives the decisions a watchdog of their own
+        bundle = self._wait("bundle", obs.ep, obs.t, None, t_recv + budget * (2 if virtual else 1))
         self.c.wait_ms += 1e3 * (time.perf_counter() - w0)
         if bundle is None:
             self.c.missed += 1
             return
+        deadline = (time.monotonic() if virtual else t_recv) + budget
         self.c.last_latency_ms = 1e3 * (time.monotonic() - t_recv)
         heard = bundle.msgs
         t0, waited = time.perf_counter(), self.c.wait_ms
@@ -481,6 +485,7 @@ def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0)
         cfg, run = rec.world, rec.run
         if not 0 <= robot < cfg.n_robots:
             raise ConfigError(f"robot id {robot} outside 0..{cfg.n_robots - 1} of run {run_id}")
+        check_free(session, keys.alive_robot(robot), f"robot {robot} of run {run_id}")
         # learned policies act in numpy (policies.infer): no robot process imports torch
         policy = build_inference(run.policy, cfg, run.checkpoint)
         policy.reset(1)

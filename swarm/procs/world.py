@@ -1,13 +1,11 @@
 """The world process: owns the grid and the clock, hosts the radio, steps once per tick.
 
-Per tick t: send every live robot its observation; collect trajectory messages and hand each
-robot its bundle through the radio as soon as every live robot has sent (or half the tick
-deadline passed); forward hidden-state messages to the successors that need them (on a tick
-with no link fault the bundles name the successors and the robots send them: the fast lane);
-collect actions until every live robot has acted or the deadline passed (a robot that missed it
-stays in place, counted as a timeout); step with the same `world.core.step` as the batched
-evaluator.
-Everything arriving from the network goes through one queue and is validated there: a bad
+Per tick t: send every live robot its observation; hand each robot its bundle of trajectory
+messages through the radio once every live robot has sent (or half the tick deadline passed);
+forward hidden-state messages to the successors (on a tick with no link fault the robots send
+them themselves: the fast lane); collect actions until every live robot has acted or the
+deadline passed (a robot that missed it stays in place: a timeout); step with the batched
+evaluator's `world.core.step`. All input goes through one queue and is checked there: a bad
 payload is dropped and counted with its key, never raised.
 """
 
@@ -27,7 +25,7 @@ from policies import CHAINED
 from swarm.learn.evaluate import EvalResult
 from swarm.net.direct import DirectTally
 from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control, plan_from_table
-from swarm.net.inbox import Event, Inbox, Outbox, publisher, tally
+from swarm.net.inbox import Event, Inbox, Outbox, check_free, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, LearnerGate
 from swarm.net.messages import (
@@ -38,7 +36,6 @@ from swarm.net.messages import (
     K_STATUS,
     Action,
     BadMessage,
-    Bundle,
     Hidden,
     Obs,
     Traj,
@@ -75,9 +72,8 @@ class WorldProcess:
         # virtual clock + chain: a tick also waits for every hidden-state message, so each one
         # is charged to its sender's bucket in order (swarm.net.channel), as in the evaluator
         self.chained = self.virtual and run.policy in CHAINED and run.delivery == "radio"
-        # the radio's fast lane: on a tick with no link fault every hidden-state copy is on time,
-        # so the bundles name each robot's successors and the robots send them the message
-        # themselves (through the router, without this process's loop in the chain's hops)
+        # the radio's fast lane: on a tick with no link fault the bundles name each robot's
+        # successors and the robots send them the message themselves (see the docstring)
         self.fast_lane = self.chained and fast_lane
         # direct delivery (swarm.net.direct): robots deliver to one another and report counts
         self.direct = DirectTally(cfg.n_robots) if run.delivery == "direct" else None
@@ -158,6 +154,9 @@ class WorldProcess:
             self._pump(deadline)
         if not self.alive.any():
             raise RuntimeError(f"no robot came alive within {self.run_cfg.start_timeout:g} s")
+        if not self.alive.all():  # (in the result's never_joined unless they come later)
+            log.warning("robots %s not alive within %g s: the run goes on without them",
+                        np.flatnonzero(~self.alive).tolist(), self.run_cfg.start_timeout)
         if not self.learner_alive and not self.stop:
             raise RuntimeError(f"no learner came alive within {self.run_cfg.start_timeout:g} s")
 
@@ -227,7 +226,12 @@ class WorldProcess:
         if tick is None or (msg.ep, msg.t) != (tick.ep, tick.t):  # (between ticks: a past one)
             self.late += 1
             return True
-        if kind == "traj":
+        if msg.robot in {"traj": tick.traj, "hidden": tick.sent_hidden}.get(kind, tick.action):
+            self._count_bad(key, f"a second {kind} message of robot {msg.robot} at tick {msg.t}")
+            return True  # (a second process with its id, or a replay)
+        if kind == "traj" and tick.delivered:  # after the bundles left: never used
+            self.late += 1
+        elif kind == "traj":
             self.radio.counters.traj_in += 1
             self.radio.counters.bytes_in += len(payload or b"")
             tick.traj[msg.robot] = (payload or b"", time.monotonic())
@@ -242,8 +246,7 @@ class WorldProcess:
             else:
                 tick.hidden[msg.robot] = (msg, payload or b"")
         else:
-            if tick.fast_lane and msg.robot not in tick.action:
-                # its hidden-state message went to its successors before this action left
+            if tick.fast_lane:  # its hidden-state message went to its successors before it
                 self.radio.counters.hidden_in += 1
                 self.radio.counters.hidden_delivered += len(self.radio.successors(msg.robot))
                 tick.hidden_at.setdefault(msg.robot, time.perf_counter())
@@ -254,32 +257,16 @@ class WorldProcess:
 
     def _forward_hidden(self, msg: Hidden, payload: bytes, tick: TickInbox) -> None:
         t0 = time.perf_counter()
-        if self.virtual:  # its fate is known now: the message, or word that it will not come
-            for i, on_time in self.radio.virtual_hidden(msg.ep, msg.t, msg.robot, len(payload)):
-                self._put(self.keys.inbox_hidden(i),
-                          payload if on_time else Hidden.miss(msg.ep, msg.t, msg.robot).pack())
-                self.radio.counters.hidden_delivered += on_time
-        else:
-            for i, when in self.radio.hidden_deliveries(msg.ep, msg.t, msg.robot, len(payload),
-                                                        time.monotonic(), tick.hidden_deadline):
-                self._outbox.schedule(when, self.keys.inbox_hidden(i), payload)
-                self.radio.counters.hidden_delivered += 1
+        for when, i, p in self.radio.hidden_sends(msg, payload, time.monotonic(),
+                                                  tick.hidden_deadline):
+            self._outbox.schedule(when, self.keys.inbox_hidden(i), p)
         self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
 
     def _deliver(self, state: core.WorldState, tick: TickInbox) -> None:
         t0 = time.perf_counter()
         yx = core.Layout.of(self.cfg).to_yx(state.pos[0])
-        if self.virtual:
-            heard = self.radio.virtual_bundles(tick.ep, tick.t, yx,
-                                               {j: p for j, (p, _) in tick.traj.items()})
-            for i, payloads in heard.items():
-                succ = self.radio.successors(i) if tick.fast_lane else None
-                self._put(self.keys.inbox(i), Bundle(tick.ep, tick.t, i, payloads, succ).pack())
-        else:
-            bundles = self.radio.bundles(tick.ep, tick.t, yx, tick.traj, tick.traj_deadline)
-            for i, (when, payloads) in bundles.items():
-                self._outbox.schedule(when, self.keys.inbox(i),
-                               Bundle(tick.ep, tick.t, i, payloads).pack())
+        for when, i, bundle in self.radio.bundle_sends(tick, yx):
+            self._outbox.schedule(when, self.keys.inbox(i), bundle)
         tick.delivered = True
         self.phase_ms["radio"] += 1e3 * (time.perf_counter() - t0)
         for msg, payload in tick.hidden.values():  # (timed on their own)
@@ -354,6 +341,11 @@ class WorldProcess:
                 if not tick.delivered and (has_all(tick.traj, live)
                                            or time.monotonic() >= traj_deadline):
                     t_delivered = time.perf_counter()
+                    if self.virtual:  # the watchdog again for the decisions (a robot that
+                        # hung, or died, before its trajectory held the bundles; it cannot act)
+                        if not has_all(tick.traj, live):
+                            live = {i for i in live if i in tick.traj}
+                        deadline = time.monotonic() + timeout
                     self._deliver(state, tick)
                 if tick.delivered and has_all(tick.action, live) and (
                         not self.chained or tick.fast_lane or has_all(tick.sent_hidden, live)):
@@ -361,7 +353,8 @@ class WorldProcess:
                 if self.stop or not self.alive.any():
                     break
                 limit = deadline if tick.delivered else min(deadline, traj_deadline)
-                if not self._pump(limit, tick) and time.monotonic() >= deadline:
+                if not self._pump(limit, tick) and time.monotonic() >= deadline \
+                        and tick.delivered:
                     break
             t_acted = time.perf_counter()
             radio = self.phase_ms["radio"] - radio0  # this tick's bundles and forwarding
@@ -399,8 +392,7 @@ class WorldProcess:
             "run_tick": self.run_tick, "wall": time.time(),
             "radio": (self.direct or self.radio.counters).totals(),
             "clock": self.run_cfg.clock, "vtime": self.run_tick * self.run_cfg.tick_timeout,
-            "faults": self.radio.plan.describe(),
-            "heard_links": self.radio.heard_links(),
+            "faults": self.radio.plan.describe(), "heard_links": self.radio.heard_links(),
             "links": (self.direct or self.radio.counters).faulted_links(),
         }
         if state.t == 1:
@@ -474,9 +466,9 @@ class WorldProcess:
             else None, "delivery": rc.delivery,
             "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad)},
             "faults": self.radio.plan.to_record(), "fault_changes": self.faults.summary(),
-            "timeouts": self.timeouts,
-            "fast_lane_ticks": self.fast_lane_ticks,
+            "timeouts": self.timeouts, "fast_lane_ticks": self.fast_lane_ticks,
             "robots_lost": int((self.ever_alive & ~self.alive).sum()),
+            "never_joined": np.flatnonzero(~self.ever_alive).tolist(),
             "actions": [a.tolist() for a in actions],
         })
         if self.gate is not None:
@@ -491,6 +483,7 @@ def main(cfg: WorldConfig, run: RunConfig, zopts: ZenohOptions,
     (`--secure`'s TLS and access control among them) keeps every hidden-state copy going
     through this process: an access list may let only the world publish on robots' inboxes."""
     with open_session(zopts) as session:
+        check_free(session, Keys(run.run_id).alive_world, f"a world of run {run.run_id}", 1.0)
         world = WorldProcess(cfg, run, session, on_status, faults,
                              fast_lane=zopts.config_file is None)
         return world.run()
