@@ -421,6 +421,8 @@ BAD_INPUTS = [
     ["world", "--run-id", "x", "--listen", "notanendpoint"],
     ["world", "--run-id", "x", "--zenoh-config", "/nonexistent.json5"],
     ["world", "--run-id", "x", "--cfg", 'mode:"bad'],
+    ["world", "--run-id", "x", "--crash", "1@3"],  # (process faults: swarm run's supervisor's)
+    ["world", "--run-id", "x", "--config", "{tmp}/crash.toml"],
     ["learner", "--run-id", "x", "--out", "{tmp}/empty", "--resume"],
     ["learner", "--run-id", "x", "--out", "{tmp}/l", "--zenoh-mode", "client", "--connect",
      "tcp/127.0.0.1:1"],
@@ -445,6 +447,7 @@ BAD_INPUTS = [
 def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
         tmp_path: Path, args: list[str]) -> None:
     (tmp_path / "file").write_text("not a checkpoint")
+    (tmp_path / "crash.toml").write_text('[faults]\ncrash = ["1@3"]\n')
     r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=30)
     assert r.returncode in (1, 2), (r.returncode, r.stderr)
     lines = r.stderr.strip().splitlines()

@@ -248,6 +248,32 @@ def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
                 p.kill()
 
 
+def test_a_world_by_hand_stopped_by_a_control_record_exits_3(tmp_path: Path) -> None:
+    """As `swarm run` does: a stop on the control key ends the world before its last episode,
+    `stopped: control` in its result and exit status 3 (it exited 0)."""
+    from swarm.net.messages import K_CONTROL, pack_record
+    from swarm.net.zconfig import free_port
+
+    hub, out = f"tcp/127.0.0.1:{free_port()}", tmp_path / "w.json"
+    procs = [subprocess.Popen([sys.executable, "-m", "swarm.cli", *args, "--run-id", "wstop"],
+                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+             for args in (["world", "--robots", "1", "--episodes", "1000", "--pace", "50",
+                           "--listen", hub, "--json", str(out)], ["robot", "--id", "0",
+                                                                  "--connect", hub])]
+    try:
+        with zenoh.open(ZenohOptions(connect=[hub]).to_config()) as s:
+            time.sleep(3.0)  # (both up and playing)
+            s.put(Keys("wstop").control, pack_record(K_CONTROL, {"stop": True}))
+            assert procs[0].wait(timeout=30) == 3
+        res = json.loads(out.read_text())
+        assert res["stopped"] == "control" and res["completed"] < 1000
+        assert procs[1].wait(timeout=10) == 0
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+
+
 def test_restart_crashed_brings_a_killed_robot_back(tmp_path: Path) -> None:
     res = _run_killing_robot("restart1", 2, tmp_path / "run.json", "--episodes", "12",
                              "--restart-crashed", "--pace", "50")

@@ -53,6 +53,16 @@ def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig
                           f"episode(s) x {world.horizon} ticks)")
 
 
+def check_by_hand(faults: dict[str, Any]) -> None:
+    """`swarm world` by hand runs no robot processes, so it cannot signal them: process faults
+    in its `[faults]` are refused (the flags are not even offered)."""
+    kinds = [k for k in ("crash", "hang", "restart") if faults.get(k)]
+    if kinds:
+        raise ConfigError(f"[faults] {', '.join(kinds)}: a world started by hand does not run "
+                          "robot processes, so it cannot signal them (swarm run's supervisor "
+                          "does; by hand, kill or stop the robot yourself)")
+
+
 def check_training(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig) -> None:
     """Training flags need --train (checked before any folder is made); a learner folder that
     holds a learner already is refused before any spawn (the learner would refuse it)."""

@@ -15,6 +15,7 @@ from typing import Any
 
 from swarm.cli.checks import (
     EXIT_INCOMPLETE,
+    check_by_hand,
     check_clock,
     check_fault_ticks,
     check_training,
@@ -274,11 +275,7 @@ def cmd_world(args: argparse.Namespace) -> int:
         world, run = world_config(args, tables), run_config(args, tables)
         faults = fault_table(args, tables, world.n_robots)
         check_clock(args, tables, run, faults)
-        kinds = [k for k in ("crash", "hang", "restart") if faults.get(k)]
-        if kinds:
-            raise ConfigError(f"[faults] {', '.join(kinds)}: a world started by hand does not "
-                              "run robot processes, so it cannot signal them (swarm run's "
-                              "supervisor does; by hand, kill or stop the robot yourself)")
+        check_by_hand(faults)
     zopts = secure_options(args, zconfig.from_args(args), "world", run.run_id, world.n_robots)
     output_file(args.json)
     if not args.spec:
