@@ -77,7 +77,10 @@ def test_the_cli_and_a_frontier_robot_never_import_torch() -> None:
     assert out.stdout.strip() == "False", out.stderr
 
 
-def test_the_registry_knows_which_policies_are_chained_without_importing_them() -> None:
-    from policies import CHAINED, REGISTRY, policy_class
+def test_the_registry_knows_which_policies_are_chained_or_learned_without_importing_them(
+        ) -> None:
+    """CHAINED and LEARNED (what the world and the torch-free checks read) match the classes."""
+    from policies import CHAINED, LEARNED, REGISTRY, policy_class
 
     assert {n for n in REGISTRY if policy_class(n).chained} == CHAINED
+    assert {n for n in REGISTRY if policy_class(n).learned} == LEARNED

@@ -42,7 +42,7 @@ BAD = [  # (argv, what the one line must say); {tmp}/o must not exist afterwards
     (["learner", "--out", "{tmp}/o", "--config", "{tmp}/bad2.toml"], "join_timeout"),
     (["run", "--train", "--headless", "--config", "{tmp}/bad.toml"],
      "max_staleness"),
-    (["learner", "--out", "{tmp}/o", "--policy", "nearest-frontier"], "not a learned policy"),
+    (["learner", "--out", "{tmp}/o", "--policy", "nearest-frontier"], "needs a learned policy"),
     (["learner", "--out", "{tmp}/o", "--policy", "nope"], "unknown policy"),
     (["learner", "--out", "{tmp}/o", "--checkpoint", "{tmp}"], "is a directory"),
     (["eval", "--policy", "commattn", "--checkpoint", "{tmp}", "--episodes", "1"],
@@ -222,10 +222,10 @@ def test_a_failed_rollout_bench_keeps_the_log_it_names() -> None:
     with pytest.raises(RuntimeError) as err:
         bench_rollout(cfg)
     msg = str(err.value)
-    assert "not a learned policy" in msg and "; see " in msg, msg
+    assert "needs a learned policy" in msg and "; see " in msg, msg
     log = Path(msg.rsplit("; see ", 1)[1])
     try:
-        assert log.is_file() and "not a learned policy" in log.read_text()
+        assert log.is_file() and "needs a learned policy" in log.read_text()
     finally:
         shutil.rmtree(log.parent, ignore_errors=True)
 

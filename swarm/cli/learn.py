@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from policies import check_learned
 from swarm.cli.common import (
     add_common,
     add_world,
@@ -16,7 +17,7 @@ from swarm.cli.common import (
 )
 from swarm.cli.run import LEARNER_TRAIN_FIELDS, _logging, learner_configs
 from swarm.cli.secure import add_secure_flag, secure_options
-from swarm.learn.config import MAX_WORKER_BATCH, MAX_WORKER_ID, check_worker
+from swarm.learn.config import MAX_WORKER_BATCH, MAX_WORKER_ID, check_worker, learner_resume_point
 from swarm.net import zconfig
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError
@@ -45,6 +46,13 @@ def cmd_learner(args: argparse.Namespace) -> int:
     if lc.resume and not args.spec and args.checkpoint:
         raise ConfigError("--checkpoint gives a new learner its first weights; --resume goes on "
                           "from OUT/checkpoint.pt (drop one of them)")
+    check_learned(lc.policy, "the learner")  # (these refusals cost no torch import)
+    if lc.resume:
+        from policies.checkpoint import read_checkpoint
+
+        out = Path(lc.out)
+        learner_resume_point(read_checkpoint(out / "checkpoint.pt").get("learner"), tc, given,
+                             out)
     output_file(args.json)
     from swarm.procs.learner import main as learner_main  # (torch: after the checks)
 

@@ -229,10 +229,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                             attention=args.attention, hosts=hosts_option(args))
     learning = None
     if run.train:
-        from policies import policy_class
+        from policies import check_learned
 
-        if not policy_class(run.policy).learned:
-            raise ConfigError(f"--train needs a learned policy, not {run.policy!r}")
+        check_learned(run.policy, "--train")
         tables = {**tables, "train": {"batch": 10, **tables.get("train", {})}}
         lc, tc = learner_configs(argparse.Namespace(
             train_batch=args.train_batch, train_algo=args.train_algo,

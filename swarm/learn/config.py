@@ -282,6 +282,28 @@ def resume_point(data: dict[str, Any], cfg: TrainConfig, given: Collection[str] 
     return cfg, theirs, tr
 
 
+LEARNER_MAY_CHANGE = ("threads",)
+"""What a resumed learner's TrainConfig may change: how many torch threads, never its math."""
+
+
+def learner_resume_point(state: Any, asked: TrainConfig, given: Collection[str] | None,
+                         out: Path) -> TrainConfig:
+    """The TrainConfig a resumed learner goes on with, from its checkpoint's `learner` state
+    (torch's or the torch-free reader's): the saved one, with the `given` fields of `asked`
+    that may change (None: every field of `asked` is meant). A given field that would change
+    the run's math is a one-line ConfigError naming every such field, as `swarm train
+    --resume` does: the checkpoint's optimizer state and curve belong to it."""
+    from policies.checkpoint import CheckpointError
+
+    if not isinstance(state, dict):
+        raise CheckpointError(f"{out / 'checkpoint.pt'} holds no learner state; cannot resume")
+    saved = from_dict(TrainConfig, state["train"], where="checkpoint train config")
+    return dataclasses.replace(saved, **held_to_checkpoint(
+        saved, asked, given, LEARNER_MAY_CHANGE, f"the learner in {out}",
+        f"a new --out with --checkpoint {out / 'checkpoint.pt'} starts another run from its "
+        f"weights"))
+
+
 # ---------------------------------------------------------------------------- rollout worker
 MAX_WORKER_ID = 2**31 - 1
 """Worker ids are seeds (and go on the wire as msgpack ints): [0, MAX_WORKER_ID]."""

@@ -43,9 +43,9 @@ import numpy as np
 import torch
 import zenoh
 
-from policies import policy_class
-from policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from swarm.learn.config import LearnerConfig, TrainConfig, held_to_checkpoint
+from policies import check_learned, policy_class
+from policies.checkpoint import load_checkpoint, save_checkpoint
+from swarm.learn.config import LearnerConfig, TrainConfig, learner_resume_point
 from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
@@ -56,28 +56,12 @@ from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
-from world.config import ConfigError, WorldConfig, from_dict
+from world.config import ConfigError, WorldConfig
 
 log = logging.getLogger("swarm.learner")
 
 
 # ------------------------------------------------------------------------------ the learner
-LEARNER_MAY_CHANGE = ("threads",)
-"""What a resumed learner's TrainConfig may change: how many torch threads, never its math."""
-
-
-def resumed_train(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | None,
-                  out: Path) -> TrainConfig:
-    """The TrainConfig a resumed learner goes on with: the checkpoint's (`saved`), with the
-    `given` fields of `asked` that may change (None: every field of `asked` is meant). A given
-    field that would change the run's math is a one-line ConfigError naming every such field,
-    as `swarm train --resume` does: the checkpoint's optimizer state and curve belong to it."""
-    return dataclasses.replace(saved, **held_to_checkpoint(
-        saved, asked, given, LEARNER_MAY_CHANGE, f"the learner in {out}",
-        f"a new --out with --checkpoint {out / 'checkpoint.pt'} starts another run from its "
-        f"weights"))
-
-
 @dataclass
 class LearnerCounters:
     episodes: int = 0  # joined or received episodes accepted into a batch
@@ -117,20 +101,13 @@ class Learner:
         self.curves = CurveLog(self.out)
         self.c = LearnerCounters()
         self.version = 0
-        try:
-            cls = policy_class(lc.policy)
-        except ValueError as exc:  # an unknown name
-            raise ConfigError(str(exc)) from None
-        if not cls.learned:
-            raise ConfigError(f"policy {lc.policy!r} is not a learned policy")
+        check_learned(lc.policy, "the learner")
+        cls = policy_class(lc.policy)
         if lc.resume:
             if not self.ckpt.is_file():
                 raise ConfigError(f"--resume: {self.ckpt} does not exist (nothing to resume)")
             state = load_checkpoint(self.ckpt).get("learner")
-            if state is None:
-                raise CheckpointError(f"{self.ckpt} holds no learner state; cannot resume")
-            saved = from_dict(TrainConfig, state["train"], where="checkpoint train config")
-            tc = resumed_train(saved, tc, given, self.out)
+            tc = learner_resume_point(state, tc, given, self.out)
             self.policy = cls(cfg, checkpoint=self.ckpt)
             self.opt = torch.optim.Adam(self.policy.net.parameters(), lr=tc.lr)
             self.opt.load_state_dict(state["optimizer"])
