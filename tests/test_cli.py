@@ -233,11 +233,11 @@ def test_renderers_show_the_figures() -> None:
     assert "cost-utility" in text and "3.500" in text and "NO" in text
 
     t1 = [{"policy": "nearest-frontier", "mean_ms": 0.4, "std_ms": 0.1, "median_ms": 0.3,
-           "p90_ms": 0.6, "paper_mean_ms": 35.0, "paper_std_ms": 5.0},
+           "p90_ms": 0.6, "paper_mean_ms": 35.0, "paper_std_ms": 5.0, "robots": 3},
           {"policy": "random", "mean_ms": 0.01, "std_ms": 0.0, "median_ms": 0.01, "p90_ms": 0.02,
-           "paper_mean_ms": None, "paper_std_ms": None}]
+           "paper_mean_ms": None, "paper_std_ms": None, "robots": 3}]
     text = _render(table1_table(t1))
-    assert "35 ± 5" in text and "random" in text
+    assert "35 ± 5" in text and "random" in text and "3 robots" in text  # (said 10 always)
 
     rows = [{"policy": p, "robots": n, "elratio_mean": 0.5 + n / 100, "elratio_std": 0.01}
             for p in ("random", "nearest-frontier") for n in (2, 4)]

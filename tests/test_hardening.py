@@ -422,6 +422,12 @@ BAD_INPUTS = [
     ["world", "--run-id", "x", "--zenoh-config", "/nonexistent.json5"],
     ["world", "--run-id", "x", "--cfg", 'mode:"bad'],
     ["world", "--run-id", "x", "--crash", "1@3"],  # (process faults: swarm run's supervisor's)
+    ["train", "--out", ""], ["train", "--out", "{tmp}/file"],  # ("" was the current directory)
+    ["train", "--out", "{tmp}/g", "--faults", "garbage"],
+    ["train", "--out", "{tmp}/g", "--robots", "3", "--faults", '{"partition": "0-4/5-9"}'],
+    ["train", "--out", "{tmp}/g", "--loss", "0.1", "--faults", '{"latency": "5ms"}'],
+    ["eval", "--config", "{tmp}/types.toml"], ["eval", "--config", "{tmp}/height.toml"],
+    ["repro", "table2", "--out", "{tmp}/r", "--checkpoint", "comattn=checkpoints/commattn.pt"],
     ["world", "--run-id", "x", "--config", "{tmp}/crash.toml"],
     ["learner", "--run-id", "x", "--out", "{tmp}/empty", "--resume"],
     ["learner", "--run-id", "x", "--out", "{tmp}/l", "--zenoh-mode", "client", "--connect",
@@ -448,6 +454,8 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
         tmp_path: Path, args: list[str]) -> None:
     (tmp_path / "file").write_text("not a checkpoint")
     (tmp_path / "crash.toml").write_text('[faults]\ncrash = ["1@3"]\n')
+    (tmp_path / "types.toml").write_text("[eval]\ncheckpoint = 3\n")  # (a TypeError once)
+    (tmp_path / "height.toml").write_text('[world]\nheight = "abc"\n')
     r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=30)
     assert r.returncode in (1, 2), (r.returncode, r.stderr)
     lines = r.stderr.strip().splitlines()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+import json
 from pathlib import Path
 
 import numpy as np
@@ -296,8 +297,9 @@ def test_parallel_update_equals_single_process_update() -> None:
 def test_checkpoint_roundtrip_and_errors(name: str, tmp_path: Path) -> None:
     pol = policy(name, seed=3)
     path = tmp_path / "model.pt"
+    (tmp_path / ".model.pt.dead1234.tmp").write_bytes(b"")  # a writer killed mid-write left it
     save_checkpoint(path, pol.payload({"command": "test", "seed": 3, "epoch": 0, "update": 0}))
-    assert not list(tmp_path.glob(".*tmp"))
+    assert not list(tmp_path.glob(".*tmp"))  # its own temp file and the stale one are gone
     loaded = make_policy(name, SMALL, checkpoint=path)
     view = batch_view(SMALL, midgame())
     np.testing.assert_array_equal(loaded.act(view, greedy=False), pol.act(view, greedy=False))
@@ -365,8 +367,13 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path: Path) -> None:
     main(dataclasses.replace(cfg, epochs=1), SMALL, tmp_path / "part", console=quiet())
     with (tmp_path / "part" / "curve.csv").open("a") as fh:
         fh.write("99,2,0,0,0,0,0,0,0,0,0,0,0,0,0,0\n")  # a row written after the checkpoint
+    with (tmp_path / "part" / "log.jsonl").open("a") as fh:
+        fh.write('{"kind": "update", "update": 3, "epo')  # one a kill cut short
     main(cfg, SMALL, tmp_path / "part", resume=True, console=quiet())
     assert _curve(tmp_path / "full" / "curve.csv") == _curve(tmp_path / "part" / "curve.csv")
+    rows = {d: [(r["kind"], r["update"]) for r in map(json.loads, (
+        tmp_path / d / "log.jsonl").read_text().splitlines())] for d in ("full", "part")}
+    assert rows["full"] == rows["part"] and ("epoch", 2) in rows["part"], rows
     for run in ("full", "part"):  # one line ending, fresh or resumed
         assert b"\r" not in (tmp_path / run / "curve.csv").read_bytes()
     full, part = (load_checkpoint(tmp_path / d / "checkpoint.pt") for d in ("full", "part"))

@@ -775,3 +775,16 @@ def test_noise_is_roughly_uniform() -> None:
     assert chi2 < 60  # 19 degrees of freedom: p < 1e-5 above ~50
     lag = np.corrcoef(x[:-1], x[1:])[0, 1]
     assert abs(lag) < 0.02
+
+
+@pytest.mark.parametrize("bad", [{"r_back": math.nan}, {"r_succ": math.inf}, {"r_coll": 1e9},
+                                 {"success_elratio": 2.0}, {"success_elratio": -0.1},
+                                 {"height": 2}, {"vision": 4}])
+def test_a_world_config_out_of_range_is_one_line(bad: dict[str, float]) -> None:
+    """A reward of nan made every figure nan, a success threshold of 2 every episode a failure:
+    refused when the config is made, as the grid and vision already were."""
+    from world.config import ConfigError
+
+    with pytest.raises(ConfigError, match=f"world config: {next(iter(bad))}|grid|vision") as e:
+        WorldConfig(**bad)  # type: ignore[arg-type]
+    assert "\n" not in str(e.value)

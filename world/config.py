@@ -78,6 +78,11 @@ class WorldConfig:
 
         if self.height < 3 or self.width < 3:
             bad(f"grid must be at least 3 x 3, got {self.height} x {self.width}")
+        for name in ("r_back", "r_coll", "r_succ", "r_fail"):  # (nan made every reward nan)
+            if not abs(getattr(self, name)) <= 1e6:
+                bad(f"{name} must be a finite number in [-1e6, 1e6], got {getattr(self, name)}")
+        if not 0.0 <= self.success_elratio <= 1.0:
+            bad(f"success_elratio must lie in [0, 1], got {self.success_elratio}")
         if self.vision < 1 or self.vision % 2 == 0:
             bad(f"vision must be a positive odd number, got {self.vision}")
         if self.n_robots < 1:
@@ -176,6 +181,14 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
                 elif not isinstance(value, bool) and value not in (0, 1):
                     raise ValueError  # 3 or [] is no switch setting, not a truthy one
                 kwargs[key] = bool(value)
+            elif ftype in ("str", "str | None"):  # (a number for a path or a name: refused)
+                if not isinstance(value, str) and not (value is None and "None" in ftype):
+                    raise TypeError
+                kwargs[key] = value
+            elif ftype.startswith("tuple["):  # a list, or "a,b" text; the class checks items
+                if not isinstance(value, (list, tuple, str)):
+                    raise TypeError
+                kwargs[key] = value
             else:
                 kwargs[key] = value
         except (TypeError, ValueError):

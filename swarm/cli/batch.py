@@ -156,8 +156,15 @@ def cmd_train(args: argparse.Namespace) -> int:
     base = from_dict(train_config.TrainConfig, tables.get("train", {}), "[train]")
     cfg = train_config.from_args(args, base)
     faults = fault_table(args, tables, world.n_robots)  # the same flags as swarm run / eval
-    if faults and not cfg.faults:
+    if faults and cfg.faults:
+        raise ConfigError("faults given twice: --faults JSON (or [train] faults) and the fault "
+                          "flags (or [faults]); give one")
+    if faults:
         cfg = dataclasses.replace(cfg, faults=json.dumps(faults))
+    elif cfg.faults:  # checked against the team, as the flags are
+        from swarm.net.faults import plan_from_table
+
+        plan_from_table(json.loads(cfg.faults), n_robots=world.n_robots)
     asked = {*tables.get("train", {}), *given(train_config.TrainConfig, args),
              *(["faults"] if faults else [])}  # what --resume checks against the checkpoint
     ckpt = Path(args.out) / "checkpoint.pt"

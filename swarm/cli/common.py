@@ -115,8 +115,10 @@ def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfi
     table = dict(tables.get("world", {}))
     h, w = flags.get("height") or table.get("height"), flags.get("width") or table.get("width")
     if h is not None or w is not None:  # another map size: blocks at the paper's density
-        for key, n in scaled_blocks(int(h or WorldConfig.height),
-                                    int(w or WorldConfig.width)).items():
+        size = [WorldConfig.height if v is None else v for v in (h, w)]
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in size):
+            raise ConfigError(f"[world]: height and width must be int, got {h!r} and {w!r}")
+        for key, n in scaled_blocks(size[0], WorldConfig.width if w is None else size[1]).items():
             if key not in table and flags.get(key) is None:
                 flags[key] = n
     return merged(WorldConfig, table, flags, "[world]")

@@ -89,8 +89,9 @@ def policy_bench_table(result: Mapping[str, Any]) -> Table:
 
 def table1_table(rows: Sequence[Mapping[str, Any]]) -> Table:
     """Table 1: our planning time next to the paper's."""
-    table = Table(title="Table 1: planning time per decision (ms), 10 robots",
-                  title_justify="left")
+    robots = sorted({r["robots"] for r in rows if "robots" in r}) or [10]
+    table = Table(title="Table 1: planning time per decision (ms), "
+                        f"{'/'.join(map(str, robots))} robots", title_justify="left")
     table.add_column("policy", style="bold")
     table.add_column("ours mean ± std", justify="right")
     table.add_column("ours median", justify="right")

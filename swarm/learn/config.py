@@ -157,6 +157,19 @@ class TrainConfig:
                 raise ConfigError(f"train {name} must lie in [{lo}, {hi}], got {v!r}")
         if self.algo not in ("reinforce", "ppo"):
             raise ConfigError(f"train algo must be reinforce or ppo, got {self.algo!r}")
+        if self.faults:  # the [faults] table as JSON: an object, each value checked as the flags
+            from swarm.net.faults import plan_from_table
+
+            try:
+                table = json.loads(self.faults)
+            except ValueError:
+                raise ConfigError(f"train faults must be a JSON object, got {self.faults!r}"
+                                  ) from None
+            if not isinstance(table, dict):
+                raise ConfigError(f"train faults must be a JSON object, got {self.faults!r}")
+            plan_from_table(table)
+            if self.train_loss > 0 and "loss" in table:
+                raise ConfigError("train train_loss and a loss in faults: give the loss once")
         if self.algo != "ppo":  # PPO's own settings, set for another estimator, would do nothing
             ppo_only = [f"{f.name} = {getattr(self, f.name)!r}" for f in dataclasses.fields(self)
                         if f.name in PPO_FIELDS and getattr(self, f.name) != f.default]
@@ -242,11 +255,22 @@ def held_to_checkpoint(saved: TrainConfig, asked: TrainConfig, given: Collection
     return {n: getattr(asked, n) for n in names if n in may_change}
 
 
+def _same_faults(a: str, b: str) -> bool:
+    """Whether two `faults` JSON tables are the same fault plan (however their values read)."""
+    from swarm.net.faults import plan_from_table
+
+    ta, tb = json.loads(a), json.loads(b)
+    return plan_from_table(ta).to_record() == plan_from_table(tb).to_record() and \
+        ta.get("seed") == tb.get("seed")
+
+
 def resumed(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | None,
             done: int, where: str) -> TrainConfig:
     """The config a resumed run goes on with: `saved` (the checkpoint's) with the `given` fields
     of `asked` that `--resume` may change (None: every field of `asked` is meant). ConfigError,
     one line, for a given field that would change the run itself, or epochs already `done`."""
+    if saved.faults and asked.faults and _same_faults(saved.faults, asked.faults):
+        asked = dataclasses.replace(asked, faults=saved.faults)  # (--loss 0.30 is --loss 0.3)
     changes = held_to_checkpoint(saved, asked, given, RESUME_MAY_CHANGE, where,
                                  "a new --out with --init starts another run from its weights")
     if given is None:  # the Python API's old contract: epochs only ever extend a run
@@ -324,10 +348,20 @@ def check_worker(worker_id: int, batch: int, threads: int, max_batches: int,
 
 
 # --------------------------------------------------------------------------------------- CLI
+def _run_dir(text: str) -> Path:
+    """`--out`: a directory; an empty string (Path("") is ".") or an existing file is refused."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must name a directory, not an empty string")
+    if Path(text).exists() and not Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"{text} exists and is not a directory")
+    return Path(text)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`swarm train` flags; every TrainConfig field is a flag (unset flags keep the default).
     Flags the parser already has (a shared --seed, say) are left as they are."""
-    parser.add_argument("--out", type=Path, required=True, help="run directory (checkpoint, logs)")
+    parser.add_argument("--out", type=_run_dir, required=True,
+                        help="run directory (checkpoint, logs)")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     add_flags(parser, TrainConfig)
 

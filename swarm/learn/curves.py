@@ -31,8 +31,9 @@ class CurveLog:
         self.jsonl.write_text("")
 
     def resume(self, update: int) -> None:
-        """Drop rows past update `update` (written after the checkpoint a run resumes from). The
-        files are replaced atomically (a kill here leaves the old rows), and only if rows go."""
+        """Drop rows past update `update` (written after the checkpoint a run resumes from) and
+        any row a kill cut short. The files are replaced atomically (a kill here leaves the old
+        rows), and only if rows go."""
         for path, is_csv in ((self.csv, True), (self.jsonl, False)):
             if not path.exists():
                 continue
@@ -40,9 +41,12 @@ class CurveLog:
                 lines = fh.read().splitlines(keepends=True)
             out = lines[:1] if is_csv else []
             for line in lines[1:] if is_csv else lines:
-                upd = int(next(csv.reader([line]))[0]) if is_csv else json.loads(line).get(
-                    "update", 0)
-                if upd <= update:
+                try:
+                    upd = int(next(csv.reader([line]))[0]) if is_csv else int(json.loads(line).get(
+                        "update", 0))
+                except (ValueError, IndexError, AttributeError, TypeError):  # (a torn write)
+                    continue
+                if upd <= update and line.endswith("\n"):
                     out.append(line)
             if len(out) < len(lines):
                 write_text(path, "".join(out))

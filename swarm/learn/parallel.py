@@ -86,8 +86,8 @@ def _worker(conn: Connection, policy_name: str, world: dict[str, Any], model: di
             grads = [None if p.grad is None else p.grad for p in pol.net.parameters()]
             m = roll.metrics
             conn.send((grads, totals, {k: getattr(m, k) for k in core.METRIC_NAMES}))
-    except (EOFError, KeyboardInterrupt):
-        return
+    except (EOFError, BrokenPipeError, ConnectionResetError, KeyboardInterrupt):
+        return  # the parent is gone (killed, even with SIGKILL) or stopping: leave quietly
 
 
 class ParallelUpdater:

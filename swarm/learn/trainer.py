@@ -173,10 +173,12 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
             payload["train"] = {"config": dataclasses.asdict(cfg), "optimizer": opt.state_dict(),
                                 "rng": torch.get_rng_state(), "epoch": epoch + 1, "update": upd,
                                 "curriculum": dataclasses.asdict(cur)}
-            save_checkpoint(ckpt_path, payload)
-            plot_curve(curves.csv, out / "curve.png", f"{cfg.policy}: {command}")
+            # the epoch's row first: a kill before the checkpoint lands drops it on resume (it is
+            # past the last checkpoint's update); one after keeps it
             curves.note({"kind": "epoch", "update": upd, "epoch": epoch + 1,
                          "curriculum_level": cur.level, **val})
+            save_checkpoint(ckpt_path, payload)
+            plot_curve(curves.csv, out / "curve.png", f"{cfg.policy}: {command}")
             console.print(f"epoch {epoch + 1}/{cfg.epochs}  update {upd}  train elratio "
                           f"{last.get('elratio', float('nan')):.3f}  "
                           + "  ".join(f"{k} {v:.3f}" for k, v in val.items()), highlight=False,

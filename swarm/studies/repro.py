@@ -117,6 +117,12 @@ class ReproConfig:
         if not isinstance(self.checkpoints, dict) or not all(
                 isinstance(k, str) and isinstance(v, str) for k, v in self.checkpoints.items()):
             raise ConfigError("checkpoints must map policy names to file names")
+        from policies import LEARNED
+
+        stray = sorted(set(self.checkpoints) - LEARNED)  # (a typo ran the shipped network)
+        if stray:
+            raise ConfigError(f"--checkpoint {', '.join(stray)}: not a learned policy; "
+                              f"checkpoints are for {', '.join(sorted(LEARNED))}")
         if not isinstance(self.curves, dict):
             raise ConfigError("curves must map policy names to CSV file names")
 
