@@ -389,3 +389,15 @@ def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_pa
     mean, se = rows[0]["nearest_frontier_minus_commattn"]
     assert mean == pytest.approx(rows[0]["nearest-frontier"]["elratio"]
                                  - rows[0]["commattn"]["elratio"]) and se >= 0
+
+
+@pytest.mark.procs
+def test_repro_fig11_runs_on_the_configs_world(tmp_path: Path) -> None:
+    """Figs. 10 and 11 are studied on `--config`'s map and team (static), as the other items:
+    they ran on the default 20 x 20 map with 10 robots whatever the config said."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[world]\nheight = 10\nwidth = 10\nn_robots = 3\n[repro]\nfig11_episodes = 2\n")
+    r = swarm("repro", "fig11", "--out", str(tmp_path), "--config", str(cfg), "--seed", "1")
+    assert r.returncode == 0, r.stderr[-2000:]
+    md = (tmp_path / "fig11_by_neighbours.md").read_text()
+    assert "3 robots" in md and "10 robots" not in md, md[:400]

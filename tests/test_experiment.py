@@ -138,3 +138,18 @@ def test_episodes_and_seeds_flags_override_the_file_and_keep_resume_honest(
     after = _rows(out / "quick.csv")
     assert after[0] == rows[0] and [(a["seed"], a["episodes"]) for a in after] == [
         ("4", "1"), ("5", "1")]
+
+
+def test_an_experiment_world_of_another_size_gets_the_blocks_of_its_size(tmp_path: Path) -> None:
+    """`[world] height = 8, width = 8` in an experiment file means what it means to `swarm eval
+    --config`: blocks at the paper's density (it kept 81 + 70 blocks and failed to fit)."""
+    from world.config import WorldConfig, scaled_blocks
+
+    text = (ROOT / "deploy" / "experiments" / "loss.toml").read_text()
+    f = tmp_path / "small.toml"
+    f.write_text(text.replace("[world]\nn_robots = 10", "[world]\nn_robots = 3\nheight = 8\n"
+                              "width = 8"))
+    world = plan(str(f)).world
+    assert (world.height, world.width, world.n_robots) == (8, 8, 3)
+    assert {"n_static": world.n_static, "n_dynamic": world.n_dynamic} == scaled_blocks(8, 8)
+    assert world.n_static < WorldConfig.n_static

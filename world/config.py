@@ -141,6 +141,18 @@ def scaled_blocks(height: int, width: int) -> dict[str, int]:
             "n_dynamic": round(WorldConfig.n_dynamic * area)}
 
 
+def with_scaled_blocks(table: dict[str, Any], where: str = "[world]") -> dict[str, Any]:
+    """`table` with the block counts of its map size at the paper's densities where the size is
+    given and the counts are not (what `--size` does; an experiment file's `[world]` too)."""
+    h, w = table.get("height"), table.get("width")
+    if h is None and w is None:
+        return table
+    size = [WorldConfig.height if h is None else h, WorldConfig.width if w is None else w]
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in size):
+        raise ConfigError(f"{where}: height and width must be int, got {h!r} and {w!r}")
+    return {**scaled_blocks(size[0], size[1]), **table}
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """`HxW` (e.g. `40x40`) -> (H, W); a one-line ConfigError otherwise."""
     h, sep, w = str(text).lower().partition("x")

@@ -418,7 +418,8 @@ def add_parsers(sub: Any) -> None:
                                      "fig9, fig10, fig11, comm or all",
                        description="Reproduce the paper's Table 1, Table 2, Fig. 4, 5, 8, 9, 10, "
                                    "11 or where communication matters (comm): writes ITEM.csv, "
-                                   ".md, .png and .json into --out. Learned policies "
+                                   ".md, .png and .json into --out (Fig. 10 and 11: their CSV "
+                                   "and PNG and a scores or by-neighbours table). Learned policies "
                                    "use the shipped checkpoints/NAME.pt unless --checkpoint.")
     p.add_argument("item", metavar="ITEM",
                    help="table1, table2, fig4, fig5, fig8, fig9, fig10, fig11, comm or all")

@@ -18,7 +18,14 @@ import tempfile
 from pathlib import Path
 from typing import Any, NoReturn, Self
 
-from world.config import ConfigError, WorldConfig, from_dict, load_toml, parse_size, scaled_blocks
+from world.config import (
+    ConfigError,
+    WorldConfig,
+    from_dict,
+    load_toml,
+    parse_size,
+    with_scaled_blocks,
+)
 
 # Top-level tables an experiment file may hold; other subcommands add theirs here.
 SECTIONS = ("world", "eval", "bench", "repro", "run", "faults", "train", "learner")
@@ -113,14 +120,11 @@ def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfi
     """`[world]` of the file overridden by the world flags of this subcommand."""
     flags = _world_flags(args)
     table = dict(tables.get("world", {}))
-    h, w = flags.get("height") or table.get("height"), flags.get("width") or table.get("width")
-    if h is not None or w is not None:  # another map size: blocks at the paper's density
-        size = [WorldConfig.height if v is None else v for v in (h, w)]
-        if not all(isinstance(v, int) and not isinstance(v, bool) for v in size):
-            raise ConfigError(f"[world]: height and width must be int, got {h!r} and {w!r}")
-        for key, n in scaled_blocks(size[0], WorldConfig.width if w is None else size[1]).items():
-            if key not in table and flags.get(key) is None:
-                flags[key] = n
+    size = {k: v for k in ("height", "width")
+            if (v := flags.get(k) if flags.get(k) is not None else table.get(k)) is not None}
+    for key, n in with_scaled_blocks(size).items():  # another map size: the paper's density
+        if key.startswith("n_") and key not in table and flags.get(key) is None:
+            flags[key] = n
     return merged(WorldConfig, table, flags, "[world]")
 
 

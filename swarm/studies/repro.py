@@ -397,11 +397,14 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
         # only the checkpoints given here: else comm picks the shipped one per map size
         return comm(world or WorldConfig(), out, command, cfg.seed, cfg.comm_episodes,
                     policies=cfg.comm_policies, checkpoints=cfg.checkpoints, batch=cfg.batch)
-    if item == "fig10":
-        res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt)
+    static = None if world is None else replace(world, dynamic=False)  # (static
+    if item == "fig10":  # studies, on the run's map size and team: they ignored --config's)
+        res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt,
+                            cfg=static)
         names = ("fig10.png", "fig10.csv", "fig10_scores.csv", "fig10_scores.md")
     else:
-        res = commviz.fig11(out, seed=cfg.seed, episodes=cfg.fig11_episodes, checkpoint=ckpt)
+        res = commviz.fig11(out, seed=cfg.seed, episodes=cfg.fig11_episodes, checkpoint=ckpt,
+                            cfg=static)
         names = ("fig11.png", "fig11.csv", "fig11_by_neighbours.csv", "fig11_by_neighbours.md")
     return {"item": item, "rows": [res], "files": [str(out / n) for n in names]}
 
