@@ -423,6 +423,7 @@ BAD_INPUTS = [
     ["world", "--run-id", "x", "--cfg", 'mode:"bad'],
     ["world", "--run-id", "x", "--crash", "1@3"],  # (process faults: swarm run's supervisor's)
     ["train", "--out", ""], ["train", "--out", "{tmp}/file"],  # ("" was the current directory)
+    ["train", "--resume", "--out", "{tmp}/nothing"],  # (a typo started a fresh run)
     ["train", "--out", "{tmp}/g", "--faults", "garbage"],
     ["train", "--out", "{tmp}/g", "--robots", "3", "--faults", '{"partition": "0-4/5-9"}'],
     ["train", "--out", "{tmp}/g", "--loss", "0.1", "--faults", '{"latency": "5ms"}'],

@@ -168,7 +168,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     asked = {*tables.get("train", {}), *given(train_config.TrainConfig, args),
              *(["faults"] if faults else [])}  # what --resume checks against the checkpoint
     ckpt = Path(args.out) / "checkpoint.pt"
-    if args.resume and ckpt.is_file():  # a refused resume costs no torch import
+    if args.resume and not ckpt.is_file():  # (a mistyped --out started a fresh run)
+        raise ConfigError(f"--resume: {ckpt} does not exist, nothing to resume (without "
+                          "--resume a new run starts there)")
+    if args.resume:  # a refused resume costs no torch import
         from policies.checkpoint import read_checkpoint
 
         train_config.resume_point(read_checkpoint(ckpt), cfg, asked, world,
