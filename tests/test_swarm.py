@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -205,7 +206,7 @@ def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
 
     hub = f"tcp/127.0.0.1:{free_port()}"
     out, conf = tmp_path / "world.json", tmp_path / "run.toml"
-    conf.write_text("[run]\nstart_timeout = 4.0\n")
+    conf.write_text("[run]\nstart_timeout = 3.0\n")
     world = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "world", "--run-id", "manual", "--robots", "3",
          "--policy", "random", "--episodes", "1", "--listen", hub, "--json", str(out),
@@ -262,8 +263,11 @@ def test_a_world_by_hand_stopped_by_a_control_record_exits_3(tmp_path: Path) -> 
                                                                   "--connect", hub])]
     try:
         with zenoh.open(ZenohOptions(connect=[hub]).to_config()) as s:
-            time.sleep(3.0)  # (both up and playing)
+            playing = threading.Event()
+            sub = s.declare_subscriber(Keys("wstop").status, lambda _: playing.set())
+            assert playing.wait(60)  # a tick was played: both are up
             s.put(Keys("wstop").control, pack_record(K_CONTROL, {"stop": True}))
+            sub.undeclare()
             assert procs[0].wait(timeout=30) == 3
         res = json.loads(out.read_text())
         assert res["stopped"] == "control" and res["completed"] < 1000
