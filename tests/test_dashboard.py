@@ -66,3 +66,35 @@ def test_learner_panel_shows_version_episodes_curve_and_traffic() -> None:
     assert "4200" in text and "2 / 1" in text and "0.0123" in text
     v.apply_robot({"robot": 2, "version": 6, "weights_bad": 1})
     assert "v6 (1 bad)" in _text(render_robots(v))
+
+
+def test_the_last_episode_counts_and_a_dead_robot_draws_no_attention() -> None:
+    """The episode counter reached K/K only when a next episode began (so never for the last):
+    the result says how many completed. A lost robot's last attention line stayed drawn from
+    its empty cell."""
+    from swarm.procs.dashboard import attention_lines
+
+    v = _view()
+    assert v.episodes_done == 0
+    v.apply_result({"completed": 2})
+    assert v.episodes_done == 2 and "2/2" in _text(render(v))
+    v.apply_result({"completed": "junk"})  # (a record that does not fit changes nothing)
+    assert v.episodes_done == 2
+    v.attention = {0: (2, [0.1, 0.9, 0.0]), 1: (2, [0.8, 0.2, 0.0])}
+    assert attention_lines(v)  # the two lines (on the same cells)
+    v.set_alive(1, False)
+    assert 1 not in v.attention and attention_lines(v) == {}  # (0's line ended at robot 1)
+
+
+def test_an_80_column_console_shows_the_robot_table_and_a_wide_map_stacks_the_panels() -> None:
+    """At 80 columns the robot table had 35 characters for 11 columns (headers `…`, cells
+    blank); a map wider than the console left the panels no width at all. Now the table keeps
+    the columns it has room for, and the panels go below a map that leaves them none."""
+    v = _view()
+    text = _text(render(v), width=80)
+    row = next(line for line in text.splitlines() if "acting" in line and "2,3" in line)
+    assert "12" in row and "…" not in text  # id, state, pos, in: nothing cut to an ellipsis
+    wide = SwarmView("big", "nearest-frontier", 40, 40, 3, 10.0, episodes=1)
+    lines = _text(render(wide), width=80).splitlines()
+    top = next(i for i, line in enumerate(lines) if "map 40x40" in line)
+    assert any("swarm" in line for line in lines[top + 40:])  # below the map, not cut away

@@ -260,12 +260,14 @@ def test_a_live_fault_must_fit_the_run_and_a_crash_waits_for_its_tick(tmp_path: 
                                  *args], cwd=ROOT, stderr=subprocess.PIPE, text=True)
                for args in (("--partition", "0-1/2-9"), ("--crash", "7"), (
                    "--loss", "0.1", "--connect", "tcp/127.0.0.1:1", "--wait", "0.5"),
-                   ("--crash", "1@999999"))]  # (a tick the run never reaches: refused too)
+                   ("--crash", "1@999999"),  # (a tick the run never reaches: refused too)
+                   ("--hang", "1@0"))]  # (one it has played: it struck at a later tick)
         errs = [p.communicate(timeout=30)[1] for p in bad]  # (side by side: the run is
         for p, err in zip(bad, errs, strict=False):        # still there for the others)
             assert p.returncode == 2 and len(err.strip().splitlines()) == 1, err
         assert all("robots 0..2" in e for e in errs[:2]) and "did not answer" in errs[2], errs
         assert "beyond the run's last tick 79" in errs[3], errs[3]
+        assert "ROBOT@TICK 0: run livec is at tick" in errs[4], errs[4]
         proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:

@@ -422,3 +422,27 @@ def test_every_learned_policy_swarm_matches_batched_eval(tmp_path: Path, name: s
                   8, 1, record_actions=True, greedy=not sample)
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
     assert res["rss_mb_per_robot"] < 120  # numpy, no torch
+
+
+@pytest.mark.procs
+def test_headless_output_into_a_closed_pipe_stops_the_run_quietly_and_tidily() -> None:
+    """`swarm run --headless | head -1`: the reader goes away. It printed a warning per status
+    record ("dropped a status record ... Broken pipe"), ran to the end and failed with exit 1;
+    now it stops as on Ctrl-C (every process, exit 130, one line), and an interrupted run's
+    temp folder goes when its logs say nothing (it was left behind, named nowhere)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "2", "--episodes",
+         "50", "--policy", "random", "--pace", "20", "--run-id", "pipeclosed"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stderr is not None
+        assert "status" in proc.stdout.readline()
+        proc.stdout.close()
+        assert proc.wait(timeout=60) == 130
+        err = proc.stderr.read()
+        assert "Broken pipe" not in err and len(err.strip().splitlines()) == 1, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert run_procs("pipeclosed") == []
+    assert list(Path(tempfile.gettempdir()).glob("swarm-pipeclosed-*")) == []

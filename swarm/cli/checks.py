@@ -63,6 +63,15 @@ def check_by_hand(faults: dict[str, Any]) -> None:
                           "does; by hand, kill or stop the robot yourself)")
 
 
+def check_not_played(at_tick: int | None, timed: list[int], now: int, run_id: str) -> None:
+    """`swarm fault`: a tick run `run_id` has played (`now`, -1 unknown) is refused, nothing
+    sent: `--at-tick` of a link change, or a process fault's ROBOT@TICK (it struck later)."""
+    for what, tick in (("--at-tick", at_tick), ("ROBOT@TICK", min(timed, default=None))):
+        if tick is not None and tick <= now:
+            raise ConfigError(f"{what} {tick}: run {run_id} is at tick {now} already; give a "
+                              "later tick (or none: the next); nothing was sent")
+
+
 def check_training(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig) -> None:
     """Training flags need --train (checked before any folder is made); a learner folder that
     holds a learner already is refused before any spawn (the learner would refuse it)."""

@@ -18,6 +18,7 @@ from swarm.cli.checks import (
     check_by_hand,
     check_clock,
     check_fault_ticks,
+    check_not_played,
     check_training,
     status_tick,
 )
@@ -37,6 +38,7 @@ from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.common.flags import check_wait
 from swarm.common.policy_spec import build_inference
+from swarm.common.report import json_line
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
@@ -244,7 +246,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print("swarm: interrupted; every process of the run was stopped", file=sys.stderr)
         return 130
     if args.headless:
-        print(json.dumps({"result": {k: v for k, v in res.items() if k != "actions"}}), flush=True)
+        json_line({"result": {k: v for k, v in res.items() if k != "actions"}})
     else:
         from swarm.cli.console import eval_table
 
@@ -356,7 +358,9 @@ def cmd_fault(args: argparse.Namespace) -> int:
 
         # the run's tick, from its status (an operator of a --secure run may not read it)
         ticks: list[int] = []
-        sub = None if args.at_tick is None or args.secure else session.declare_subscriber(
+        timed = [int(t.rpartition("@")[2]) for t in process if "@" in t]  # ROBOT@TICK
+        sub = None if (args.at_tick is None and not timed) or args.secure else \
+            session.declare_subscriber(
             keys.status, lambda s: ticks.append(status_tick(s.payload.to_bytes())))
         try:  # the run is there, and the faults fit it: else nothing is sent
             run = fetch_config(session, keys, args.wait)
@@ -374,9 +378,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
         while sub is not None and max(ticks, default=-1) < 0 and time.monotonic() < deadline:
             time.sleep(0.05)
         now = max(ticks, default=-1)
-        if args.at_tick is not None and args.at_tick <= now:
-            raise ConfigError(f"--at-tick {args.at_tick}: run {args.run} is at tick {now} "
-                              f"already; give a later tick (or none: the next); nothing was sent")
+        check_not_played(args.at_tick, timed, now, args.run)
         if args.at_tick is not None and now < 0:
             print(f"swarm: warning: --at-tick {args.at_tick} not checked against run "
                   f"{args.run}'s tick (no status read); if it has passed, the change applies "

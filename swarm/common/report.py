@@ -77,3 +77,18 @@ def write_item(out: Path, item: str, rows: list[dict[str, Any]], md: str,
     save_png(paths[2], draw, ncols)
     atomic.write_json(paths[3], {**meta, "rows": rows})
     return [str(p) for p in paths]
+
+
+def json_line(obj: Any) -> None:
+    """One JSON object on a line of stdout (`--headless`). A reader that went away (`| head`)
+    ends the command as Ctrl-C does (KeyboardInterrupt), with stdout sent to /dev/null so the
+    exit's own flush is quiet, instead of a warning per record."""
+    import json
+    import os
+    import sys
+
+    try:
+        print(json.dumps(obj), flush=True)
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise KeyboardInterrupt from None

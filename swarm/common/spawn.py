@@ -177,6 +177,19 @@ def tidy_logs(folder: Path, res: dict[str, Any], keep: bool = False) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
+def tidy_interrupted(folder: Path, keep: bool = False) -> None:
+    """An interrupted run's temp folder: removed when no log in it says more than that it was
+    interrupted, else kept and named on stderr (no result names it)."""
+    def says(log: Path) -> bool:
+        with log.open(errors="replace") as fh:
+            return any(line.strip() not in ("", "swarm: interrupted") for line in fh)
+
+    if folder.is_dir() and (keep or any(says(p) for p in folder.rglob("*.log") if p.is_file())):
+        print(f"swarm: the run's logs are in {folder}", file=sys.stderr)
+    else:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _reap(p: subprocess.Popen[Any], block: bool) -> bool:
     """Whether child `p` has exited, reaping it with os.waitpid (not Popen's own wait/poll:
     a KeyboardInterrupt landing inside Popen.poll between its lock's acquire and `try` leaves

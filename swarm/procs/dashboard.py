@@ -10,7 +10,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from rich.console import Group
+from rich.console import Console, ConsoleOptions, Group, RenderResult
+from rich.measure import Measurement
 from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
@@ -170,6 +171,15 @@ class SwarmView:
             row.restarts += 1
         row.alive = alive
         row.state = "acting" if alive else ("lost" if row.state != "starting" else "starting")
+        if not alive:  # a dead robot's last attention is not drawn on (it came back: anew)
+            self.attention.pop(robot, None)
+
+    def apply_result(self, res: dict[str, Any]) -> None:
+        """The run's result: its completed episodes (a status only says an episode is done
+        when the next one starts, so the last one was never counted)."""
+        done = res.get("completed")
+        if isinstance(done, int) and not isinstance(done, bool) and 0 <= done <= self.episodes:
+            self.episodes_done = max(self.episodes_done, done)
 
     @property
     def ticks_per_s(self) -> float:
@@ -206,7 +216,7 @@ def attention_lines(v: SwarmView) -> dict[tuple[int, int], int]:
     for i, (j, _) in sorted(v.strongest().items()):
         a, b = v.robots.get(i), v.robots.get(j)
         if v.attention_focus not in (-1, i) or a is None or b is None or a.pos is None \
-                or b.pos is None:
+                or b.pos is None or not (a.alive and b.alive):
             continue
         for c in line_cells(a.pos, b.pos):
             marks.setdefault(c, i)
@@ -243,23 +253,30 @@ def render_grid(v: SwarmView) -> Text:
     return text
 
 
-def render_robots(v: SwarmView) -> Table:
+ROBOT_COLUMNS = (("id", 0), ("state", 0), ("pos", 0), ("in", 0), ("out", 0), ("lat ms", 70),
+                 ("missed", 45), ("bad", 45), ("restarts", 70), ("compute ms", 90),
+                 ("wait ms", 90))
+"""The robot table's columns and the width (characters) below which each is left out."""
+
+
+def render_robots(v: SwarmView, width: int | None = None) -> Table:
+    """One row per robot; on a narrow console (`width`) only the columns that fit."""
     table = Table(title="robots", expand=True, pad_edge=False)
-    cols = ["id", "state", "pos", "in", "out", "lat ms", "missed", "bad", "restarts",
-            "compute ms", "wait ms"]
-    if v.learner is not None:  # field training: the weights version each robot acts with
-        cols += ["weights"]
+    cols = [c for c, need in ROBOT_COLUMNS if width is None or width >= need]
+    if v.learner is not None and (width is None or width >= 90):  # field training: the
+        cols += ["weights"]  # weights version each robot acts with
     for col in cols:
         table.add_column(col, justify="right" if col not in ("state",) else "left")
     for i in sorted(v.robots):
         r = v.robots[i]
-        state = Text(r.state, style="green" if r.alive else "red")
-        extra = [f"v{r.version}" + (f" ({r.weights_bad} bad)" if r.weights_bad else "")] \
-            if v.learner is not None else []
-        table.add_row(str(i), state, "-" if r.pos is None else f"{r.pos[0]},{r.pos[1]}",
-                      str(r.msgs_in), str(r.msgs_out), f"{r.latency_ms:.1f}", str(r.missed),
-                      str(r.bad), str(r.restarts), f"{r.compute_ms:.1f}", f"{r.wait_ms:.1f}",
-                      *extra)
+        cell = {"id": str(i), "state": Text(r.state, style="green" if r.alive else "red"),
+                "pos": "-" if r.pos is None else f"{r.pos[0]},{r.pos[1]}",
+                "in": str(r.msgs_in), "out": str(r.msgs_out), "lat ms": f"{r.latency_ms:.1f}",
+                "missed": str(r.missed), "bad": str(r.bad), "restarts": str(r.restarts),
+                "compute ms": f"{r.compute_ms:.1f}", "wait ms": f"{r.wait_ms:.1f}",
+                "weights": f"v{r.version}" + (f" ({r.weights_bad} bad)" if r.weights_bad
+                                              else "")}
+        table.add_row(*(cell[c] for c in cols))
     return table
 
 
@@ -363,21 +380,42 @@ def render_learner(v: SwarmView) -> Table:
     return table
 
 
-def render(v: SwarmView) -> Table:
-    """The whole screen: the map beside the figures, the robot table and the faulted links.
+SIDE_MIN = 30
+"""Columns the figures and tables need beside the map; with fewer they go below it."""
 
-    A grid table (not a Layout) so that it takes the height of its content on any console.
-    """
-    side = [Panel(render_figures(v), title="swarm"), render_robots(v)]
-    if v.learner is not None:
-        side.insert(1, Panel(render_learner(v), title="learner"))
-    if v.links:
-        side.append(render_links(v))
-    if v.attention and v.attention_focus is not None:
-        side.append(render_attention(v))
-    screen = Table.grid(padding=(0, 1))
-    screen.add_column(no_wrap=True)
-    screen.add_column(ratio=1)
-    screen.add_row(Panel(render_grid(v), title=f"map {v.height}x{v.width}", expand=False),
-                   Group(*side))
-    return screen
+
+class _Screen:
+    """The map beside the side panels when the console leaves them SIDE_MIN columns, else
+    above them (a map wider than the console used to leave the panels no width at all); the
+    robot table keeps the columns its width holds."""
+
+    def __init__(self, v: SwarmView) -> None:
+        self.v = v
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        v = self.v
+        grid = Panel(render_grid(v), title=f"map {v.height}x{v.width}", expand=False)
+        room = options.max_width - Measurement.get(console, options, grid).maximum - 1
+        beside = room >= SIDE_MIN
+        side: list[Any] = [Panel(render_figures(v), title="swarm"),
+                           render_robots(v, room if beside else options.max_width)]
+        if v.learner is not None:
+            side.insert(1, Panel(render_learner(v), title="learner"))
+        if v.links:
+            side.append(render_links(v))
+        if v.attention and v.attention_focus is not None:
+            side.append(render_attention(v))
+        if not beside:
+            yield Group(grid, *side)
+            return
+        screen = Table.grid(padding=(0, 1))
+        screen.add_column(no_wrap=True)
+        screen.add_column(ratio=1)
+        screen.add_row(grid, Group(*side))
+        yield screen
+
+
+def render(v: SwarmView) -> _Screen:
+    """The whole screen: the map beside (or above) the figures, the robot table and the
+    faulted links; it takes the height of its content on any console (not a Layout)."""
+    return _Screen(v)

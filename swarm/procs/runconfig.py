@@ -9,11 +9,14 @@ import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 
 from world.config import ConfigError, WorldConfig, from_dict, to_dict
+
+if TYPE_CHECKING:
+    from swarm.net.kernel.netns import NetnsConfig
 
 
 @dataclass(frozen=True)
@@ -176,3 +179,30 @@ class RunRecord:
         except (OSError, ValueError) as exc:
             raise ConfigError(f"cannot read spec {path}: {exc}") from None
         return cls.from_record(rec, f"spec {path}")
+
+
+@dataclass
+class SuperviseOptions:
+    headless: bool = False
+    """No live dashboard."""
+    status_lines: bool = True
+    """With `headless`: write each world status as a JSON line on stdout."""
+    json_path: str | None = None
+    """Write the run's result (one JSON object) here, atomically."""
+    restart_crashed: bool = False
+    """Start a robot process again when it dies."""
+    log_dir: str | None = None
+    """Children's stderr goes to files here (default: a temporary directory)."""
+    netns: NetnsConfig | None = None
+    """Kernel-level realism (swarm/net/kernel/netns.py): world and robots in network namespaces
+    joined by veth pairs, with these kernel faults on the robot links; None: everything on
+    loopback."""
+    secure: str | None = None
+    """Certificate directory (`swarm certs`): every session on TLS with its own identity and the
+    run's access control (swarm/net/security/); configs in LOG_DIR/zenoh/. None: plain TCP."""
+    record: str | None = None
+    """Record every message of the run into this MCAP file (a `swarm record` child process)."""
+    attention: int | None = -1
+    """Whose strongest attention the dashboard's map draws: -1 all, k robot k, None nobody."""
+    hosts: int = 0
+    """Emulated hosts (swarm/net/kernel/hosts.py): K namespaces on a bridge, a Zenoh router each."""

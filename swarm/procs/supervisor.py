@@ -11,7 +11,6 @@ link faults.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
 import signal
@@ -19,7 +18,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +27,7 @@ from rich.live import Live
 
 from swarm.common.atomic import write_json
 from swarm.common.procstat import ProcSampler, process_age
+from swarm.common.report import json_line
 from swarm.common.spawn import (
     child_env,
     child_result,
@@ -36,6 +35,7 @@ from swarm.common.spawn import (
     last_error,
     registry,
     stop_children,
+    tidy_interrupted,
     tidy_logs,
     wait_port,
 )
@@ -43,7 +43,6 @@ from swarm.learn.weights import fresh_checkpoint
 from swarm.net.faults import MAX_PENDING, ProcessFault, check_control, plan_from_table
 from swarm.net.inbox import Inbox, put_once
 from swarm.net.kernel.hosts import topology
-from swarm.net.kernel.netns import NetnsConfig
 from swarm.net.keys import Keys
 from swarm.net.learning import check_learner_status
 from swarm.net.messages import (
@@ -59,37 +58,10 @@ from swarm.net.messages import (
 from swarm.net.security.tls import identity_of, run_configs, topology_configs, topology_secure
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
-from swarm.procs.runconfig import RunConfig, RunRecord
+from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
 from world.config import WorldConfig
 
 log = logging.getLogger("swarm.supervisor")
-
-
-@dataclass
-class SuperviseOptions:
-    headless: bool = False
-    """No live dashboard."""
-    status_lines: bool = True
-    """With `headless`: write each world status as a JSON line on stdout."""
-    json_path: str | None = None
-    """Write the run's result (one JSON object) here, atomically."""
-    restart_crashed: bool = False
-    """Start a robot process again when it dies."""
-    log_dir: str | None = None
-    """Children's stderr goes to files here (default: a temporary directory)."""
-    netns: NetnsConfig | None = None
-    """Kernel-level realism (swarm/net/kernel/netns.py): world and robots in network namespaces
-    joined by veth pairs, with these kernel faults on the robot links; None: everything on
-    loopback."""
-    secure: str | None = None
-    """Certificate directory (`swarm certs`): every session on TLS with its own identity and the
-    run's access control (swarm/net/security/); configs in LOG_DIR/zenoh/. None: plain TCP."""
-    record: str | None = None
-    """Record every message of the run into this MCAP file (a `swarm record` child process)."""
-    attention: int | None = -1
-    """Whose strongest attention the dashboard's map draws: -1 all, k robot k, None nobody."""
-    hosts: int = 0
-    """Emulated hosts (swarm/net/kernel/hosts.py): K namespaces on a bridge, a Zenoh router each."""
 
 
 class Supervisor:
@@ -230,12 +202,13 @@ class Supervisor:
                 while self.process_faults and self.process_faults[0].tick <= self.run_tick:
                     self._process_fault(self.process_faults.pop(0))
                 if self.opts.headless and self.opts.status_lines:
-                    print(json.dumps({"status": rec}), flush=True)
+                    json_line({"status": rec})
             elif kind == "rstatus":
                 v.apply_robot(check_robot_status(unpack_record(payload or b"", K_RSTATUS),
                                                  self.cfg.n_robots, self.cfg.horizon))
             elif kind == "result":
                 self.result = unpack_record(payload or b"", K_RESULT)
+                v.apply_result(self.result)
             elif kind == "lstatus":
                 self.learner_status = check_learner_status(unpack_record(payload or b"",
                                                                          K_LSTATUS))
@@ -289,15 +262,20 @@ class Supervisor:
         self.view.events = self.view.events[-5:] + [self.fault_log[-1]]
 
     def supervise(self) -> dict[str, Any]:
-        if self.topo is None:
-            return self._supervise()
+        stopped = False
         try:  # whatever happens, no process and no namespace of the run is left behind
             return self._supervise()
+        except KeyboardInterrupt:
+            stopped = True
+            raise
         finally:
             try:  # (a Ctrl-C held during the stop is raised after it: the namespaces go anyway)
                 self.stop_all()
             finally:
-                self.topo.down()
+                if self.topo is not None:
+                    self.topo.down()
+                if stopped and self.opts.log_dir is None:  # no result names the temp folder
+                    tidy_interrupted(self.tmp, bool(self.zfiles) or self.learner_out is not None)
 
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()

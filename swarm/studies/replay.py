@@ -24,6 +24,7 @@ from rich.live import Live
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_CONTROL,
+    K_RESULT,
     K_RSTATUS,
     K_STATUS,
     BadMessage,
@@ -129,8 +130,12 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
                                              w.horizon))
         elif m.kind == "control":
             ctl = unpack_record(m.payload, K_CONTROL)
-            for text in ctl.get("process", [])[:16]:
-                v.events = v.events[-5:] + [f"{text}@{v.ticks_done}"]
+            for text in ctl.get("process", [])[:16]:  # "crash:1" -> "crash 1@TICK", as live
+                kind, _, robot = str(text).partition(":")
+                v.events = v.events[-5:] + [f"{kind} {robot}@{v.ticks_done}" if "@" not in robot
+                                            else f"{kind} {robot}"]
+        elif m.kind == "result":
+            v.apply_result(unpack_record(m.payload, K_RESULT))
         elif m.kind == "end":
             v.world_alive = False
     except (BadMessage, TypeError, ValueError, KeyError, AttributeError, IndexError,
