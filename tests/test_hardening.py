@@ -271,7 +271,7 @@ def test_a_hung_robot_holds_no_other_robot_back_in_virtual_time(tmp_path: Path) 
               for i in json.loads(line)["status"]["timeouts"]}
     assert missed <= {1}, missed
     res = json.loads((tmp_path / "r.json").read_text())
-    assert res["completed"] == 1 and res["timeouts"] <= 1 and res["robot_restarts"] == 1
+    assert res["completed"] == 1 and res["timeouts"] <= 2 and res["robot_restarts"] == 1
 
 
 @pytest.mark.procs

@@ -101,7 +101,9 @@ def test_two_virtual_runs_agree_while_the_cpu_is_loaded(tmp_path: Path) -> None:
 def test_a_stopped_robot_is_caught_by_the_watchdog(tmp_path: Path) -> None:
     res = _run(tmp_path, "wdog", "nearest-frontier", {"latency": "10ms"}, "--hang", "2@4",
                "--watchdog", "0.5")
-    assert res["completed"] == 2 and res["timeouts"] >= 3  # robot 2 misses its ticks, counted
+    # robot 2 misses its ticks, counted until its lease runs out (then it is lost); the others
+    # do not (they used to time out with it: tests/test_hardening.py, hung robot)
+    assert res["completed"] == 2 and res["timeouts"] >= 1
     acts = np.array(res["actions"])
     assert (acts[:, 10:, 2] == 0).all() and (acts[:, 10:, :2] != 0).any()
 
