@@ -354,6 +354,10 @@ def test_a_robot_restarted_under_direct_delivery_verifies(tmp_path: Path) -> Non
     assert r.returncode == 0, r.stderr
     v = json.loads((tmp_path / "v.json").read_text())
     assert v["ok"] and v["checked"]["direct copies decided"] > 0
+    from swarm.studies.replay import load, replay
+
+    view, _ = replay(load(f), Console(file=io.StringIO()), speed=0)  # the run's own process
+    assert view.events == res["process_faults"]  # faults, as the live dashboard showed them
 
 
 @pytest.mark.procs

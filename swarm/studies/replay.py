@@ -21,6 +21,7 @@ from typing import Any
 from rich.console import Console
 from rich.live import Live
 
+from swarm.net.faults import ProcessFault, parse_process
 from swarm.net.keys import Keys
 from swarm.net.messages import (
     K_CONTROL,
@@ -105,6 +106,20 @@ class ReplayStats:
     bad: int = 0  # records that did not fit their schema, dropped
     first_tick: int = 0
     last_tick: int = 0
+    process_shown: int = 0  # the run's own process faults (its flags) put on the view so far
+
+
+def run_process_faults(rec: Recording) -> list[ProcessFault]:
+    """The process faults the run was started with (its `[faults]` crash, hang, restart), in
+    order of tick; what does not parse is left out (the run refused it, or it is foreign)."""
+    table, out = rec.record.faults or {}, []
+    for kind in ("crash", "hang", "restart"):
+        for text in table.get(kind, []) if isinstance(table.get(kind), list) else []:
+            try:
+                out.append(parse_process(kind, text))
+            except ConfigError:
+                continue
+    return sorted(out, key=lambda f: f.tick)
 
 
 def view_of(rec: Recording, attention: int | None = -1) -> SwarmView:
@@ -124,6 +139,12 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
                 v.robots[i].state = "acting" if alive else "lost"
             v.world_alive = True
             stats.statuses += 1
+            planned = run_process_faults(rec)  # `swarm run --crash 2@10`: at its tick, as live
+            while stats.process_shown < len(planned) and \
+                    planned[stats.process_shown].tick <= int(st.get("run_tick", 0)):
+                f = planned[stats.process_shown]
+                v.events = v.events[-5:] + [f"{f.kind} {f.robot}@{st.get('run_tick')}"]
+                stats.process_shown += 1
         elif m.kind == "rstatus":
             w = rec.record.world
             v.apply_robot(check_robot_status(unpack_record(m.payload, K_RSTATUS), w.n_robots,
