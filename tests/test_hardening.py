@@ -428,6 +428,7 @@ BAD_INPUTS = [
     ["train", "--out", "{tmp}/g", "--robots", "3", "--faults", '{"partition": "0-4/5-9"}'],
     ["train", "--out", "{tmp}/g", "--loss", "0.1", "--faults", '{"latency": "5ms"}'],
     ["eval", "--config", "{tmp}/types.toml"], ["eval", "--config", "{tmp}/height.toml"],
+    ["eval", "--overflow", "drop"],  # (no cap: it did nothing, silently)
     ["repro", "table2", "--out", "{tmp}/r", "--checkpoint", "comattn=checkpoints/commattn.pt"],
     ["world", "--run-id", "x", "--config", "{tmp}/crash.toml"],
     ["learner", "--run-id", "x", "--out", "{tmp}/empty", "--resume"],

@@ -307,8 +307,9 @@ def add_fault_flags(p: argparse.ArgumentParser, process: bool = True, config: bo
 
 
 def fault_table(args: argparse.Namespace, tables: dict[str, Any],
-                n_robots: int | None = None) -> dict[str, Any]:
-    """The `[faults]` table of the file overridden by the fault flags given, checked."""
+                n_robots: int | None = None, whole: bool = True) -> dict[str, Any]:
+    """The `[faults]` table of the file overridden by the fault flags given, checked (`whole`:
+    the run's faults, not a live change merged onto the ones in force)."""
     from swarm.net.faults import plan_from_table
 
     table = dict(tables.get("faults", {}))
@@ -324,4 +325,13 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
     if getattr(args, "fault_seed", None) is not None:
         table["seed"] = args.fault_seed
     plan_from_table(table, n_robots=n_robots)  # a bad value: one line before anything runs
+    if whole and getattr(args, "overflow", None) is not None and not _has_key(table, "bandwidth"):
+        raise ConfigError("--overflow says what a bandwidth cap does with excess messages; "
+                          "there is no cap (give --bandwidth, or a bandwidth in [faults])")
     return table
+
+
+def _has_key(table: Any, key: str) -> bool:
+    """Whether `key` is set anywhere in a (nested) faults table (per robot, per link too)."""
+    return isinstance(table, dict) and (key in table or any(_has_key(v, key)
+                                                            for v in table.values()))

@@ -323,7 +323,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
     if args.at_tick is not None and not 0 <= args.at_tick < 2**40:
         raise ConfigError(f"--at-tick must be a run tick >= 0, got {args.at_tick}")
     check_wait(args.wait)
-    table = fault_table(args, {})
+    table = fault_table(args, {}, whole=False)
     process = [f"{kind}:{text}" for kind in ("crash", "hang", "restart")
                for text in (getattr(args, kind) or [])]
     link = {k: v for k, v in table.items() if k not in ("crash", "hang", "restart")}
@@ -368,7 +368,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
             where = ", ".join(opts.connect or []) or "this network"
             raise ConfigError(f"run {args.run} did not answer at {where} ({exc}); nothing "
                               "was sent") from None
-        fault_table(args, {}, run.world.n_robots)  # a partition or robot beyond the run's
+        fault_table(args, {}, run.world.n_robots, False)  # a partition or robot beyond it
         check_fault_ticks(table, run.run, run.world, args.at_tick)  # or a tick beyond its end
         if run.run.clock == "real" and "compute" in link:
             raise ConfigError(f"run {args.run} is on the real clock: --compute-ms models compute "
