@@ -566,3 +566,15 @@ def test_fine_tuning_an_old_checkpoint_with_the_team_memory(tmp_path: Path) -> N
     assert new.model_cfg.team_memory and new.features.memory
     for key, value in old.net.state_dict().items():
         torch.testing.assert_close(new.net.state_dict()[key], value, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("train", [None, "junk", {"config": [1, 2]}, {"config": {}}])
+def test_a_checkpoint_without_a_whole_trainer_state_is_refused_in_one_line(train: object) -> None:
+    """`--resume` reads a checkpoint as hostile input: a missing or malformed trainer (or
+    learner) state is a one-line CheckpointError, not a KeyError or AttributeError."""
+    from swarm.learn.config import learner_resume_point, resume_point
+
+    with pytest.raises(CheckpointError, match="holds no (trainer|learner) state"):
+        resume_point({"world": {}, "train": train}, TrainConfig(), None, SMALL, None, "out")
+    with pytest.raises(CheckpointError, match="holds no learner state"):
+        learner_resume_point(train, TrainConfig(), None, Path("out"))

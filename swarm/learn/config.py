@@ -248,7 +248,8 @@ def held_to_checkpoint(saved: TrainConfig, asked: TrainConfig, given: Collection
     checkpoint's optimizer state and curve belong to it; else one ConfigError naming each."""
     names = [f.name for f in dataclasses.fields(TrainConfig) if given is None or f.name in given]
     differ = [f"{n} = {getattr(asked, n)!r} differs from its {getattr(saved, n)!r}"
-              for n in names if n not in may_change and getattr(asked, n) != getattr(saved, n)]
+              for n in names if n not in may_change and getattr(asked, n) != getattr(saved, n)
+              and not (n == "faults" and _same_faults(saved.faults, asked.faults))]
     if differ:
         raise ConfigError(f"--resume continues {where} as it was trained: {', '.join(differ)} "
                           f"(only {', '.join(may_change)} may change; {restart})")
@@ -256,9 +257,12 @@ def held_to_checkpoint(saved: TrainConfig, asked: TrainConfig, given: Collection
 
 
 def _same_faults(a: str, b: str) -> bool:
-    """Whether two `faults` JSON tables are the same fault plan (however their values read)."""
+    """Whether two `faults` JSON tables are the same fault plan (however their values read:
+    `--loss 0.30` is `--loss 0.3`, `--latency 0.05s` is `50ms`)."""
     from swarm.net.faults import plan_from_table
 
+    if not (a and b):
+        return a == b
     ta, tb = json.loads(a), json.loads(b)
     return plan_from_table(ta).to_record() == plan_from_table(tb).to_record() and \
         ta.get("seed") == tb.get("seed")
@@ -269,8 +273,6 @@ def resumed(saved: TrainConfig, asked: TrainConfig, given: Collection[str] | Non
     """The config a resumed run goes on with: `saved` (the checkpoint's) with the `given` fields
     of `asked` that `--resume` may change (None: every field of `asked` is meant). ConfigError,
     one line, for a given field that would change the run itself, or epochs already `done`."""
-    if saved.faults and asked.faults and _same_faults(saved.faults, asked.faults):
-        asked = dataclasses.replace(asked, faults=saved.faults)  # (--loss 0.30 is --loss 0.3)
     changes = held_to_checkpoint(saved, asked, given, RESUME_MAY_CHANGE, where,
                                  "a new --out with --init starts another run from its weights")
     if given is None:  # the Python API's old contract: epochs only ever extend a run
@@ -291,7 +293,8 @@ def resume_point(data: dict[str, Any], cfg: TrainConfig, given: Collection[str] 
     from policies.checkpoint import CheckpointError
 
     tr = data.get("train")
-    if not isinstance(tr, dict):
+    if not isinstance(tr, dict) or not isinstance(tr.get("config"), dict) or \
+            not isinstance(tr.get("epoch"), int):
         raise CheckpointError(f"{where}/checkpoint.pt holds no trainer state; cannot resume")
     saved = from_dict(TrainConfig, tr["config"], where="checkpoint train config")
     cfg = resumed(saved, cfg, given, tr["epoch"], where)
@@ -319,7 +322,7 @@ def learner_resume_point(state: Any, asked: TrainConfig, given: Collection[str] 
     --resume` does: the checkpoint's optimizer state and curve belong to it."""
     from policies.checkpoint import CheckpointError
 
-    if not isinstance(state, dict):
+    if not isinstance(state, dict) or not isinstance(state.get("train"), dict):
         raise CheckpointError(f"{out / 'checkpoint.pt'} holds no learner state; cannot resume")
     saved = from_dict(TrainConfig, state["train"], where="checkpoint train config")
     return dataclasses.replace(saved, **held_to_checkpoint(

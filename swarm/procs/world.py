@@ -226,7 +226,9 @@ class WorldProcess:
         if tick is None or (msg.ep, msg.t) != (tick.ep, tick.t):  # (between ticks: a past one)
             self.late += 1
             return True
-        if msg.robot in {"traj": tick.traj, "hidden": tick.sent_hidden}.get(kind, tick.action):
+        seen = tick.traj if kind == "traj" else tick.sent_hidden if kind == "hidden" else \
+            tick.action
+        if msg.robot in seen:
             self._count_bad(key, f"a second {kind} message of robot {msg.robot} at tick {msg.t}")
             return True  # (a second process with its id, or a replay)
         if kind == "traj" and tick.delivered:  # after the bundles left: never used

@@ -107,6 +107,7 @@ class ReplayStats:
     first_tick: int = 0
     last_tick: int = 0
     process_shown: int = 0  # the run's own process faults (its flags) put on the view so far
+    planned: list[ProcessFault] | None = None  # those faults (read once from the run record)
 
 
 def run_process_faults(rec: Recording) -> list[ProcessFault]:
@@ -139,7 +140,9 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
                 v.robots[i].state = "acting" if alive else "lost"
             v.world_alive = True
             stats.statuses += 1
-            planned = run_process_faults(rec)  # `swarm run --crash 2@10`: at its tick, as live
+            if stats.planned is None:  # `swarm run --crash 2@10`: at its tick, as live
+                stats.planned = run_process_faults(rec)
+            planned = stats.planned
             while stats.process_shown < len(planned) and \
                     planned[stats.process_shown].tick <= int(st.get("run_tick", 0)):
                 f = planned[stats.process_shown]
