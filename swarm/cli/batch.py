@@ -294,14 +294,13 @@ def cmd_repro(args: argparse.Namespace) -> int:
                   "comm_policies": args.comm_policies,
                   "curves": _checkpoint_pairs(args.curve, "--curve")},
                  "[repro]")
-    items = repro.expand(args.item)
-    if not cfg.out:  # (before the progress display, whose closing would print a blank line)
-        raise ConfigError("repro needs an output directory (--out DIR)")
+    # every check before the progress display (whose closing would print a blank line)
+    items = repro.prepare(repro.expand(args.item), world, cfg)
     output_dir(cfg.out, "--out")  # before the work, which can take hours
     output_file(cfg.json)
     out, err = _consoles()
     with RichProgress(err) as progress:
-        results = repro.run(items, world, cfg, _command(), progress)
+        results = repro.run(items, world, cfg, _command(), progress, prepared=True)
     for item, res in results.items():
         if item == "table1":
             out.print(table1_table(res["rows"]))

@@ -125,7 +125,13 @@ def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfi
     for key, n in with_scaled_blocks(size).items():  # another map size: the paper's density
         if key.startswith("n_") and key not in table and flags.get(key) is None:
             flags[key] = n
-    return merged(WorldConfig, table, flags, "[world]")
+    world = merged(WorldConfig, table, flags, "[world]")
+    if not world.dynamic:  # a flag that would do nothing is a mistake, not a no-op
+        for key, flag in (("add_every", "--add-every"), ("n_dynamic", "--dynamic-blocks")):
+            if _world_flags(args).get(key) is not None:
+                raise ConfigError(f"{flag} has no effect on a static map (--static or "
+                                  "[world] dynamic = false); drop it or use --dynamic")
+    return world
 
 
 def add_common(p: argparse.ArgumentParser, results: bool = True) -> None:

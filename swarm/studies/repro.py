@@ -418,12 +418,10 @@ def expand(item: str) -> list[str]:
     return [item]
 
 
-def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str,
-        progress: ProgressSink | None = None) -> dict[str, Any]:
-    """Reproduce `items` into `cfg.out`; every configuration is validated before any runs."""
+def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[str]:
+    """The items `run` will make, every configuration of them validated (ConfigError)."""
     if not cfg.out:
         raise ConfigError("repro needs an output directory (--out DIR)")
-    progress = progress or NullProgress()
     if len(items) > 1 and "fig8" in items and not learned_of(cfg):
         items = [i for i in items if i != "fig8"]  # `all` without learned policies: no curves
     if len(items) > 1 and "commattn" not in cfg.policies:  # `all` without CommAttn
@@ -444,6 +442,15 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
         for name in learned_of(cfg):
             if not cfg.curve(name).is_file():
                 raise ConfigError(f"no training curve for {name}: {cfg.curve(name)} not found")
+    return list(items)
+
+
+def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str,
+        progress: ProgressSink | None = None, prepared: bool = False) -> dict[str, Any]:
+    """Reproduce `items` into `cfg.out`; every configuration is validated before any runs
+    (`prepared`: the caller has had `prepare` do it)."""
+    items = items if prepared else prepare(items, world, cfg)
+    progress = progress or NullProgress()
     results: dict[str, Any] = {}
     for item in items:
         if item == "table1":
