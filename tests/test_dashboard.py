@@ -98,3 +98,39 @@ def test_an_80_column_console_shows_the_robot_table_and_a_wide_map_stacks_the_pa
     lines = _text(render(wide), width=80).splitlines()
     top = next(i for i, line in enumerate(lines) if "map 40x40" in line)
     assert any("swarm" in line for line in lines[top + 40:])  # below the map, not cut away
+
+
+def _fitted_text(v: SwarmView, width: int, height: int) -> list[str]:
+    console = Console(file=io.StringIO(), width=width, height=height, record=True,
+                      color_system=None)
+    console.print(render(v, fit=True))
+    return console.export_text().splitlines()
+
+
+def test_a_short_terminal_keeps_the_figures_and_robots_in_trouble_in_view() -> None:
+    """At 80 x 24 a 20 x 20 swarm showed the map and the figures, and the live display cropped
+    the robot table away (it needs ~40 rows). Fitted to the height, the figures that matter
+    stay, the table keeps as many robots as fit (a lost one first) and says how many are not
+    shown; an unfitted render (headless, a pipe) is whole."""
+    v = SwarmView("demo", "commattn", 20, 20, 10, 10.0, episodes=3)
+    v.apply_status({"ep": 0, "t": 4, "pos": [[i, i] for i in range(10)], "alive": [True] * 10,
+                    "elratio": 0.3, "block_coll": 0, "robot_coll": 0, "dyn": [],
+                    "timeouts": [], "static": [[0, 5]]}, now=0.0)
+    for i in range(10):
+        v.set_alive(i, True)
+    v.set_alive(7, False)
+    whole = _text(render(v), width=80).splitlines()
+    assert len(whole) > 24 and "taller terminal" not in "\n".join(whole)
+    lines = _fitted_text(v, 80, 24)
+    text = "\n".join(lines)
+    assert len(lines) <= 24, text
+    assert "map 20x20" in text and "elratio" in text and "robots alive" in text
+    assert "lost" in text  # robot 7, in trouble, is among the rows kept
+    shown = [line for line in lines if "│ acting" in line or "│ lost" in line]
+    assert shown and f"+{10 - len(shown)} robots (a taller terminal)" in text
+    tall = _fitted_text(v, 80, 60)  # room for everything: nothing left out
+    assert "taller terminal" not in "\n".join(tall) and sum("acting" in x for x in tall) == 9
+    wide = SwarmView("big", "nearest-frontier", 40, 40, 3, 10.0, episodes=1)
+    lines = _fitted_text(wide, 80, 24)  # a map taller than the terminal: figures above it
+    top = next(i for i, line in enumerate(lines) if "map 40x40" in line)
+    assert any("elratio" in line for line in lines[:top])

@@ -259,15 +259,22 @@ ROBOT_COLUMNS = (("id", 0), ("state", 0), ("pos", 0), ("in", 0), ("out", 0), ("l
 """The robot table's columns and the width (characters) below which each is left out."""
 
 
-def render_robots(v: SwarmView, width: int | None = None) -> Table:
-    """One row per robot; on a narrow console (`width`) only the columns that fit."""
+def render_robots(v: SwarmView, width: int | None = None, rows: int | None = None) -> Table:
+    """One row per robot; on a narrow console (`width`) only the columns that fit; with `rows`,
+    at most that many (robots in trouble first) and a caption counting the others."""
     table = Table(title="robots", expand=True, pad_edge=False)
+    shown = sorted(v.robots)
+    if rows is not None and rows < len(shown):
+        trouble = lambda i: (v.robots[i].alive and not v.robots[i].missed  # noqa: E731
+                             and not v.robots[i].bad, i)
+        shown = sorted(sorted(shown, key=trouble)[:max(rows, 0)])
+        table.caption = f"+{len(v.robots) - len(shown)} robots (a taller terminal)"
     cols = [c for c, need in ROBOT_COLUMNS if width is None or width >= need]
     if v.learner is not None and (width is None or width >= 90):  # field training: the
         cols += ["weights"]  # weights version each robot acts with
     for col in cols:
         table.add_column(col, justify="right" if col not in ("state",) else "left")
-    for i in sorted(v.robots):
+    for i in shown:
         r = v.robots[i]
         cell = {"id": str(i), "state": Text(r.state, style="green" if r.alive else "red"),
                 "pos": "-" if r.pos is None else f"{r.pos[0]},{r.pos[1]}",
@@ -280,7 +287,13 @@ def render_robots(v: SwarmView, width: int | None = None) -> Table:
     return table
 
 
-def render_figures(v: SwarmView) -> Table:
+RADIO_COUNTS = ("lost", "cut", "late", "queued", "dropped_bw")
+COMPACT_FIGURES = ("replay", "policy", "episode", "tick", "elratio", "collisions", "timeouts",
+                   "bad / late", "robots alive", "faults", "radio", "process faults")
+"""The figures a short terminal keeps (`render_figures(compact=True)`)."""
+
+
+def render_figures(v: SwarmView, compact: bool = False) -> Table:
     table = Table.grid(padding=(0, 2))
     table.add_column(style="bold")
     table.add_column()
@@ -299,12 +312,14 @@ def render_figures(v: SwarmView) -> Table:
         ("timeouts", str(v.timeouts)), ("bad / late", f"{v.bad} / {v.late}"),
         ("robots alive", f"{sum(r.alive for r in v.robots.values())}/{v.n_robots}"),
         ("faults", "; ".join(v.faults) or "none"),
-        ("radio", " ".join(f"{k} {v.radio.get(k, 0)}" for k in ("lost", "cut", "late", "queued",
-                                                                "dropped_bw"))),
+        ("radio", " ".join(f"{k} {v.radio.get(k, 0)}" for k in RADIO_COUNTS)),
         ("process faults", "; ".join(v.events) or "none"),
     ]
     for k, val in rows:
-        table.add_row(k, val)
+        if k == "radio" and compact:  # (the nonzero counts: three lines become one)
+            val = " ".join(f"{n} {v.radio[n]}" for n in RADIO_COUNTS if v.radio.get(n)) or "-"
+        if not compact or k in COMPACT_FIGURES:
+            table.add_row(k, val)
     return table
 
 
@@ -387,35 +402,64 @@ SIDE_MIN = 30
 class _Screen:
     """The map beside the side panels when the console leaves them SIDE_MIN columns, else
     above them (a map wider than the console used to leave the panels no width at all); the
-    robot table keeps the columns its width holds."""
+    robot table keeps the columns its width holds. With `fit` (a live terminal, which crops
+    what is taller than itself) the side panels shrink to the console's height: the figures
+    that matter most, then fewer extra panels, then fewer robot rows (those in trouble kept);
+    a map taller than the console goes below the figures rather than hide them."""
 
-    def __init__(self, v: SwarmView) -> None:
-        self.v = v
+    def __init__(self, v: SwarmView, fit: bool = False) -> None:
+        self.v, self.fit = v, fit
+
+    def _side(self, width: int, level: int, rows: int | None = None) -> list[Any]:
+        v = self.v
+        side: list[Any] = [Panel(render_figures(v, compact=level > 0), title="swarm"),
+                           render_robots(v, width, rows)]
+        if v.learner is not None:
+            side.insert(1, Panel(render_learner(v), title="learner"))
+        if v.links and level < 3:
+            side.append(render_links(v))
+        if v.attention and v.attention_focus is not None and level < 2:
+            side.append(render_attention(v))
+        return side
+
+    def _fitted(self, console: Console, options: ConsoleOptions, width: int,
+                budget: int) -> list[Any]:
+        """The richest side panels of `width` that fit in `budget` lines."""
+        def lines(side: list[Any]) -> int:
+            return len(console.render_lines(Group(*side), options.update(width=width,
+                                                                         height=None)))
+        for level in range(4):
+            side = self._side(width, level)
+            if not self.fit or lines(side) <= budget:
+                return side
+        rows = len(self.v.robots) - (lines(side) - budget) - 1  # (1: the caption)
+        side = self._side(width, 3, rows)
+        while rows > 0 and lines(side) > budget:  # (a caption that wraps)
+            rows -= 1
+            side = self._side(width, 3, rows)
+        return side
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         v = self.v
         grid = Panel(render_grid(v), title=f"map {v.height}x{v.width}", expand=False)
         room = options.max_width - Measurement.get(console, options, grid).maximum - 1
-        beside = room >= SIDE_MIN
-        side: list[Any] = [Panel(render_figures(v), title="swarm"),
-                           render_robots(v, room if beside else options.max_width)]
-        if v.learner is not None:
-            side.insert(1, Panel(render_learner(v), title="learner"))
-        if v.links:
-            side.append(render_links(v))
-        if v.attention and v.attention_focus is not None:
-            side.append(render_attention(v))
-        if not beside:
-            yield Group(grid, *side)
+        height = options.max_height
+        if room >= SIDE_MIN:
+            screen = Table.grid(padding=(0, 1))
+            screen.add_column(no_wrap=True)
+            screen.add_column(ratio=1)
+            screen.add_row(grid, Group(*self._fitted(console, options, room, height)))
+            yield screen
             return
-        screen = Table.grid(padding=(0, 1))
-        screen.add_column(no_wrap=True)
-        screen.add_column(ratio=1)
-        screen.add_row(grid, Group(*side))
-        yield screen
+        grid_lines = v.height + 2
+        if self.fit and grid_lines >= height:  # the map alone fills the terminal: figures first
+            yield Group(*self._fitted(console, options, options.max_width, height), grid)
+            return
+        yield Group(grid, *self._fitted(console, options, options.max_width, height - grid_lines))
 
 
-def render(v: SwarmView) -> _Screen:
+def render(v: SwarmView, fit: bool = False) -> _Screen:
     """The whole screen: the map beside (or above) the figures, the robot table and the
-    faulted links; it takes the height of its content on any console (not a Layout)."""
-    return _Screen(v)
+    faulted links; it takes the height of its content (not a Layout), or with `fit` at most
+    the console's height where it can."""
+    return _Screen(v, fit)

@@ -296,8 +296,9 @@ class Supervisor:
             # Robots only after our subscriptions reached the world: the first tick is not missed.
             for i in range(self.cfg.n_robots):
                 self.spawn_robot(i)
+            fit = self.console.is_terminal  # (a terminal crops what is taller than itself)
             live = None if self.opts.headless else Live(
-                get_renderable=lambda: render(self.view), console=self.console,
+                get_renderable=lambda: render(self.view, fit), console=self.console,
                 refresh_per_second=4, screen=False, transient=False)
             try:
                 if live:

@@ -178,7 +178,8 @@ def replay(rec: Recording, console: Console | None = None, speed: float = 1.0,
     name, total = Path(rec.path).name, rec.last_tick
     t0: int | None = None
     w0 = 0.0
-    screen = Live(get_renderable=lambda: render(v), console=console or Console(),
+    console = console or Console()
+    screen = Live(get_renderable=lambda: render(v, console.is_terminal), console=console,
                   refresh_per_second=4, transient=False) if live else None
     if screen is not None:
         screen.start()
