@@ -9,6 +9,7 @@ import sys
 from io import StringIO
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import ROOT, swarm
 from rich.console import Console
@@ -128,6 +129,11 @@ def test_config_file_applies_and_flags_override(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     data = json.loads(out.read_text())
     assert (data["robots"], data["episodes"], data["seed"], data["dynamic"]) == (3, 4, 9, False)
+    # what made it: the whole world (the file's too), faults, command and software
+    assert data["world"]["n_robots"] == 3 and data["world"]["height"] == 20
+    assert data["faults"] is None and data["command"].startswith("swarm eval --config")
+    prov = data["provenance"]
+    assert prov["versions"]["commattn-swarm"] and prov["versions"]["numpy"] == np.__version__
 
 
 def test_merge_precedence_in_process(tmp_path: Path) -> None:

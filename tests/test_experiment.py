@@ -5,6 +5,7 @@ any process is spawned; `--episodes`/`--seeds` shrink a sweep, are recorded, and
 from __future__ import annotations
 
 import csv
+import json
 import os
 from pathlib import Path
 
@@ -126,6 +127,11 @@ def test_episodes_and_seeds_flags_override_the_file_and_keep_resume_honest(
     md = (out / "quick.md").read_text()
     assert f"swarm experiment {src} --episodes 1 --seeds 4" in md
     assert "seeds 4; 1 episode per run" in md
+    assert "World: 2 robots, 20 x 20" in md and "sd over seeds" in md
+    rec = json.loads((out / "quick.json").read_text())  # everything that made the sweep
+    assert rec["experiment_file"] == Path(src).read_text() and rec["run"]["episodes"] == 1
+    assert rec["world"]["n_robots"] == 2 and rec["checkpoints"] == {"nearest-frontier": None}
+    assert rec["experiment"]["seeds"] == [4] and rec["provenance"]["versions"]
     before = (out / "quick.csv").read_text()
     for flags, words in ((["--seeds", "4"], "runs of 1 episode(s) each, this sweep's runs have 3"),
                          (["--episodes", "1", "--seeds", "5"], "seed(s) 4, not in")):

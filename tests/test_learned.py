@@ -381,6 +381,7 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path: Path) -> None:
     for key, value in full["state_dict"].items():
         assert torch.equal(value, part["state_dict"][key]), key
     assert full["meta"]["epoch"] == 2 and "val_elratio_mean" in full["meta"]
+    assert full["meta"]["provenance"]["versions"]["torch"] == torch.__version__  # what made it
     levels = [int(r[3]) for r in _curve(tmp_path / "full" / "curve.csv")[1:]]
     assert levels[0] == 0 and levels[-1] > 0  # the curriculum introduced dynamic blocks
 

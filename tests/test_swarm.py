@@ -59,6 +59,8 @@ def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str
         assert res[key] == pytest.approx(summ[key])
     assert res["timeouts"] == 0 and res["messages"]["bad"] == 0
     assert res["ticks_per_s"] > 0 and res["result_message_lost"] is False
+    assert res["command"].startswith("swarm run --headless") and res["checkpoint"] is None
+    assert res["world"]["n_robots"] == 4 and res["provenance"]["python"]  # what made it
     lines = [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
     assert sum("status" in rec for rec in lines) == 2 * cfg.horizon
     assert "result" in lines[-1]

@@ -31,7 +31,8 @@ from swarm.cli.common import (
 )
 from swarm.common import atomic
 from swarm.common.flags import add_flags, given
-from world.config import ConfigError, WorldConfig, check_seed, from_dict
+from swarm.common.report import provenance
+from world.config import ConfigError, WorldConfig, check_seed, from_dict, to_dict
 
 
 @dataclass(frozen=True)
@@ -132,17 +133,19 @@ def cmd_eval(args: argparse.Namespace) -> int:
     with RichProgress(err) as progress:
         summaries = run_eval(world, cfg, progress, faults, built)
     map_kind = f"dynamic (m={world.add_every})" if world.dynamic else "static"
-    shown = "; ".join(faults.describe()) if faults is not None else ""
+    shown_faults = "; ".join(faults.describe()) if faults is not None else ""
     out.print(eval_table(summaries, f"eval: {world.n_robots} robots, {map_kind} map, "
                                     f"{cfg.episodes} episodes, seed {cfg.seed}"
-                                    + (f"; faults: {shown}" if shown else "")))
+                                    + (f"; faults: {shown_faults}" if shown_faults else "")))
     if cfg.json:
         if len(summaries) == 1:
             obj: dict[str, Any] = summaries[0]
         else:
             obj = {"policy": ",".join(s["policy"] for s in summaries), "robots": world.n_robots,
                    "episodes": cfg.episodes, "seed": cfg.seed, "results": summaries}
-        atomic.write_json(cfg.json, {**obj, "command": _command()})
+        atomic.write_json(cfg.json, {**obj, "world": to_dict(world),
+                                     "faults": shown_faults or None, "command": _command(),
+                                     "provenance": provenance()})
         out.print(f"wrote {cfg.json}")
     return 0
 
@@ -264,7 +267,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         result["checkpoints"] = {n: shown(c) for n, c in ckpts.items()}
         out.print(policy_bench_table(result))
     if cfg.json:
-        atomic.write_json(cfg.json, {**result, "command": _command()})
+        atomic.write_json(cfg.json, {**result, "command": _command(), "provenance": provenance()})
         out.print(f"wrote {cfg.json}")
     return 0
 

@@ -1,5 +1,5 @@
-"""`swarm router` (a Zenoh router process) and `swarm run --hosts K` (emulated hosts, see
-swarm/net/kernel/hosts.py)."""
+"""`swarm router` (a Zenoh router process), `swarm run --hosts K` (emulated hosts, see
+swarm/net/kernel/hosts.py) and `swarm run --netns` (kernel faults, swarm/net/kernel/netns.py)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,37 @@ from typing import Any
 from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.net import zconfig
 from world.config import ConfigError
+
+
+def add_netns_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("kernel-level realism (root; see swarm/net/kernel/netns.py)")
+    g.add_argument("--netns", action="store_true",
+                   help="world and robots in network namespaces joined by veth pairs")
+    g.add_argument("--kernel-loss", metavar="P",
+                   help="with --netns: packet drop probability per direction of each robot link "
+                        "(iptables statistic; TCP retransmits, so messages arrive late)")
+    g.add_argument("--kernel-bandwidth", metavar="RATE",
+                   help="with --netns: tc tbf cap per direction of each robot link, e.g. 8kB/s")
+    g.add_argument("--netns-lease", metavar="DUR",
+                   help="with --netns: Zenoh lease of every session (default 1s); TCP's "
+                        "retransmission backoff under loss can outlast a short one")
+    g.add_argument("--netns-transport", choices=["tcp", "udp"],
+                   help="with --netns: the robots' Zenoh link (default tcp; udp is best effort)")
+
+
+def netns_faults(args: argparse.Namespace) -> Any:
+    """The NetnsConfig of `--netns` (None without it); kernel flags need --netns."""
+    from swarm.net.kernel.netns import NetnsConfig, check_tools
+
+    given = [getattr(args, k, None) for k in ("kernel_loss", "kernel_bandwidth", "netns_lease",
+                                              "netns_transport")]
+    if not getattr(args, "netns", False):
+        if any(v is not None for v in given):
+            raise ConfigError("--kernel-loss, --kernel-bandwidth and --netns-* flags need --netns")
+        return None
+    faults = NetnsConfig.parse(*given)
+    check_tools(faults)  # not root, or a tool missing: one line before any spawn
+    return faults
 
 
 def add_hosts_flag(p: argparse.ArgumentParser) -> None:

@@ -23,6 +23,7 @@ from swarm.cli.checks import (
     status_tick,
 )
 from swarm.cli.common import (
+    _command,
     _consoles,
     add_common,
     add_fault_flags,
@@ -33,12 +34,12 @@ from swarm.cli.common import (
     output_file,
     world_config,
 )
-from swarm.cli.hosts import add_hosts_flag, hosts_option
+from swarm.cli.hosts import add_hosts_flag, add_netns_flags, hosts_option, netns_faults
 from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.common.flags import check_wait
 from swarm.common.policy_spec import build_inference
-from swarm.common.report import json_line
+from swarm.common.report import json_line, provenance
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
@@ -92,37 +93,6 @@ def _add_train_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--train-sync", action="store_true", default=None,
                    help="lockstep: each episode waits for the learner to take the ones before it "
                         "and uses its newest weights, so the run is a function of its seed")
-
-
-def _add_netns_flags(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("kernel-level realism (root; see swarm/net/kernel/netns.py)")
-    g.add_argument("--netns", action="store_true",
-                   help="world and robots in network namespaces joined by veth pairs")
-    g.add_argument("--kernel-loss", metavar="P",
-                   help="with --netns: packet drop probability per direction of each robot link "
-                        "(iptables statistic; TCP retransmits, so messages arrive late)")
-    g.add_argument("--kernel-bandwidth", metavar="RATE",
-                   help="with --netns: tc tbf cap per direction of each robot link, e.g. 8kB/s")
-    g.add_argument("--netns-lease", metavar="DUR",
-                   help="with --netns: Zenoh lease of every session (default 1s); TCP's "
-                        "retransmission backoff under loss can outlast a short one")
-    g.add_argument("--netns-transport", choices=["tcp", "udp"],
-                   help="with --netns: the robots' Zenoh link (default tcp; udp is best effort)")
-
-
-def netns_faults(args: argparse.Namespace) -> Any:
-    """The NetnsConfig of `--netns` (None without it); kernel flags need --netns."""
-    from swarm.net.kernel.netns import NetnsConfig, check_tools
-
-    given = [getattr(args, k, None) for k in ("kernel_loss", "kernel_bandwidth", "netns_lease",
-                                              "netns_transport")]
-    if not getattr(args, "netns", False):
-        if any(v is not None for v in given):
-            raise ConfigError("--kernel-loss, --kernel-bandwidth and --netns-* flags need --netns")
-        return None
-    faults = NetnsConfig.parse(*given)
-    check_tools(faults)  # not root, or a tool missing: one line before any spawn
-    return faults
 
 
 def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
@@ -228,7 +198,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             restart_crashed=args.restart_crashed, log_dir=args.log_dir,
                             netns=netns, secure=args.secure, record=args.record,
-                            attention=args.attention, hosts=hosts_option(args))
+                            attention=args.attention, hosts=hosts_option(args),
+                            command=_command())
     learning = None
     if run.train:
         from policies import check_learned
@@ -286,7 +257,7 @@ def cmd_world(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 130
     if args.json:
-        write_json(args.json, res)
+        write_json(args.json, {**res, "command": _command(), "provenance": provenance()})
     if res.get("stopped") and not args.spec:  # (spawned, the supervisor says it)
         print(f"swarm world: stopped by a control record after {res['completed']} of "
               f"{run.episodes} episodes", file=sys.stderr)
@@ -436,7 +407,7 @@ def add_parsers(sub: Any) -> None:
     add_world(p)
     _add_run_flags(p)
     add_fault_flags(p)
-    _add_netns_flags(p)
+    add_netns_flags(p)
     add_hosts_flag(p)
     _add_train_flags(p)
     p.add_argument("--headless", action="store_true", help="JSON lines on stdout, no dashboard")

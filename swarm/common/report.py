@@ -5,14 +5,48 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
+import functools
 import io
+import platform
+import subprocess
+import sys
 from collections.abc import Callable, Sequence
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from swarm.common import atomic
+
+PROVENANCE_PACKAGES = ("commattn-swarm", "numpy", "torch", "eclipse-zenoh", "msgpack")
+
+
+@functools.cache
+def provenance() -> dict[str, Any]:
+    """What made a result, for its JSON: package versions (read from the installed metadata,
+    nothing imported), the source tree's git commit (`+dirty` with uncommitted changes to
+    tracked files; None outside a checkout), Python and the platform."""
+    versions: dict[str, str | None] = {}
+    for name in PROVENANCE_PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    root = Path(__file__).resolve().parents[2]
+    commit = None
+    if (root / ".git").exists():
+        try:
+            git = ["git", "-C", str(root)]
+            head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True,
+                                  timeout=5, check=True).stdout.strip()
+            dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"],
+                                   capture_output=True, text=True, timeout=5).stdout.strip()
+            commit = head + ("+dirty" if dirty else "")
+        except (OSError, subprocess.SubprocessError):
+            commit = None
+    return {"versions": versions, "git": commit, "python": sys.version.split()[0],
+            "platform": platform.platform()}
 
 
 def header(title: str, command: str, seed: int, note: str) -> str:
@@ -75,7 +109,7 @@ def write_item(out: Path, item: str, rows: list[dict[str, Any]], md: str,
     atomic.write_text(paths[0], csv_text(rows))
     atomic.write_text(paths[1], md)
     save_png(paths[2], draw, ncols)
-    atomic.write_json(paths[3], {**meta, "rows": rows})
+    atomic.write_json(paths[3], {**meta, "provenance": provenance(), "rows": rows})
     return [str(p) for p in paths]
 
 

@@ -23,6 +23,7 @@ import torch
 from policies import LEARNED, make_policy
 from policies.checkpoint import load_checkpoint, save_checkpoint
 from policies.learned import LearnedPolicy
+from swarm.common.report import provenance
 from swarm.learn.config import TrainConfig, resume_point
 from swarm.learn.curriculum import Curriculum
 from swarm.learn.curves import CurveLog, plot_curve
@@ -168,7 +169,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                             if k in ("elratio_mean", "success_rate", "reward_mean",
                                      "collisions_mean", "block_collisions_mean")}
             meta = {"command": command, "seed": cfg.seed, "epoch": epoch + 1, "update": upd,
-                    "episodes": upd * cfg.batch, **val}
+                    "episodes": upd * cfg.batch, "provenance": provenance(), **val}
             payload = policy.payload(meta)
             payload["train"] = {"config": dataclasses.asdict(cfg), "optimizer": opt.state_dict(),
                                 "rng": torch.get_rng_state(), "epoch": epoch + 1, "update": upd,

@@ -45,6 +45,7 @@ import zenoh
 
 from policies import check_learned, policy_class
 from policies.checkpoint import load_checkpoint, save_checkpoint
+from swarm.common.report import provenance
 from swarm.learn.config import LearnerConfig, TrainConfig, learner_resume_point
 from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
@@ -306,7 +307,8 @@ class Learner:
 
     def save(self) -> None:
         payload = self.policy.payload({"command": "swarm learner", "version": self.version,
-                                       "episodes": self.c.episodes, "run_id": self.lc.run_id})
+                                       "episodes": self.c.episodes, "run_id": self.lc.run_id,
+                                       "provenance": provenance()})
         payload["learner"] = {"version": self.version, "optimizer": self.opt.state_dict(),
                               "train": dataclasses.asdict(self.tc),
                               "counters": dataclasses.asdict(self.c)}

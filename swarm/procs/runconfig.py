@@ -206,3 +206,5 @@ class SuperviseOptions:
     """Whose strongest attention the dashboard's map draws: -1 all, k robot k, None nobody."""
     hosts: int = 0
     """Emulated hosts (swarm/net/kernel/hosts.py): K namespaces on a bridge, a Zenoh router each."""
+    command: str | None = None
+    """The command line that started the run, for the result's record."""

@@ -26,8 +26,9 @@ from rich.console import Console
 from rich.live import Live
 
 from swarm.common.atomic import write_json
+from swarm.common.policy_spec import effective_checkpoint, shown
 from swarm.common.procstat import ProcSampler, process_age
-from swarm.common.report import json_line
+from swarm.common.report import json_line, provenance
 from swarm.common.spawn import (
     child_env,
     child_result,
@@ -59,7 +60,7 @@ from swarm.net.security.tls import identity_of, run_configs, topology_configs, t
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
-from world.config import WorldConfig
+from world.config import WorldConfig, to_dict
 
 log = logging.getLogger("swarm.supervisor")
 
@@ -371,6 +372,10 @@ class Supervisor:
                                         "rejected"))
             res["learner"] = {**st, "accounting": acc, "out": self.learner_out}
         res["robot_status"] = {str(i): r.counters() for i, r in self.view.robots.items()}
+        rc = self.run_cfg  # what made the result (with --train and no checkpoint: fresh weights)
+        ckpt = rc.checkpoint if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)
+        res.update(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
+                   provenance=provenance())
         if self.topo is not None:  # a robot whose session never opened is in no other count
             res["netns"] = {**self.topo.describe(), "never_joined": sum(
                 r.state == "starting" for r in self.view.robots.values())}

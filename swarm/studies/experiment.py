@@ -112,11 +112,40 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
         _write_csv(csv_path, rows, columns)
         if on_row:
             on_row(row)
-    files = [str(csv_path), *write_summary(rows, sweep, out_dir)]
+    files = [str(csv_path), *write_summary(rows, sweep, out_dir), write_record(sweep, out_dir)]
     if exp.kernel and exp.compare:
         files.append(write_comparison(rows, _read_rows(Path(exp.compare)), exp, out_dir,
                                       sweep.source))
     return {"rows": rows, "files": files}
+
+
+def checkpoints_of(sweep: Sweep) -> dict[str, str | None]:
+    """The checkpoint each policy of the sweep ran with (a shipped one named as such)."""
+    from swarm.common.policy_spec import effective_checkpoint, shown
+
+    return {pt.policy: shown(effective_checkpoint(pt.run.policy, pt.run.checkpoint))
+            for pt in sweep.points}
+
+
+def write_record(sweep: Sweep, out_dir: Path) -> str:
+    """`<name>.json`: everything that made the sweep, beside its CSV: the command, the
+    experiment file's text, the world, the run and fault settings, every policy's
+    checkpoint and the software's provenance (the CSV holds only the figures)."""
+    from swarm.common.report import provenance
+    from world.config import to_dict
+
+    exp = sweep.exp
+    try:
+        text: str | None = Path(sweep.source).read_text()
+    except OSError:
+        text = None
+    path = out_dir / f"{exp.name}.json"
+    atomic.write_json(path, {
+        "command": shlex.join(["swarm", "experiment", sweep.source, *sweep.overrides]),
+        "experiment_file": text, "world": to_dict(sweep.world), "run": to_dict(sweep.run),
+        "experiment": to_dict(exp), "faults": {str(pt.value): pt.faults for pt in sweep.points},
+        "checkpoints": checkpoints_of(sweep), "provenance": provenance()})
+    return str(path)
 
 
 def twin(world: WorldConfig, rc: RunConfig, faults: dict[str, Any], res: dict[str, Any]) -> str:
@@ -165,12 +194,19 @@ def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> li
     twins = [r.get("twin") for r in rows if r.get("twin")]
     same = sum(t == "identical" for t in twins)
     clocks = sorted({str(r.get("clock") or "real") for r in rows})
+    w = sweep.world
+    ckpts = "; ".join(f"{p} {c}" for p, c in checkpoints_of(sweep).items() if c)
     lines = [f"Made by `{command}` (seeds {', '.join(map(str, exp.seeds))}; "
              f"{sweep.run.episodes} episode{'s' * (sweep.run.episodes != 1)} per run; clock "
              f"{', '.join(clocks)}; {len(rows)} runs in {sum(walls):.0f} s of wall time"
              + (f"; batched twin identical in {same} of {len(twins)} runs" if twins else "")
-             + ").", "",
-             f"| policy | {exp.parameter} | elratio | collisions | success | ticks/s |",
+             + f"). World: {w.n_robots} robots, {w.height} x {w.width}, "
+             + (f"dynamic (m={w.add_every})" if w.dynamic else "static")
+             + f", vision {w.vision}, comm range {w.comm_range}, horizon {w.horizon}"
+             + (f". Checkpoints: {ckpts}" if ckpts else "")
+             + f". Everything that made it: `{exp.name}.json`.", "",
+             f"| policy | {exp.parameter} | elratio (± sd over seeds) | collisions | success "
+             "| ticks/s |",
              "|---|---|---|---|---|---|"]
     keys = ("elratio_mean", "collisions_mean", "success_rate", "ticks_per_s")
     fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))

@@ -27,7 +27,7 @@ from swarm.bench.micro import (
 )
 from swarm.common import atomic
 from swarm.common.policy_spec import SHIPPED, build_policy, shown
-from swarm.common.report import header, md_table, paired, paired_cell, write_item
+from swarm.common.report import header, md_table, paired, paired_cell, provenance, write_item
 from swarm.learn.curves import moving_mean, read_curve
 from swarm.learn.evaluate import evaluate
 from swarm.studies.comm import POLICIES as COMM_POLICIES
@@ -473,5 +473,6 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
             results[item] = sweep(world, item, cfg, command, progress)
     if cfg.json:
         atomic.write_json(cfg.json, {"command": command, "seed": cfg.seed,
+                                     "provenance": provenance(),
                                      "items": {k: v["rows"] for k, v in results.items()}})
     return results
