@@ -1,11 +1,15 @@
 """Policy registry: the CLI name maps to `module:Class`; the module's file name is its key.
 
-Imports are lazy so that running a frontier policy never imports torch.
+Imports are lazy so that running a frontier policy never imports torch. Policies of other
+packages join the registry through the `commattn_swarm.policies` entry-point group (README,
+"Adding a policy"): hand-written ones only (a learned policy needs a numpy twin here).
 """
 
 from __future__ import annotations
 
 import importlib
+import sys
+from importlib import metadata
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -27,6 +31,29 @@ REGISTRY: dict[str, str] = {
     "chain-plan": "policies.chain_plan:ChainPlan",
 }
 
+PLUGIN_GROUP = "commattn_swarm.policies"
+
+
+def _plugins() -> dict[str, str]:
+    """`name = "module:Class"` entry points of installed packages; one that shadows a built-in
+    name or is not `module:Class` is skipped with a one-line warning."""
+    found: dict[str, str] = {}
+    for ep in metadata.entry_points(group=PLUGIN_GROUP):
+        module, sep, cls = ep.value.partition(":")
+        why = ("shadows a built-in policy" if ep.name in REGISTRY else
+               "is not 'module:Class'" if not (module and sep and cls) else "")
+        if why:
+            print(f"swarm: warning: policy plugin {ep.name!r} = {ep.value!r} {why}; skipped",
+                  file=sys.stderr)
+            continue
+        found[ep.name] = ep.value
+    return found
+
+
+PLUGINS = _plugins()
+"""Policies registered by other packages (entry points), also in REGISTRY."""
+REGISTRY.update(PLUGINS)
+
 BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility")
 # Policies whose robots send hidden-state messages along the id chain (SPEC 3.5), known without
 # importing them (the world process never imports torch); tests check it against the classes.
@@ -45,7 +72,25 @@ def policy_class(name: str) -> type[Policy]:
     except KeyError:
         raise ValueError(f"unknown policy {name!r}; choose from {', '.join(REGISTRY)}") from None
     module, cls = target.split(":")
-    return getattr(importlib.import_module(module), cls)
+    found = getattr(importlib.import_module(module), cls, None)
+    if name in PLUGINS:  # another package's class: checked before anyone builds it
+        from policies.base import Policy
+
+        if not (isinstance(found, type) and issubclass(found, Policy)):
+            raise ValueError(f"policy plugin {name!r} ({target}) is not a policies.base.Policy "
+                             "subclass")
+        if found.learned:
+            raise ValueError(f"policy plugin {name!r} is learned: plugins are hand-written "
+                             "policies (a learned one needs a numpy twin in policies.infer)")
+    if found is None:
+        raise ValueError(f"policy {name!r}: {module} has no {cls}")
+    return found
+
+
+def is_chained(name: str) -> bool:
+    """Whether robots of policy `name` pass hidden-state messages down the id chain (SPEC
+    3.5): built-ins from CHAINED (no import), a plugin from its class."""
+    return name in CHAINED or (name in PLUGINS and policy_class(name).chained)
 
 
 def check_learned(name: str, what: str) -> None:

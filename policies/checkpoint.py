@@ -58,14 +58,21 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
         stale.unlink(missing_ok=True)
 
 
+def check_exists(path: Path) -> None:
+    """A one-line CheckpointError unless `path` is a file (a relative one names the folder it
+    was looked for in: an experiment file's paths are the current directory's, not its own)."""
+    if path.is_dir():
+        raise CheckpointError(f"checkpoint {path} is a directory, not a checkpoint file")
+    if not path.is_file():
+        where = "" if path.is_absolute() else f" (relative to {Path.cwd()})"
+        raise CheckpointError(f"checkpoint not found: {path}{where}")
+
+
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
     """Read a checkpoint written by `save_checkpoint`; any problem is a one-line CheckpointError."""
     import torch
 
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} is a directory, not a checkpoint file"
-                              if path.is_dir() else f"checkpoint not found: {path}")
+    check_exists(path := Path(path))
     if not zipfile.is_zipfile(path):  # what torch.save writes; else torch's advice misleads
         raise CheckpointError(f"checkpoint {path} is unreadable: not a torch checkpoint file "
                               "(a .pt that swarm train wrote)")
@@ -84,10 +91,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """`load_checkpoint` without torch: the same dict with numpy arrays for tensors."""
     from policies.infer.ptfile import PtFileError, load_pt
 
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} is a directory, not a checkpoint file"
-                              if path.is_dir() else f"checkpoint not found: {path}")
+    check_exists(path := Path(path))
     try:
         data = load_pt(path)
     except PtFileError as exc:

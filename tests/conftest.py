@@ -4,6 +4,7 @@ loop), one torch thread in-process."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,10 +14,13 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def swarm(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
-    """Run `python -m swarm.cli ARGS` from the repository root; output captured as text."""
+def swarm(*args: str, timeout: float = 180,
+          env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """Run `python -m swarm.cli ARGS` from the repository root; output captured as text (`env`:
+    variables added to this process's environment)."""
     return subprocess.run([sys.executable, "-m", "swarm.cli", *args], check=False, cwd=ROOT,
-                          text=True, capture_output=True, timeout=timeout)
+                          text=True, capture_output=True, timeout=timeout,
+                          env={**os.environ, **env} if env else None)
 
 
 def swarm_started(*args: str) -> subprocess.Popen[str]:

@@ -77,6 +77,33 @@ def test_eval_is_deterministic_and_frontier_beats_random(tmp_path: Path) -> None
         assert first[1]["elratio_mean"] > first[0]["elratio_mean"]
 
 
+@pytest.mark.procs
+def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) -> None:
+    """Several policies, a checkpoint named per policy (NAME=FILE), each policy's elratio minus
+    the first's paired over the same episodes (table and JSON), and the per-episode CSV that
+    pairing is made from."""
+    ckpt, js, eps = ROOT / "checkpoints" / "commnet.pt", tmp_path / "e.json", tmp_path / "e.csv"
+    r = swarm("eval", "--policy", "nearest-frontier,commnet,random", "--checkpoint",
+              f"commnet={ckpt}", "--robots", "4", "--episodes", "5", "--seed", "3",
+              "--episodes-csv", str(eps), "--json", str(js))
+    assert r.returncode == 0, r.stderr
+    assert "Δ elratio ± se" in r.stdout and "minus nearest-frontier's" in r.stdout
+    res = json.loads(js.read_text())["results"]
+    assert res[1]["checkpoint"].endswith("commnet.pt") and "elratio_paired" not in res[0]
+    with open(eps, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [(x["policy"], int(x["episode"])) for x in rows[:6]] == [
+        *(("nearest-frontier", e) for e in range(5)), ("commnet", 0)]
+    el = {p: np.array([float(x["elratio"]) for x in rows if x["policy"] == p])
+          for p in ("nearest-frontier", "commnet", "random")}
+    for k, name in ((1, "commnet"), (2, "random")):
+        assert el[name].mean() == pytest.approx(res[k]["elratio_mean"])
+        diff = el[name] - el["nearest-frontier"]
+        assert res[k]["elratio_paired"]["vs"] == "nearest-frontier"
+        assert res[k]["elratio_paired"]["mean"] == pytest.approx(diff.mean())
+        assert res[k]["elratio_paired"]["se"] == pytest.approx(diff.std(ddof=1) / 5 ** 0.5)
+
+
 @pytest.mark.parametrize("args", [
     ["eval", "--episodes", "-3", "--policy", "random"],
     ["eval", "--policy", "no-such-policy"],
@@ -95,6 +122,9 @@ def test_eval_is_deterministic_and_frontier_beats_random(tmp_path: Path) -> None
     ["repro", "fig99", "--out", "{tmp}/o"],  # fig9 became an item (issue 16)
     ["repro", "fig5", "--out", "{tmp}/o", "--add-every", "40", "--policies", "random"],
     ["eval", "--policy", "random", "--static", "--add-every", "5"],
+    ["eval", "--policy", "commattn,commnet", "--checkpoint", "a.pt"],  # whose is it?
+    ["eval", "--policy", "commattn", "--checkpoint", "a.pt", "--checkpoint", "commattn=b.pt"],
+    ["eval", "--policy", "commattn", "--checkpoint", "commnet=checkpoints/commnet.pt"],
     ["frobnicate"],
 ])
 @pytest.mark.procs

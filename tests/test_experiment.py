@@ -44,6 +44,11 @@ BAD_FILES = {  # file's [experiment] lines (None: the file is empty) -> words of
     "seed not an integer": ('name = "t"\nparameter = "loss"\nvalues = [0.0]\n'
                             'policies = ["random"]\nseeds = ["a"]\n', ["seeds", "integers"]),
     "no [experiment] table": ("", ["no [experiment] table"]),
+    "a world setting swept": ('name = "t"\nparameter = "comm_range"\nvalues = [2, 5]\n'
+                              'policies = ["random"]\nseeds = [0]\n',
+                              ["partition", "swarm repro comm"]),
+    "a relative checkpoint path": (BASE + 'policies = ["commattn"]\ncheckpoints = {commattn = '
+                                   '"mine.pt"}\n', ["mine.pt (relative to /"]),
 }
 
 

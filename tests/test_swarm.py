@@ -448,3 +448,52 @@ def test_headless_output_into_a_closed_pipe_stops_the_run_quietly_and_tidily() -
             proc.kill()
     assert run_procs("pipeclosed") == []
     assert list(Path(tempfile.gettempdir()).glob("swarm-pipeclosed-*")) == []
+
+
+PLUGIN = '''
+import numpy as np
+
+from policies.base import Policy, receiver_index
+
+
+class Cyclic(Policy):
+    """A hand-written policy of another package: robot i takes action (tick + i) mod 9."""
+
+    name = "cyclic"
+
+    def act(self, view, greedy=True):
+        g, i = receiver_index(view)
+        out = np.zeros(view.receivers.shape, dtype=np.int64)
+        out[g, i] = (view.tick + i) % 9
+        return out
+'''
+
+
+@pytest.mark.procs
+def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path) -> None:
+    """A package that declares an entry point in the `commattn_swarm.policies` group (README,
+    "Adding a policy") adds its policy to every command, robot processes included, without
+    touching this repository; a malformed entry is skipped with a warning."""
+    (tmp_path / "cyclic_plugin.py").write_text(PLUGIN)
+    info = tmp_path / "cyclic_plugin-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: cyclic-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[commattn_swarm.policies]\n"
+                                           "cyclic = cyclic_plugin:Cyclic\nbroken = nocolon\n")
+    env = {"PYTHONPATH": str(tmp_path)}
+    ev, run = tmp_path / "eval.json", tmp_path / "run.json"
+    r = swarm("eval", "--policy", "cyclic,random", "--robots", "3", "--episodes", "2", "--seed",
+              "4", "--json", str(ev), env=env)
+    assert r.returncode == 0, r.stderr
+    assert "policy plugin 'broken' = 'nocolon' is not 'module:Class'; skipped" in r.stderr
+    r = swarm("run", "--headless", "--policy", "cyclic", "--robots", "3", "--episodes", "2",
+              "--seed", "4", "--json", str(run), env=env)
+    assert r.returncode == 0, r.stderr
+    batched = json.loads(ev.read_text())["results"][0]
+    swarmed = json.loads(run.read_text())
+    assert batched["policy"] == swarmed["policy"] == "cyclic"
+    for key in ("elratio_mean", "reward_mean", "collisions_mean"):
+        assert swarmed[key] == pytest.approx(batched[key])
+    assert np.array_equal(np.array(swarmed["actions"])[0, 0], [0, 1, 2])  # tick 0: robot i -> i
+    r = swarm("eval", "--policy", "cyclic", "--episodes", "1")  # not installed: unknown
+    assert r.returncode == 2 and "unknown policy 'cyclic'" in r.stderr

@@ -31,7 +31,7 @@ from swarm.cli.common import (
 )
 from swarm.common import atomic
 from swarm.common.flags import add_flags, given
-from swarm.common.report import provenance
+from swarm.common.report import csv_text, paired, provenance
 from world.config import ConfigError, WorldConfig, check_seed, from_dict, to_dict
 
 
@@ -42,7 +42,9 @@ class EvalConfig:
     policy: str = "nearest-frontier"
     """Registry name, a comma-separated list, or `all` (every baseline)."""
     checkpoint: str | None = None
-    """Checkpoint of a learned policy."""
+    """Checkpoint of the one learned policy evaluated."""
+    checkpoints: dict[str, str] = dataclasses.field(default_factory=dict)
+    """Checkpoint per learned policy (`--checkpoint NAME=FILE`), for several policies at once."""
     episodes: int = 1000
     """Episodes per policy (episode numbers 0 .. episodes-1 of the seed)."""
     seed: int = 0
@@ -55,9 +57,17 @@ class EvalConfig:
     """The tick's virtual length in seconds (message deadlines under faults, as `swarm run`)."""
     json: str | None = None
     """Write the results to this JSON file."""
+    episodes_csv: str | None = None
+    """Write every policy's per-episode metrics to this CSV file (paired analyses)."""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
+        if not isinstance(self.checkpoints, dict) or not all(
+                isinstance(k, str) and isinstance(v, str) for k, v in self.checkpoints.items()):
+            raise ConfigError("checkpoints must map policy names to file names")
+        if self.checkpoint is not None and self.checkpoints:
+            raise ConfigError("give --checkpoint FILE (one policy) or --checkpoint NAME=FILE, "
+                              "not both")
         if self.episodes < 1:
             raise ConfigError(f"episodes must be >= 1, got {self.episodes}")
         if self.batch < 1:
@@ -78,8 +88,17 @@ def eval_policies(world: WorldConfig, cfg: EvalConfig) -> list[tuple[str, Any]]:
 
     names = resolve_policies(cfg.policy)
     if cfg.checkpoint is not None and len(names) > 1:
-        raise ConfigError("--checkpoint needs a single --policy")
-    return [(n, build_policy(n, world, cfg.checkpoint)) for n in names]
+        raise ConfigError("--checkpoint FILE needs a single --policy; name each policy's "
+                          "checkpoint with --checkpoint NAME=FILE")
+    stray = sorted(set(cfg.checkpoints) - set(names))
+    if stray:
+        raise ConfigError(f"--checkpoint {stray[0]}=...: {stray[0]!r} is not among --policy")
+    return [(n, build_policy(n, world, checkpoint_of(cfg, n))) for n in names]
+
+
+def checkpoint_of(cfg: EvalConfig, name: str) -> str | None:
+    """The checkpoint given for policy `name` (None: the shipped one, if learned)."""
+    return cfg.checkpoints.get(name, cfg.checkpoint)
 
 
 def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
@@ -93,16 +112,35 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
     built = built if built is not None else eval_policies(world, cfg)
     names, policies = [n for n, _ in built], [p for _, p in built]
     progress = progress or NullProgress()
-    out = []
+    out, results = [], []
     for name, policy in zip(names, policies, strict=True):
         progress.start(f"eval {name}", cfg.episodes)
         res = evaluate(world, policy, cfg.seed, cfg.episodes, batch=cfg.batch, greedy=cfg.greedy,
                        on_progress=progress.advance, faults=faults, tick_s=cfg.tick_timeout)
+        results.append(res)
         out.append({**res.summary(world), "policy": name,
-                    "checkpoint": shown(effective_checkpoint(name, cfg.checkpoint)),
+                    "checkpoint": shown(effective_checkpoint(name, checkpoint_of(cfg, name))),
                     "decentralized": bool(policy.decentralized),
                     **({"faults": faults.describe()} if faults is not None else {})})
+        if len(out) > 1:  # the same episodes: each policy against the first, episode by episode
+            mean, se = paired(res.elratio, results[0].elratio)
+            out[-1]["elratio_paired"] = {"vs": names[0], "mean": mean, "se": se}
+    if cfg.episodes_csv:
+        write_episodes(cfg.episodes_csv, names, results)
     return out
+
+
+EPISODE_COLUMNS = ("elratio", "reward", "collisions", "block_collisions", "robot_collisions",
+                   "success", "repeat_ratio")
+
+
+def write_episodes(path: str, names: list[str], results: list[Any]) -> None:
+    """One row per (policy, episode): the per-episode metrics behind the summaries."""
+    rows = [{"policy": name, "episode": int(e),
+             **{k: getattr(res, k)[j].item() for k in EPISODE_COLUMNS}}
+            for name, res in zip(names, results, strict=True)
+            for j, e in enumerate(res.episodes)]
+    atomic.write_text(path, csv_text(rows))
 
 
 def _eval_faults(args: argparse.Namespace, tables: dict[str, Any], world: WorldConfig,
@@ -115,20 +153,38 @@ def _eval_faults(args: argparse.Namespace, tables: dict[str, Any], world: WorldC
     return plan_from_table(table, seed, world.n_robots) if table else None
 
 
+def _eval_checkpoints(given: list[str] | None) -> tuple[str | None, dict[str, str] | None]:
+    """`--checkpoint FILE` (one policy) or `--checkpoint NAME=FILE` (repeatable): a value whose
+    part before `=` names a policy is a pair, anything else a file."""
+    from policies import REGISTRY
+
+    if not given:
+        return None, None
+    pairs = [g for g in given if g.partition("=")[0] in REGISTRY]
+    files = [g for g in given if g not in pairs]
+    if len(files) > 1 or (files and pairs):
+        raise ConfigError("give one --checkpoint FILE (one policy) or --checkpoint NAME=FILE "
+                          "per learned policy")
+    return (files[0] if files else None), _checkpoint_pairs(pairs)
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from swarm.cli.console import eval_table
 
     tables = file_tables(args.config)
     world = world_config(args, tables)
     greedy = False if args.sample else None
+    single, pairs = _eval_checkpoints(args.checkpoint)
     cfg = merged(EvalConfig, tables.get("eval", {}),
-                 {"policy": args.policy, "checkpoint": args.checkpoint, "episodes": args.episodes,
-                  "seed": args.seed, "batch": args.batch, "greedy": greedy, "json": args.json,
-                  "tick_timeout": args.tick_timeout},
+                 {"policy": args.policy, "checkpoint": single, "checkpoints": pairs,
+                  "episodes": args.episodes, "seed": args.seed, "batch": args.batch,
+                  "greedy": greedy, "json": args.json, "tick_timeout": args.tick_timeout,
+                  "episodes_csv": args.episodes_csv},
                  "[eval]")
     faults = _eval_faults(args, tables, world, cfg.seed)
     built = eval_policies(world, cfg)  # every bad input fails before the progress bar
     output_file(cfg.json)
+    output_file(cfg.episodes_csv, "--episodes-csv")
     out, err = _consoles()
     with RichProgress(err) as progress:
         summaries = run_eval(world, cfg, progress, faults, built)
@@ -328,8 +384,12 @@ def add_parsers(sub: Any) -> None:
     p = sub.add_parser("eval", help="batched in-process evaluation of one or more policies",
                        description="Batched, in-process evaluation; prints a results table.")
     p.add_argument("--policy", help="policy name, comma list or 'all' (default nearest-frontier)")
-    p.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
+    p.add_argument("--checkpoint", action="append", metavar="FILE|NAME=FILE",
+                   help="checkpoint of the learned policy, or NAME=FILE per learned policy "
+                        "(repeatable; default: the shipped one)")
     p.add_argument("--episodes", type=int, metavar="K", help="episodes (default 1000)")
+    p.add_argument("--episodes-csv", metavar="FILE",
+                   help="also write every episode's metrics per policy (for paired analyses)")
     p.add_argument("--batch", type=int, metavar="B", help="episodes stepped at once (default 250)")
     p.add_argument("--sample", action="store_true", help="sample actions instead of greedy")
     p.add_argument("--tick-timeout", type=float, metavar="S",

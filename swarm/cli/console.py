@@ -11,6 +11,8 @@ from typing import Any
 from rich.table import Table
 from rich.text import Text
 
+from swarm.common.report import paired_cell
+
 
 def _ok(flag: bool | None) -> Text:
     if flag is None:
@@ -24,12 +26,16 @@ def _pm(mean: float, std: float, fmt: str = ".3f") -> str:
 
 def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation") -> Table:
     """One row per policy from `EvalResult.summary` dicts; * marks a reference planner that is
-    not decentralized (oracle, central)."""
+    not decentralized (oracle, central); with several policies, each one's elratio minus the
+    first's, paired over the same episodes."""
     table = Table(title=title, title_justify="left")
-    table.add_column("policy", style="bold")
-    for col in ("elratio", "reward/robot", "collisions", "block coll.", "success", "plan ms"):
-        table.add_column(col, justify="right")
+    table.add_column("policy", style="bold", no_wrap=True)  # (not `coordinated-fron…`)
+    vs = next((s["elratio_paired"]["vs"] for s in summaries if "elratio_paired" in s), None)
+    for col in ("elratio ± sd", "reward ± sd", "coll.", "block coll.", "success",
+                "plan ms", *(["Δ elratio ± se"] if vs else [])):
+        table.add_column(col, justify="right", no_wrap=True)
     for s in summaries:
+        pair = s.get("elratio_paired")
         table.add_row(
             str(s["policy"]) + ("" if s.get("decentralized", True) else " *"),
             _pm(s["elratio_mean"], s["elratio_std"]),
@@ -38,9 +44,14 @@ def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation"
             f"{s['block_collisions_mean']:.2f}",
             f"{100 * s['success_rate']:.1f}%",
             f"{s['planning_ms_per_decision']:.3f}",
+            *([paired_cell(pair["mean"], pair["se"]) if pair else "-"] if vs else []),
         )
+    notes = ([f"Δ: elratio minus {vs}'s on the same episodes (paired; se of the mean)"]
+             if vs else [])
     if any(not s.get("decentralized", True) for s in summaries):
-        table.caption = "* a reference planner, not decentralized (see README, Reference planners)"
+        notes.append("* a reference planner, not decentralized (see README, Reference planners)")
+    if notes:
+        table.caption = "\n".join(notes)
         table.caption_justify = "left"
     return table
 

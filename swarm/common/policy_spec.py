@@ -79,13 +79,10 @@ def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> 
         return cls(cfg)
     if not cls.learned:
         raise ConfigError(f"--checkpoint applies to learned policies only, not {name!r}")
-    if Path(checkpoint).is_dir():
-        raise ConfigError(f"checkpoint {checkpoint} is a directory, not a checkpoint file")
-    if not Path(checkpoint).is_file():
-        raise ConfigError(f"checkpoint not found: {checkpoint}")
-    from policies.checkpoint import CheckpointError
+    from policies.checkpoint import CheckpointError, check_exists
 
     try:
+        check_exists(Path(checkpoint))
         return cls(cfg, checkpoint=checkpoint)  # type: ignore[call-arg]
     except CheckpointError as exc:
         raise ConfigError(str(exc)) from None

@@ -21,7 +21,7 @@ import msgpack
 import numpy as np
 import zenoh
 
-from policies import CHAINED
+from policies import is_chained
 from swarm.learn.evaluate import EvalResult
 from swarm.net.direct import DirectTally
 from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control, plan_from_table
@@ -71,7 +71,7 @@ class WorldProcess:
         self.virtual = run.clock == "virtual"
         # virtual clock + chain: a tick also waits for every hidden-state message, so each one
         # is charged to its sender's bucket in order (swarm.net.channel), as in the evaluator
-        self.chained = self.virtual and run.policy in CHAINED and run.delivery == "radio"
+        self.chained = self.virtual and is_chained(run.policy) and run.delivery == "radio"
         # the radio's fast lane: on a tick with no link fault the bundles name each robot's
         # successors and the robots send them the message themselves (see the docstring)
         self.fast_lane = self.chained and fast_lane

@@ -22,6 +22,10 @@ REQUIRED = ("parameter", "values", "policies")  # what a sweep is; the rest has 
 _NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 
 
+SWEEPABLE = ("latency", "jitter", "loss", "bandwidth", "burst", "overflow", "compute", "partition")
+"""The `[faults]` keys an experiment may sweep (README, "Sweeps on the real swarm")."""
+
+
 @dataclass(frozen=True)
 class ExperimentConfig:
     """The `[experiment]` table."""
@@ -74,6 +78,11 @@ class ExperimentConfig:
                               f"policies {', '.join(self.policies)}")
         if self.compare and not self.kernel:
             raise ConfigError("[experiment] compare needs kernel = true")
+        if self.parameter not in SWEEPABLE:
+            raise ConfigError(f"[experiment] parameter must be a [faults] key: "
+                              f"{', '.join(SWEEPABLE)}; got {self.parameter!r}"
+                              + (" (a world setting: `swarm repro comm` sweeps the comm range)"
+                                 if self.parameter == "comm_range" else ""))
         for v in self.values:
             plan_from_table({self.parameter: v})  # a bad value or key fails before any run
             if self.kernel:

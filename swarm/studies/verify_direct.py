@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from policies import CHAINED
+from policies import is_chained
 from swarm.net.direct import COUNT_KEYS, KIND_KEYS, DirectLink, DirectTally, live_plan
 from swarm.net.faults import plan_from_table
 from swarm.net.messages import K_HIDDEN, K_TRAJ, BadMessage, Obs, Stamped, Traj
@@ -34,7 +34,7 @@ class DirectAudit:
 
     def __init__(self, cfg: WorldConfig, run: Any, table: dict[str, Any]) -> None:
         self.cfg, self.run = cfg, run
-        self.chained = run.policy in CHAINED
+        self.chained = is_chained(run.policy)
         plan = plan_from_table(table, run.seed, cfg.n_robots)
         self.links = [DirectLink(cfg, i, plan, run.tick_timeout) for i in range(cfg.n_robots)]
         # each robot's counts at the end of its last ticks, and where it vanished from the
