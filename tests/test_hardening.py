@@ -27,6 +27,8 @@ from swarm.net.messages import (
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
+    K_WEIGHTS,
+    SCHEMA,
     Action,
     Bundle,
     Hidden,
@@ -35,6 +37,7 @@ from swarm.net.messages import (
     pack_record,
 )
 from swarm.net.zconfig import ZenohOptions
+from world.core import METRIC_NAMES
 
 TINY = """[world]
 height = 10
@@ -142,7 +145,26 @@ def hostile_payloads(keys: Keys) -> list[tuple[str, bytes]]:
             (keys.worker_episodes, msgpack.packb([1, 12, 0, 0, 0, 1, {}, {}])),
             (keys.weights, Weights("commattn", 2**40, {}, {"x": np.full(3, np.nan, "<f4")})
              .pack()),
-            (keys.weights, b"\x00" * 5000)]
+            (keys.weights, b"\x00" * 5000),
+            # a shape whose numpy product wraps to 0, with an empty buffer (it killed robots)
+            (keys.weights, msgpack.packb([SCHEMA, K_WEIGHTS, "commattn", 10**6, {},
+                                          {"w": [[65536] * 4, b""]}])),
+            # a status the supervisor would have fired process faults and drawn 500 robots on
+            (keys.status, pack_record(K_STATUS, {
+                "ep": 0, "t": 1, "run_tick": 2**62, "pos": [[999, -5]] * 500,
+                "alive": [True] * 500, "elratio": 7.5, "block_coll": -3,
+                "timeouts": list(range(1000))})),
+            (keys.result, pack_record(K_RESULT, {"policy": "forged", "completed": 999,
+                                                 "elratio_mean": 1.0, "success_rate": 1.0})),
+            # episodes where no robot acted (the learner crashed on a batch of them)
+            *((keys.episode, EpisodeRecord(ep, np.zeros((30, 3), np.float32),
+                                           np.zeros((30, 3), bool),
+                                           {k: 0.0 for k in METRIC_NAMES}).pack())
+              for ep in (7, 8))]
+    for r in range(3):  # kept for ever by a robot: bundles and hidden states of far ticks
+        out += [(keys.inbox_hidden(r), Hidden(10**6, 1, 0, 1, bytes(256)).pack()),
+                (keys.inbox_hidden(r), Hidden(0, 29, 0, 1, bytes(256)).pack()),
+                (keys.inbox(r), Bundle(10**6, 1, r, []).pack())]
     return out
 
 
@@ -222,10 +244,14 @@ def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Pa
             while len(ticks) < 3 and time.monotonic() < deadline:  # every robot is acting
                 time.sleep(0.05)
             sub.undeclare()
+            token = session.liveliness().declare_token(keys.alive_robot(8))  # no such robot
             for _ in range(3):
                 for key, payload in hostile_payloads(keys):
                     session.put(key, payload)
+                for key in (keys.action(0), keys.obs(0), keys.status):  # over 4 MB: dropped
+                    session.put(key, bytes(5 << 20))
                 time.sleep(0.5)
+            token.undeclare()
             alive = run_pids(run_id)
             assert len(alive) >= 6, alive  # supervisor, world, learner, three robots
         assert proc.wait(timeout=180) == 0, proc.stderr.read().decode()[-2000:]
@@ -234,6 +260,9 @@ def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Pa
             proc.kill()
     res = json.loads((tmp_path / "r.json").read_text())
     assert res["completed"] == 6 and res["robot_crashes"] == 0 and res["robots_lost"] == 0
+    assert res["policy"] == "commattn" and sorted(res["robot_status"]) == ["0", "1", "2"]
+    assert res["messages"]["oversized"] == 3  # (and the robot's and supervisor's, counted too)
+    assert res["robot_status"]["0"]["oversized"] == 3
     assert res["messages"]["bad"] > 0  # the world refused forged trajectories, actions, control
     assert res["messages"]["bad_by_key"].get(keys.learner_status, 0) > 0  # and learner statuses
     assert res["train_sync"]["timeouts"] == 0

@@ -87,8 +87,10 @@ def test_wire_records_round_trip_into_the_trainers_rollout(memory: bool) -> None
         p.set_model(team_memory=memory)
     update(p1, torch.optim.Adam(p1.net.parameters(), lr=cfg.lr), roll, cfg)
     update(p2, torch.optim.Adam(p2.net.parameters(), lr=cfg.lr), back, cfg)
-    for k, v in p1.net.state_dict().items():
-        torch.testing.assert_close(p2.net.state_dict()[k], v, rtol=1e-4, atol=1e-6)
+    for k, v in p1.net.state_dict().items():  # (Adam divides by sqrt(v): a gradient near zero
+        # that differs in its last float bits, with another summation order under another
+        # thread count, moves a weight by up to ~lr; 1 of 15,360 did by 1.5e-5 in a full run)
+        torch.testing.assert_close(p2.net.state_dict()[k], v, rtol=1e-4, atol=3e-5)
     good = wire[0].pack()
     for bad in (b"\x00junk", good[:-9], RobotRollout(0, 7, []).pack()):
         with pytest.raises(BadMessage) as err:

@@ -85,7 +85,10 @@ def rollout_of(eps: list[EpisodeRollout], policy: LearnedPolicy,
 def join(cfg: WorldConfig, seed: int, world: EpisodeRecord,
          robots: dict[int, RobotRollout]) -> EpisodeRollout:
     """The swarm's records of one episode as an `EpisodeRollout`; BadMessage when incomplete
-    (a robot that acted sent no record, or a heard message is missing)."""
+    (a robot that acted sent no record, or a heard message is missing) or when no robot acted
+    (every robot down: nothing to learn from, and a batch of such episodes has no decision)."""
+    if not world.acted.any():
+        raise BadMessage(f"episode {world.ep}: no robot acted")
     ticks, n = world.reward.shape
     out = EpisodeRollout(
         ep=world.ep, seed=seed, version=0, pos=np.zeros((ticks, n, 2), np.int64),

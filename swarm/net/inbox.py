@@ -49,6 +49,13 @@ class Inbox:
         self.overflow = 0  # events dropped because the queue was full
         self._ents: list[Any] = []
 
+    @property
+    def dropped(self) -> dict[str, int]:
+        """What this inbox dropped before any reader saw it: payloads over `max_bytes`
+        (`oversized`) and events past the queue's bound (`overflow`); every process reports
+        them beside its own counters."""
+        return {"oversized": self.oversized, "overflow": self.overflow}
+
     def _offer(self, event: Event) -> None:
         if self.q.qsize() >= self.max_events:  # (callbacks race here: the bound is +-threads)
             self.overflow += 1

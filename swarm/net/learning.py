@@ -4,6 +4,7 @@ rollout workers' episodes), with the same conventions as swarm.net.messages: msg
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,11 +28,21 @@ from swarm.net.messages import (
 from world.config import WorldConfig
 from world.core import METRIC_NAMES
 
+MAX_ARRAY_BYTES = 64 << 20  # (a payload itself is at most 4 MB: swarm.net.inbox)
 
-def _array(v: Any, name: str, dtype: str, shape: tuple[int, ...]) -> np.ndarray:
-    """A fixed-size little-endian array from bytes (copied: the result is writable)."""
-    size = int(np.prod(shape)) * np.dtype(dtype).itemsize
-    return np.frombuffer(_bytes(v, name, size), dtype=dtype).reshape(shape).copy()
+
+def _array(v: Any, name: str, dtype: str, shape: tuple[int, ...],
+           finite: bool = False) -> np.ndarray:
+    """A fixed-size little-endian array from bytes (copied: the result is writable); the size
+    in Python integers (numpy's product of a hostile shape wraps, to 0 for [65536] * 4);
+    `finite`: NaN and infinities are refused."""
+    size = math.prod(shape) * np.dtype(dtype).itemsize
+    if size > MAX_ARRAY_BYTES:
+        raise BadMessage(f"{name}: shape {list(shape)} is {size} bytes, over {MAX_ARRAY_BYTES}")
+    out = np.frombuffer(_bytes(v, name, size), dtype=dtype).reshape(shape).copy()
+    if finite and not np.isfinite(out).all():
+        raise BadMessage(f"{name} is not finite (NaN or infinite values)")
+    return out
 
 
 def _bits(v: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -73,7 +84,7 @@ class Weights:
                     and isinstance(v[0], list) and all(isinstance(d, int) and 0 <= d < 2**20
                                                        for d in v[0])):
                 raise BadMessage(f"tensor {k!r} must be [shape, float32 bytes]")
-            tensors[k] = _array(v[1], f"tensor {k}", "<f4", tuple(v[0]))
+            tensors[k] = _array(v[1], f"tensor {k}", "<f4", tuple(v[0]), finite=True)
         return cls(policy, _int(version, "version", 0, BIG), model, tensors)
 
 
@@ -144,7 +155,7 @@ class EpisodeRecord:
         ep, t, reward, acted, metrics = _unpack(payload, K_EPISODE, 5)
         t = _int(t, "ticks", 1, cfg.horizon)
         n = cfg.n_robots
-        return cls(_int(ep, "ep", 0, BIG), _array(reward, "reward", "<f4", (t, n)),
+        return cls(_int(ep, "ep", 0, BIG), _array(reward, "reward", "<f4", (t, n), finite=True),
                    _bits(acted, "acted", (t, n)), _metrics(metrics))
 
 
@@ -232,7 +243,8 @@ class EpisodeRollout:
 
 # ------------------------------------------------------------------- the learner's status
 LSTATUS_COUNTS = ("version", "episodes", "updates", "pending", "ready", "stale_used",
-                  "stale_dropped", "incomplete", "bad", "worker_episodes", "rollout_bytes")
+                  "stale_dropped", "incomplete", "bad", "worker_episodes", "rollout_bytes",
+                  "late_records", "oversized", "overflow")
 ACCOUNTING = ("received", "trained", "pending", "stale_dropped", "incomplete", "rejected")
 MAX_COUNT = 2**62
 

@@ -385,3 +385,58 @@ def check_robot_status(rec: dict[str, Any], n_robots: int, horizon: int) -> dict
         raise BadMessage(f"attn weights sum to {total:.4f}, not 1")
     _int(rec.get("attn_t"), "attn_t", 0, horizon)
     return rec
+
+
+def _cells(v: Any, name: str, cfg: WorldConfig, most: int) -> None:
+    """A list of at most `most` [y, x] cells on the grid."""
+    if not isinstance(v, list) or len(v) > most:
+        raise BadMessage(f"{name} must be a list of at most {most} cells")
+    for c in v:
+        if not (isinstance(c, list) and len(c) == 2):
+            raise BadMessage(f"{name} holds {c!r}, not a [y, x] cell")
+        _int(c[0], f"{name} y", 0, cfg.height - 1)
+        _int(c[1], f"{name} x", 0, cfg.width - 1)
+
+
+def check_world_status(rec: dict[str, Any], cfg: WorldConfig, first_episode: int,
+                       episodes: int) -> dict[str, Any]:
+    """A world status record (swarm.procs.world.WorldProcess._status) with every field its
+    readers use in range: the supervisor (whose process faults fire on `run_tick`), the
+    dashboard, the replay. BadMessage (one line) otherwise; the reader drops and counts it."""
+    n = cfg.n_robots
+    _int(rec.get("ep"), "status ep", first_episode, first_episode + episodes - 1)
+    _int(rec.get("t"), "status t", 0, cfg.horizon)
+    _int(rec.get("run_tick", 0), "status run_tick", 0, episodes * (cfg.horizon + 1))
+    _cells(rec.get("pos"), "status pos", cfg, n)
+    alive = rec.get("alive")
+    if not isinstance(alive, list) or len(alive) != n or \
+            not all(isinstance(a, bool) for a in alive):
+        raise BadMessage(f"status alive must be {n} booleans")
+    _float(rec.get("elratio"), "status elratio", 0.0, 1.0)
+    for k in ("block_coll", "robot_coll", "bad", "late", "heard_links"):
+        _int(rec.get(k, 0), f"status {k}", 0, BIG)
+    _cells(rec.get("dyn", []), "status dyn", cfg, cfg.cells)
+    _cells(rec.get("static", []), "status static", cfg, cfg.cells)
+    timeouts = rec.get("timeouts", [])
+    if not isinstance(timeouts, list) or len(timeouts) > n:
+        raise BadMessage(f"status timeouts must be a list of at most {n} robots")
+    _ints(timeouts, "status timeouts", 0, n - 1)
+    _float(rec.get("vtime", 0.0), "status vtime", 0.0, 1e12)
+    if rec.get("clock", "virtual") not in ("virtual", "real"):
+        raise BadMessage("status clock must be virtual or real")
+    for k, most in (("faults", 64), ("radio", 64), ("links", 4 * n * n + 64)):
+        v = rec.get(k, [] if k == "faults" else {})
+        if not isinstance(v, list | dict) or len(v) > most:
+            raise BadMessage(f"status {k} must hold at most {most} entries")
+    return rec
+
+
+def check_world_result(rec: dict[str, Any], policy: str, episodes: int) -> dict[str, Any]:
+    """The world's result as the supervisor reports it: this run's policy, at most the episodes
+    asked for, figures in range (BadMessage otherwise: a forged result does not end a run)."""
+    if rec.get("policy") != policy:
+        raise BadMessage(f"a result of policy {rec.get('policy')!r}, not {policy!r}")
+    if _int(rec.get("completed"), "result completed", 0, episodes):  # (none: NaN means)
+        for k in ("elratio_mean", "success_rate"):
+            _float(rec.get(k), f"result {k}", 0.0, 1.0)
+    return rec

@@ -39,9 +39,12 @@ class RobotRow:
     errors: int = 0  # ticks it could not decide on (skipped)
     compute_ms: float = 0.0  # mean planning time per decision, waits excluded
     wait_ms: float = 0.0  # mean time per decision waiting for the bundle and the predecessor
+    stale: int = 0  # messages of a tick already past (or kept for one that passed)
+    oversized: int = 0  # payloads over the inbox's bound, dropped unread
+    overflow: int = 0  # events past the inbox queue's bound, dropped
 
     COUNTERS = ("msgs_in", "msgs_out", "bad", "missed", "version", "weights_bad",
-                "weights_late", "stalls", "rejoins", "errors")
+                "weights_late", "stalls", "rejoins", "errors", "stale", "oversized", "overflow")
 
     def counters(self) -> dict[str, int]:
         """What a run's result reports of this robot (`robot_status`)."""
@@ -148,6 +151,9 @@ class SwarmView:
         row.stalls = int(rec.get("stalls", 0))
         row.rejoins = int(rec.get("rejoins", 0))
         row.errors = int(rec.get("errors", 0))
+        row.stale = int(rec.get("stale", 0))
+        row.oversized = int(rec.get("oversized", 0))
+        row.overflow = int(rec.get("overflow", 0))
         row.compute_ms = float(rec.get("compute_ms", 0.0))
         row.wait_ms = float(rec.get("wait_ms", 0.0))
         if isinstance(rec.get("attn"), list):  # range-checked by messages.check_robot_status

@@ -131,6 +131,7 @@ class Learner:
         self.curve: list[float] = []  # the dashboard's sparkline: elratio per update
         self.t0 = time.monotonic()
         self._last_status = 0.0
+        self.inbox: Inbox | None = None  # (its drops go in the status)
         self.last_row: dict[str, Any] = {}
 
     def open_out(self) -> None:
@@ -163,7 +164,8 @@ class Learner:
         k, s = self.keys, session
         self.weights_pub = publisher(s, k.weights)
         self.status_pub = publisher(s, k.learner_status)
-        return (Inbox(s).subscribe(k.rollout("*"), "robot").subscribe(k.episode, "world")
+        self.inbox = Inbox(s)
+        return (self.inbox.subscribe(k.rollout("*"), "robot").subscribe(k.episode, "world")
                 .subscribe(k.worker_episodes, "worker")
                 .queryable(k.weights, lambda: self.weights_payload)
                 .queryable(k.learner_config, self.record)
@@ -189,14 +191,18 @@ class Learner:
                 rr = RobotRollout.unpack(payload, self.cfg)
                 if Keys.robot_of(key) != rr.robot:
                     raise BadMessage(f"robot id {rr.robot} does not match key")
-                self.c.robot_records += 1
                 slot = self._slot(rr.ep)
+                if slot is not None and rr.robot in slot["robots"]:  # the first one stands
+                    raise BadMessage(f"a second record of robot {rr.robot}, episode {rr.ep}")
+                self.c.robot_records += 1
                 if slot is not None:
                     slot["robots"][rr.robot] = rr
             elif kind == "world":
                 wr = EpisodeRecord.unpack(payload, self.cfg)
-                self.c.world_records += 1
                 slot = self._slot(wr.ep)
+                if slot is not None and "world" in slot:  # the first one stands
+                    raise BadMessage(f"a second world record of episode {wr.ep}")
+                self.c.world_records += 1
                 if slot is not None:
                     slot["world"], slot["t"] = wr, time.monotonic()
             else:
@@ -343,6 +349,8 @@ class Learner:
                "pending": len(self.pending), "ready": len(self.ready),
                "stale_used": self.c.stale_used, "stale_dropped": self.c.stale_dropped,
                "incomplete": self.c.incomplete, "bad": self.c.bad,
+               "late_records": self.c.late_records,
+               **(self.inbox.dropped if self.inbox is not None else {}),
                "accounting": self.accounting(),
                # what a lockstep world (swarm.net.learning.LearnerGate) waits for
                "last_closed": self.last_closed,

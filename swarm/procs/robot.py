@@ -89,10 +89,11 @@ class RobotProcess:
         self._watch = threading.Thread(target=self._stall_watch, daemon=True)
         self._watch.start()
         self.ep = -1
+        self._last_obs: tuple[int, int, int, int] | None = None  # (ep, t, y, x) acted on last
         self.visited = np.zeros(cfg.cells, dtype=bool)
         self.recent: list[int] = []
         self._bundles: dict[tuple[int, int], Bundle] = {}
-        self._hidden: dict[tuple[int, int], Hidden] = {}
+        self._hidden: dict[tuple[int, int, int], Hidden] = {}
         self.traj_pub = publisher(session, self.keys.traj(robot))
         self.act_pub = publisher(session, self.keys.action(robot))
         self.hid_pub = publisher(session, self.keys.hidden(robot), express=True)
@@ -167,20 +168,57 @@ class RobotProcess:
                 continue
             try:
                 if kind == "obs":
-                    msg: Any = Obs.unpack(payload or b"", self.cfg)
+                    msg: Any = self._check_obs(Obs.unpack(payload or b"", self.cfg))
                 elif kind == "bundle":
                     b = Bundle.unpack(payload or b"", self.cfg)
                     if b.robot != self.robot:
                         raise BadMessage(f"addressed to robot {b.robot}")
+                    self._check_tick(b.ep, b.t)  # (before its messages are unpacked)
                     msg = Heard(b.ep, b.t, b.robot, self.heard(b), b.succ)
                 else:
                     msg = Hidden.unpack(payload or b"", self.cfg)
                 if kind != "hidden" and msg.robot != self.robot:
                     raise BadMessage(f"addressed to robot {msg.robot}")
+                if kind != "obs":
+                    self._check_tick(msg.ep, msg.t)
             except BadMessage as exc:
                 self._bad(key, str(exc))
                 continue
             return (kind, msg)
+
+    def _check_obs(self, obs: Obs) -> Obs:
+        """An observation of this run's episodes, after the last one acted on, and (in the same
+        episode) no farther from its position than one move a tick (BadMessage otherwise)."""
+        self._check_tick(obs.ep, obs.t, ahead=None)
+        last = self._last_obs
+        if last is not None and (obs.ep, obs.t) <= last[:2]:
+            raise BadMessage(f"observation of ep {obs.ep} tick {obs.t} after tick {last[1]} of "
+                             f"ep {last[0]}")
+        if last is not None and obs.ep == last[0] and \
+                max(abs(obs.y - last[2]), abs(obs.x - last[3])) > obs.t - last[1]:
+            raise BadMessage(f"position ({obs.y}, {obs.x}) out of reach of ({last[2]}, "
+                             f"{last[3]}) in {obs.t - last[1]} tick(s)")
+        self._last_obs = (obs.ep, obs.t, obs.y, obs.x)
+        for store in (self._bundles, self._hidden):  # what was kept for a tick now past
+            for key in [k for k in store if k[:2] < (obs.ep, obs.t)]:
+                del store[key]  # type: ignore[attr-defined]
+                self.c.stale += 1
+        return obs
+
+    def _check_tick(self, ep: int, t: int, ahead: int | None = 1) -> None:
+        """A tick of this run's episodes and horizon and, with `ahead`, at most that many ticks
+        past the observation acted on last (a bundle or hidden state is kept until its tick:
+        one far ahead would be kept for ever)."""
+        run = self.run_cfg
+        if not run.first_episode <= ep < run.first_episode + run.episodes:
+            raise BadMessage(f"episode {ep} is not one of this run's")
+        if t > self.cfg.horizon:
+            raise BadMessage(f"tick {t} past the horizon {self.cfg.horizon}")
+        last = self._last_obs
+        if ahead is not None and last is not None and \
+                (ep - last[0]) * (self.cfg.horizon + 1) + t - last[1] > ahead:
+            raise BadMessage(f"ep {ep} tick {t} is ahead of the observed ep {last[0]} tick "
+                             f"{last[1]}")
 
     def _wait(self, kind: str, ep: int, t: int, sender: int | None, deadline: float) -> Any:
         """Wait for a bundle/hidden of tick (ep, t), keeping early ones and dropping stale ones."""
@@ -202,11 +240,18 @@ class RobotProcess:
                 self._pending_obs = msg
                 return None
             if k in ("bundle", "hidden"):
-                key = (msg.ep, msg.t) if k == "bundle" else (msg.ep, msg.t, msg.robot)
-                if (msg.ep, msg.t) >= (ep, t):
-                    (self._bundles if k == "bundle" else self._hidden)[key] = msg  # type: ignore
-                else:
-                    self.c.stale += 1
+                self._keep(k, msg, ep, t)
+
+    def _keep(self, kind: str, msg: Any, ep: int, t: int) -> None:
+        """A bundle or hidden state that is not the one awaited: kept for its tick if that is
+        not past (ep, t) (`_check_tick` bounds how far ahead), else counted stale."""
+        if (msg.ep, msg.t) < (ep, t):
+            self.c.stale += 1
+            return
+        if kind == "bundle":
+            self._bundles[(msg.ep, msg.t)] = msg
+        else:
+            self._hidden[(msg.ep, msg.t, msg.robot)] = msg  # type: ignore[index]
 
     def offer_weights(self, payload: bytes, key: str) -> None:
         """Keep a newer weights version for the next episode boundary; reject bad ones."""
@@ -216,7 +261,7 @@ class RobotProcess:
         try:
             w = Weights.unpack(payload)
             check_weights(self.policy, w)  # type: ignore[arg-type]
-        except BadMessage as exc:
+        except (BadMessage, ValueError) as exc:  # (ValueError: numpy's, should a check miss)
             self.c.weights_bad += 1
             log.warning("robot %d rejected weights on %s: %s", self.robot, key, exc)
             self.status()  # visible at once on the dashboard
@@ -265,6 +310,8 @@ class RobotProcess:
         cfg = self.cfg
         trajs = Traj.unpack_many(bundle.trajs, cfg, bundle.ep, bundle.t)
         ids = [tr.robot for tr in trajs]
+        if self.robot not in ids:  # (first: an empty bundle failed numpy's broadcast below)
+            raise BadMessage("bundle without the robot's own message")
         bits = [tr.visited for tr in trajs]
         patches = [tr.patch for tr in trajs]
         m.present[0, ids] = True
@@ -277,8 +324,6 @@ class RobotProcess:
             m.visited[0, ids] = np.unpackbits(packed, axis=1, count=cfg.cells).astype(bool)
             m.patch[0, ids] = np.frombuffer(b"".join(patches), dtype=np.uint8).reshape(
                 len(ids), cfg.vision, cfg.vision)
-        if not m.present[0, self.robot]:
-            raise BadMessage("bundle without the robot's own message")
         return m
 
     def on_obs(self, obs: Obs) -> None:
@@ -424,7 +469,8 @@ class RobotProcess:
                "rollouts_lost": self.c.rollouts_lost,
                "stalls": self.c.stalls, "rejoins": self.c.rejoins, "errors": self.c.errors,
                "compute_ms": self.c.compute_ms / max(self.c.decisions, 1),
-               "wait_ms": self.c.wait_ms / max(self.c.decisions, 1)}
+               "wait_ms": self.c.wait_ms / max(self.c.decisions, 1),
+               **(self.inbox.dropped if self.inbox is not None else {})}
         if self.attn is not None:
             rec["attn_t"], rec["attn"] = self.attn
         self.status_pub.put(pack_record(K_RSTATUS, rec))
@@ -458,6 +504,9 @@ class RobotProcess:
                         break
                     continue
                 kind, msg = item
+                if kind in ("bundle", "hidden"):  # between decisions: early, or too late
+                    last = self._last_obs or (-1, -1)
+                    self._keep(kind, msg, last[0], last[1] + 1)
                 while kind == "obs" and msg is not None:
                     self.on_obs(msg)  # (may itself see the world's token go or come back)
                     msg, self._pending_obs = self._pending_obs, None

@@ -71,7 +71,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
                             if w.version > version:
                                 adopt(policy, w)
                                 version = w.version
-                        except BadMessage as exc:
+                        except (BadMessage, ValueError) as exc:  # (numpy's, should a check miss)
                             bad += 1
                             log.warning("worker %d rejected weights: %s", worker_id, exc)
                 if version < 0:

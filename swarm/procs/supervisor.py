@@ -53,6 +53,8 @@ from swarm.net.messages import (
     K_RSTATUS,
     K_STATUS,
     check_robot_status,
+    check_world_result,
+    check_world_status,
     pack_record,
     unpack_record,
 )
@@ -197,7 +199,8 @@ class Supervisor:
         v = self.view
         try:
             if kind == "status":
-                rec = unpack_record(payload or b"", K_STATUS)
+                rec = check_world_status(unpack_record(payload or b"", K_STATUS), self.cfg,
+                                         self.run_cfg.first_episode, self.run_cfg.episodes)
                 v.apply_status(rec)
                 self.run_tick = max(self.run_tick, int(rec.get("run_tick", 0)))
                 while self.process_faults and self.process_faults[0].tick <= self.run_tick:
@@ -208,7 +211,8 @@ class Supervisor:
                 v.apply_robot(check_robot_status(unpack_record(payload or b"", K_RSTATUS),
                                                  self.cfg.n_robots, self.cfg.horizon))
             elif kind == "result":
-                self.result = unpack_record(payload or b"", K_RESULT)
+                self.result = check_world_result(unpack_record(payload or b"", K_RESULT),
+                                                 self.run_cfg.policy, self.run_cfg.episodes)
                 v.apply_result(self.result)
             elif kind == "lstatus":
                 self.learner_status = check_learner_status(unpack_record(payload or b"",
@@ -228,6 +232,8 @@ class Supervisor:
             elif kind in ("alive:live", "alive:dead"):
                 live, parts = kind == "alive:live", key.split("/")
                 if parts[-2] == "robot" and parts[-1].isdigit():
+                    if not int(parts[-1]) < self.cfg.n_robots:  # (a token of no robot here)
+                        raise ValueError(f"liveliness token of robot {parts[-1]}, not in the team")
                     v.set_alive(int(parts[-1]), live)
                 elif parts[-1] == "recorder":
                     self.recorder_alive = live
@@ -346,6 +352,8 @@ class Supervisor:
         if self.child_errors:
             res["child_errors"] = dict(self.child_errors)
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
+        if self.inbox is not None:  # and what its inbox dropped unread
+            res["supervisor_dropped"] = self.inbox.dropped
         res["result_message_lost"] = lost
         res["robot_restarts"] = self.restarts
         if self.recorder is not None:

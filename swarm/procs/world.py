@@ -466,7 +466,8 @@ class WorldProcess:
             "ticks": ticks, "ticks_per_s": ticks / wall if wall > 0 else 0.0,
             "clock": rc.clock, "virtual_s": ticks * rc.tick_timeout if rc.clock == "virtual"
             else None, "delivery": rc.delivery,
-            "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad)},
+            "messages": {**messages, "bad": sum(self.bad.values()), "bad_by_key": dict(self.bad),
+                         **(self.inbox.dropped if self.inbox is not None else {})},
             "faults": self.radio.plan.to_record(), "fault_changes": self.faults.summary(),
             "timeouts": self.timeouts, "fast_lane_ticks": self.fast_lane_ticks,
             "robots_lost": int((self.ever_alive & ~self.alive).sum()),

@@ -30,6 +30,7 @@ from swarm.net.messages import (
     K_STATUS,
     BadMessage,
     check_robot_status,
+    check_world_status,
     unpack_record,
 )
 from swarm.net.record.recording import JSON_SUFFIX, RESULT, RUN_RECORD, RawRecording, RecordingError
@@ -133,7 +134,9 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
     """One recorded message onto the view (records validated as the supervisor does)."""
     try:
         if m.kind == "status":
-            st = unpack_record(m.payload, K_STATUS)
+            w, r = rec.record.world, rec.record.run
+            st = check_world_status(unpack_record(m.payload, K_STATUS), w, r.first_episode,
+                                    r.episodes)
             v.apply_status(st, now=m.wall_ns / 1e9)
             for i, alive in enumerate(st.get("alive", [])[: v.n_robots]):
                 v.robots[i].alive = bool(alive)
