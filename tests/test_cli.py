@@ -122,6 +122,7 @@ def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) 
     ["repro", "fig99", "--out", "{tmp}/o"],  # fig9 became an item (issue 16)
     ["repro", "fig5", "--out", "{tmp}/o", "--add-every", "40", "--policies", "random"],
     ["eval", "--policy", "random", "--static", "--add-every", "5"],
+    ["eval", "--policy", "random", "--bandwidth", "0", "--overflow", "drop"],  # "no cap"
     ["eval", "--policy", "commattn,commnet", "--checkpoint", "a.pt"],  # whose is it?
     ["eval", "--policy", "commattn", "--checkpoint", "a.pt", "--checkpoint", "commattn=b.pt"],
     ["eval", "--policy", "commattn", "--checkpoint", "commnet=checkpoints/commnet.pt"],

@@ -4,6 +4,8 @@ equal to the batched evaluator tick by tick, whatever the host's load."""
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -99,13 +101,55 @@ def test_two_virtual_runs_agree_while_the_cpu_is_loaded(tmp_path: Path) -> None:
 
 @pytest.mark.procs
 def test_a_stopped_robot_is_caught_by_the_watchdog(tmp_path: Path) -> None:
-    res = _run(tmp_path, "wdog", "nearest-frontier", {"latency": "10ms"}, "--hang", "2@4",
-               "--watchdog", "0.5")
-    # robot 2 misses its ticks, counted until its lease runs out (then it is lost); the others
-    # do not (they used to time out with it: tests/test_hardening.py, hung robot)
+    """A robot that stops unplanned (SIGSTOP from outside, no fault plan knows it) misses its
+    ticks, counted as timeouts until its lease runs out (then it is lost); the others do not
+    (they used to time out with it: tests/test_hardening.py, hung robot)."""
+    out = tmp_path / "r.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "4", "--policy",
+         "nearest-frontier", "--episodes", "2", "--seed", "3", "--run-id", "wdog", "--pace",
+         "20", "--watchdog", "0.5", "--json", str(out)], cwd=ROOT, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # a few ticks in, stop robot 2 as a hung process would be
+            if line.startswith('{"status"') and json.loads(line)["status"]["t"] >= 4:
+                break
+        robot = next(p for p in Path("/proc").iterdir() if p.name.isdigit() and
+                     b"wdog" in (p / "cmdline").read_bytes() and
+                     b"robot\0--id\0" + b"2" in (p / "cmdline").read_bytes())
+        os.kill(int(robot.name), signal.SIGSTOP)
+        proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    res = json.loads(out.read_text())
     assert res["completed"] == 2 and res["timeouts"] >= 1
     acts = np.array(res["actions"])
     assert (acts[:, 10:, 2] == 0).all() and (acts[:, 10:, :2] != 0).any()
+
+
+@pytest.mark.procs
+def test_process_faults_land_on_their_tick_and_a_run_repeats_itself(tmp_path: Path) -> None:
+    """Virtual clock: a crash, a hang and their restarts take effect at exactly their run tick
+    (the world holds the robot down from it and waits for a restarted one to come up), so two
+    runs are equal action for action; a restart used to come back 40-90 ticks late, or never,
+    and a hang sometimes cost a watchdog's wait (UA pass)."""
+    runs = []
+    for k in range(2):
+        res = _run(tmp_path, f"proc{k}", "nearest-frontier", {}, "--crash", "1@10",
+                   "--restart", "1@15", "--hang", "2@20", "--restart", "2@24", "--crash",
+                   "3@0")
+        runs.append(res)
+        acts = np.array(res["actions"])  # [episode, tick, robot]
+        assert (acts[0, 10:15, 1] == 0).all() and acts[0, 15:, 1].any()  # down, then back
+        assert (acts[0, 20:24, 2] == 0).all() and acts[0, 24:, 2].any()
+        assert not acts[..., 3].any()  # down from tick 0: it never acted
+        assert res["timeouts"] == 0 and res["robot_restarts"] == 2
+        assert res["process_faults"] == ["crash 3@0", "crash 1@10", "restart 1@15",
+                                         "hang 2@20", "restart 2@24"]
+    assert runs[0]["actions"] == runs[1]["actions"]
+    assert runs[0]["elratio_mean"] == runs[1]["elratio_mean"]
 
 
 @pytest.mark.procs

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.bench.train import TrainBenchConfig
+from swarm.cli.checks import eval_checkpoints
 from swarm.cli.common import (
     RichProgress,
     _checkpoint_pairs,
@@ -76,8 +77,6 @@ class EvalConfig:
             raise ConfigError(f"tick_timeout must lie in [0.001, 3600], got {self.tick_timeout}")
 
 
-
-
 # ---------------------------------------------------------------------------- subcommands
 
 
@@ -125,22 +124,10 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
         if len(out) > 1:  # the same episodes: each policy against the first, episode by episode
             mean, se = paired(res.elratio, results[0].elratio)
             out[-1]["elratio_paired"] = {"vs": names[0], "mean": mean, "se": se}
-    if cfg.episodes_csv:
-        write_episodes(cfg.episodes_csv, names, results)
+    if cfg.episodes_csv:  # every (policy, episode) row behind the summaries
+        atomic.write_text(cfg.episodes_csv, csv_text([
+            row for name, res in zip(names, results, strict=True) for row in res.rows(name)]))
     return out
-
-
-EPISODE_COLUMNS = ("elratio", "reward", "collisions", "block_collisions", "robot_collisions",
-                   "success", "repeat_ratio")
-
-
-def write_episodes(path: str, names: list[str], results: list[Any]) -> None:
-    """One row per (policy, episode): the per-episode metrics behind the summaries."""
-    rows = [{"policy": name, "episode": int(e),
-             **{k: getattr(res, k)[j].item() for k in EPISODE_COLUMNS}}
-            for name, res in zip(names, results, strict=True)
-            for j, e in enumerate(res.episodes)]
-    atomic.write_text(path, csv_text(rows))
 
 
 def _eval_faults(args: argparse.Namespace, tables: dict[str, Any], world: WorldConfig,
@@ -153,28 +140,13 @@ def _eval_faults(args: argparse.Namespace, tables: dict[str, Any], world: WorldC
     return plan_from_table(table, seed, world.n_robots) if table else None
 
 
-def _eval_checkpoints(given: list[str] | None) -> tuple[str | None, dict[str, str] | None]:
-    """`--checkpoint FILE` (one policy) or `--checkpoint NAME=FILE` (repeatable): a value whose
-    part before `=` names a policy is a pair, anything else a file."""
-    from policies import REGISTRY
-
-    if not given:
-        return None, None
-    pairs = [g for g in given if g.partition("=")[0] in REGISTRY]
-    files = [g for g in given if g not in pairs]
-    if len(files) > 1 or (files and pairs):
-        raise ConfigError("give one --checkpoint FILE (one policy) or --checkpoint NAME=FILE "
-                          "per learned policy")
-    return (files[0] if files else None), _checkpoint_pairs(pairs)
-
-
 def cmd_eval(args: argparse.Namespace) -> int:
     from swarm.cli.console import eval_table
 
     tables = file_tables(args.config)
     world = world_config(args, tables)
     greedy = False if args.sample else None
-    single, pairs = _eval_checkpoints(args.checkpoint)
+    single, pairs = eval_checkpoints(args.checkpoint)
     cfg = merged(EvalConfig, tables.get("eval", {}),
                  {"policy": args.policy, "checkpoint": single, "checkpoints": pairs,
                   "episodes": args.episodes, "seed": args.seed, "batch": args.batch,

@@ -8,6 +8,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from swarm.cli.common import _checkpoint_pairs
 from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig
 
@@ -101,3 +102,18 @@ def status_tick(payload: bytes) -> int:
     except BadMessage:
         return -1
     return tick if type(tick) is int and 0 <= tick < 2**40 else -1
+
+
+def eval_checkpoints(given: list[str] | None) -> tuple[str | None, dict[str, str] | None]:
+    """`--checkpoint FILE` (one policy) or `--checkpoint NAME=FILE` (repeatable): a value whose
+    part before `=` names a policy is a pair, anything else a file."""
+    from policies import REGISTRY
+
+    if not given:
+        return None, None
+    pairs = [g for g in given if g.partition("=")[0] in REGISTRY]
+    files = [g for g in given if g not in pairs]
+    if len(files) > 1 or (files and pairs):
+        raise ConfigError("give one --checkpoint FILE (one policy) or --checkpoint NAME=FILE "
+                          "per learned policy")
+    return (files[0] if files else None), _checkpoint_pairs(pairs)

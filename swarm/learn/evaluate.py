@@ -110,6 +110,12 @@ class EvalResult:
                    **{k: getattr(m, k) for k in core.METRIC_NAMES},
                    elratio_curve=np.concatenate(curves), **timing)
 
+    def rows(self, policy: str) -> list[dict[str, object]]:
+        """One row per episode: its number and metrics (`swarm eval --episodes-csv`)."""
+        return [{"policy": policy, "episode": int(e),
+                 **{k: getattr(self, k)[j].item() for k in core.METRIC_NAMES}}
+                for j, e in enumerate(self.episodes)]
+
     @property
     def planning_ms_per_decision(self) -> float:
         return 1e3 * self.planning_s / max(self.decisions, 1)

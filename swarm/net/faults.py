@@ -260,6 +260,9 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
             raise ConfigError(f"bad loss {d['loss']!r}") from None
     if "bandwidth" in d:
         ch["bandwidth"] = parse_rate(d["bandwidth"])
+        if ch["bandwidth"] == 0:  # (it meant "no cap": a user asking for nothing got everything)
+            raise ConfigError(f"bad bandwidth {d['bandwidth']!r}: a cap must be above 0 B/s "
+                              "(for no cap, leave it out)")
     if "burst" in d:
         ch["burst"] = float(d["burst"])
     if "overflow" in d:

@@ -17,6 +17,7 @@ import msgpack
 import numpy as np
 
 from world.config import WorldConfig
+from world.decentral import TrajMessages
 
 SCHEMA = 1
 (K_OBS, K_TRAJ, K_BUNDLE, K_HIDDEN, K_ACTION, K_STATUS, K_RSTATUS, K_RESULT, K_CONTROL,
@@ -440,3 +441,26 @@ def check_world_result(rec: dict[str, Any], policy: str, episodes: int) -> dict[
         for k in ("elratio_mean", "success_rate"):
             _float(rec.get(k), f"result {k}", 0.0, 1.0)
     return rec
+
+
+def heard_messages(cfg: WorldConfig, robot: int, bundle: Bundle) -> TrajMessages:
+    """Robot `robot`'s bundle as its policy's input, [1, N, ...]; BadMessage unless every one is
+    a valid trajectory message of the bundle's tick, from distinct senders, its own among them
+    (the radio always hands a robot its own message back)."""
+    m = TrajMessages.empty(cfg)
+    trajs = Traj.unpack_many(bundle.trajs, cfg, bundle.ep, bundle.t)
+    ids = [tr.robot for tr in trajs]
+    if robot not in ids:  # (first: an empty bundle failed numpy's broadcast below)
+        raise BadMessage("bundle without the robot's own message")
+    m.present[0, ids] = True
+    m.pos[0, ids] = [(tr.y, tr.x) for tr in trajs]
+    for tr in trajs:
+        if tr.recent:
+            m.recent[0, tr.robot, cfg.recent_len - len(tr.recent):] = tr.recent
+    # every bitmap and patch in one call each (a bundle holds tens of messages)
+    packed = np.frombuffer(b"".join(tr.visited for tr in trajs), dtype=np.uint8)
+    m.visited[0, ids] = np.unpackbits(packed.reshape(len(ids), -1), axis=1,
+                                      count=cfg.cells).astype(bool)
+    m.patch[0, ids] = np.frombuffer(b"".join(tr.patch for tr in trajs), dtype=np.uint8).reshape(
+        len(ids), cfg.vision, cfg.vision)
+    return m

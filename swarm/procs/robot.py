@@ -32,12 +32,13 @@ from swarm.net.messages import (
     Hidden,
     Obs,
     Traj,
+    heard_messages,
     pack_record,
     unpack_record,
 )
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.robot_direct import Heard, with_delivery
-from swarm.procs.robot_status import RobotCounters, attention_of
+from swarm.procs.robot_status import RobotCounters, TickGuard, attention_of
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
 from world.decentral import TrajMessages, robot_view
@@ -89,7 +90,7 @@ class RobotProcess:
         self._watch = threading.Thread(target=self._stall_watch, daemon=True)
         self._watch.start()
         self.ep = -1
-        self._last_obs: tuple[int, int, int, int] | None = None  # (ep, t, y, x) acted on last
+        self.ticks = TickGuard(cfg.horizon, run.first_episode, run.episodes)
         self.visited = np.zeros(cfg.cells, dtype=bool)
         self.recent: list[int] = []
         self._bundles: dict[tuple[int, int], Bundle] = {}
@@ -173,52 +174,27 @@ class RobotProcess:
                     b = Bundle.unpack(payload or b"", self.cfg)
                     if b.robot != self.robot:
                         raise BadMessage(f"addressed to robot {b.robot}")
-                    self._check_tick(b.ep, b.t)  # (before its messages are unpacked)
+                    self.ticks.tick(b.ep, b.t)  # (before its messages are unpacked)
                     msg = Heard(b.ep, b.t, b.robot, self.heard(b), b.succ)
                 else:
                     msg = Hidden.unpack(payload or b"", self.cfg)
                 if kind != "hidden" and msg.robot != self.robot:
                     raise BadMessage(f"addressed to robot {msg.robot}")
                 if kind != "obs":
-                    self._check_tick(msg.ep, msg.t)
+                    self.ticks.tick(msg.ep, msg.t)
             except BadMessage as exc:
                 self._bad(key, str(exc))
                 continue
             return (kind, msg)
 
     def _check_obs(self, obs: Obs) -> Obs:
-        """An observation of this run's episodes, after the last one acted on, and (in the same
-        episode) no farther from its position than one move a tick (BadMessage otherwise)."""
-        self._check_tick(obs.ep, obs.t, ahead=None)
-        last = self._last_obs
-        if last is not None and (obs.ep, obs.t) <= last[:2]:
-            raise BadMessage(f"observation of ep {obs.ep} tick {obs.t} after tick {last[1]} of "
-                             f"ep {last[0]}")
-        if last is not None and obs.ep == last[0] and \
-                max(abs(obs.y - last[2]), abs(obs.x - last[3])) > obs.t - last[1]:
-            raise BadMessage(f"position ({obs.y}, {obs.x}) out of reach of ({last[2]}, "
-                             f"{last[3]}) in {obs.t - last[1]} tick(s)")
-        self._last_obs = (obs.ep, obs.t, obs.y, obs.x)
-        for store in (self._bundles, self._hidden):  # what was kept for a tick now past
+        """`TickGuard.obs`, then what was kept for a tick now past is dropped as stale."""
+        self.ticks.obs(obs.ep, obs.t, obs.y, obs.x)
+        for store in (self._bundles, self._hidden):
             for key in [k for k in store if k[:2] < (obs.ep, obs.t)]:
                 del store[key]  # type: ignore[attr-defined]
                 self.c.stale += 1
         return obs
-
-    def _check_tick(self, ep: int, t: int, ahead: int | None = 1) -> None:
-        """A tick of this run's episodes and horizon and, with `ahead`, at most that many ticks
-        past the observation acted on last (a bundle or hidden state is kept until its tick:
-        one far ahead would be kept for ever)."""
-        run = self.run_cfg
-        if not run.first_episode <= ep < run.first_episode + run.episodes:
-            raise BadMessage(f"episode {ep} is not one of this run's")
-        if t > self.cfg.horizon:
-            raise BadMessage(f"tick {t} past the horizon {self.cfg.horizon}")
-        last = self._last_obs
-        if ahead is not None and last is not None and \
-                (ep - last[0]) * (self.cfg.horizon + 1) + t - last[1] > ahead:
-            raise BadMessage(f"ep {ep} tick {t} is ahead of the observed ep {last[0]} tick "
-                             f"{last[1]}")
 
     def _wait(self, kind: str, ep: int, t: int, sender: int | None, deadline: float) -> Any:
         """Wait for a bundle/hidden of tick (ep, t), keeping early ones and dropping stale ones."""
@@ -244,7 +220,7 @@ class RobotProcess:
 
     def _keep(self, kind: str, msg: Any, ep: int, t: int) -> None:
         """A bundle or hidden state that is not the one awaited: kept for its tick if that is
-        not past (ep, t) (`_check_tick` bounds how far ahead), else counted stale."""
+        not past (ep, t) (`TickGuard.tick` bounds how far ahead), else counted stale."""
         if (msg.ep, msg.t) < (ep, t):
             self.c.stale += 1
             return
@@ -303,28 +279,8 @@ class RobotProcess:
                 self.offer_weights(reply.ok.payload.to_bytes(), self.keys.weights)
 
     def heard(self, bundle: Bundle) -> TrajMessages:
-        """The bundle's messages as the policy's input; BadMessage unless every one is a valid
-        trajectory message of the bundle's tick, from distinct senders, its own among them (the
-        radio always hands a robot its own message back)."""
-        m = TrajMessages.empty(self.cfg)
-        cfg = self.cfg
-        trajs = Traj.unpack_many(bundle.trajs, cfg, bundle.ep, bundle.t)
-        ids = [tr.robot for tr in trajs]
-        if self.robot not in ids:  # (first: an empty bundle failed numpy's broadcast below)
-            raise BadMessage("bundle without the robot's own message")
-        bits = [tr.visited for tr in trajs]
-        patches = [tr.patch for tr in trajs]
-        m.present[0, ids] = True
-        m.pos[0, ids] = [(tr.y, tr.x) for tr in trajs]
-        for tr in trajs:
-            if tr.recent:
-                m.recent[0, tr.robot, cfg.recent_len - len(tr.recent):] = tr.recent
-        if ids:  # every bitmap and patch in one call each (a bundle holds tens of messages)
-            packed = np.frombuffer(b"".join(bits), dtype=np.uint8).reshape(len(ids), -1)
-            m.visited[0, ids] = np.unpackbits(packed, axis=1, count=cfg.cells).astype(bool)
-            m.patch[0, ids] = np.frombuffer(b"".join(patches), dtype=np.uint8).reshape(
-                len(ids), cfg.vision, cfg.vision)
-        return m
+        """The bundle's messages as the policy's input (`swarm.net.messages.heard_messages`)."""
+        return heard_messages(self.cfg, self.robot, bundle)
 
     def on_obs(self, obs: Obs) -> None:
         cfg, r = self.cfg, self.robot
@@ -505,7 +461,7 @@ class RobotProcess:
                     continue
                 kind, msg = item
                 if kind in ("bundle", "hidden"):  # between decisions: early, or too late
-                    last = self._last_obs or (-1, -1)
+                    last = self.ticks.last or (-1, -1)
                     self._keep(kind, msg, last[0], last[1] + 1)
                 while kind == "obs" and msg is not None:
                     self.on_obs(msg)  # (may itself see the world's token go or come back)

@@ -1,5 +1,6 @@
 """What a robot process reports: its counters (the result and the status record) and the
-attention of its last decision (CommAttn robots, drawn live on the dashboard)."""
+attention of its last decision (CommAttn robots, drawn live on the dashboard); and what it
+accepts: the ticks its messages may name (`TickGuard`)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from policies.base import Policy
+from swarm.net.messages import BadMessage
 
 
 @dataclass
@@ -48,3 +50,37 @@ def attention_of(policy: Policy, robot: int, n: int, t: int) -> tuple[int, list[
     if w.shape != (n,) or not np.isfinite(w).all():
         return None
     return t, [float(x) for x in w]
+
+
+class TickGuard:
+    """The ticks a robot accepts messages of: this run's episodes and horizon; observations
+    only after the last one acted on and, in the same episode, no farther from its position
+    than one move a tick; bundles and hidden states at most `ahead` ticks past it (each is kept
+    until its tick: one far ahead would be kept for ever). BadMessage otherwise."""
+
+    def __init__(self, horizon: int, first_episode: int, episodes: int) -> None:
+        self.horizon, self.first, self.episodes = horizon, first_episode, episodes
+        self.last: tuple[int, int, int, int] | None = None  # (ep, t, y, x) acted on last
+
+    def obs(self, ep: int, t: int, y: int, x: int) -> None:
+        self.tick(ep, t, ahead=None)
+        last = self.last
+        if last is not None and (ep, t) <= last[:2]:
+            raise BadMessage(f"observation of ep {ep} tick {t} after tick {last[1]} of "
+                             f"ep {last[0]}")
+        if last is not None and ep == last[0] and max(abs(y - last[2]), abs(x - last[3])) > \
+                t - last[1]:
+            raise BadMessage(f"position ({y}, {x}) out of reach of ({last[2]}, {last[3]}) in "
+                             f"{t - last[1]} tick(s)")
+        self.last = (ep, t, y, x)
+
+    def tick(self, ep: int, t: int, ahead: int | None = 1) -> None:
+        if not self.first <= ep < self.first + self.episodes:
+            raise BadMessage(f"episode {ep} is not one of this run's")
+        if t > self.horizon:
+            raise BadMessage(f"tick {t} past the horizon {self.horizon}")
+        last = self.last
+        if ahead is not None and last is not None and \
+                (ep - last[0]) * (self.horizon + 1) + t - last[1] > ahead:
+            raise BadMessage(f"ep {ep} tick {t} is ahead of the observed ep {last[0]} tick "
+                             f"{last[1]}")

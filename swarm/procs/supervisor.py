@@ -251,6 +251,7 @@ class Supervisor:
         note = ""  # a fault with nothing to act on is logged as such, never as done
         if f.kind == "crash" and p is not None and up:
             p.kill()
+            p.wait()  # (a SIGKILL is quick; a hang or restart of the same tick sees it down)
             self.hung.discard(f.robot)
         elif f.kind == "hang" and p is not None and up and f.robot not in self.hung:
             p.send_signal(signal.SIGSTOP)
@@ -264,8 +265,11 @@ class Supervisor:
             self.spawn_robot(f.robot)
         else:
             note = " (not down: nothing done)" if f.kind == "restart" else \
-                f" ({'hung' if f.kind == 'hang' else 'down'} already: nothing done)"
-        self.fault_log.append(f"{f.kind} {f.robot}@{self.run_tick}{note}")  # last status's tick
+                f" ({'hung' if up and f.robot in self.hung else 'down'} already: nothing done)"
+        # the plan's tick (the world applies it there on the virtual clock); a live one without
+        # a tick: the tick of the last status
+        self.fault_log.append(f"{f.kind} {f.robot}@{f.tick if f.tick >= 0 else self.run_tick}"
+                              f"{note}")
         self.view.events = self.view.events[-5:] + [self.fault_log[-1]]
 
     def supervise(self) -> dict[str, Any]:

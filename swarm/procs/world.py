@@ -42,6 +42,7 @@ from swarm.net.messages import (
     pack_record,
     unpack_record,
 )
+from swarm.net.presence import Presence
 from swarm.net.radio import Radio, TickInbox, chain_times, has_all
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
@@ -87,12 +88,14 @@ class WorldProcess:
         # the decisions (the chain of hidden-state messages included), stepping and status
         self.phase_ms = dict.fromkeys(PHASES, 0.0)
         self.chain_ms: list[list[float]] = []  # per chain depth: [sum of ms, messages]
-        self.alive = np.zeros(cfg.n_robots, dtype=bool)
-        self.live: set[int] = set()  # the ids where `alive` is set (kept with it in _liveness)
+        # liveliness tokens, less the robots a process fault of the plan holds down (virtual
+        # clock: at exactly their tick; swarm.net.presence); `alive` and `live` are its views
+        self.presence = Presence(cfg.n_robots, self.radio.plan.process, gated=self.virtual)
+        self.alive, self.live = self.presence.alive, self.presence.live
         # the live robots sent this tick's observation, less any that died since (one that comes
         # alive mid-tick joins at the next: nobody waits for its action)
         self.tick_live: set[int] = set()
-        self.ever_alive = np.zeros(cfg.n_robots, dtype=bool)
+        self.ever_alive = self.presence.ever_alive
         self.learner_alive = not run.train  # a training run's first tick waits for its learner
         self.gate = LearnerGate(run.first_episode) if run.train_sync else None  # lockstep
         self.bad: dict[str, int] = {}
@@ -137,11 +140,9 @@ class WorldProcess:
         except ValueError:
             return
         if 0 <= robot < self.cfg.n_robots:
-            self.alive[robot] = live
-            (self.live.add if live else self.live.discard)(robot)
+            self.presence.token(robot, live)
             if not live:
                 self.tick_live.discard(robot)
-            self.ever_alive[robot] |= live
             log.info("robot %d %s", robot, "alive" if live else "gone")
 
     # --- the tick loop ----------------------------------------------------------------------
@@ -204,6 +205,7 @@ class WorldProcess:
                 self._count_bad(key, str(exc))
                 return True
             self.stop |= ctl.stop
+            self.presence.add(ctl.process)
             if ctl.table is not None and not self.faults.add(ctl, self.run_tick):
                 self._count_bad(key, f"{MAX_PENDING} fault changes wait already")
             return True
@@ -223,8 +225,8 @@ class WorldProcess:
         except (BadMessage, KeyError, ValueError) as exc:
             self._count_bad(key, str(exc))
             return True
-        if tick is None or (msg.ep, msg.t) != (tick.ep, tick.t):  # (between ticks: a past one)
-            self.late += 1
+        if tick is None or (msg.ep, msg.t) != (tick.ep, tick.t) or self.presence.held(msg.robot):
+            self.late += 1  # (between ticks: a past one; or of a robot a process fault holds)
             return True
         seen = tick.traj if kind == "traj" else tick.sent_hidden if kind == "hidden" else \
             tick.action
@@ -291,6 +293,8 @@ class WorldProcess:
             if self.run_cfg.pace > 0:
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
             obs_faults = b""
+            self.presence.wait_up(self.presence.due(self.run_tick), self._pump,  # process faults
+                                  time.monotonic() + self.run_cfg.start_timeout)
             plan = self.faults.due(self.run_tick)  # each live change at its own tick
             if plan is not None:
                 self.radio.set_plan(plan)

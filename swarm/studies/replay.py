@@ -149,7 +149,7 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
             while stats.process_shown < len(planned) and \
                     planned[stats.process_shown].tick <= int(st.get("run_tick", 0)):
                 f = planned[stats.process_shown]
-                v.events = v.events[-5:] + [f"{f.kind} {f.robot}@{st.get('run_tick')}"]
+                v.events = v.events[-5:] + [f"{f.kind} {f.robot}@{f.tick}"]
                 stats.process_shown += 1
         elif m.kind == "rstatus":
             w = rec.record.world

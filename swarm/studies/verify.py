@@ -278,6 +278,10 @@ class Auditor:
         self._apply_fault_changes(run_tick, ep, t)
         st = self.status[(ep, t + 1)][1]
         bucket = self.ticks.get((ep, t), _Tick())
+        seen = [o.robot for _, o in bucket.obs]
+        if seen:  # the world observes exactly the robots it holds alive at the tick's start (a
+            # process fault of this tick, or a restarted robot it waited for, changed them)
+            state.alive[0] = np.isin(np.arange(cfg.n_robots), seen)
         self._observations(ep, state)
         late = st.get("timeouts")
         if not isinstance(late, list) or not all(isinstance(i, int) and 0 <= i < cfg.n_robots
