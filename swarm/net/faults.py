@@ -192,8 +192,11 @@ def parse_duration_ms(text: str) -> float:
 
 
 def parse_rate(text: str) -> float:
-    """`2kB/s`, `500B/s`, `1MB/s`, `2000` (bytes/s) -> bytes per second. The unit is bytes and
-    says so with a capital B: `2kb` (kilobits, to most readers) is refused, not guessed."""
+    """`2kB/s`, `500B/s`, `1MB/s`, `2000` (bytes/s) -> bytes per second; `none` -> 0, no cap
+    (a sweep's baseline point). The unit is bytes and says so with a capital B: `2kb`
+    (kilobits, to most readers) is refused, not guessed."""
+    if str(text).strip().lower() == "none":
+        return 0.0
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kKmM]i?)?(B|b)?(?:/s)?\s*", str(text))
     if not m or (m.group(2) and not m.group(3)):
         why = "must be >= 0" if str(text).strip().startswith("-") else "use e.g. 2kB/s"
@@ -260,9 +263,10 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
             raise ConfigError(f"bad loss {d['loss']!r}") from None
     if "bandwidth" in d:
         ch["bandwidth"] = parse_rate(d["bandwidth"])
-        if ch["bandwidth"] == 0:  # (it meant "no cap": a user asking for nothing got everything)
+        if ch["bandwidth"] == 0 and str(d["bandwidth"]).strip().lower() != "none":
+            # (0 meant "no cap": a user asking for no bandwidth got all of it)
             raise ConfigError(f"bad bandwidth {d['bandwidth']!r}: a cap must be above 0 B/s "
-                              "(for no cap, leave it out)")
+                              "(no cap: leave it out, or write none)")
     if "burst" in d:
         ch["burst"] = float(d["burst"])
     if "overflow" in d:
