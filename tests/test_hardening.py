@@ -564,3 +564,26 @@ def test_stop_children_ends_every_child_even_when_popens_lock_was_lost() -> None
     finally:
         signal.signal(signal.SIGALRM, old)
     assert sleeper.returncode == -signal.SIGKILL  # down before the interrupt was raised
+
+
+def test_a_robot_takes_only_observations_and_ticks_that_fit_its_run() -> None:
+    """In-range but out of sequence: an observation of another episode, going back, or farther
+    than one move a tick from the last, and a bundle or hidden state far ahead (kept for ever
+    before: a memory leak) are refused; what fits is taken (a new episode may start anywhere)."""
+    from swarm.net.messages import BadMessage
+    from swarm.procs.robot_status import TickGuard
+
+    g = TickGuard(horizon=30, first_episode=2, episodes=3)
+    g.obs(2, 0, 5, 5)
+    g.obs(2, 3, 8, 2)  # three moves in three ticks
+    for bad, words in (((2, 3, 8, 2), "after tick 3"), ((2, 4, 8, 4), "out of reach"),
+                       ((9, 0, 1, 1), "not one of this run's"), ((2, 31, 8, 2), "horizon")):
+        with pytest.raises(BadMessage, match=words):
+            g.obs(*bad)
+    g.tick(2, 4)  # the next tick's bundle may come early
+    with pytest.raises(BadMessage, match="ahead"):
+        g.tick(2, 6)
+    with pytest.raises(BadMessage, match="ahead"):
+        g.tick(3, 0)
+    g.obs(3, 0, 0, 0)  # a new episode, anywhere
+    g.tick(3, 1)
