@@ -587,3 +587,21 @@ def test_a_robot_takes_only_observations_and_ticks_that_fit_its_run() -> None:
         g.tick(3, 0)
     g.obs(3, 0, 0, 0)  # a new episode, anywhere
     g.tick(3, 1)
+
+
+def test_a_world_status_must_fit_the_run_before_a_process_fault_fires_on_it() -> None:
+    """The supervisor fires planned process faults on the status's run tick: a status must be
+    of the run's episodes and team, and its run tick that of its episode and tick."""
+    from swarm.net.messages import BadMessage, check_world_status
+    from world.config import WorldConfig
+
+    cfg = WorldConfig(n_robots=3)
+    ok = {"ep": 3, "t": 5, "run_tick": 35, "pos": [[0, 0], [1, 1], [2, 2]],
+          "alive": [True, False, True], "elratio": 0.5, "timeouts": [1], "dyn": [[4, 4]]}
+    assert check_world_status(dict(ok), cfg, first_episode=2, episodes=4) == ok
+    for change, words in (({"run_tick": 110}, "not episode 3 tick 5"),
+                          ({"ep": 9}, "status ep"), ({"pos": [[0, 0]] * 500}, "at most 3"),
+                          ({"alive": [True] * 500}, "3 booleans"), ({"elratio": 7.5}, "elratio"),
+                          ({"timeouts": list(range(1000))}, "timeouts")):
+        with pytest.raises(BadMessage, match=words):
+            check_world_status({**ok, **change}, cfg, first_episode=2, episodes=4)

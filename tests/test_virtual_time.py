@@ -139,15 +139,16 @@ def test_process_faults_land_on_their_tick_and_a_run_repeats_itself(tmp_path: Pa
     for k in range(2):
         res = _run(tmp_path, f"proc{k}", "nearest-frontier", {}, "--crash", "1@10",
                    "--restart", "1@15", "--hang", "2@20", "--restart", "2@24", "--crash",
-                   "3@0")
+                   "3@0", "--crash", "0@5", "--restart", "0@5")  # (0: a new process at 5)
         runs.append(res)
         acts = np.array(res["actions"])  # [episode, tick, robot]
         assert (acts[0, 10:15, 1] == 0).all() and acts[0, 15:, 1].any()  # down, then back
         assert (acts[0, 20:24, 2] == 0).all() and acts[0, 24:, 2].any()
         assert not acts[..., 3].any()  # down from tick 0: it never acted
-        assert res["timeouts"] == 0 and res["robot_restarts"] == 2
-        assert res["process_faults"] == ["crash 3@0", "crash 1@10", "restart 1@15",
-                                         "hang 2@20", "restart 2@24"]
+        assert acts[0, 5:, 0].any()  # the new process acts from tick 5
+        assert res["timeouts"] == 0 and res["robot_restarts"] == 3 and res["robots_lost"] == 1
+        assert res["process_faults"] == ["crash 3@0", "crash 0@5", "restart 0@5", "crash 1@10",
+                                         "restart 1@15", "hang 2@20", "restart 2@24"]
     assert runs[0]["actions"] == runs[1]["actions"]
     assert runs[0]["elratio_mean"] == runs[1]["elratio_mean"]
 

@@ -199,7 +199,8 @@ def parse_rate(text: str) -> float:
         return 0.0
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kKmM]i?)?(B|b)?(?:/s)?\s*", str(text))
     if not m or (m.group(2) and not m.group(3)):
-        why = "must be >= 0" if str(text).strip().startswith("-") else "use e.g. 2kB/s"
+        why = "must be above 0 (none: no cap)" if str(text).strip().startswith("-") else \
+            "use e.g. 2kB/s, or none"
         raise ConfigError(f"bad bandwidth {text!r}: {why}")
     if m.group(3) == "b":
         raise ConfigError(f"bad bandwidth {text!r}: the unit is bytes, written B (e.g. 2kB/s); "

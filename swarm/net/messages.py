@@ -407,7 +407,10 @@ def check_world_status(rec: dict[str, Any], cfg: WorldConfig, first_episode: int
     n = cfg.n_robots
     _int(rec.get("ep"), "status ep", first_episode, first_episode + episodes - 1)
     _int(rec.get("t"), "status t", 0, cfg.horizon)
-    _int(rec.get("run_tick", 0), "status run_tick", 0, episodes * (cfg.horizon + 1))
+    run_tick = _int(rec.get("run_tick"), "status run_tick", 0, episodes * (cfg.horizon + 1))
+    if run_tick != (rec["ep"] - first_episode) * cfg.horizon + rec["t"]:
+        raise BadMessage(f"status run_tick {run_tick} is not episode {rec['ep']} tick "
+                         f"{rec['t']}'s")
     _cells(rec.get("pos"), "status pos", cfg, n)
     alive = rec.get("alive")
     if not isinstance(alive, list) or len(alive) != n or \

@@ -63,6 +63,9 @@ class Presence:
             if f.kind in ("crash", "hang"):
                 self.down.add(f.robot)
                 self._set(f.robot, False)
+                if f.kind == "crash":  # its process is being killed: a restart waits for the
+                    self.tokens.discard(f.robot)  # new one's token, not the old one's last
+                    # moments (a crash and restart of one tick set it alive, then lost it)
             elif f.robot in self.down:  # restart: up again from this tick
                 self.down.discard(f.robot)
                 if f.robot in self.tokens:

@@ -42,7 +42,7 @@ from swarm.common.spawn import (
 )
 from swarm.learn.weights import fresh_checkpoint
 from swarm.net.faults import MAX_PENDING, ProcessFault, check_control, plan_from_table
-from swarm.net.inbox import Inbox, put_once
+from swarm.net.inbox import Inbox, put_once, tally
 from swarm.net.kernel.hosts import topology
 from swarm.net.keys import Keys
 from swarm.net.learning import check_learner_status
@@ -52,6 +52,7 @@ from swarm.net.messages import (
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
+    BadMessage,
     check_robot_status,
     check_world_result,
     check_world_status,
@@ -101,7 +102,7 @@ class Supervisor:
         self.world: subprocess.Popen[bytes] | None = None
         self.robots: dict[int, subprocess.Popen[bytes]] = {}
         self.inbox: Inbox | None = None
-        self.bad = 0  # records that did not decode or fit, dropped
+        self.bad, self.bad_by_key = 0, {}  # records that did not decode or fit, dropped
         self.view = SwarmView(run.run_id, run.policy, cfg.height, cfg.width, cfg.n_robots,
                               cfg.comm_range, run.episodes, attention_focus=opts.attention)
         self.recorder: subprocess.Popen[bytes] | None = None
@@ -201,8 +202,10 @@ class Supervisor:
             if kind == "status":
                 rec = check_world_status(unpack_record(payload or b"", K_STATUS), self.cfg,
                                          self.run_cfg.first_episode, self.run_cfg.episodes)
+                if rec["run_tick"] < self.run_tick:  # (statuses come in order: a replay)
+                    raise BadMessage(f"status of tick {rec['run_tick']} after {self.run_tick}")
                 v.apply_status(rec)
-                self.run_tick = max(self.run_tick, int(rec.get("run_tick", 0)))
+                self.run_tick = rec["run_tick"]
                 while self.process_faults and self.process_faults[0].tick <= self.run_tick:
                     self._process_fault(self.process_faults.pop(0))
                 if self.opts.headless and self.opts.status_lines:
@@ -242,7 +245,8 @@ class Supervisor:
         except Exception as exc:  # a record of the right kind with wrong contents: dropped
             self.bad += 1
             self.view.bad_records = self.bad
-            log.warning("supervisor dropped a %s record on %s: %s", kind, key, exc)
+            if tally(self.bad_by_key, key):  # (the first few of a key, then powers of two)
+                log.warning("supervisor dropped a %s record on %s: %s", kind, key, exc)
 
     def _process_fault(self, f: ProcessFault) -> None:
         """crash = SIGKILL, hang = SIGSTOP, restart = SIGCONT a hung robot or respawn a dead one."""
