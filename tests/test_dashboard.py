@@ -134,3 +134,18 @@ def test_a_short_terminal_keeps_the_figures_and_robots_in_trouble_in_view() -> N
     lines = _fitted_text(wide, 80, 24)  # a map taller than the terminal: figures above it
     top = next(i for i, line in enumerate(lines) if "map 40x40" in line)
     assert any("elratio" in line for line in lines[:top])
+
+
+def test_message_rates_count_from_the_first_tick_live_and_replayed() -> None:
+    """msgs/s counted the live processes' start-up (seconds before the first tick) while the
+    replay counted from its first recorded message: the two views differed by tens of %. Both
+    now count from the first status."""
+    import time
+
+    v = _view()  # its first status came at now=0.0 on the view's clock
+    v.robots[0].msgs_out, v.robots[1].msgs_out, v.robots[2].msgs_out = 40, 30, 30
+    v.started = time.monotonic() - 60.0  # a minute of start-up before the first tick
+    v.first_status = time.monotonic() - 2.0
+    assert "msgs/s          50" in _text(render(v))
+    v.elapsed_s = 4.0  # a replay: recorded seconds since the first status
+    assert "msgs/s          25" in _text(render(v))

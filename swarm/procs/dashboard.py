@@ -96,7 +96,10 @@ class SwarmView:
     replay: str = ""
     """What is replayed (a recording, its speed and position); empty on a live run."""
     elapsed_s: float | None = None
-    """Replay: the recorded seconds since the run started (live: wall time since `started`)."""
+    """Replay: the recorded seconds since the first tick's status (live: wall time since it)."""
+    first_status: float | None = None
+    """When the first status came (`apply_status`'s clock): msgs/s and bytes/s count from the
+    first tick, live and replayed alike (the live view had counted its processes' start-up)."""
 
     def __post_init__(self) -> None:
         for i in range(self.n_robots):
@@ -105,6 +108,8 @@ class SwarmView:
     def apply_status(self, rec: dict[str, Any], now: float | None = None) -> None:
         """A world status record (one per tick)."""
         now = time.monotonic() if now is None else now
+        if self.first_status is None:
+            self.first_status = now
         if rec.get("ep") != self.ep:
             if self.ep >= 0:
                 self.episodes_done += 1
@@ -303,7 +308,8 @@ def render_figures(v: SwarmView, compact: bool = False) -> Table:
     table = Table.grid(padding=(0, 2))
     table.add_column(style="bold")
     table.add_column()
-    elapsed = max(time.monotonic() - v.started if v.elapsed_s is None else v.elapsed_s, 1e-9)
+    since = v.started if v.first_status is None else v.first_status
+    elapsed = max(time.monotonic() - since if v.elapsed_s is None else v.elapsed_s, 1e-9)
     rows = [
         *([("replay", v.replay)] if v.replay else []),
         ("run", v.run_id), ("policy", v.policy),

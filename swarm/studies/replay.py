@@ -197,7 +197,8 @@ def replay(rec: Recording, console: Console | None = None, speed: float = 1.0,
                 if wait > 1e-3:
                     sleep(min(wait, 5.0))  # a long silence in the recording is cut short
             apply(v, m, stats, rec)
-            v.elapsed_s = (m.wall_ns - rec.messages[0].wall_ns) / 1e9
+            v.elapsed_s = m.wall_ns / 1e9 - (v.first_status if v.first_status is not None
+                                             else rec.messages[0].wall_ns / 1e9)
             stats.messages += 1
             stats.last_tick = max(stats.last_tick, m.tick)
             pace = "as fast as it goes" if speed <= 0 else f"x{speed:g}"
