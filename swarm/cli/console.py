@@ -206,6 +206,10 @@ def swarm_bench_table(result: Mapping[str, Any]) -> Any:
         ticks.add_row(r["policy"], str(r["robots"]),
                       *(f(ph.get(k)) for k in ("obs", "collect", "radio", "decide", "step")),
                       f(cpu.get("world")), f(cpu.get("robots")), *chain_figures(r))
+    if any(not r.get("cpu_ms_per_tick") for r in result["rows"]):
+        ticks.caption = ("CPU -: the run was too short for two samples after its first tick "
+                         "(the sampler's); ~20 episodes give the CPU figures")
+        ticks.caption_justify = "left"
     if result.get("repeats", 1) < 2:
         return Group(main, ticks)
     first = result["rows"][0]["policy"]

@@ -47,13 +47,16 @@ def add_flags(parser: argparse.ArgumentParser | Any, cls: type, skip: tuple[str,
             continue
         ftype = str(f.type).replace(" | None", "")
         dest = dest_prefix + f.name
+        doc = docs.get(f.name, "")
+        if f.default not in (dataclasses.MISSING, None) and "default" not in doc.lower():
+            shown = str(f.default).lower() if isinstance(f.default, bool) else f.default
+            doc += f" (default {shown})"  # (argparse's own default is None: "not given")
         if ftype == "bool":
             parser.add_argument(flag, dest=dest, type=_bool, default=None, metavar="BOOL",
-                                help=docs.get(f.name, ""))
+                                help=doc)
         else:
             kind = {"int": int, "float": float}.get(ftype, str)
-            parser.add_argument(flag, dest=dest, type=kind, default=None,
-                                help=docs.get(f.name, ""))
+            parser.add_argument(flag, dest=dest, type=kind, default=None, help=doc)
 
 
 def given(cls: type, args: argparse.Namespace, dest_prefix: str = "") -> dict[str, Any]:
