@@ -48,7 +48,7 @@ def add_flags(parser: argparse.ArgumentParser | Any, cls: type, skip: tuple[str,
         ftype = str(f.type).replace(" | None", "")
         dest = dest_prefix + f.name
         doc = docs.get(f.name, "")
-        if f.default not in (dataclasses.MISSING, None) and "default" not in doc.lower():
+        if f.default not in (dataclasses.MISSING, None, "") and "default" not in doc.lower():
             shown = str(f.default).lower() if isinstance(f.default, bool) else f.default
             doc += f" (default {shown})"  # (argparse's own default is None: "not given")
         if ftype == "bool":
