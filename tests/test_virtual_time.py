@@ -224,3 +224,20 @@ def test_one_hidden_message_at_a_time_equals_the_batched_channel(table: dict) ->
         want = batch.hidden(np.array([3]), t, senders, hs).fate[0]
         for j in np.flatnonzero(senders[0]):
             assert np.array_equal(one.hidden_from(3, t, int(j), float(hs[0, j])), want[:, j])
+
+
+def test_a_live_restart_without_a_tick_releases_a_robot_a_planned_crash_holds() -> None:
+    """`--crash 2@10` then `swarm fault --restart 2` (no tick): the world held robot 2 down for
+    good, since only faults with a tick were gated; a live one now lands on the next tick."""
+    from swarm.net.faults import ProcessFault
+    from swarm.net.presence import Presence
+
+    p = Presence(3, [ProcessFault("crash", 2, 10)], gated=True)
+    for r in range(3):
+        p.token(r, True)
+    assert p.due(10) == [] and 2 not in p.live
+    p.token(2, False)  # the SIGKILL lands
+    p.add([ProcessFault("restart", 2, -1)], now=14)
+    assert p.due(13) == [] and p.due(14) == [2]  # restarted at 14: the world waits for it
+    p.token(2, True)  # the new process
+    assert 2 in p.live and p.alive[2]

@@ -242,10 +242,14 @@ def parse_process(kind: str, text: str) -> ProcessFault:
     return ProcessFault(kind, int(m.group(1)), int(m.group(2)) if m.group(2) else -1)
 
 
+LINK_KEYS = ("latency", "jitter", "loss", "bandwidth", "burst", "overflow", "compute")
+"""The keys of one link's faults in a `[faults]` table (human units)."""
+
+
 def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFault:
     """A LinkFault from a TOML/CLI mapping with human units (latency = "50ms", ...)."""
     base = base or LinkFault()
-    known = {"latency", "jitter", "loss", "bandwidth", "burst", "overflow", "compute"}
+    known = set(LINK_KEYS)
     unknown = set(d) - known
     if unknown:
         raise ConfigError(f"unknown fault key(s) {', '.join(sorted(unknown))}; known: "

@@ -38,12 +38,13 @@ class Presence:
         self.pending: list[ProcessFault] = []
         self.add(process)
 
-    def add(self, faults: Iterable[ProcessFault]) -> None:
-        """Process faults for their run tick (a live one without a tick lands when the signal
-        does: nothing to hold)."""
+    def add(self, faults: Iterable[ProcessFault], now: int = 0) -> None:
+        """Process faults for their run tick; a live one without a tick (`swarm fault --crash
+        2`) for `now`, the next tick to play (a restart without one released nothing: a robot a
+        planned crash held down stayed down for good)."""
         if self.gated:
-            self.pending = sorted([*self.pending, *(f for f in faults if f.tick >= 0)],
-                                  key=lambda f: f.tick)
+            due = (f if f.tick >= 0 else ProcessFault(f.kind, f.robot, now) for f in faults)
+            self.pending = sorted([*self.pending, *due], key=lambda f: f.tick)
 
     def token(self, robot: int, up: bool) -> None:
         """A liveliness event of robot `robot`."""

@@ -76,7 +76,7 @@ class LearnerCounters:
     rejected: int = 0  # its records came but do not fit together (or are not whole episodes)
     trained: int = 0  # episodes that went into an update
     received: int = 0  # distinct episodes heard of (swarm episodes + worker episodes)
-    late_records: int = 0  # robot records of an episode already joined or given up
+    late_records: int = 0  # robot or world records of an episode already joined or given up
     bad: int = 0
     rollout_bytes: int = 0
     bad_by_key: dict[str, int] = field(default_factory=dict)
@@ -194,16 +194,16 @@ class Learner:
                 slot = self._slot(rr.ep)
                 if slot is not None and rr.robot in slot["robots"]:  # the first one stands
                     raise BadMessage(f"a second record of robot {rr.robot}, episode {rr.ep}")
-                self.c.robot_records += 1
-                if slot is not None:
+                if slot is not None:  # (else counted late: each record in one counter)
+                    self.c.robot_records += 1
                     slot["robots"][rr.robot] = rr
             elif kind == "world":
                 wr = EpisodeRecord.unpack(payload, self.cfg)
                 slot = self._slot(wr.ep)
                 if slot is not None and "world" in slot:  # the first one stands
                     raise BadMessage(f"a second world record of episode {wr.ep}")
-                self.c.world_records += 1
-                if slot is not None:
+                if slot is not None:  # (else counted late)
+                    self.c.world_records += 1
                     slot["world"], slot["t"] = wr, time.monotonic()
             else:
                 er = EpisodeRollout.unpack(payload, self.cfg)

@@ -205,7 +205,7 @@ class WorldProcess:
                 self._count_bad(key, str(exc))
                 return True
             self.stop |= ctl.stop
-            self.presence.add(ctl.process)
+            self.presence.add(ctl.process, self.run_tick)
             if ctl.table is not None and not self.faults.add(ctl, self.run_tick):
                 self._count_bad(key, f"{MAX_PENDING} fault changes wait already")
             return True

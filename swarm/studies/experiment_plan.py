@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.common.policy_spec import build_inference
-from swarm.net.faults import parse_rate, plan_from_table
+from swarm.net.faults import LINK_KEYS, parse_rate, plan_from_table
 from swarm.net.kernel.netns import NetnsConfig, check_tools
 from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig, from_dict, load_toml, with_scaled_blocks
@@ -22,7 +22,7 @@ REQUIRED = ("parameter", "values", "policies")  # what a sweep is; the rest has 
 _NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 
 
-SWEEPABLE = ("latency", "jitter", "loss", "bandwidth", "burst", "overflow", "compute", "partition")
+SWEEPABLE = (*LINK_KEYS, "partition")
 """The `[faults]` keys an experiment may sweep (README, "Sweeps on the real swarm")."""
 
 
