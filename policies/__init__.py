@@ -72,7 +72,13 @@ def policy_class(name: str) -> type[Policy]:
     except KeyError:
         raise ValueError(f"unknown policy {name!r}; choose from {', '.join(REGISTRY)}") from None
     module, cls = target.split(":")
-    found = getattr(importlib.import_module(module), cls, None)
+    try:
+        found = getattr(importlib.import_module(module), cls, None)
+    except Exception as exc:  # (another package's module: a SyntaxError there is one line too)
+        if name not in PLUGINS:
+            raise
+        raise ValueError(f"policy plugin {name!r} ({target}) does not import: "
+                         f"{type(exc).__name__}: {exc}") from None
     if name in PLUGINS:  # another package's class: checked before anyone builds it
         from policies.base import Policy
 
@@ -110,4 +116,7 @@ def learned_names() -> tuple[str, ...]:
 
 
 def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
+    """Policy `name` for `cfg` as its class builds it: a learned one without `checkpoint=`
+    has fresh random weights (for training and tests). The shipped networks, as every command
+    runs them: `swarm.common.policy_spec.build_policy(name, cfg)`."""
     return policy_class(name)(cfg, **kwargs)  # type: ignore[call-arg]

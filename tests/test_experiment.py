@@ -130,7 +130,7 @@ def test_episodes_and_seeds_flags_override_the_file_and_keep_resume_honest(
     rows = _rows(out / "quick.csv")
     assert [(r_["seed"], r_["episodes"], r_["twin"]) for r_ in rows] == [("4", "1", "identical")]
     md = (out / "quick.md").read_text()
-    assert f"swarm experiment {src} --episodes 1 --seeds 4" in md
+    assert f"swarm experiment {src} --out {out} --episodes 1 --seeds 4" in md  # rerun: same place
     assert "seeds 4; 1 episode per run" in md
     assert "World: 2 robots, 20 x 20" in md and "sd over seeds" in md
     rec = json.loads((out / "quick.json").read_text())  # everything that made the sweep

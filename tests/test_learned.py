@@ -579,3 +579,16 @@ def test_a_checkpoint_without_a_whole_trainer_state_is_refused_in_one_line(train
         resume_point({"world": {}, "train": train}, TrainConfig(), None, SMALL, None, "out")
     with pytest.raises(CheckpointError, match="holds no learner state"):
         learner_resume_point(train, TrainConfig(), None, Path("out"))
+
+
+def test_evaluate_refuses_arguments_that_are_no_run() -> None:
+    """UA pass: seed 1.5 ran as seed 1, batch 0 or -1 and a policy built for another team failed
+    deep in numpy."""
+    rand = make_policy("random", TINY)
+    for kwargs in ({"seed": 1.5}, {"seed": 2**40}, {"batch": 0}, {"batch": -1},
+                   {"n_episodes": 2.5}, {"first_episode": -1}, {"n_episodes": 0}):
+        args = {"seed": 0, "n_episodes": 2, **kwargs}
+        with pytest.raises(ConfigError):
+            evaluate(TINY, rand, args.pop("seed"), args.pop("n_episodes"), **args)
+    with pytest.raises(ConfigError, match="built for 3 robots"):
+        evaluate(dataclasses.replace(TINY, n_robots=2), rand, 0, 1)

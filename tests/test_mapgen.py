@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from collections import deque
 
 import numpy as np
@@ -10,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from world import core
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 from world.mapgen import RING, SIMPLE, _ring_pattern, generate_static, is_connected
 
 SLOW = [HealthCheck.too_slow]  # a busy 2-core CI box must not fail a test for being slow
@@ -59,8 +60,21 @@ def test_generator_places_exact_blocks_and_keeps_free_space_connected(
 
 def test_impossible_block_counts_fail_loudly() -> None:
     """A request no connected map can meet raises a clear error instead of looping forever."""
-    with pytest.raises(ValueError, match="cannot place 9"):
+    with pytest.raises(ConfigError, match="9 static blocks do not fit on 3 x 3"):
         generate_static(3, 3, 9, np.random.default_rng(0))
+
+
+def test_a_dense_map_is_finished_cell_by_cell_and_stays_connected() -> None:
+    """60 blocks on 10 x 10: random wall segments stop fitting in a third of the episodes (the
+    generator raised mid-eval, UA pass); the rest are blocked one cell at a time, each keeping
+    the free cells connected, and maps the segments finish are as before."""
+    cfg = WorldConfig(height=10, width=10, n_static=60, n_robots=3, dynamic=False)
+    for ep in range(30):
+        blocks, starts, _ = core.generate_episode(cfg, 0, ep)
+        assert int(blocks.sum()) == 60 and is_connected(~blocks)
+        assert not blocks[starts[:, 0], starts[:, 1]].any()
+    before = core.generate_episode(WorldConfig(), 0, 3)[0]  # a default map: bit for bit as ever
+    assert hashlib.sha1(before.tobytes()).hexdigest()[:12] == "22e565be36cb"
 
 
 def test_default_maps_have_81_blocks_and_one_free_component() -> None:

@@ -22,6 +22,7 @@ SMALL = {"height": 8, "width": 9, "n_static": 10, "n_dynamic": 8, "n_robots": 4,
          "add_every": 2, "comm_range": 4.0}
 
 
+@pytest.mark.filterwarnings("ignore:reset options")  # (the api test passes its own options)
 def test_parallel_api_conformance() -> None:
     parallel_api_test(parallel_env(**SMALL), num_cycles=40)
     parallel_api_test(parallel_env(), num_cycles=40)  # the paper's world: 10 robots, T = 30
@@ -210,3 +211,24 @@ def test_only_the_adapter_imports_pettingzoo() -> None:
                 if "pettingzoo" in parts or parts[0] == "gymnasium":
                     offenders.append(f"{path.relative_to(root)}: {name}")
     assert offenders == []
+
+
+def test_hostile_values_through_the_adapter_are_one_line_errors() -> None:
+    """UA pass: a list of actions, a bool action, a dict for the config and options that are no
+    dict gave AttributeErrors or were taken; a typo in options was silently ignored."""
+    env = parallel_env(**SMALL)
+    env.reset(seed=0)
+    for bad in ([1, 2, 3, 4], None, np.zeros(4, dtype=np.int64)):
+        with pytest.raises(ValueError, match="actions must be a dict"):
+            env.step(bad)  # type: ignore[arg-type]
+    for action in (True, np.bool_(True), 1.5, 9):
+        with pytest.raises(ValueError, match="action must be an int in 0..8"):
+            env.step({"robot_0": action})
+    with pytest.raises(ValueError, match="options must be None or a dict"):
+        env.reset(options=[("episode", 1)])  # type: ignore[arg-type]
+    with pytest.warns(UserWarning, match="'epsiode'"):
+        env.reset(seed=0, options={"epsiode": 3})
+    with pytest.raises(ValueError, match="config must be a WorldConfig"):
+        parallel_env({"n_robots": 3})  # type: ignore[arg-type]
+    _, rewards, *_ = env.step({})  # standing still on a fresh start cell: 0 (never -0.0)
+    assert all(math.copysign(1.0, r) > 0 for r in rewards.values() if r == 0)

@@ -20,6 +20,7 @@ from rich.console import Console  # noqa: E402
 
 from swarm.net.keys import Keys  # noqa: E402
 from swarm.net.messages import (  # noqa: E402
+    K_RESULT,
     K_RSTATUS,
     Action,
     BadMessage,
@@ -29,6 +30,7 @@ from swarm.net.messages import (  # noqa: E402
     Traj,
     check_robot_status,
     pack_record,
+    unpack_record,
 )
 from swarm.net.record import msgjson  # noqa: E402
 from swarm.net.record.recording import RecordingWriter  # noqa: E402
@@ -272,6 +274,25 @@ def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[st
     assert r.returncode == 1
     line = r.stderr.strip().splitlines()[-1]
     assert "divergence at episode 0 tick 4 (run tick 4)" in line and "recorded" in line, line
+    # the world/result message on the wire is checked too, against the recorder's copy (UA
+    # pass: a forged elratio there verified clean)
+
+    def forge(topic: str, data: bytes) -> bytes:
+        if topic == "swarm/rec15/world/result":
+            rec = unpack_record(data, K_RESULT)
+            return pack_record(K_RESULT, {**rec, "elratio_mean": 0.99})
+        return data
+
+    rewrite(recorded["file"], bad, edit_msg=forge)
+    r = swarm("replay", str(bad), "--verify")
+    assert r.returncode == 1 and "result.json (the recorder's copy of the world/result " \
+        "message): recorded {'elratio_mean'" in r.stderr, r.stderr
+    # a recording cut after the run (its summary lost) verifies whole with --partial: the
+    # result in it says the run ended, so its last tick is complete (it was a false divergence)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(recorded["file"].read_bytes()[:-20])
+    r = swarm("replay", str(cut), "--partial", "--verify")
+    assert r.returncode == 0 and "every one as recorded" in r.stdout, r.stdout + r.stderr
 
 
 @pytest.mark.procs

@@ -18,8 +18,8 @@ from conftest import ROOT, swarm, swarm_started
 from swarm.net.keys import Keys
 from swarm.net.security.certs import make_certs
 from swarm.net.security.roles import acl, identities, roles
-from swarm.net.security.tls import Secure
-from swarm.net.zconfig import free_port
+from swarm.net.security.tls import Secure, apply
+from swarm.net.zconfig import ZenohOptions, free_port
 from world.config import ConfigError
 
 pytest.importorskip("cryptography")
@@ -268,6 +268,63 @@ def test_a_missing_certificate_is_one_line_before_any_process(certs: Path, tmp_p
     r = swarm("robot", "--secure", str(host), "--id", "2", "--run-id", "x", "--connect",
               "tls/127.0.0.1:1")
     assert r.returncode == 2 and str(host / "robot-2.pem") in r.stderr
+
+
+def _copy(certs: Path, d: Path, skip: tuple[str, ...] = ()) -> Path:
+    d.mkdir(mode=0o700)
+    for f in certs.iterdir():
+        if f.name not in skip:
+            (d / f.name).write_bytes(f.read_bytes())
+            os.chmod(d / f.name, stat.S_IMODE(f.stat().st_mode))
+    return d
+
+
+def test_a_certificate_tls_would_refuse_is_one_line_before_any_process(
+        certs: Path, tmp_path: Path) -> None:
+    """UA pass: an expired certificate, another CA's, one for another identity or key, or a
+    missing recorder certificate failed only once a process tried to connect ("Unable to
+    connect", no file named), and `swarm run` waited a minute for the robot, then exit 0."""
+    import datetime as dt
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.hazmat.primitives.serialization import Encoding, load_pem_private_key
+
+    need = ("world", "robot-0", "robot-1")
+    wrong = _copy(certs, tmp_path / "wrongcn")
+    (wrong / "robot-1.pem").write_bytes((certs / "robot-0.pem").read_bytes())
+    foreign_ca = tmp_path / "foreign"
+    make_certs(foreign_ca, robots=1)
+    foreign = _copy(certs, tmp_path / "foreigncert")
+    for name in ("robot-0.pem", "robot-0.key"):
+        (foreign / name).write_bytes((foreign_ca / name).read_bytes())
+    swapped = _copy(certs, tmp_path / "swapped")
+    (swapped / "robot-0.key").write_bytes((certs / "robot-1.key").read_bytes())
+    old = _copy(certs, tmp_path / "expired")  # robot-0's certificate, signed by the CA, expired
+    ca_key = load_pem_private_key((certs / "ca.key").read_bytes(), None)
+    ca = x509.load_pem_x509_certificate((certs / "ca.pem").read_bytes())
+    mine = x509.load_pem_x509_certificate((certs / "robot-0.pem").read_bytes())
+    now = dt.datetime.now(dt.UTC)
+    cert = (x509.CertificateBuilder().subject_name(mine.subject).issuer_name(ca.subject)
+            .public_key(mine.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(now - dt.timedelta(days=30))
+            .not_valid_after(now - dt.timedelta(days=1)).sign(ca_key, hashes.SHA256()))
+    (old / "robot-0.pem").write_bytes(cert.public_bytes(Encoding.PEM))
+    for d, who, why in ((wrong, "robot-1.pem", "is for robot-0, not robot-1"),
+                        (foreign, "robot-0.pem", "is not signed by ca.pem"),
+                        (swapped, "robot-0.pem", "is not for the key robot-0.key"),
+                        (old, "robot-0.pem", "not now")):
+        with pytest.raises(ConfigError, match=f"{d / who} {why}"):
+            Secure.load(d, "supervisor", "x", 2, need=need)
+    norec = _copy(certs, tmp_path / "norec", skip=("recorder.pem",))
+    r = swarm("run", "--secure", str(norec), "--robots", "2", "--headless", "--record",
+              str(tmp_path / "r.mcap"), "--run-id", "norec")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert str(norec / "recorder.pem") in r.stderr
+    # and a world started by hand with --secure forwards every hidden-state message itself: an
+    # access list refuses the robots' fast-lane puts (a tick took 10 s, the watchdog's wait)
+    sec = Secure.load(certs, "world", "x", 5)
+    assert apply(ZenohOptions(mode="router"), sec).may_acl and not ZenohOptions().may_acl
 
 
 @pytest.mark.procs

@@ -466,6 +466,13 @@ class Cyclic(Policy):
         out = np.zeros(view.receivers.shape, dtype=np.int64)
         out[g, i] = (view.tick + i) % 9
         return out
+
+
+class Nan(Cyclic):
+    """A buggy one: NaN moves."""
+
+    def act(self, view, greedy=True):
+        return np.full(view.receivers.shape, np.nan)
 '''
 
 
@@ -479,7 +486,9 @@ def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path)
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: cyclic-plugin\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text("[commattn_swarm.policies]\n"
-                                           "cyclic = cyclic_plugin:Cyclic\nbroken = nocolon\n")
+                                           "cyclic = cyclic_plugin:Cyclic\nbroken = nocolon\n"
+                                           "nan = cyclic_plugin:Nan\nsyntax = bad_plugin:X\n")
+    (tmp_path / "bad_plugin.py").write_text("def (:\n")
     env = {"PYTHONPATH": str(tmp_path)}
     ev, run = tmp_path / "eval.json", tmp_path / "run.json"
     r = swarm("eval", "--policy", "cyclic,random", "--robots", "3", "--episodes", "2", "--seed",
@@ -495,5 +504,10 @@ def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path)
     for key in ("elratio_mean", "reward_mean", "collisions_mean"):
         assert swarmed[key] == pytest.approx(batched[key])
     assert np.array_equal(np.array(swarmed["actions"])[0, 0], [0, 1, 2])  # tick 0: robot i -> i
+    for name, why in (("nan", "policy Nan: actions must be integers in 0..8, got float64"),
+                      ("syntax", "policy plugin 'syntax' (bad_plugin:X) does not import: "
+                                 "SyntaxError")):  # a plugin's bug: one line, not a traceback
+        r = swarm("eval", "--policy", name, "--robots", "3", "--episodes", "1", env=env)
+        assert r.returncode == 2 and why in r.stderr and "Traceback" not in r.stderr, r.stderr
     r = swarm("eval", "--policy", "cyclic", "--episodes", "1")  # not installed: unknown
     assert r.returncode == 2 and "unknown policy 'cyclic'" in r.stderr

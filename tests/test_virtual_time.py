@@ -97,6 +97,13 @@ def test_two_virtual_runs_agree_while_the_cpu_is_loaded(tmp_path: Path) -> None:
     assert a["actions"] == b["actions"]
     for key in ("lost", "late", "cut", "dropped_bw", "traj_delivered", "hidden_delivered"):
         assert a["messages"][key] == b["messages"][key], key
+    # each robot's counts are its last status's (sent at the end), not a snapshot of the run:
+    # equal run to run but for msgs_in, which may or may not count a copy in flight at the end
+    for res in (a, b):
+        assert all(c["final"] for c in res["robot_status"].values()), res["robot_status"]
+    for r, c in a["robot_status"].items():
+        for key in ("msgs_out", "missed", "stale", "bad", "errors"):
+            assert c[key] == b["robot_status"][r][key], (r, key)
 
 
 @pytest.mark.procs
@@ -151,6 +158,18 @@ def test_process_faults_land_on_their_tick_and_a_run_repeats_itself(tmp_path: Pa
                                          "restart 1@15", "hang 2@20", "restart 2@24"]
     assert runs[0]["actions"] == runs[1]["actions"]
     assert runs[0]["elratio_mean"] == runs[1]["elratio_mean"]
+
+
+@pytest.mark.procs
+def test_restart_crashed_brings_a_planned_crash_back_at_the_next_tick(tmp_path: Path) -> None:
+    """With `--restart-crashed` a crash of the plan at tick t is followed by a restart at t + 1
+    (the supervisor respawns the process; the world waits for it there): the robot was
+    respawned but held down for good, its run equal to one without the flag (UA pass)."""
+    res = _run(tmp_path, "rcrash", "nearest-frontier", {}, "--crash", "1@10",
+               "--restart-crashed")
+    acts = np.array(res["actions"])  # [episode, tick, robot]
+    assert (acts[0, 10, 1] == 0) and acts[0, 11:, 1].any() and acts[1, :, 1].any()
+    assert res["robot_restarts"] == 1 and res["robots_lost"] == 0 and res["timeouts"] == 0
 
 
 @pytest.mark.procs

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from world import core
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 from world.decentral import (
     TeamMemory,
     batch_view,
@@ -788,3 +788,26 @@ def test_a_world_config_out_of_range_is_one_line(bad: dict[str, float]) -> None:
     with pytest.raises(ConfigError, match=f"world config: {next(iter(bad))}|grid|vision") as e:
         WorldConfig(**bad)  # type: ignore[arg-type]
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("changes", [
+    {"dynamic": "false"}, {"height": 20.5}, {"n_robots": 2.5}, {"height": "20"},
+    {"comm_range": None}, {"r_back": "x"}, {"n_robots": True}, {"success_max_block_collisions": -1},
+    {"recent_len": 10**9}, {"height": 10**5, "width": 10**5}])
+def test_a_world_config_built_in_code_checks_its_types_and_ranges(changes: dict) -> None:
+    """UA pass: only from_dict checked types, so WorldConfig(dynamic="false") ran every dynamic
+    block and WorldConfig(height=20.5) failed deep in numpy."""
+    with pytest.raises(ConfigError, match="^world config: "):
+        WorldConfig(**changes)
+
+
+def test_reset_and_step_refuse_what_is_no_seed_episode_or_move() -> None:
+    cfg = WorldConfig(height=6, width=6, n_static=4, n_dynamic=2, n_robots=2, horizon=6)
+    for seed, eps in ((1.5, [0]), (2**40, [0]), (-1, [0]), (0, [1.5]), (0, [-1]), (0, []),
+                      (0, [True])):
+        with pytest.raises(ConfigError):
+            core.reset(cfg, seed, eps)  # type: ignore[arg-type]
+    state = core.reset(cfg, 0, [0])
+    for actions in (np.full((1, 2), np.nan), np.ones((1, 2), bool), np.ones((1, 2))):
+        with pytest.raises(ValueError, match="actions must be integers in 0..8"):
+            core.step(cfg, state, actions)

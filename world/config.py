@@ -17,6 +17,7 @@ class ConfigError(ValueError):
     """A bad configuration value or key; its message is one line meant for the user."""
 
 
+MAX_SIDE = 1000  # the largest grid side (`--size` and every config)
 SEED_MAX = 2**31 - 1  # every seed keys numpy's SeedSequence and the msgpack int32 fields
 
 
@@ -76,8 +77,15 @@ class WorldConfig:
         def bad(msg: str) -> None:
             raise ConfigError(f"world config: {msg}")
 
-        if self.height < 3 or self.width < 3:
-            bad(f"grid must be at least 3 x 3, got {self.height} x {self.width}")
+        for f in fields(self):  # built in code too, not only by from_dict: types checked here
+            v, kind = getattr(self, f.name), f.type if isinstance(f.type, str) else f.type.__name__
+            ok = {"int": isinstance(v, int), "float": isinstance(v, (int, float)),
+                  "bool": isinstance(v, bool), "str": isinstance(v, str)}[kind]
+            if not ok or (kind in ("int", "float") and isinstance(v, bool)):
+                bad(f"{f.name} must be {kind}, got {v!r}")
+        if not (3 <= self.height <= MAX_SIDE and 3 <= self.width <= MAX_SIDE):
+            bad(f"grid must be between 3 x 3 and {MAX_SIDE} x {MAX_SIDE}, got {self.height} x "
+                f"{self.width}")
         for name in ("r_back", "r_coll", "r_succ", "r_fail"):  # (nan made every reward nan)
             if not abs(getattr(self, name)) <= 1e6:
                 bad(f"{name} must be a finite number in [-1e6, 1e6], got {getattr(self, name)}")
@@ -106,8 +114,11 @@ class WorldConfig:
         if self.dynamic and self.n_dynamic > 0 and \
                 math.floor(0.9 * self.horizon / self.add_every) < 1:
             bad(f"add_every={self.add_every} leaves no batch before 90% of horizon={self.horizon}")
-        if self.recent_len < 1:
-            bad(f"recent_len must be >= 1, got {self.recent_len}")
+        if not 1 <= self.recent_len <= 1000:
+            bad(f"recent_len must lie in [1, 1000], got {self.recent_len}")
+        if self.success_max_block_collisions < 0:
+            bad(f"success_max_block_collisions must be >= 0, got "
+                f"{self.success_max_block_collisions}")
 
     @property
     def cells(self) -> int:
@@ -162,8 +173,8 @@ def parse_size(text: str) -> tuple[int, int]:
         size = int(h), int(w)
     except ValueError:
         raise ConfigError(f"size must be HxW (e.g. 40x40), got {text!r}") from None
-    if min(size) < 3 or max(size) > 1000:
-        raise ConfigError(f"size must be between 3x3 and 1000x1000, got {text!r}")
+    if min(size) < 3 or max(size) > MAX_SIDE:
+        raise ConfigError(f"size must be between 3x3 and {MAX_SIDE}x{MAX_SIDE}, got {text!r}")
     return size
 
 

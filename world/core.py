@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from world.config import WorldConfig
+from world.config import SEED_MAX, ConfigError, WorldConfig, check_seed
 from world.mapgen import generate_static, is_connected
 
 # Cell codes of the padded grid. `code & 3` is what a robot sees: 0 free, 1 block, 2 off-grid.
@@ -150,7 +150,12 @@ def generate_episode(cfg: WorldConfig, seed: int,
 
 def reset(cfg: WorldConfig, seed: int, episodes: np.ndarray | list[int]) -> WorldState:
     """Start one generated episode per entry of `episodes` (keyed with `seed`)."""
-    episodes = np.asarray(episodes, dtype=np.int64).reshape(-1)
+    check_seed(seed)
+    raw = np.asarray(episodes).reshape(-1)
+    if raw.size == 0 or raw.dtype.kind not in "iu" or raw.min() < 0 or raw.max() > SEED_MAX:
+        raise ConfigError(f"episodes must be one or more integers in [0, {SEED_MAX}], got "
+                          f"{np.asarray(episodes).tolist()!r:.80}")
+    episodes = raw.astype(np.int64)
     gen = [generate_episode(cfg, seed, int(ep)) for ep in episodes]
     return from_layout(cfg, np.stack([g[0] for g in gen]), np.stack([g[1] for g in gen]),
                        np.stack([g[2] for g in gen]), seed=seed, episodes=episodes)
@@ -238,8 +243,10 @@ def step(cfg: WorldConfig, state: WorldState, actions: np.ndarray) -> np.ndarray
     actions = np.asarray(actions)
     if actions.shape != (b, n):
         raise ValueError(f"actions must have shape {(b, n)}, got {actions.shape}")
-    if actions.min(initial=0) < 0 or actions.max(initial=0) >= N_ACTIONS:
-        raise ValueError("actions must lie in 0..8")
+    if actions.dtype.kind not in "iu" or actions.min(initial=0) < 0 or \
+            actions.max(initial=0) >= N_ACTIONS:  # (NaN, 1.5 or True is no move)
+        raise ValueError(f"actions must be integers in 0..8, got {actions.dtype} "
+                         f"{actions.ravel()[:8].tolist()!r:.80}")
     offs = (np.arange(b) * p)[:, None]
     gflat = state.grid.reshape(-1)
     act = np.where(state.alive, actions, 0)
@@ -263,7 +270,7 @@ def step(cfg: WorldConfig, state: WorldState, actions: np.ndarray) -> np.ndarray
 
     state.elratio[:, state.t] = elratio(cfg, state)
     coll = block_hit.astype(np.int64) + robot_hit
-    reward = back * cfg.r_back + coll * cfg.r_coll
+    reward = back * cfg.r_back + coll * cfg.r_coll + 0.0  # (+ 0.0: no -0.0 from 0 * r_back)
     state.block_coll += block_hit
     state.robot_coll += robot_hit
     state.back_count += back

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from world.config import ConfigError
+
 # Ring of the 8 neighbours in clockwise order starting at north-west: (dy, dx).
 RING = ((-1, -1), (-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1))
 
@@ -61,8 +63,8 @@ def generate_static(height: int, width: int, n_blocks: int, rng: np.random.Gener
     dirs = ((0, 1), (1, 0), (0, -1), (-1, 0))
     while placed < n_blocks:
         attempts += 1
-        if attempts > max_attempts:
-            raise ValueError(f"cannot place {n_blocks} connected-safe blocks on {height}x{width}")
+        if attempts > max_attempts:  # a dense map: walls grown cell by cell (below)
+            return ~_fill(free, n_blocks - placed, rng)
         y = int(rng.integers(height))
         x = int(rng.integers(width))
         dy, dx = dirs[int(rng.integers(4))]
@@ -81,6 +83,31 @@ def generate_static(height: int, width: int, n_blocks: int, rng: np.random.Gener
                 dy, dx = dx, dy
             y, x = y + dy, x + dx
     return ~free
+
+
+def _fill(free: np.ndarray, missing: int, rng: np.random.Generator) -> np.ndarray:
+    """Block `missing` more cells of `free` (in place), each one whose loss keeps the free cells
+    connected, in random order pass after pass: what a dense map needs once random wall segments
+    stop fitting (only maps the segments could not finish come here: every other map is
+    unchanged). A ConfigError when no free cell can be blocked without cutting the free space."""
+    h, w = free.shape
+    while missing > 0:
+        before = missing
+        for cell in rng.permutation(h * w):
+            y, x = divmod(int(cell), w)
+            if not free[y, x] or missing >= int(free.sum()):  # (never the last free cell)
+                continue
+            free[y, x] = False  # a simple point, or one that breaks a loop (checked whole)
+            if SIMPLE[_ring_pattern(free, y, x)] or is_connected(free):
+                missing -= 1
+                if missing == 0:
+                    break
+            else:
+                free[y, x] = True
+        if missing == before:
+            raise ConfigError(f"world config: {int((~free).sum()) + missing} static blocks do not "
+                              f"fit on {h} x {w} with the free cells connected")
+    return free
 
 
 def is_connected(free: np.ndarray) -> bool:

@@ -26,6 +26,7 @@ built from what robot i knows under SPEC section 3, i.e. its own message and tho
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -123,6 +124,11 @@ class SwarmParallelEnv(ParallelEnv[str, np.ndarray, int]):
 
         A new seed restarts the episode counter at 0, so reset(seed=s) is always episode 0 of s.
         """
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be None or a dict, got {options!r:.80}")
+        if options and set(options) - {"episode"}:  # (PettingZoo's own api test passes others)
+            warnings.warn(f"reset options {sorted(map(str, set(options) - {'episode'}))} are not "
+                          "used (known: episode)", stacklevel=2)
         if seed is not None:
             self.world_seed = _whole(seed, "seed")
             self.episode = -1
@@ -140,11 +146,15 @@ class SwarmParallelEnv(ParallelEnv[str, np.ndarray, int]):
         """One world step; agents absent from `actions` stay in place."""
         if self.world is None or not self.agents:
             raise RuntimeError("the episode is over (or never started): call reset()")
+        if not isinstance(actions, dict):
+            raise ValueError(f"actions must be a dict of agent name to action, got "
+                             f"{type(actions).__name__}")
         a = np.zeros((1, self.cfg.n_robots), dtype=np.int64)
         for agent, action in actions.items():
             if agent not in self._index:
                 raise ValueError(f"unknown agent {agent!r}; agents are {self.possible_agents}")
-            if not self.action_spaces[agent].contains(action):
+            if isinstance(action, (bool, np.bool_)) or \
+                    not self.action_spaces[agent].contains(action):
                 raise ValueError(f"{agent}: action must be an int in 0..8, got {action!r}")
             a[0, self._index[agent]] = int(action)
         rewards = core.step(self.cfg, self.world, a)[0]
@@ -200,6 +210,9 @@ class SwarmParallelEnv(ParallelEnv[str, np.ndarray, int]):
 def parallel_env(config: WorldConfig | None = None, *, render_mode: str | None = None,
                  **overrides: Any) -> SwarmParallelEnv:
     """The env on `config` (default: the paper's world) with WorldConfig field overrides."""
+    if config is not None and not isinstance(config, WorldConfig):
+        raise ValueError(f"config must be a WorldConfig (or give fields as keywords: "
+                         f"parallel_env(n_robots=3)), got {type(config).__name__}")
     base = {} if config is None else dataclasses.asdict(config)
     cfg = from_dict(WorldConfig, {**base, **overrides}, "parallel_env")
     return SwarmParallelEnv(cfg, render_mode=render_mode)

@@ -104,7 +104,8 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
              "greedy": False if args.sample or getattr(args, "train", None) else None,
              "train": getattr(args, "train", None),
              "rollout_loss": getattr(args, "rollout_loss", None),
-             "train_sync": getattr(args, "train_sync", None)}
+             "train_sync": getattr(args, "train_sync", None),
+             "restart_crashed": getattr(args, "restart_crashed", None) or None}
     table = dict(tables.get("run", {}))
     given = {k: v for k, v in flags.items() if v is not None}
     data = {**table, **given}
@@ -196,7 +197,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.secure and netns is not None and netns.transport != "tcp":
         raise ConfigError("--secure needs --netns-transport tcp (TLS runs over TCP)")
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
-                            restart_crashed=args.restart_crashed, log_dir=args.log_dir,
+                            log_dir=args.log_dir,
                             netns=netns, secure=args.secure, record=args.record,
                             attention=args.attention, hosts=hosts_option(args),
                             command=_command())
@@ -371,6 +372,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
         raise ConfigError("--episodes/--seeds need --out DIR: a shrunk sweep would overwrite "
                           "the file's own results")
     sweep = plan(args.file, args.episodes, seeds)  # every run checked: one line, exit 2
+    if args.out:  # (the command its files record: rerun, it writes where this one did)
+        sweep = dataclasses.replace(sweep, overrides=("--out", args.out, *sweep.overrides))
     out = args.out or sweep.exp.out
     output_dir(out, "--out" if args.out else f"{args.file}: [experiment] out")
     return experiment_main(sweep, out, args.resume)

@@ -15,7 +15,7 @@ from swarm.net.channel import VirtualChannel
 from swarm.net.faults import FaultPlan
 from swarm.net.messages import Hidden, Traj
 from world import core
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig, check_seed
 from world.decentral import View, batch_view
 
 
@@ -150,8 +150,14 @@ def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, ba
     seconds (loss, partitions, latency, jitter, bandwidth queues, compute time; see
     swarm.net.channel) to every tick's view: the same as `swarm run` with that seed and plan.
     """
-    if n_episodes < 1:
-        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    check_seed(seed)
+    for name, v, least in (("n_episodes", n_episodes, 1), ("batch", batch, 1),
+                           ("first_episode", first_episode, 0)):
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < least:
+            raise ConfigError(f"{name} must be an integer >= {least}, got {v!r}")
+    if policy.cfg.n_robots != cfg.n_robots or policy.cfg.vision != cfg.vision:
+        raise ConfigError(f"the policy was built for {policy.cfg.n_robots} robots with vision "
+                          f"{policy.cfg.vision}, the world has {cfg.n_robots} with {cfg.vision}")
     channel = channel_for(faults, cfg, policy, tick_s)
     parts: list[core.EpisodeMetrics] = []
     curves: list[np.ndarray] = []
@@ -174,7 +180,10 @@ def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, ba
             decisions += len(eps)
             if record_actions:
                 acts.append(a.copy())
-            core.step(cfg, state, a)
+            try:
+                core.step(cfg, state, a)
+            except ValueError as exc:  # (a plugin's NaN: one line naming the policy)
+                raise ConfigError(f"policy {type(policy).__name__}: {exc}") from None
         parts.append(core.metrics(cfg, state))
         curves.append(state.elratio.copy())
         actions.append(acts)

@@ -28,13 +28,14 @@ class Presence:
     present, from liveliness tokens and, when `gated`, the plan's process faults."""
 
     def __init__(self, n_robots: int, process: Iterable[ProcessFault] = (),
-                 gated: bool = False) -> None:
+                 gated: bool = False, restart_crashed: bool = False) -> None:
         self.alive = np.zeros(n_robots, dtype=bool)
         self.live: set[int] = set()
         self.ever_alive = np.zeros(n_robots, dtype=bool)
         self.tokens: set[int] = set()  # robots whose token is up, held down or not
         self.down: set[int] = set()  # robots a crash or hang of the plan holds down
         self.gated = gated
+        self.restart_crashed = restart_crashed  # a crash at t: a restart at t + 1
         self.pending: list[ProcessFault] = []
         self.add(process)
 
@@ -67,6 +68,8 @@ class Presence:
                 if f.kind == "crash":  # its process is being killed: a restart waits for the
                     self.tokens.discard(f.robot)  # new one's token, not the old one's last
                     # moments (a crash and restart of one tick set it alive, then lost it)
+                    if self.restart_crashed:  # (the supervisor respawns it at once)
+                        self.add([ProcessFault("restart", f.robot, tick + 1)])
             elif f.robot in self.down:  # restart: up again from this tick
                 self.down.discard(f.robot)
                 if f.robot in self.tokens:

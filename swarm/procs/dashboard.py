@@ -7,6 +7,7 @@ records it receives and `Live(get_renderable=...)` calls `render`.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,7 +28,8 @@ class RobotRow:
     msgs_out: int = 0
     latency_ms: float = 0.0
     bad: int = 0
-    missed: int = 0
+    missed: int = 0  # ticks whose bundle did not come in time
+    missed_hidden: int = 0  # ticks whose predecessor's hidden-state message did not come
     bytes_out: int = 0
     alive: bool = False
     restarts: int = 0
@@ -42,13 +44,14 @@ class RobotRow:
     stale: int = 0  # messages of a tick already past (or kept for one that passed)
     oversized: int = 0  # payloads over the inbox's bound, dropped unread
     overflow: int = 0  # events past the inbox queue's bound, dropped
+    final: bool = False  # these are its counts at the run's end (its last status), not a snapshot
 
-    COUNTERS = ("msgs_in", "msgs_out", "bad", "missed", "version", "weights_bad",
+    COUNTERS = ("msgs_in", "msgs_out", "bad", "missed", "missed_hidden", "version", "weights_bad",
                 "weights_late", "stalls", "rejoins", "errors", "stale", "oversized", "overflow")
 
     def counters(self) -> dict[str, int]:
         """What a run's result reports of this robot (`robot_status`)."""
-        return {k: getattr(self, k) for k in self.COUNTERS}
+        return {**{k: getattr(self, k) for k in self.COUNTERS}, "final": self.final}
 
 
 @dataclass
@@ -149,6 +152,7 @@ class SwarmView:
         row.latency_ms = float(rec.get("latency_ms", 0.0))
         row.bad = int(rec.get("bad", 0))
         row.missed = int(rec.get("missed", 0))
+        row.missed_hidden = int(rec.get("missed_hidden", 0))
         row.bytes_out = int(rec.get("bytes_out", 0))
         row.version = int(rec.get("version", 0))
         row.weights_bad = int(rec.get("weights_bad", 0))
@@ -161,9 +165,14 @@ class SwarmView:
         row.overflow = int(rec.get("overflow", 0))
         row.compute_ms = float(rec.get("compute_ms", 0.0))
         row.wait_ms = float(rec.get("wait_ms", 0.0))
+        row.final = rec.get("final") is True
         if isinstance(rec.get("attn"), list):  # range-checked by messages.check_robot_status
             self.attention[int(rec["robot"])] = (int(rec.get("attn_t", 0)),
                                                  [float(x) for x in rec["attn"]])
+
+    def final(self, robots: Iterable[int]) -> bool:
+        """Whether each of `robots` has sent its last status (its counts at the run's end)."""
+        return all(self.robots.get(i, RobotRow()).final for i in robots)
 
     def strongest(self) -> dict[int, tuple[int, float]]:
         """Robot -> (the other member it attends to most, weight), for robots reporting
@@ -224,7 +233,9 @@ def attention_lines(v: SwarmView) -> dict[tuple[int, int], int]:
     marks: dict[tuple[int, int], int] = {}
     if v.attention_focus is None:
         return marks
-    for i, (j, _) in sorted(v.strongest().items()):
+    for i, (j, x) in sorted(v.strongest().items()):
+        if x < ATTN_LINE_MIN:  # (the shipped CommAttn gives others ~1e-4: no line for that)
+            continue
         a, b = v.robots.get(i), v.robots.get(j)
         if v.attention_focus not in (-1, i) or a is None or b is None or a.pos is None \
                 or b.pos is None or not (a.alive and b.alive):
@@ -236,7 +247,8 @@ def attention_lines(v: SwarmView) -> dict[tuple[int, int], int]:
 
 def render_grid(v: SwarmView) -> Text:
     """The map: static blocks, dynamic blocks, explored cells, robots by id, and a dotted line
-    from each robot to the member it attends to most (CommAttn), in the robot's colour."""
+    from each robot to the member it attends to most (CommAttn), in the robot's colour, when
+    that member gets at least ATTN_LINE_MIN of its attention."""
     at: dict[tuple[int, int], list[int]] = {}
     for i, row in v.robots.items():
         if row.pos is not None and row.alive:
@@ -264,6 +276,8 @@ def render_grid(v: SwarmView) -> Text:
     return text
 
 
+ATTN_LINE_MIN = 0.05  # the least attention weight the map draws a line for
+
 ROBOT_COLUMNS = (("id", 0), ("state", 0), ("pos", 0), ("in", 0), ("out", 0), ("lat ms", 70),
                  ("missed", 45), ("bad", 45), ("restarts", 70), ("compute ms", 90),
                  ("wait ms", 90))
@@ -277,6 +291,7 @@ def render_robots(v: SwarmView, width: int | None = None, rows: int | None = Non
     shown = sorted(v.robots)
     if rows is not None and rows < len(shown):
         trouble = lambda i: (v.robots[i].alive and not v.robots[i].missed  # noqa: E731
+                             and not v.robots[i].missed_hidden
                              and not v.robots[i].bad, i)
         shown = sorted(sorted(shown, key=trouble)[:max(rows, 0)])
         table.caption = f"+{len(v.robots) - len(shown)} robots (a taller terminal)"
@@ -290,7 +305,8 @@ def render_robots(v: SwarmView, width: int | None = None, rows: int | None = Non
         cell = {"id": str(i), "state": Text(r.state, style="green" if r.alive else "red"),
                 "pos": "-" if r.pos is None else f"{r.pos[0]},{r.pos[1]}",
                 "in": str(r.msgs_in), "out": str(r.msgs_out), "lat ms": f"{r.latency_ms:.1f}",
-                "missed": str(r.missed), "bad": str(r.bad), "restarts": str(r.restarts),
+                "missed": f"{r.missed}" + (f" h{r.missed_hidden}" if r.missed_hidden else ""),
+                "bad": str(r.bad), "restarts": str(r.restarts),
                 "compute ms": f"{r.compute_ms:.1f}", "wait ms": f"{r.wait_ms:.1f}",
                 "weights": f"v{r.version}" + (f" ({r.weights_bad} bad)" if r.weights_bad
                                               else "")}

@@ -415,8 +415,8 @@ class RobotProcess:
             action = int(self.policy.act(view, greedy=self.run_cfg.greedy)[0, r])
         return action, chain_ok
 
-    def status(self) -> None:
-        rec = {"robot": self.robot, "ep": self.ep, "msgs_in": self.c.msgs_in,
+    def status(self, final: bool = False) -> None:
+        rec = {"robot": self.robot, "ep": self.ep, "final": final, "msgs_in": self.c.msgs_in,
                "msgs_out": self.c.msgs_out, "bytes_in": self.c.bytes_in,
                "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
                "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
@@ -476,7 +476,7 @@ class RobotProcess:
                     gone_since = None
                     self.c.rejoins += 1
                     log.warning("robot %d: world back, rejoining", self.robot)
-            self.status()
+            self.status(final=True)  # the counters a run's result reports of this robot
             return self.c
         finally:
             self.inbox.close()

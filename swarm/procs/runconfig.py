@@ -55,6 +55,10 @@ class RunConfig:
     watchdog: float = 10.0
     """Virtual clock: wall seconds the world waits for a hung or slow robot before it steps
     without it (counted as a timeout); nobody waits this long for a lost message."""
+    restart_crashed: bool = False
+    """A robot process that dies is started again. On the virtual clock a crash of the fault
+    plan (or a live one) at tick t is then followed by a restart at t + 1: the world waits for
+    the new process there, as for a planned restart."""
     start_timeout: float = 60.0
     """Seconds the world waits for every robot to come alive before the first tick."""
     pace: float = 0.0
@@ -189,8 +193,6 @@ class SuperviseOptions:
     """With `headless`: write each world status as a JSON line on stdout."""
     json_path: str | None = None
     """Write the run's result (one JSON object) here, atomically."""
-    restart_crashed: bool = False
-    """Start a robot process again when it dies."""
     log_dir: str | None = None
     """Children's stderr goes to files here (default: a temporary directory)."""
     netns: NetnsConfig | None = None

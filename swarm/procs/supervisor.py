@@ -186,9 +186,8 @@ class Supervisor:
     def stop_all(self, grace: float = 2.0) -> None:
         procs = [p for p in [self.world, *self.robots.values(), self.learner, self.recorder,
                              *self.routers] if p is not None]
-        for i in self.hung:  # a stopped process cannot take SIGINT
-            p = self.robots.get(i)
-            if p is not None and p.poll() is None:
+        for p in [self.robots[i] for i in self.hung if i in self.robots]:
+            if p.poll() is None:  # a stopped process cannot take SIGINT
                 p.send_signal(signal.SIGCONT)
         try:
             registry(self.run_cfg.run_id).unlink()
@@ -450,11 +449,11 @@ class Supervisor:
             log.warning("the recorder did not finish within %g s; stopping it", timeout)
 
     def _late_status(self, grace: float = 2.0) -> None:
-        """The last tick's status can reach us after the result on a loaded machine: wait for
-        every tick the result counts (up to `grace` seconds), so none goes unshown."""
-        want = int((self.result or {}).get("ticks", 0))
-        deadline = time.monotonic() + grace
-        while self.view.ticks_done < want and time.monotonic() < deadline:
+        """Wait (up to `grace` s) for what can reach us after the result on a loaded machine:
+        the last tick's status and each running robot's final counts (not a snapshot)."""
+        want, deadline = int((self.result or {}).get("ticks", 0)), time.monotonic() + grace
+        while time.monotonic() < deadline and (self.view.ticks_done < want or not self.view.final(
+                i for i, p in self.robots.items() if p.poll() is None or p.returncode == 0)):
             self._pump_inbox(0.05)
 
     def _pump_inbox(self, seconds: float) -> None:
@@ -481,7 +480,7 @@ class Supervisor:
                     why = last_error(self.log_dir / f"robot{i}.log")
                     if why:
                         self.child_errors[f"robot {i}"] = why
-                if self.opts.restart_crashed:
+                if self.run_cfg.restart_crashed:
                     self.restarts += 1
                     self.spawn_robot(i)
                 else:

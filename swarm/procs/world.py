@@ -90,7 +90,8 @@ class WorldProcess:
         self.chain_ms: list[list[float]] = []  # per chain depth: [sum of ms, messages]
         # liveliness tokens, less the robots a process fault of the plan holds down (virtual
         # clock: at exactly their tick; swarm.net.presence); `alive` and `live` are its views
-        self.presence = Presence(cfg.n_robots, self.radio.plan.process, gated=self.virtual)
+        self.presence = Presence(cfg.n_robots, self.radio.plan.process, gated=self.virtual,
+                                 restart_crashed=run.restart_crashed)
         self.alive, self.live = self.presence.alive, self.presence.live
         # the live robots sent this tick's observation, less any that died since (one that comes
         # alive mid-tick joins at the next: nobody waits for its action)
