@@ -313,7 +313,7 @@ def test_a_certificate_tls_would_refuse_is_one_line_before_any_process(
     for d, who, why in ((wrong, "robot-1.pem", "is for robot-0, not robot-1"),
                         (foreign, "robot-0.pem", "is not signed by ca.pem"),
                         (swapped, "robot-0.pem", "is not for the key robot-0.key"),
-                        (old, "robot-0.pem", "not now")):
+                        (old, "robot-0.pem", "is valid .* to .*, not now")):
         with pytest.raises(ConfigError, match=f"{d / who} {why}"):
             Secure.load(d, "supervisor", "x", 2, need=need)
     norec = _copy(certs, tmp_path / "norec", skip=("recorder.pem",))

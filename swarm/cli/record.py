@@ -148,6 +148,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if div is not None:
             print(f"swarm: verify: {args.file}: {div.line()}", file=sys.stderr)
             return 1
+        if not report.ticks and not report.checked.get("results"):  # (a file cut at its start)
+            print(f"swarm: verify: {args.file}: nothing to verify (no complete tick and no "
+                  "result in it)", file=sys.stderr)
+            return 1
         out.print(f"verified {args.file}: run {rec.record.run.run_id} "
                   f"({rec.record.run.policy}, {rec.record.run.clock} clock), {report.ticks} "
                   f"ticks recomputed; {checked}: every one as recorded")

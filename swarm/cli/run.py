@@ -450,7 +450,10 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--at-tick", type=int, metavar="K",
                    help="link faults apply from run tick K (default: the next tick); with the "
                         "virtual clock the change is then reproducible. A tick the run has "
-                        "passed or will never reach is refused (nothing sent)")
+                        "passed or will never reach is refused (nothing sent); where the run's "
+                        "status cannot be read (--secure: only the operator's control goes "
+                        "out) it is sent with a warning, and a passed tick applies at the next, "
+                        "counted late")
     p.add_argument("--wait", type=float, default=5.0, metavar="S",
                    help="seconds to wait for the run's world to answer (default 5)")
     add_fault_flags(p, config=False)

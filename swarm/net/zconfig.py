@@ -34,6 +34,14 @@ class ZenohOptions:
     cfg: list[str] = field(default_factory=list)
     """Extra `KEY:JSON5` settings applied last."""
 
+    @property
+    def may_acl(self) -> bool:
+        """Whether an access list may stop robots putting to one another (`--secure`'s, or one
+        in a config file): then the world forwards every hidden-state message itself (a robot
+        started by hand with `--secure` had its fast-lane puts refused: 10 s a tick)."""
+        return self.config_file is not None or any(c.startswith("access_control")
+                                                   for c in self.cfg)
+
     def to_config(self) -> zenoh.Config:
         """The session config; anything Zenoh rejects is a one-line ConfigError."""
         try:

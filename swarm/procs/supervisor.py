@@ -94,11 +94,12 @@ class Supervisor:
         self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.zfiles: dict[str, Path] = {}  # --secure: identity -> its session's config file
+        extra = (learning is not None, bool(opts.record))  # (a learner's, a recorder's files)
         self.topo_sec = topology_secure(opts.secure, run.run_id, cfg.n_robots, opts.hosts,
-                                        learning is not None) if opts.secure and self.topo else None
+                                        *extra) if opts.secure and self.topo else None
         if opts.secure and self.topo is None:  # (namespaces: configs once they are up)
             self.hub, self.zfiles = run_configs(opts.secure, run.run_id, cfg.n_robots, self.port,
-                                                self.log_dir / "zenoh", learning is not None)
+                                                self.log_dir / "zenoh", *extra)
         self.world: subprocess.Popen[bytes] | None = None
         self.robots: dict[int, subprocess.Popen[bytes]] = {}
         self.inbox: Inbox | None = None

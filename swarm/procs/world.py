@@ -492,6 +492,5 @@ def main(cfg: WorldConfig, run: RunConfig, zopts: ZenohOptions,
     through this process: an access list may let only the world publish on robots' inboxes."""
     with open_session(zopts) as session:
         check_free(session, Keys(run.run_id).alive_world, f"a world of run {run.run_id}", 1.0)
-        world = WorldProcess(cfg, run, session, on_status, faults,
-                             fast_lane=zopts.config_file is None)
+        world = WorldProcess(cfg, run, session, on_status, faults, fast_lane=not zopts.may_acl)
         return world.run()

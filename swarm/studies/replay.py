@@ -12,6 +12,7 @@ one that does not fit is dropped and counted.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -98,6 +99,34 @@ def load(path: str | Path, partial: bool = False) -> Recording:
     msgs = [Msg(m.wall_ns, m.vtime_ns, m.tick, m.key, *owned[m.key], m.payload)
             for m in raw.messages]
     return Recording(raw.path, raw, record, result, msgs)
+
+
+def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
+                                             tuple[str, Any, Any, int] | None, str | None]:
+    """The world's result as recorded: its `world/result` message on the wire and the
+    recorder's copy (`result.json`) must agree, and either stands alone when the other is
+    missing. (result, the first disagreement as (what, recorded, expected, run tick), a note)."""
+    norm = lambda x: json.loads(json.dumps(x, default=str))  # noqa: E731 (inf, tuples)
+    wire: dict[str, Any] | None = None
+    for m in rec.of("result"):
+        try:
+            got = unpack_record(m.payload, K_RESULT)
+        except BadMessage as exc:
+            return None, ("the world/result message", "unreadable", str(exc), m.tick), None
+        if wire is not None and norm(got) != norm(wire):
+            return None, ("the world/result message (a second, different one)", got, wire,
+                          m.tick), None
+        wire = got
+    copy = rec.result
+    if wire is not None and copy is not None and norm(wire) != norm(copy):
+        a, b = norm(copy), norm(wire)
+        diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))[:3]
+        return None, (f"{RESULT} (the recorder's copy of the world/result message)",
+                      {k: a.get(k) for k in diff}, {k: b.get(k) for k in diff},
+                      rec.last_tick), None
+    if copy is None and wire is not None:
+        return wire, None, f"no {RESULT} attachment: the world/result message checked"
+    return copy if copy is not None else wire, None, None
 
 
 @dataclass

@@ -45,7 +45,7 @@ from swarm.net.messages import (
     unpack_record,
 )
 from swarm.net.radio import Radio
-from swarm.studies.replay import Recording
+from swarm.studies.replay import Recording, recorded_result
 from swarm.studies.verify_direct import DirectAudit, stamped_of
 from world import core
 from world.config import ConfigError
@@ -182,7 +182,12 @@ class Auditor:
 
     def run_audit(self) -> VerifyReport:
         ticks, status, control = _index(self.rec, self.report)
-        if not self.rec.raw.complete and status:  # the cut may have lost the last tick's messages
+        try:
+            self.result = self._recorded_result()
+        except _Diverged:
+            return self.report
+        if not self.rec.raw.complete and status and self.result is None:  # the cut may have
+            # lost the last tick's messages (with the result in, the run had ended before it)
             last = max(status, key=lambda k: status[k][0])
             del status[last]
             self.report.notes.append(f"partial recording: episode {last[0]} tick {last[1] - 1}, "
@@ -421,10 +426,20 @@ class Auditor:
         robot = self.rec.messages[idx].robot
         return -1 if robot is None else robot
 
+    def _recorded_result(self) -> dict[str, Any] | None:
+        res, bad, note = recorded_result(self.rec)
+        if note:
+            self.report.notes.append(note)
+        if bad is not None:
+            self.where = (self.run.first_episode, 0, bad[3])
+            self.fail(*bad[:3])
+        return res
+
     def _result(self) -> None:
-        res = self.rec.result
+        res = self.result
         if res is None:
-            self.report.notes.append("no result recorded (the recording ended before the run)")
+            self.report.notes.append("no result recorded (the recording ended before the run's "
+                                     "end): the result was not checked")
             return
         r = self.run
         n = len(self.parts)

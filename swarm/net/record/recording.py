@@ -279,6 +279,11 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
                              f"this build reads version {SCHEMA}")
     if not complete and not partial:
         last = max((m.tick for m in messages), default=0)
+        size = Path(path).stat().st_size
+        if error and end < size - 4096:  # (a cut file fails near its end, a damaged one anywhere)
+            raise RecordingError(f"{path} is damaged or cut: unreadable at byte {end} of {size} "
+                                 f"({len(messages)} messages readable up to run tick {last}); "
+                                 "--partial uses what is there")
         why = f"unreadable at byte {end}" if error else "no footer"
         raise RecordingError(f"{path} is truncated ({why}: the recorder stopped before the end; "
                              f"{len(messages)} messages readable up to run tick {last}); "

@@ -184,8 +184,10 @@ class _Issuer:
         have = {str(v) for v in alt.get_values_for_type(x.IPAddress)}
         have |= set(alt.get_values_for_type(x.DNSName))
         wanted = {str(ipaddress.ip_address(h)) if _is_ip(h) else h for h in sans}
+        now = dt.datetime.now(dt.UTC)  # (an expired one is issued again)
         return (cert.public_key().public_numbers() == key.public_key().public_numbers()
-                and [n.value for n in names] == [cn] and wanted <= have)
+                and [n.value for n in names] == [cn] and wanted <= have
+                and cert.not_valid_before_utc <= now <= cert.not_valid_after_utc)
 
     def identity(self, cn: str, hosts: list[str]) -> None:
         """Key and certificate of identity `cn` (made, completed or kept)."""

@@ -56,6 +56,8 @@ class Secure:
         if (d / ROSTER).exists():
             try:
                 roster = json.loads((d / ROSTER).read_text())
+                if not isinstance(roster, dict):
+                    raise ValueError("not a JSON object (what `swarm certs` writes)")
                 int(roster.get("robots", 0)), int(roster.get("workers", 0))
             except (OSError, ValueError, TypeError, AttributeError) as exc:
                 raise ConfigError(f"{d / ROSTER}: {exc}") from None
@@ -101,6 +103,8 @@ class Secure:
                 raise ConfigError(f"--secure: {p} is not a PEM file")
             if p.suffix == ".key" and os.stat(p).st_mode & 0o077:
                 raise ConfigError(f"--secure: {p} is readable by others (chmod 600 {p})")
+        for who in (self.identity, *self.extra_files):
+            check_identity(self.cert_dir / CA_CERT, *self.files(who), who)
 
     def tls(self, identity: str | None = None) -> dict[str, Any]:
         """`transport/link/tls`: this CA, this identity's certificate for both directions,
@@ -199,25 +203,69 @@ def write_run_configs(sec: Secure, out_dir: str | Path, hub: str,
     return out
 
 
+def check_identity(ca: Path, cert: Path, key: Path, who: str) -> None:
+    """What TLS would refuse only once a session tries to connect (the process then fails with
+    "Unable to connect", its file unnamed, and a `swarm run` waits for it for a minute): a
+    certificate that is no certificate, is not the CA's, has expired, names another identity
+    or is not for its key. Checked when `cryptography` is installed (the `secure` extra)."""
+    try:
+        from cryptography import x509
+        from cryptography.hazmat.primitives.serialization import load_pem_private_key
+    except ImportError:
+        return
+    import datetime as dt
+
+    def bad(path: Path, why: str) -> ConfigError:
+        return ConfigError(f"--secure: {path} {why} (run `swarm certs --out {path.parent} "
+                           "--robots N` again)")
+
+    try:
+        ca_cert = x509.load_pem_x509_certificate(ca.read_bytes())
+    except ValueError:
+        raise bad(ca, "is not a certificate") from None
+    try:
+        c = x509.load_pem_x509_certificate(cert.read_bytes())
+    except ValueError:
+        raise bad(cert, "is not a certificate") from None
+    try:
+        k = load_pem_private_key(key.read_bytes(), None)
+    except (ValueError, TypeError):
+        raise bad(key, "is not an unencrypted private key") from None
+    try:
+        c.verify_directly_issued_by(ca_cert)
+    except (ValueError, TypeError, Exception):  # (InvalidSignature: another CA's)
+        raise bad(cert, f"is not signed by {ca.name} (another CA's?)") from None
+    now = dt.datetime.now(dt.UTC)
+    if not c.not_valid_before_utc <= now <= c.not_valid_after_utc:
+        raise bad(cert, f"is valid {c.not_valid_before_utc:%Y-%m-%d} to "
+                        f"{c.not_valid_after_utc:%Y-%m-%d}, not now")
+    names = [a.value for a in c.subject.get_attributes_for_oid(x509.NameOID.COMMON_NAME)]
+    if names != [who]:
+        raise bad(cert, f"is for {', '.join(map(str, names)) or 'no name'}, not {who}")
+    if c.public_key().public_numbers() != k.public_key().public_numbers():  # type: ignore[union-attr]
+        raise bad(cert, f"is not for the key {key.name}")
+
+
 def run_configs(cert_dir: str | Path, run_id: str, robots: int, port: int, out_dir: Path,
-                learner: bool = False) -> tuple[str, dict[str, Path]]:
+                learner: bool = False, recorder: bool = False) -> tuple[str, dict[str, Path]]:
     """(hub endpoint, identity -> config file) of a `swarm run --secure` whose world listens on
     127.0.0.1:`port`; every certificate the run's processes read is checked first."""
-    need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()))
+    need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()),
+            *(("recorder",) if recorder else ()))
     sec = Secure.load(cert_dir, "supervisor", run_id, robots, need=need)
     hub = f"tls/127.0.0.1:{port}"
     return hub, write_run_configs(sec, out_dir, hub)
 
 
 def topology_secure(cert_dir: str | Path, run_id: str, robots: int, hosts: int = 0,
-                    learner: bool = False) -> Secure:
+                    learner: bool = False, recorder: bool = False) -> Secure:
     """The supervisor's credentials for `swarm run --secure DIR` with `--hosts K` (hosts >= 1) or
     `--netns` (hosts 0), checked before any spawn: the run's files, the routers' keys (`swarm
     certs --routers K-1`) and the CA key, with which `topology_configs` names the run's
     addresses in the world's (and routers') certificates."""
     routers = max(hosts - 1, 0)
     need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()),
-            *(f"router-{h}" for h in range(1, routers + 1)))
+            *(("recorder",) if recorder else ()), *(f"router-{h}" for h in range(1, routers + 1)))
     d = Path(cert_dir).expanduser().resolve()
     if not d.is_dir():
         Secure.load(cert_dir, "supervisor", run_id, robots)  # its one-line "no such directory"
