@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -37,6 +38,12 @@ def swarm_started(*args: str) -> subprocess.Popen[str]:
 
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "procs: spawns processes or opens Zenoh sessions (slow)")
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker:  # (pytest -n 2: each worker's runs note their hubs in a folder of their own)
+        tmp = Path(tempfile.gettempdir()) / f"swarm-tests-{os.getpid()}-{worker}"
+        tmp.mkdir(exist_ok=True)
+        os.environ["TMPDIR"] = str(tmp)
+        tempfile.tempdir = None
 
 
 @pytest.fixture(autouse=True)
