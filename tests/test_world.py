@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from world import core
-from world.config import ConfigError, WorldConfig
+from world.config import SEED_MAX, ConfigError, WorldConfig
 from world.decentral import (
     TeamMemory,
     batch_view,
@@ -329,7 +329,7 @@ worlds = small_world | st.sampled_from([WorldConfig(), WorldConfig(explore_mode=
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=SLOW)
-@given(cfg=worlds, seed=st.integers(0, 2**31), action_seed=st.integers(0, 2**31),
+@given(cfg=worlds, seed=st.integers(0, SEED_MAX), action_seed=st.integers(0, SEED_MAX),
        p_stay=st.floats(0.0, 0.9))
 def test_robots_never_on_blocks_and_elratio_never_decreases(
         cfg: WorldConfig, seed: int, action_seed: int, p_stay: float) -> None:
@@ -353,7 +353,7 @@ def test_robots_never_on_blocks_and_elratio_never_decreases(
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=SLOW)
-@given(cfg=worlds, seed=st.integers(0, 2**31), action_seed=st.integers(0, 2**31),
+@given(cfg=worlds, seed=st.integers(0, SEED_MAX), action_seed=st.integers(0, SEED_MAX),
        p_stay=st.sampled_from([0.0, 0.5, 0.95]))
 def test_dynamic_block_schedule(cfg: WorldConfig, seed: int, action_seed: int,
                                 p_stay: float) -> None:
@@ -425,7 +425,7 @@ def test_pending_block_waits_for_its_cell_without_holding_up_the_batch() -> None
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=SLOW)
-@given(cfg=worlds, seed=st.integers(0, 2**31), action_seed=st.integers(0, 2**31))
+@given(cfg=worlds, seed=st.integers(0, SEED_MAX), action_seed=st.integers(0, SEED_MAX))
 def test_same_seed_and_actions_give_identical_episodes(
         cfg: WorldConfig, seed: int, action_seed: int) -> None:
     runs = []
@@ -451,7 +451,7 @@ STATE_FIELDS = ["grid", "pos", "explored", "visited", "recent", "dyn_cells", "dy
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=SLOW)
-@given(cfg=worlds, seed=st.integers(0, 2**31), action_seed=st.integers(0, 2**31))
+@given(cfg=worlds, seed=st.integers(0, SEED_MAX), action_seed=st.integers(0, SEED_MAX))
 def test_episodes_do_not_depend_on_their_batch(cfg: WorldConfig, seed: int,
                                                action_seed: int) -> None:
     """reset(cfg, seed, [3, 7]) runs episodes 3 and 7 exactly as two separate resets do."""
@@ -649,7 +649,7 @@ def test_comm_range_boundary_is_inclusive_and_inf_hears_everyone() -> None:
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=SLOW)
-@given(seed=st.integers(0, 2**31), comm=st.sampled_from([0.0, 2.0, 5.0, math.inf]),
+@given(seed=st.integers(0, SEED_MAX), comm=st.sampled_from([0.0, 2.0, 5.0, math.inf]),
        steps=st.integers(0, 5))
 def test_robot_view_of_heard_messages_matches_the_batch_view(seed: int, comm: float,
                                                              steps: int) -> None:

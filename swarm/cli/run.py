@@ -338,8 +338,10 @@ def cmd_fault(args: argparse.Namespace) -> int:
             run = fetch_config(session, keys, args.wait)
         except (TimeoutError, BadMessage) as exc:
             where = ", ".join(opts.connect or []) or "this network"
-            raise ConfigError(f"run {args.run} did not answer at {where} ({exc}); nothing "
-                              "was sent") from None
+            hint = (f"; with --secure, is {args.secure}/ca.pem the run's CA?" if args.secure
+                    else "")  # (TLS refuses another CA's certificate without a word to us)
+            raise ConfigError(f"run {args.run} did not answer at {where} ({exc}){hint}; "
+                              "nothing was sent") from None
         fault_table(args, {}, run.world.n_robots, False)  # a partition or robot beyond it
         check_fault_ticks(table, run.run, run.world, args.at_tick)  # or a tick beyond its end
         if run.run.clock == "real" and "compute" in link:

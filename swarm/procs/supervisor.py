@@ -109,9 +109,8 @@ class Supervisor:
         self.recorder: subprocess.Popen[bytes] | None = None
         self.recorder_alive = False
         self.result: dict[str, Any] | None = None
-        self.crashes = 0
+        self.crashes, self.restarts = 0, 0
         self.child_errors: dict[str, str] = {}  # process -> the last error line of its log
-        self.restarts = 0
         self.procstat = ProcSampler()  # peak memory and CPU per tick of the children
         self.first_tick_age: float | None = None
         self._last_rss = 0.0
@@ -356,14 +355,15 @@ class Supervisor:
         res = dict(self.result)
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["first_tick_s"] = self.first_tick_age  # from the command (this process's start)
-        res["robot_crashes"] = self.crashes
-        if self.child_errors:
+        res["robot_crashes"], res["robot_restarts"] = self.crashes, self.restarts
+        if self.child_errors:  # (the run went on without them: said, not only in the JSON)
             res["child_errors"] = dict(self.child_errors)
+            for who, why in self.child_errors.items():
+                print(f"swarm: warning: {who} failed: {why}", file=sys.stderr, flush=True)
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
         if self.inbox is not None:  # and what its inbox dropped unread
             res["supervisor_dropped"] = self.inbox.dropped
         res["result_message_lost"] = lost
-        res["robot_restarts"] = self.restarts
         if self.recorder is not None:
             res["recording"] = {"path": self.opts.record, "exit": self.recorder.returncode}
         res["process_faults"] = self.fault_log
