@@ -48,6 +48,8 @@ def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation"
         )
     notes = ([f"Δ: elratio minus {vs}'s on the same episodes (paired; se of the mean)"]
              if vs else [])
+    notes.append("plan ms: per team decision (eval: the batched act amortized over its "
+                 "episodes; run: every robot's own decision, summed)")
     if any(not s.get("decentralized", True) for s in summaries):
         notes.append("* a reference planner, not decentralized (see README, Reference planners)")
     if notes:
