@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,8 @@ def cmd_rollout_worker(args: argparse.Namespace) -> int:
     try:
         zopts = secure_options(args, zconfig.from_args(args), f"worker-{args.worker_id}",
                                args.run_id)
+        print(f"swarm rollout-worker: worker {args.worker_id} of run {args.run_id}: batches "
+              "of episodes for its learner (Ctrl-C stops it)", file=sys.stderr, flush=True)
         res = worker_main(args.run_id, zopts, args.worker_id, args.batch, args.threads,
                           args.max_batches, args.wait)
     except KeyboardInterrupt:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import sys
 import tempfile
 import time
 from collections.abc import Collection
@@ -392,4 +393,7 @@ def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptio
     learner = Learner(cfg, lc, tc, given)
     with open_session(zopts) as session:
         learner.open_out()
+        print(f"swarm learner: run {lc.run_id}, {lc.policy}, writing {lc.out}; it trains on "
+              "the run's episodes until the run ends (Ctrl-C stops it)", file=sys.stderr,
+              flush=True)
         return learner.run(session, seed, stop)
