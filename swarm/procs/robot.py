@@ -38,7 +38,7 @@ from swarm.net.messages import (
 )
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.robot_direct import Heard, with_delivery
-from swarm.procs.robot_status import RobotCounters, TickGuard, attention_of
+from swarm.procs.robot_status import RobotCounters, TickGuard, attention_of, count_after_end
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
 from world.decentral import TrajMessages, robot_view
@@ -476,6 +476,8 @@ class RobotProcess:
                     gone_since = None
                     self.c.rejoins += 1
                     log.warning("robot %d: world back, rejoining", self.robot)
+            if self.ended:  # (what the world sent just before its end comes after it too)
+                count_after_end(self.inbox, self.c)
             self.status(final=True)  # the counters a run's result reports of this robot
             return self.c
         finally:

@@ -4,11 +4,13 @@ accepts: the ticks its messages may name (`TickGuard`)."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from policies.base import Policy
+from swarm.net.inbox import Inbox
 from swarm.net.messages import BadMessage
 
 
@@ -84,3 +86,15 @@ class TickGuard:
                 (ep - last[0]) * (self.horizon + 1) + t - last[1] > ahead:
             raise BadMessage(f"ep {ep} tick {t} is ahead of the observed ep {last[0]} tick "
                              f"{last[1]}")
+
+
+def count_after_end(inbox: Inbox, c: RobotCounters, seconds: float = 0.1) -> None:
+    """Count what reaches the robot within `seconds` after the run's end record: Zenoh calls
+    each subscription's callback on a thread of its own, so what the world sent before its end
+    (the last tick's observation) can come just after it, and the final counts (`msgs_in`)
+    depended on that race."""
+    end = time.monotonic() + seconds
+    while (ev := inbox.next(end - time.monotonic())) is not None:
+        if ev[0] not in ("end", "world:live", "world:dead"):
+            c.msgs_in += 1
+            c.bytes_in += len(ev[2] or b"")

@@ -439,6 +439,9 @@ class WorldProcess:
                 while not self.stop and self._pump(deadline):
                     pass
             self._put(self.keys.end, pack_record(K_RESULT, {"run_id": rc.run_id}))
+            deadline = time.monotonic() + 2.0  # robots' final statuses route through this
+            while self.presence.tokens and self._pump(deadline):  # session: up until they left
+                pass
             time.sleep(0.05)  # let the result and the end leave before the session closes
             return result
         finally:
