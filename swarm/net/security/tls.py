@@ -210,7 +210,11 @@ def check_identity(ca: Path, cert: Path, key: Path, who: str) -> None:
     or is not for its key. Checked when `cryptography` is installed (the `secure` extra)."""
     try:
         from cryptography import x509
-        from cryptography.hazmat.primitives.serialization import load_pem_private_key
+        from cryptography.hazmat.primitives.serialization import (
+            Encoding,
+            PublicFormat,
+            load_pem_private_key,
+        )
     except ImportError:
         return
     import datetime as dt
@@ -233,7 +237,7 @@ def check_identity(ca: Path, cert: Path, key: Path, who: str) -> None:
         raise bad(key, "is not an unencrypted private key") from None
     try:
         c.verify_directly_issued_by(ca_cert)
-    except (ValueError, TypeError, Exception):  # (InvalidSignature: another CA's)
+    except Exception:  # (InvalidSignature: another CA's; TypeError: a key type it cannot check)
         raise bad(cert, f"is not signed by {ca.name} (another CA's?)") from None
     now = dt.datetime.now(dt.UTC)
     if not c.not_valid_before_utc <= now <= c.not_valid_after_utc:
@@ -242,7 +246,8 @@ def check_identity(ca: Path, cert: Path, key: Path, who: str) -> None:
     names = [a.value for a in c.subject.get_attributes_for_oid(x509.NameOID.COMMON_NAME)]
     if names != [who]:
         raise bad(cert, f"is for {', '.join(map(str, names)) or 'no name'}, not {who}")
-    if c.public_key().public_numbers() != k.public_key().public_numbers():  # type: ignore[union-attr]
+    spki = lambda pub: pub.public_bytes(Encoding.DER, PublicFormat.SubjectPublicKeyInfo)  # noqa: E731
+    if spki(c.public_key()) != spki(k.public_key()):  # (any key type: EC, RSA, Ed25519)
         raise bad(cert, f"is not for the key {key.name}")
 
 
