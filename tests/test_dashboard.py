@@ -80,6 +80,11 @@ def test_the_last_episode_counts_and_a_dead_robot_draws_no_attention() -> None:
     assert v.episodes_done == 2 and "2/2" in _text(render(v))
     v.apply_result({"completed": "junk"})  # (a record that does not fit changes nothing)
     assert v.episodes_done == 2
+    v.robots[2].final, v.robots[2].errors = True, 3  # its last status came: it left, not lost
+    v.set_alive(2, False)
+    assert v.robots[2].state == "done" and v.undecided() == [
+        "robot 2 could not decide on 3 ticks and stayed in place there (`--log-dir DIR` keeps "
+        "its log, with the reason)"]
     v.attention = {0: (2, [0.99, 9e-3, 1e-3]), 1: (2, [1e-4, 0.9999, 0.0])}
     assert attention_lines(v) == {}  # a weight of 1e-2 or less draws no line (UA pass)
     v.attention = {0: (2, [0.1, 0.9, 0.0]), 1: (2, [0.8, 0.2, 0.0])}

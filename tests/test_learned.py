@@ -592,3 +592,5 @@ def test_evaluate_refuses_arguments_that_are_no_run() -> None:
             evaluate(TINY, rand, args.pop("seed"), args.pop("n_episodes"), **args)
     with pytest.raises(ConfigError, match="built for 3 robots"):
         evaluate(dataclasses.replace(TINY, n_robots=2), rand, 0, 1)
+    with pytest.raises(ConfigError, match="on 6 x 6, the world has 3 with 3 on 7 x 6"):
+        evaluate(dataclasses.replace(TINY, height=7), rand, 0, 1)  # (numpy broadcast errors)

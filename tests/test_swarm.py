@@ -509,5 +509,12 @@ def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path)
                                  "SyntaxError")):  # a plugin's bug: one line, not a traceback
         r = swarm("eval", "--policy", name, "--robots", "3", "--episodes", "1", env=env)
         assert r.returncode == 2 and why in r.stderr and "Traceback" not in r.stderr, r.stderr
+    # on the swarm, a robot whose policy fails stays in place and says so; nobody waits for it
+    # (each tick waited out the 10 s watchdog, and the run ended with exit 0 and no word)
+    r = swarm("run", "--headless", "--policy", "nan", "--robots", "3", "--episodes", "1",
+              "--horizon", "4", "--json", str(run), env=env)
+    assert r.returncode == 0 and "robot 1 could not decide on 4 ticks" in r.stderr, r.stderr
+    res = json.loads(run.read_text())
+    assert res["timeouts"] == 0 and not np.array(res["actions"]).any()
     r = swarm("eval", "--policy", "cyclic", "--episodes", "1")  # not installed: unknown
     assert r.returncode == 2 and "unknown policy 'cyclic'" in r.stderr

@@ -793,7 +793,8 @@ def test_a_world_config_out_of_range_is_one_line(bad: dict[str, float]) -> None:
 @pytest.mark.parametrize("changes", [
     {"dynamic": "false"}, {"height": 20.5}, {"n_robots": 2.5}, {"height": "20"},
     {"comm_range": None}, {"r_back": "x"}, {"n_robots": True}, {"success_max_block_collisions": -1},
-    {"recent_len": 10**9}, {"height": 10**5, "width": 10**5}])
+    {"recent_len": 10**9}, {"height": 10**5, "width": 10**5}, {"horizon": 10**12},
+    {"vision": 2003}, {"height": np.float64(20.5)}])
 def test_a_world_config_built_in_code_checks_its_types_and_ranges(changes: dict) -> None:
     """UA pass: only from_dict checked types, so WorldConfig(dynamic="false") ran every dynamic
     block and WorldConfig(height=20.5) failed deep in numpy."""
@@ -811,3 +812,10 @@ def test_reset_and_step_refuse_what_is_no_seed_episode_or_move() -> None:
     for actions in (np.full((1, 2), np.nan), np.ones((1, 2), bool), np.ones((1, 2))):
         with pytest.raises(ValueError, match="actions must be integers in 0..8"):
             core.step(cfg, state, actions)
+
+
+def test_numpy_scalars_are_taken_as_the_numbers_they_are() -> None:
+    cfg = WorldConfig(height=np.int64(8), width=np.int32(8), n_static=4, n_dynamic=2, n_robots=2,
+                      horizon=6, r_back=np.float32(-10))
+    assert type(cfg.height) is int and type(cfg.r_back) is float  # (JSON and msgpack take them)
+    assert core.reset(cfg, np.int64(3), np.arange(2)).pos.shape == (2, 2)

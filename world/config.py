@@ -18,12 +18,15 @@ class ConfigError(ValueError):
 
 
 MAX_SIDE = 1000  # the largest grid side (`--size` and every config)
+MAX_HORIZON = 100_000  # the longest mission (the paper's: 30 steps)
 SEED_MAX = 2**31 - 1  # every seed keys numpy's SeedSequence and the msgpack int32 fields
 
 
 def check_seed(seed: Any, name: str = "seed") -> None:
-    """A seed is an int in [0, SEED_MAX]; anything else is a one-line ConfigError."""
-    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= SEED_MAX:
+    """A seed is an int (or numpy integer) in [0, SEED_MAX]; anything else is a one-line
+    ConfigError."""
+    if isinstance(seed, bool) or not isinstance(seed, int) and not (
+            hasattr(seed, "dtype") and seed.dtype.kind in "iu") or not 0 <= seed <= SEED_MAX:
         raise ConfigError(f"{name} must lie in [0, {SEED_MAX}], got {seed!r}")
 
 
@@ -79,6 +82,10 @@ class WorldConfig:
 
         for f in fields(self):  # built in code too, not only by from_dict: types checked here
             v, kind = getattr(self, f.name), f.type if isinstance(f.type, str) else f.type.__name__
+            if kind in ("int", "float") and hasattr(v, "dtype") and v.dtype.kind in "iuf" \
+                    and v.ndim == 0:  # a numpy scalar: its Python value (JSON, msgpack)
+                v = int(v) if v.dtype.kind in "iu" else float(v)
+                object.__setattr__(self, f.name, v)
             ok = {"int": isinstance(v, int), "float": isinstance(v, (int, float)),
                   "bool": isinstance(v, bool), "str": isinstance(v, str)}[kind]
             if not ok or (kind in ("int", "float") and isinstance(v, bool)):
@@ -91,12 +98,12 @@ class WorldConfig:
                 bad(f"{name} must be a finite number in [-1e6, 1e6], got {getattr(self, name)}")
         if not 0.0 <= self.success_elratio <= 1.0:
             bad(f"success_elratio must lie in [0, 1], got {self.success_elratio}")
-        if self.vision < 1 or self.vision % 2 == 0:
-            bad(f"vision must be a positive odd number, got {self.vision}")
+        if self.vision < 1 or self.vision % 2 == 0 or self.vision > 2 * MAX_SIDE + 1:
+            bad(f"vision must be an odd number in [1, {2 * MAX_SIDE + 1}], got {self.vision}")
         if self.n_robots < 1:
             bad(f"n_robots must be >= 1, got {self.n_robots}")
-        if self.horizon < 1:
-            bad(f"horizon must be >= 1, got {self.horizon}")
+        if not 1 <= self.horizon <= MAX_HORIZON:  # (10^12 tried to allocate 7 TiB)
+            bad(f"horizon must lie in [1, {MAX_HORIZON}], got {self.horizon}")
         if self.add_every < 1:
             bad(f"add_every must be >= 1, got {self.add_every}")
         if not (self.comm_range >= 0):

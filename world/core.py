@@ -151,6 +151,7 @@ def generate_episode(cfg: WorldConfig, seed: int,
 def reset(cfg: WorldConfig, seed: int, episodes: np.ndarray | list[int]) -> WorldState:
     """Start one generated episode per entry of `episodes` (keyed with `seed`)."""
     check_seed(seed)
+    seed = int(seed)
     raw = np.asarray(episodes).reshape(-1)
     if raw.size == 0 or raw.dtype.kind not in "iu" or raw.min() < 0 or raw.max() > SEED_MAX:
         raise ConfigError(f"episodes must be one or more integers in [0, {SEED_MAX}], got "

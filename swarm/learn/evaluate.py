@@ -155,9 +155,12 @@ def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, ba
                            ("first_episode", first_episode, 0)):
         if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < least:
             raise ConfigError(f"{name} must be an integer >= {least}, got {v!r}")
-    if policy.cfg.n_robots != cfg.n_robots or policy.cfg.vision != cfg.vision:
-        raise ConfigError(f"the policy was built for {policy.cfg.n_robots} robots with vision "
-                          f"{policy.cfg.vision}, the world has {cfg.n_robots} with {cfg.vision}")
+    shape = lambda c: (c.n_robots, c.vision, c.height, c.width)  # noqa: E731
+    if shape(policy.cfg) != shape(cfg):
+        p = policy.cfg
+        raise ConfigError(f"the policy was built for {p.n_robots} robots with vision {p.vision} "
+                          f"on {p.height} x {p.width}, the world has {cfg.n_robots} with "
+                          f"{cfg.vision} on {cfg.height} x {cfg.width}")
     channel = channel_for(faults, cfg, policy, tick_s)
     parts: list[core.EpisodeMetrics] = []
     curves: list[np.ndarray] = []

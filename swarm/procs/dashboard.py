@@ -170,6 +170,12 @@ class SwarmView:
             self.attention[int(rec["robot"])] = (int(rec.get("attn_t", 0)),
                                                  [float(x) for x in rec["attn"]])
 
+    def undecided(self) -> list[str]:
+        """A line for each robot that could not decide on some ticks (a policy's error)."""
+        return [f"robot {i} could not decide on {r.errors} ticks and stayed in place there "
+                "(`--log-dir DIR` keeps its log, with the reason)"
+                for i, r in sorted(self.robots.items()) if r.errors]
+
     def final(self, robots: Iterable[int]) -> bool:
         """Whether each of `robots` has sent its last status (its counts at the run's end)."""
         return all(self.robots.get(i, RobotRow()).final for i in robots)
@@ -190,7 +196,8 @@ class SwarmView:
         if alive and not row.alive and row.state == "lost":
             row.restarts += 1
         row.alive = alive
-        row.state = "acting" if alive else ("lost" if row.state != "starting" else "starting")
+        row.state = "acting" if alive else "done" if row.final else \
+            "lost" if row.state != "starting" else "starting"  # (done: left after the run)
         if not alive:  # a dead robot's last attention is not drawn on (it came back: anew)
             self.attention.pop(robot, None)
 

@@ -336,19 +336,19 @@ class RobotProcess:
         deadline = (time.monotonic() if virtual else t_recv) + budget
         self.c.last_latency_ms = 1e3 * (time.monotonic() - t_recv)
         heard = bundle.msgs
-        t0, waited = time.perf_counter(), self.c.wait_ms
+        t0, waited, errors = time.perf_counter(), self.c.wait_ms, self.c.errors
         try:
             action, chain_ok = self.decide(obs, heard, t_recv, deadline, bundle.succ)
-        except Exception as exc:  # a view no world would send must not take the robot down
-            self.c.errors += 1
-            log.error("robot %d could not decide at tick %d: %s: %s", r, obs.t,
+        except Exception as exc:  # a view no world would send (or a policy's bug) must not take
+            self.c.errors += 1  # the robot down, nor hold the tick up: it stays in place
+            log.error("robot %d could not decide at tick %d (it stays): %s: %s", r, obs.t,
                       type(exc).__name__, exc)
-            return
+            action, chain_ok = 0, False
         # planning time without the wait for the predecessor (reported apart, as wait_ms)
         ms = max(0.0, 1e3 * (time.perf_counter() - t0) - (self.c.wait_ms - waited))
         self.c.compute_ms += ms
         self.c.decisions += 1
-        if self.train:
+        if self.train and self.c.errors == errors:  # (a tick it could not decide: not learnt)
             probs = self.policy.last_probs  # type: ignore[attr-defined]
             logp = float(np.log(max(float(probs[0, r, action]), 1e-30)))
             mask = int(sum(1 << int(j) for j in np.flatnonzero(heard.present[0])))

@@ -356,10 +356,10 @@ class Supervisor:
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["first_tick_s"] = self.first_tick_age  # from the command (this process's start)
         res["robot_crashes"], res["robot_restarts"] = self.crashes, self.restarts
-        if self.child_errors:  # (the run went on without them: said, not only in the JSON)
-            res["child_errors"] = dict(self.child_errors)
-            for who, why in self.child_errors.items():
-                print(f"swarm: warning: {who} failed: {why}", file=sys.stderr, flush=True)
+        res.update({"child_errors": dict(self.child_errors)} if self.child_errors else {})
+        for line in [*(f"{w} failed: {why}" for w, why in self.child_errors.items()),
+                     *self.view.undecided()]:  # (the run went on: said, not only in the JSON)
+            print(f"swarm: warning: {line}", file=sys.stderr, flush=True)
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
         if self.inbox is not None:  # and what its inbox dropped unread
             res["supervisor_dropped"] = self.inbox.dropped
