@@ -285,8 +285,14 @@ def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[st
 
     rewrite(recorded["file"], bad, edit_msg=forge)
     r = swarm("replay", str(bad), "--verify")
-    assert r.returncode == 1 and "result.json (the recorder's copy of the world/result " \
-        "message): recorded {'elratio_mean'" in r.stderr, r.stderr
+    assert r.returncode == 1 and "(run tick 8): result.json (the recorder's copy, as recorded) " \
+        "against the world/result message (as recomputed): recorded {'elratio_mean'" \
+        in r.stderr, r.stderr
+    # a file that lost only its closing magic is not whole: --partial is needed for it
+    bare = tmp_path / "bare.mcap"
+    bare.write_bytes(recorded["file"].read_bytes()[:-1])
+    r = swarm("replay", str(bare), "--verify")
+    assert r.returncode == 2 and "is truncated" in r.stderr, r.stderr
     # a recording cut after the run (its summary lost) verifies whole with --partial: the
     # result in it says the run ended, so its last tick is complete (it was a false divergence)
     cut = tmp_path / "cut.mcap"

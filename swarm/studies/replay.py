@@ -121,7 +121,8 @@ def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
     if wire is not None and copy is not None and norm(wire) != norm(copy):
         a, b = norm(copy), norm(wire)
         diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))[:3]
-        return None, (f"{RESULT} (the recorder's copy of the world/result message)",
+        return None, (f"{RESULT} (the recorder's copy, as recorded) against the world/result "
+                      "message (as recomputed)",
                       {k: a.get(k) for k in diff}, {k: b.get(k) for k in diff},
                       rec.last_tick), None
     if copy is None and wire is not None:

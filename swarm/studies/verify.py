@@ -428,10 +428,10 @@ class Auditor:
 
     def _recorded_result(self) -> dict[str, Any] | None:
         res, bad, note = recorded_result(self.rec)
-        if note:
-            self.report.notes.append(note)
-        if bad is not None:
-            self.where = (self.run.first_episode, 0, bad[3])
+        self.report.notes += [note] if note else []
+        if bad is not None:  # (at the recording's last run tick: its end)
+            k, t = max(bad[3] - 1, 0), self.cfg.horizon
+            self.where = (self.run.first_episode + k // t, k % t + 1, bad[3])
             self.fail(*bad[:3])
         return res
 

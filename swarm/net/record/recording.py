@@ -268,6 +268,10 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
         except Exception as exc:  # anything a cut or corrupt file raises inside the reader
             error = f"{type(exc).__name__}: {exc}"[:200]
         end = fh.tell()
+        if complete:  # a footer, and the closing magic after it (a file cut in it is not whole)
+            fh.seek(-len(MAGIC), 2)
+            if fh.read(len(MAGIC)) != MAGIC:
+                complete, error = False, "no closing magic"
     if not meta:
         raise RecordingError(f"{path} is not a swarm recording (no {META} metadata"
                              + (f"; unreadable at byte {end}: {error})" if error else ")"))
