@@ -461,6 +461,12 @@ def test_the_attention_field_is_range_checked() -> None:
             check_robot_status({**ok, **bad}, 3, 30)
     with pytest.raises(BadMessage):
         check_robot_status({"robot": 0, "attn_t": 1}, 3, 30)  # both or neither
+    # its counters too: a bad one used to fail halfway through the dashboard's update
+    for bad in ({"missed_hidden": "x"}, {"msgs_in": -1}, {"final": 1}, {"ep": -2},
+                {"compute_ms": float("nan")}, {"errors": True}):
+        with pytest.raises(BadMessage):
+            check_robot_status({"robot": 0, **bad}, 3, 30)
+    assert check_robot_status({"robot": 0, "ep": -1, "final": True, "errors": 2}, 3, 30)
 
 
 def test_keys_know_which_run_and_kind_a_key_belongs_to() -> None:

@@ -91,15 +91,16 @@ def _fill(free: np.ndarray, missing: int, rng: np.random.Generator) -> np.ndarra
     stop fitting (only maps the segments could not finish come here: every other map is
     unchanged). A ConfigError when no free cell can be blocked without cutting the free space."""
     h, w = free.shape
+    n_free = int(free.sum())
     while missing > 0:
         before = missing
         for cell in rng.permutation(h * w):
             y, x = divmod(int(cell), w)
-            if not free[y, x] or missing >= int(free.sum()):  # (never the last free cell)
+            if not free[y, x] or missing >= n_free:  # (never the last free cell)
                 continue
             free[y, x] = False  # a simple point, or one that breaks a loop (checked whole)
             if SIMPLE[_ring_pattern(free, y, x)] or is_connected(free):
-                missing -= 1
+                missing, n_free = missing - 1, n_free - 1
                 if missing == 0:
                     break
             else:

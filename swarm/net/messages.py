@@ -370,12 +370,27 @@ def unpack_record(payload: bytes, kind: int) -> dict[str, Any]:
 ATTN_SUM_TOL = 1e-3  # attention weights are float32 softmax outputs, sent rounded
 
 
+RSTATUS_COUNTS = ("msgs_in", "msgs_out", "bytes_in", "bytes_out", "bad", "stale", "missed",
+                  "missed_hidden", "version", "weights_bad", "weights_late", "rollouts_lost",
+                  "stalls", "rejoins", "errors", "oversized", "overflow")
+"""A robot status's counters: non-negative integers."""
+
+
 def check_robot_status(rec: dict[str, Any], n_robots: int, horizon: int) -> dict[str, Any]:
     """A robot status record's id and its optional attention fields, range-checked (BadMessage
     otherwise: the consumer drops and counts the record). `attn` is the robot's attention
     weights over the team, [N] numbers in [0, 1], zero for members it did not hear, summing to 1
     (it always hears itself); `attn_t` the tick they were computed at. Both or neither."""
     _int(rec.get("robot"), "robot", 0, n_robots - 1)
+    _int(rec.get("ep", -1), "ep", -1, 2**31 - 1)  # (-1: before its first episode)
+    for k in RSTATUS_COUNTS:  # (the dashboard and the result read them: no half-applied record)
+        if k in rec:
+            _int(rec[k], k, 0, 2**53)
+    for k in ("latency_ms", "compute_ms", "wait_ms"):
+        if k in rec:
+            _float(rec[k], k, 0.0, MAX_MS)
+    if not isinstance(rec.get("final", False), bool):
+        raise BadMessage("final must be true or false")
     if "attn" not in rec and "attn_t" not in rec:
         return rec
     w = rec.get("attn")
