@@ -164,8 +164,6 @@ def test_hostile_stamped_messages_are_refused() -> None:
         (keys.direct(1, True), raw(K_HIDDEN, 0, 2, 1, 0.0, good)),  # a trajectory called hidden
         (keys.direct(1), raw(K_TRAJ, 0, 2, 1, 0.0, b"\x00" * 10**6)),  # oversized
         (keys.direct(1), raw(K_TRAJ, 0, 2, 1, 0.0)),  # a field missing
-        (keys.direct(1, True), Stamped(K_HIDDEN, 0, 2, 1, 0.0, Hidden.miss(0, 2, 1).pack())
-         .pack()),  # only the radio says "will not come"
         (keys.direct(1, True), raw(K_TRAJ, 0, 2, 1, 0.0, good)),  # on the hidden-state key
     ]
     for key, payload in bad:

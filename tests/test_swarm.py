@@ -454,6 +454,7 @@ PLUGIN = '''
 import numpy as np
 
 from policies.base import Policy, receiver_index
+from policies.chain_plan import ChainPlan
 
 
 class Cyclic(Policy):
@@ -473,7 +474,33 @@ class Nan(Cyclic):
 
     def act(self, view, greedy=True):
         return np.full(view.receivers.shape, np.nan)
+
+
+class Boom(ChainPlan):
+    """A buggy chained one: robot 1 fails from tick 1 on."""
+
+    name = "boom"
+
+    def act_with_chain(self, view, *args, **kwargs):
+        if view.tick >= 1 and receiver_index(view)[1] == 1:
+            raise RuntimeError("boom")
+        return super().act_with_chain(view, *args, **kwargs)
 '''
+
+
+def install_plugin(tmp_path: Path) -> dict[str, str]:
+    """The package of PLUGIN on a path of its own, declared by its entry points; the
+    environment that makes it importable."""
+    (tmp_path / "cyclic_plugin.py").write_text(PLUGIN)
+    info = tmp_path / "cyclic_plugin-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: cyclic-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[commattn_swarm.policies]\n"
+                                           "cyclic = cyclic_plugin:Cyclic\nbroken = nocolon\n"
+                                           "nan = cyclic_plugin:Nan\nsyntax = bad_plugin:X\n"
+                                           "boom = cyclic_plugin:Boom\n")
+    (tmp_path / "bad_plugin.py").write_text("def (:\n")
+    return {"PYTHONPATH": str(tmp_path)}
 
 
 @pytest.mark.procs
@@ -481,15 +508,7 @@ def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path)
     """A package that declares an entry point in the `commattn_swarm.policies` group (README,
     "Adding a policy") adds its policy to every command, robot processes included, without
     touching this repository; a malformed entry is skipped with a warning."""
-    (tmp_path / "cyclic_plugin.py").write_text(PLUGIN)
-    info = tmp_path / "cyclic_plugin-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: cyclic-plugin\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[commattn_swarm.policies]\n"
-                                           "cyclic = cyclic_plugin:Cyclic\nbroken = nocolon\n"
-                                           "nan = cyclic_plugin:Nan\nsyntax = bad_plugin:X\n")
-    (tmp_path / "bad_plugin.py").write_text("def (:\n")
-    env = {"PYTHONPATH": str(tmp_path)}
+    env = install_plugin(tmp_path)
     ev, run = tmp_path / "eval.json", tmp_path / "run.json"
     r = swarm("eval", "--policy", "cyclic,random", "--robots", "3", "--episodes", "2", "--seed",
               "4", "--json", str(ev), env=env)
@@ -518,3 +537,22 @@ def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path)
     assert res["timeouts"] == 0 and not np.array(res["actions"]).any()
     r = swarm("eval", "--policy", "cyclic", "--episodes", "1")  # not installed: unknown
     assert r.returncode == 2 and "unknown policy 'cyclic'" in r.stderr
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("fault", [[], ["--loss", "0.01"], ["--delivery", "direct"]],
+                         ids=["fast-lane", "radio", "direct"])
+def test_a_chained_robot_that_cannot_decide_says_so_to_its_successor(tmp_path: Path,
+                                                                    fault: list[str]) -> None:
+    """A chained robot whose policy fails sends an empty hidden state: its successor decodes
+    without it at once, and the world does not wait for it. Before, each such tick waited out
+    the watchdog (here 600 s, so the run would outlast the test's timeout)."""
+    env, run = install_plugin(tmp_path), tmp_path / "run.json"
+    r = swarm("run", "--headless", "--policy", "boom", "--robots", "3", "--episodes", "1",
+              "--horizon", "4", "--seed", "2", "--watchdog", "600", "--json", str(run), *fault,
+              env=env, timeout=120)
+    assert r.returncode == 0 and "robot 1 could not decide on 3 ticks" in r.stderr, r.stderr
+    res = json.loads(run.read_text())
+    assert res["timeouts"] == 0 and not np.array(res["actions"])[0, 1:, 1].any()
+    status = res["robot_status"]
+    assert status["2"]["missed_hidden"] >= 3, status  # robot 1 is robot 2's predecessor

@@ -326,7 +326,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
         import time
 
         from swarm.net.messages import BadMessage
-        from swarm.procs.robot import fetch_config
+        from swarm.procs.robot_status import fetch_config
 
         # the run's tick, from its status (an operator of a --secure run may not read it)
         ticks: list[int] = []

@@ -104,7 +104,7 @@ def _team_size(run_id: str, endpoint: str, sec: Any) -> int:
     from swarm.net.keys import Keys
     from swarm.net.messages import BadMessage
     from swarm.net.security.audit import witness_session
-    from swarm.procs.robot import fetch_config
+    from swarm.procs.robot_status import fetch_config
 
     with witness_session(endpoint, sec) as session:
         try:

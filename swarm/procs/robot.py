@@ -20,7 +20,7 @@ import zenoh
 
 from policies.base import Policy
 from swarm.common.policy_spec import build_inference
-from swarm.net.inbox import Inbox, check_free, publisher, query, tally
+from swarm.net.inbox import Inbox, check_free, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import RolloutTick
 from swarm.net.messages import (
@@ -38,8 +38,15 @@ from swarm.net.messages import (
 )
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.robot_direct import Heard, with_delivery
-from swarm.procs.robot_status import RobotCounters, TickGuard, attention_of, count_after_end
-from swarm.procs.runconfig import RunConfig, RunRecord
+from swarm.procs.robot_status import (
+    RobotCounters,
+    TickGuard,
+    attention_of,
+    count_after_end,
+    fetch_config,
+    hop_deadline,
+)
+from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig
 from world.decentral import TrajMessages, robot_view
 
@@ -50,29 +57,12 @@ REJOIN_S = 10.0  # how long a robot that just stalled waits for the world's toke
 GONE_S = 1.0  # how long any other robot waits before it takes a vanished token for the world's end
 
 
-def hop_deadline(t_recv: float, deadline: float, robot: int, n: int) -> float:
-    """How long robot `robot` waits for its predecessor's hidden-state message: until its slot,
-    (robot + 1) / n of the way to the tick deadline.
-
-    Ids along a chain strictly decrease, so a predecessor j < robot gives up on its own
-    predecessor at its earlier slot and its message (late only by its decode and one hop) still
-    reaches `robot` before this one. A lost message therefore costs one slot of waiting and
-    breaks one link, never the whole budget of every robot downstream (the deadline cascade of
-    waiting until the tick deadline, see docs/DECISIONS.md)."""
-    return t_recv + (deadline - t_recv) * (robot + 1) / max(n, 1)
-
-
-def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecord:
-    """Ask the world for the run's record, retrying until `timeout`."""
-    payload = query(session, keys.config, timeout, f"world answered on {keys.config}")
-    return RunRecord.unpack(payload, f"run record from {keys.config}")
-
-
 class RobotProcess:
     """Robot `robot` of a run."""
 
     attn: tuple[int, list[float]] | None = None  # the last decision's attention (t, weights)
     direct: Any = None  # swarm.procs.robot_direct.DirectDelivery with --delivery direct
+    sent_hidden = (-1, -1)  # (episode, tick) of the last hidden-state message sent
 
     def __init__(self, robot: int, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
                  policy: Policy) -> None:
@@ -344,6 +334,8 @@ class RobotProcess:
             log.error("robot %d could not decide at tick %d (it stays): %s: %s", r, obs.t,
                       type(exc).__name__, exc)
             action, chain_ok = 0, False
+            if self.policy.chained and self.sent_hidden != (obs.ep, obs.t):
+                self.send_hidden(Hidden(obs.ep, obs.t, r, 0, b""), bundle.succ)
         # planning time without the wait for the predecessor (reported apart, as wait_ms)
         ms = max(0.0, 1e3 * (time.perf_counter() - t0) - (self.c.wait_ms - waited))
         self.c.compute_ms += ms
@@ -399,21 +391,29 @@ class RobotProcess:
                 None if hidden is None else np.array([hidden.action]),
                 greedy=self.run_cfg.greedy, prepared=prepared)
             action = int(actions[0, r])
-            h = Hidden(obs.ep, obs.t, r, action, np.asarray(state[0], "<f4").tobytes()).pack()
-            for i in succ or ():  # first: each successor's decode waits for it
-                pub = self._succ_pubs.get(i)
-                if pub is None:
-                    pub = self._succ_pubs[i] = publisher(self.session, self.keys.inbox_hidden(i),
-                                                         express=True)
-                pub.put(h)
-            if succ is None:
-                self.hid_pub.put(h)
-            n_out = len(succ) if succ is not None else 1
-            self.c.msgs_out += n_out
-            self.c.bytes_out += len(h) * n_out
+            self.send_hidden(Hidden(obs.ep, obs.t, r, action,
+                                    np.asarray(state[0], "<f4").tobytes()), succ)
         else:
             action = int(self.policy.act(view, greedy=self.run_cfg.greedy)[0, r])
         return action, chain_ok
+
+    def send_hidden(self, h: Hidden, succ: list[int] | None) -> None:
+        """This tick's hidden-state message to the radio, or on a fast-lane tick (`succ`) to
+        each successor first (each one's decode waits for it). An empty state says that none
+        will come this tick: the successors decode without it at once."""
+        payload = h.pack()
+        for i in succ or ():
+            pub = self._succ_pubs.get(i)
+            if pub is None:
+                pub = self._succ_pubs[i] = publisher(self.session, self.keys.inbox_hidden(i),
+                                                     express=True)
+            pub.put(payload)
+        if succ is None:
+            self.hid_pub.put(payload)
+        n_out = len(succ) if succ is not None else 1
+        self.c.msgs_out += n_out
+        self.c.bytes_out += len(payload) * n_out
+        self.sent_hidden = (h.ep, h.t)
 
     def status(self, final: bool = False) -> None:
         rec = {"robot": self.robot, "ep": self.ep, "final": final, "msgs_in": self.c.msgs_in,

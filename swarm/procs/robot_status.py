@@ -1,6 +1,7 @@
 """What a robot process reports: its counters (the result and the status record) and the
 attention of its last decision (CommAttn robots, drawn live on the dashboard); and what it
-accepts: the ticks its messages may name (`TickGuard`)."""
+accepts: the run's record (`fetch_config`), the ticks its messages may name (`TickGuard`) and
+how long it waits for its predecessor's hidden-state message (`hop_deadline`)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,13 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import zenoh
 
 from policies.base import Policy
-from swarm.net.inbox import Inbox
+from swarm.net.inbox import Inbox, query
+from swarm.net.keys import Keys
 from swarm.net.messages import BadMessage
+from swarm.procs.runconfig import RunRecord
 
 
 @dataclass
@@ -98,3 +102,21 @@ def count_after_end(inbox: Inbox, c: RobotCounters, seconds: float = 0.1) -> Non
         if ev[0] not in ("end", "world:live", "world:dead"):
             c.msgs_in += 1
             c.bytes_in += len(ev[2] or b"")
+
+
+def hop_deadline(t_recv: float, deadline: float, robot: int, n: int) -> float:
+    """How long robot `robot` waits for its predecessor's hidden-state message: until its slot,
+    (robot + 1) / n of the way to the tick deadline.
+
+    Ids along a chain strictly decrease, so a predecessor j < robot gives up on its own
+    predecessor at its earlier slot and its message (late only by its decode and one hop) still
+    reaches `robot` before this one. A lost message therefore costs one slot of waiting and
+    breaks one link, never the whole budget of every robot downstream (the deadline cascade of
+    waiting until the tick deadline, see docs/DECISIONS.md)."""
+    return t_recv + (deadline - t_recv) * (robot + 1) / max(n, 1)
+
+
+def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecord:
+    """Ask the world for the run's record, retrying until `timeout`."""
+    payload = query(session, keys.config, timeout, f"world answered on {keys.config}")
+    return RunRecord.unpack(payload, f"run record from {keys.config}")
