@@ -391,6 +391,39 @@ def test_foreign_peers_get_nothing_into_a_secure_run(certs: Path, tmp_path: Path
     assert {p.stem for p in configs.glob("*.json5")} >= {"world", "supervisor", "robot-4"}
 
 
+@pytest.mark.procs
+def test_a_second_secure_world_of_a_run_stops_at_once(certs: Path) -> None:
+    """Two processes of one identity may ask each other whether they are up (and nothing else):
+    a second world of a secure run is refused in one line. Before, the first world's access
+    list dropped its liveliness query, and it waited for robots until `start_timeout`."""
+    from swarm.common.spawn import wait_port
+
+    port = free_port()
+    hub = f"tls/127.0.0.1:{port}"
+    common = ("world", "--secure", str(certs), "--run-id", "twice", "--robots", "2")
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", *common, "--zenoh-mode", "router",
+                             "--listen", hub], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    try:
+        wait_port("127.0.0.1", port, proc, 30.0, "world")
+        with _session(Secure.load(certs, "supervisor", "twice"), "supervisor", "client", [],
+                      [hub]) as s:  # (the port opens before the world's token is up)
+            for _ in range(60):
+                if any(x.ok is not None for x in s.liveliness().get(Keys("twice").alive_world)):
+                    break
+                time.sleep(0.5)
+        r = swarm(*common, "--zenoh-mode", "client", "--connect", hub, timeout=60)
+        assert r.returncode == 2 and "a world of run twice is running already" in r.stderr, \
+            r.stderr
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    rules = {r["id"] for r in acl("world", Keys("twice"), 2)["rules"]
+             if r["id"].startswith("world/")}
+    assert rules == {"world/ingress/liveliness_query+liveliness_token",
+                     "world/egress/liveliness_query+liveliness_token"}
+
+
 def test_deploy_templates_are_what_the_generator_makes() -> None:
     from swarm.net.security.tls import templates
 

@@ -47,6 +47,10 @@ def is_relay(identity: str) -> bool:
     kind, _, num = identity.partition("-")
     return identity in RELAYS or (kind == "router" and num.isdigit() and int(num) >= 1)
 
+SELF_CHECK = ("liveliness_query", "liveliness_token")
+"""What two processes of one identity exchange: a liveliness query on its own token, and the
+answer (`swarm.net.inbox.check_free`), so that a second world or robot-3 stops at once."""
+
 DECLARATIONS = ("declare_subscriber", "declare_queryable")
 """What a relay tells its neighbours about the others' subscribers and queryables (so that a
 publisher knows someone listens); allowed for every key of the run, in both directions."""
@@ -149,7 +153,14 @@ def acl(identity: str, keys: Keys, robots: int, workers: int = 0,
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
     for other, role in table.items():
-        if other == identity:
+        if other == identity:  # a second process of my identity may ask whether I am up
+            own = {SELF_CHECK: me.token}  # (`check_free`: it stops at once if I am)
+            mine = _rules(other, "ingress", own) + _rules(other, "egress", own)
+            if mine:
+                rules += mine
+                subjects.append({"id": other, "cert_common_names": [other]})
+                policies.append({"id": other, "rules": [r["id"] for r in mine],
+                                 "subjects": [other]})
             continue
         if is_relay(identity) and is_relay(other):  # relays pass on what the others admitted
             ingress = egress = everything
