@@ -63,7 +63,8 @@ def test_learner_panel_shows_version_episodes_curve_and_traffic() -> None:
     assert "weights version" in text and " 7" in text
     assert "70 (waiting 3, joining 1)" in text
     assert "▁▅█  0.700" in text  # the learning curve as a sparkline, last value
-    assert "4200" in text and "2 / 1" in text and "0.0123" in text
+    assert "4200" in text and "0.0123" in text
+    assert "used 2 (importance-weighted), dropped 1 (too old)" in text
     v.apply_robot({"robot": 2, "version": 6, "weights_bad": 1})
     assert "v6 (1 bad)" in _text(render_robots(v))
 

@@ -395,9 +395,8 @@ def sparkline(values: list[float]) -> str:
     if not values:
         return "-"
     lo, hi = min(values), max(values)
-    span = hi - lo or 1.0
-    return "".join(SPARK[min(int((x - lo) / span * (len(SPARK) - 1) + 0.5), len(SPARK) - 1)]
-                   for x in values)
+    span, top = hi - lo or 1.0, len(SPARK) - 1
+    return "".join(SPARK[min(int((x - lo) / span * top + 0.5), top)] for x in values)
 
 
 def render_learner(v: SwarmView) -> Table:
@@ -416,13 +415,14 @@ def render_learner(v: SwarmView) -> Table:
         ("elratio per update", sparkline(curve) + (f"  {curve[-1]:.3f}" if curve else "")),
         ("last loss", "-" if last.get("loss") is None else f"{last['loss']:.4f}"),
         ("rollout bytes/s", f"{rec.get('rollout_bytes_per_s', 0.0):.0f}"),
-        ("stale used / dropped", f"{rec.get('stale_used', 0)} / {rec.get('stale_dropped', 0)}"),
+        ("older weights' episodes", f"used {rec.get('stale_used', 0)} (importance-weighted), "
+                                    f"dropped {rec.get('stale_dropped', 0)} (too old)"),
         ("incomplete / bad", f"{rec.get('incomplete', 0)} / {rec.get('bad', 0)}"),
     ]
     acc = rec.get("accounting") or {}
     if acc:
         rows.append(("episodes received", f"{acc.get('received', 0)} = trained "
-                     f"{acc.get('trained', 0)} + pending {acc.get('pending', 0)} + stale "
+                     f"{acc.get('trained', 0)} + pending {acc.get('pending', 0)} + too old "
                      f"{acc.get('stale_dropped', 0)} + incomplete {acc.get('incomplete', 0)} + "
                      f"rejected {acc.get('rejected', 0)}"))
     for k, val in rows:
