@@ -60,6 +60,11 @@ def test_certs_are_private_and_a_rerun_never_overwrites_a_key(tmp_path: Path) ->
     assert {"127.0.0.1", "10.1.2.3"} <= {str(a) for a in alt.get_values_for_type(x509.IPAddress)}
     assert ca.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
     assert make_certs(d, robots=3, workers=1).made == []  # nothing left to add
+    (d / "robot-2.key").write_bytes((d / "robot-0.key").read_bytes())  # a copied key: two
+    certs = {p.name: p.read_bytes() for p in d.glob("*.pem")}  # identities would share it
+    with pytest.raises(ConfigError, match="robot-2.key holds the same key as .*robot-0.key"):
+        make_certs(d, robots=3, workers=1)
+    assert {p.name: p.read_bytes() for p in d.glob("*.pem")} == certs  # nothing signed
 
 
 def test_acl_lets_each_identity_put_only_what_its_role_owns() -> None:

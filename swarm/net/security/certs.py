@@ -146,6 +146,20 @@ class _Issuer:
         self.report.made.append(path.name)
         return key
 
+    def one_key_each(self, cns: list[str]) -> None:
+        """ConfigError (one line) if two existing keys among the CA's and `cns`' are one key:
+        certifying both would give one key two identities (a key copied from another file)."""
+        seen: dict[Any, str] = {self.key.public_key().public_numbers(): CA_KEY}
+        for cn in cns:
+            path = self.out / f"{cn}.key"
+            if not path.exists():
+                continue
+            pub = self._key(path, cn, create=False).public_key().public_numbers()
+            if pub in seen:
+                raise ConfigError(f"{path} holds the same key as {self.out / seen[pub]}: one key "
+                                  f"per identity (delete the copy and rerun; a new one is made)")
+            seen[pub] = path.name
+
     def _name(self, cn: str) -> Any:
         x = self.x509
         return x.Name([x.NameAttribute(self.NameOID.ORGANIZATION_NAME, ORG),
@@ -269,6 +283,7 @@ def make_certs(out: str | Path, robots: int, workers: int = 0, hosts: list[str] 
     routers = max(routers, int(old.get("routers", 0)))
     report = CertsReport()
     issuer = _Issuer(out, days, report)
+    issuer.one_key_each(identities(robots, workers, routers))  # before anything is signed
     for cn in identities(robots, workers, routers):
         issuer.identity(cn, hosts)
     roster = {"robots": robots, "workers": workers, "routers": routers, "hosts": hosts,
