@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_started
 
 from policies import make_policy
 from swarm.learn.evaluate import evaluate
@@ -556,3 +556,25 @@ def test_a_chained_robot_that_cannot_decide_says_so_to_its_successor(tmp_path: P
     assert res["timeouts"] == 0 and not np.array(res["actions"])[0, 1:, 1].any()
     status = res["robot_status"]
     assert status["2"]["missed_hidden"] >= 3, status  # robot 1 is robot 2's predecessor
+
+
+@pytest.mark.procs
+def test_a_robot_killed_by_nobody_is_counted_and_said(tmp_path: Path) -> None:
+    """A robot process that dies unplanned (SIGKILL, no error line in its log) is a crash and
+    a warning line; the run goes on without it. Before, it was counted silently (exit 0, no
+    word): only a death with an error in the log was said."""
+    out = tmp_path / "r.json"
+    proc = swarm_started("run", "--headless", "--robots", "3", "--policy", "nearest-frontier",
+                         "--episodes", "3", "--seed", "1", "--run-id", "unplanned", "--pace", "10",
+                         "--json", str(out))
+    try:
+        pid = next(p for p in run_procs("unplanned")
+                   if b"--id\x002\x00" in Path(f"/proc/{p}/cmdline").read_bytes())
+        os.kill(pid, signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and "robot 2 failed: killed by SIGKILL" in err, err
+    res = json.loads(out.read_text())
+    assert res["robot_crashes"] == 1 and res["child_errors"] == {"robot 2": "killed by SIGKILL"}

@@ -155,6 +155,8 @@ def test_process_faults_land_on_their_tick_and_a_run_repeats_itself(tmp_path: Pa
         assert not acts[..., 3].any()  # down from tick 0: it never acted
         assert acts[0, 5:, 0].any()  # the new process acts from tick 5
         assert res["timeouts"] == 0 and res["robot_restarts"] == 3 and res["robots_lost"] == 1
+        assert res["robot_crashes"] == 3  # 0's too: its restart of the same tick replaced it
+        assert "child_errors" not in res  # (before the supervisor looked: it was not counted)
         assert res["process_faults"] == ["crash 3@0", "crash 0@5", "restart 0@5", "crash 1@10",
                                          "restart 1@15", "hang 2@20", "restart 2@24"]
     assert runs[0]["actions"] == runs[1]["actions"]

@@ -62,6 +62,7 @@ from swarm.net.messages import (
 from swarm.net.security.tls import identity_of, run_configs, topology_configs, topology_secure
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
+from swarm.procs.fleet import Fleet
 from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
 from world.config import WorldConfig, to_dict
 
@@ -81,8 +82,6 @@ class Supervisor:
         plan = plan_from_table(self.faults, run.seed)
         self.process_faults = sorted(plan.process, key=lambda p: p.tick)
         self.run_tick = 0  # the world's run tick, from its last status
-        self.hung: set[int] = set()
-        self.fault_log: list[str] = []
         self.console = console or Console()
         self.keys = Keys(run.run_id)
         self.port = free_port()
@@ -101,7 +100,8 @@ class Supervisor:
             self.hub, self.zfiles = run_configs(opts.secure, run.run_id, cfg.n_robots, self.port,
                                                 self.log_dir / "zenoh", *extra)
         self.world: subprocess.Popen[bytes] | None = None
-        self.robots: dict[int, subprocess.Popen[bytes]] = {}
+        self.fleet = Fleet(self._spawn_robot, self.log_dir, run.restart_crashed)
+        self.robots = self.fleet.procs  # robot id -> its running process
         self.inbox: Inbox | None = None
         self.bad, self.bad_by_key = 0, {}  # records that did not decode or fit, dropped
         self.view = SwarmView(run.run_id, run.policy, cfg.height, cfg.width, cfg.n_robots,
@@ -109,8 +109,6 @@ class Supervisor:
         self.recorder: subprocess.Popen[bytes] | None = None
         self.recorder_alive = False
         self.result: dict[str, Any] | None = None
-        self.crashes, self.restarts = 0, 0
-        self.child_errors: dict[str, str] = {}  # process -> the last error line of its log
         self.procstat = ProcSampler()  # peak memory and CPU per tick of the children
         self.first_tick_age: float | None = None
         self._last_rss = 0.0
@@ -125,11 +123,11 @@ class Supervisor:
         return subprocess.Popen([*prefix, *cli_args(*args)], stdout=subprocess.DEVNULL, stderr=err,
                                 stdin=subprocess.DEVNULL, env=env)
 
-    def spawn_robot(self, i: int) -> None:
+    def _spawn_robot(self, i: int) -> subprocess.Popen[bytes]:
         hub, ns = self.hub, None
         if self.topo is not None:  # its own namespace, through its link to the world
             hub, ns = self.topo.robot_endpoint(i, self.port), self.topo.robot_ns[i]
-        self.robots[i] = self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
+        return self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
                                       "--connect", hub, "--zenoh-mode", "client"],
                                      f"robot{i}", ns)
 
@@ -186,7 +184,7 @@ class Supervisor:
     def stop_all(self, grace: float = 2.0) -> None:
         procs = [p for p in [self.world, *self.robots.values(), self.learner, self.recorder,
                              *self.routers] if p is not None]
-        for p in [self.robots[i] for i in self.hung if i in self.robots]:
+        for p in [self.robots[i] for i in self.fleet.hung if i in self.robots]:
             if p.poll() is None:  # a stopped process cannot take SIGINT
                 p.send_signal(signal.SIGCONT)
         try:
@@ -248,32 +246,8 @@ class Supervisor:
                 log.warning("supervisor dropped a %s record on %s: %s", kind, key, exc)
 
     def _process_fault(self, f: ProcessFault) -> None:
-        """crash = SIGKILL, hang = SIGSTOP, restart = SIGCONT a hung robot or respawn a dead one."""
-        p = self.robots.get(f.robot)
-        up = p is not None and p.poll() is None
-        note = ""  # a fault with nothing to act on is logged as such, never as done
-        if f.kind == "crash" and p is not None and up:
-            p.kill()
-            p.wait()  # (a SIGKILL is quick; a hang or restart of the same tick sees it down)
-            self.hung.discard(f.robot)
-        elif f.kind == "hang" and p is not None and up and f.robot not in self.hung:
-            p.send_signal(signal.SIGSTOP)
-            self.hung.add(f.robot)
-        elif f.kind == "restart" and p is not None and up and f.robot in self.hung:
-            p.send_signal(signal.SIGCONT)
-            self.hung.discard(f.robot)
-            self.restarts += 1  # resumed: it rejoins the run (counted by the robot too)
-        elif f.kind == "restart" and not up:
-            self.restarts += 1
-            self.spawn_robot(f.robot)
-        else:
-            note = " (not down: nothing done)" if f.kind == "restart" else \
-                f" ({'hung' if up and f.robot in self.hung else 'down'} already: nothing done)"
-        # the plan's tick (the world applies it there on the virtual clock); a live one without
-        # a tick: the tick of the last status
-        self.fault_log.append(f"{f.kind} {f.robot}@{f.tick if f.tick >= 0 else self.run_tick}"
-                              f"{note}")
-        self.view.events = self.view.events[-5:] + [self.fault_log[-1]]
+        """Do `f` (`Fleet.fault`) and show it among the dashboard's events."""
+        self.view.events = self.view.events[-5:] + [self.fleet.fault(f, self.run_tick)]
 
     def supervise(self) -> dict[str, Any]:
         stopped = False
@@ -309,7 +283,7 @@ class Supervisor:
                 self._wait_recorder(inbox)
             # Robots only after our subscriptions reached the world: the first tick is not missed.
             for i in range(self.cfg.n_robots):
-                self.spawn_robot(i)
+                self.fleet.start(i)
             fit = self.console.is_terminal  # (a terminal crops what is taller than itself)
             live = None if self.opts.headless else Live(
                 get_renderable=lambda: render(self.view, fit), console=self.console,
@@ -355,9 +329,10 @@ class Supervisor:
         res = dict(self.result)
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["first_tick_s"] = self.first_tick_age  # from the command (this process's start)
-        res["robot_crashes"], res["robot_restarts"] = self.crashes, self.restarts
-        res.update({"child_errors": dict(self.child_errors)} if self.child_errors else {})
-        for line in [*(f"{w} failed: {why}" for w, why in self.child_errors.items()),
+        errors = self.fleet.errors
+        res["robot_crashes"], res["robot_restarts"] = self.fleet.crashes, self.fleet.restarts
+        res.update({"child_errors": dict(errors)} if errors else {})
+        for line in [*(f"{w} failed: {why}" for w, why in errors.items()),
                      *self.view.undecided()]:  # (the run went on: said, not only in the JSON)
             print(f"swarm: warning: {line}", file=sys.stderr, flush=True)
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
@@ -366,7 +341,7 @@ class Supervisor:
         res["result_message_lost"] = lost
         if self.recorder is not None:
             res["recording"] = {"path": self.opts.record, "exit": self.recorder.returncode}
-        res["process_faults"] = self.fault_log
+        res["process_faults"] = self.fleet.log
         if res.get("stopped"):  # a stop on the control key ended the run early: said, not hidden
             print(f"swarm: run {self.run_cfg.run_id} was stopped by a control message after "
                   f"{res.get('completed', 0)} of {self.run_cfg.episodes} episodes",
@@ -471,23 +446,14 @@ class Supervisor:
         self.procstat.sample(procs, self.view.ticks_done)
 
     def _check_children(self) -> None:
-        """Robots that died are counted (and restarted with --restart-crashed); a child that
-        died of an error ends the run with that error as one line, naming the process, when
-        the run cannot go on without it (the learner; every robot before the first tick)."""
-        for i, p in list(self.robots.items()):
-            if p.poll() is not None and self.result is None:
-                if p.returncode != 0:
-                    self.crashes += 1
-                    why = last_error(self.log_dir / f"robot{i}.log")
-                    if why:
-                        self.child_errors[f"robot {i}"] = why
-                if self.run_cfg.restart_crashed:
-                    self.restarts += 1
-                    self.spawn_robot(i)
-                else:
-                    del self.robots[i]
-        if not self.robots and self.child_errors and self.view.ticks_done == 0:
-            who, why = next(iter(self.child_errors.items()))
+        """Robots that died are counted, said and restarted with --restart-crashed
+        (`Fleet.check`); a child that died of an error ends the run with that error as one
+        line, naming the process, when the run cannot go on without it (the learner; every
+        robot before the first tick)."""
+        if self.result is None:
+            self.fleet.check()
+        if not self.robots and self.fleet.errors and self.view.ticks_done == 0:
+            who, why = next(iter(self.fleet.errors.items()))
             raise RuntimeError(f"{who} failed: {why} (logs in {self.log_dir})")
         if self.learner is not None and self.learner.poll() is not None and self.result is None:
             why = last_error(self.log_dir / "learner.log") or f"exit code {self.learner.returncode}"

@@ -1,0 +1,92 @@
+"""The robot processes of a `swarm run`, as its supervisor keeps them: spawned, faulted on purpose
+(crash = SIGKILL, hang = SIGSTOP, restart = SIGCONT a hung robot or respawn a dead one), and
+watched for deaths nobody planned. Every death is counted once (`crashes`), and one that was not
+planned is also said (`errors`: the last error line of its log, or how it ended)."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+from collections.abc import Callable
+from pathlib import Path
+
+from swarm.common.spawn import last_error
+from swarm.net.faults import ProcessFault
+
+Proc = subprocess.Popen[bytes]
+
+
+def how_it_ended(code: int) -> str:
+    """'killed by SIGKILL' for -9, 'exit code 3' for 3."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+class Fleet:
+    """Robot id -> its running process, with the counts the run's result reports."""
+
+    def __init__(self, spawn: Callable[[int], Proc], log_dir: Path, restart_crashed: bool) -> None:
+        self.spawn, self.log_dir, self.restart_crashed = spawn, log_dir, restart_crashed
+        self.procs: dict[int, Proc] = {}
+        self.crashes, self.restarts = 0, 0
+        self.hung: set[int] = set()
+        self.killed: set[int] = set()  # pids of robots a planned crash killed (counted there)
+        self.errors: dict[str, str] = {}  # "robot i" -> why it died (not planned)
+        self.log: list[str] = []  # the process faults done, or found nothing to act on
+
+    def start(self, i: int) -> None:
+        self.procs[i] = self.spawn(i)
+
+    def up(self, i: int) -> bool:
+        p = self.procs.get(i)
+        return p is not None and p.poll() is None
+
+    def fault(self, f: ProcessFault, run_tick: int) -> str:
+        """Do `f` and log it (at the plan's tick, or a live one's: `run_tick`); the log line."""
+        p, up = self.procs.get(f.robot), self.up(f.robot)
+        note = ""  # a fault with nothing to act on is logged as such, never as done
+        if f.kind == "crash" and p is not None and up:
+            p.kill()
+            p.wait()  # (a SIGKILL is quick; a hang or restart of the same tick sees it down)
+            self.hung.discard(f.robot)
+            self.crashes += 1  # (here: a restart of the same tick replaces it before a check)
+            self.killed.add(p.pid)
+        elif f.kind == "hang" and p is not None and up and f.robot not in self.hung:
+            p.send_signal(signal.SIGSTOP)
+            self.hung.add(f.robot)
+        elif f.kind == "restart" and p is not None and up and f.robot in self.hung:
+            p.send_signal(signal.SIGCONT)
+            self.hung.discard(f.robot)
+            self.restarts += 1  # resumed: it rejoins the run (counted by the robot too)
+        elif f.kind == "restart" and not up:
+            self.restarts += 1
+            if p is not None:
+                self.killed.discard(p.pid)
+            self.start(f.robot)
+        else:
+            note = " (not down: nothing done)" if f.kind == "restart" else \
+                f" ({'hung' if up and f.robot in self.hung else 'down'} already: nothing done)"
+        self.log.append(f"{f.kind} {f.robot}@{f.tick if f.tick >= 0 else run_tick}{note}")
+        return self.log[-1]
+
+    def check(self) -> None:
+        """Robots that died: a death nobody planned is counted and its reason kept; each dead
+        robot is respawned with --restart-crashed, else forgotten."""
+        for i, p in list(self.procs.items()):
+            if p.poll() is None:
+                continue
+            if p.pid in self.killed:
+                self.killed.discard(p.pid)
+            elif p.returncode != 0:
+                self.crashes += 1
+                self.errors[f"robot {i}"] = last_error(self.log_dir / f"robot{i}.log") or \
+                    how_it_ended(p.returncode)
+            if self.restart_crashed:
+                self.restarts += 1
+                self.start(i)
+            else:
+                del self.procs[i]
