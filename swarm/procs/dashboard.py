@@ -147,25 +147,13 @@ class SwarmView:
 
     def apply_robot(self, rec: dict[str, Any]) -> None:
         row = self.robots.setdefault(int(rec.get("robot", -1)), RobotRow())
-        row.msgs_in = int(rec.get("msgs_in", 0))
-        row.msgs_out = int(rec.get("msgs_out", 0))
-        row.latency_ms = float(rec.get("latency_ms", 0.0))
-        row.bad = int(rec.get("bad", 0))
-        row.missed = int(rec.get("missed", 0))
-        row.missed_hidden = int(rec.get("missed_hidden", 0))
-        row.bytes_out = int(rec.get("bytes_out", 0))
-        row.version = int(rec.get("version", 0))
-        row.weights_bad = int(rec.get("weights_bad", 0))
-        row.weights_late = int(rec.get("weights_late", 0))
-        row.stalls = int(rec.get("stalls", 0))
-        row.rejoins = int(rec.get("rejoins", 0))
-        row.errors = int(rec.get("errors", 0))
-        row.stale = int(rec.get("stale", 0))
-        row.oversized = int(rec.get("oversized", 0))
-        row.overflow = int(rec.get("overflow", 0))
-        row.compute_ms = float(rec.get("compute_ms", 0.0))
-        row.wait_ms = float(rec.get("wait_ms", 0.0))
+        for k in (*RobotRow.COUNTERS, "bytes_out"):  # (range-checked: check_robot_status)
+            setattr(row, k, int(rec.get(k, 0)))
+        for k in ("latency_ms", "compute_ms", "wait_ms"):
+            setattr(row, k, float(rec.get(k, 0.0)))
         row.final = rec.get("final") is True
+        if row.final and not row.alive:  # (its token may go before its last status comes)
+            row.state = "done"
         if isinstance(rec.get("attn"), list):  # range-checked by messages.check_robot_status
             self.attention[int(rec["robot"])] = (int(rec.get("attn_t", 0)),
                                                  [float(x) for x in rec["attn"]])
