@@ -273,6 +273,9 @@ def test_a_world_by_hand_stopped_by_a_control_record_exits_3(tmp_path: Path) -> 
             assert procs[0].wait(timeout=30) == 3
         res = json.loads(out.read_text())
         assert res["stopped"] == "control" and res["completed"] < 1000
+        n = res["completed"]  # the keys of every result, None where no episode completed
+        assert res["robots"] == 1 and res["episodes"] == n and res["seed"] == 0
+        assert (res["elratio_mean"] is None) == (n == 0) and "success_rate" in res
         assert procs[1].wait(timeout=10) == 0
     finally:
         for p in procs:

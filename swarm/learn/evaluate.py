@@ -121,23 +121,34 @@ class EvalResult:
         return 1e3 * self.planning_s / max(self.decisions, 1)
 
     def summary(self, cfg: WorldConfig) -> dict[str, object]:
-        """The contract's JSON keys (SPEC section 7) plus a few more."""
+        """The contract's JSON keys (SPEC section 7) plus a few more; the figures are None
+        when no episode completed (a run stopped before its first episode's end)."""
         n = len(self.episodes)
+
+        def stat(x: np.ndarray, f: str = "mean") -> float | None:
+            return float(getattr(x, f)()) if n else None
+
         return {
             "policy": self.policy, "robots": cfg.n_robots, "episodes": n, "seed": self.seed,
             "dynamic": cfg.dynamic, "add_every": cfg.add_every, "vision": cfg.vision,
             "comm_range": "inf" if np.isinf(cfg.comm_range) else cfg.comm_range,
             "explore_mode": cfg.explore_mode,
-            "elratio_mean": float(self.elratio.mean()), "elratio_std": float(self.elratio.std()),
-            "reward_mean": float(self.reward.mean()), "reward_std": float(self.reward.std()),
-            "collisions_mean": float(self.collisions.mean()),
-            "block_collisions_mean": float(self.block_collisions.mean()),
-            "robot_collisions_mean": float(self.robot_collisions.mean()),
-            "success_rate": float(self.success.mean()),
-            "repeat_ratio_mean": float(self.repeat_ratio.mean()),
+            "elratio_mean": stat(self.elratio), "elratio_std": stat(self.elratio, "std"),
+            "reward_mean": stat(self.reward), "reward_std": stat(self.reward, "std"),
+            "collisions_mean": stat(self.collisions),
+            "block_collisions_mean": stat(self.block_collisions),
+            "robot_collisions_mean": stat(self.robot_collisions),
+            "success_rate": stat(self.success), "repeat_ratio_mean": stat(self.repeat_ratio),
             "planning_ms_per_decision": self.planning_ms_per_decision,
             "wall_s": self.wall_s,
         }
+
+    @classmethod
+    def none(cls, policy: str, seed: int, cfg: WorldConfig) -> EvalResult:
+        """A result of no episode (its summary has the run's keys, its figures None)."""
+        empty = np.zeros(0)
+        return cls(policy, seed, empty.astype(np.int64), **{k: empty for k in core.METRIC_NAMES},
+                   elratio_curve=np.zeros((0, cfg.horizon + 1)))
 
 
 def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, batch: int = 250,

@@ -453,6 +453,7 @@ class WorldProcess:
         out: dict[str, Any] = {"policy": rc.policy, "run_id": rc.run_id, "completed": len(parts)}
         if self.stop:  # only a control record stops a world before its last episode
             out["stopped"] = "control"
+        out.update(EvalResult.none(rc.policy, rc.seed, self.cfg).summary(self.cfg))
         if parts:
             res = EvalResult.of(rc.policy, rc.seed,
                                 np.arange(rc.first_episode, rc.first_episode + len(parts)),
