@@ -581,3 +581,18 @@ def test_a_robot_killed_by_nobody_is_counted_and_said(tmp_path: Path) -> None:
     assert proc.returncode == 0 and "robot 2 failed: killed by SIGKILL" in err, err
     res = json.loads(out.read_text())
     assert res["robot_crashes"] == 1 and res["child_errors"] == {"robot 2": "killed by SIGKILL"}
+
+
+@pytest.mark.procs
+def test_a_run_id_held_by_a_running_swarm_is_refused(tmp_path: Path) -> None:
+    """Two runs of one id on one machine both started, and `swarm fault --run ID` reached only
+    the second (UA pass): the second is refused in one line before it spawns anything."""
+    proc = swarm_started("run", "--headless", "--robots", "2", "--policy", "nearest-frontier",
+                         "--episodes", "20", "--run-id", "twinid", "--pace", "10")
+    try:
+        r = swarm("run", "--headless", "--robots", "2", "--episodes", "1", "--run-id", "twinid")
+        assert r.returncode == 2 and r.stderr == "swarm: error: run id 'twinid' is taken by a " \
+            "swarm running on this machine; give another --run-id\n", r.stderr
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=60)

@@ -160,6 +160,7 @@ def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[A
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from swarm.common.spawn import check_run_free
     from swarm.procs.supervisor import SuperviseOptions
     from swarm.procs.supervisor import main as supervise
 
@@ -171,6 +172,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_training(args, tables, run)
     check_clock(args, tables, run, faults)
     check_fault_ticks(faults, run, world)
+    check_run_free(run.run_id)
     output_file(args.json)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")

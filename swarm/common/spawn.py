@@ -113,6 +113,17 @@ def lookup_run(run_id: str) -> str:
     return hub
 
 
+def check_run_free(run_id: str) -> None:
+    """ConfigError (one line) if a live `swarm run` on this machine holds `run_id`: two runs of
+    one id would each take `swarm fault --run ID` for the other's."""
+    try:
+        lookup_run(run_id)
+    except ConfigError:
+        return  # none, or a stale entry (removed)
+    raise ConfigError(f"run id {run_id!r} is taken by a swarm running on this machine; give "
+                      "another --run-id")
+
+
 def cli_args(*args: str) -> list[str]:
     return [sys.executable, "-m", "swarm.cli", *args]
 
