@@ -87,6 +87,10 @@ def test_the_last_episode_counts_and_a_dead_robot_draws_no_attention() -> None:
         "robot 2 could not decide on 3 ticks and stayed in place there (`--log-dir DIR` keeps "
         "its log, with the reason)"]
     w = _view()
+    w.apply_robot({"robot": 1, "stalls": 1, "rejoins": 1})
+    assert w.stalled(set()) == ["robot 1 was stalled 1 time(s) and rejoined 1 time(s) (out of "
+                                "the run meanwhile: its ticks there are not timeouts)"]
+    assert w.stalled({1}) == []  # hung on purpose (--hang): no warning
     w.set_alive(0, True)
     w.set_alive(0, False)  # its token went before its last status: lost, then done (UA pass)
     assert w.robots[0].state == "lost"

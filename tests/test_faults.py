@@ -337,3 +337,39 @@ def test_chained_memory_policy_under_loss_acts_as_the_batched_eval(tmp_path: Pat
                   faults=plan)
     assert res["messages"]["lost"] > 0 and res["timeouts"] == 0
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
+
+
+def test_the_fleet_counts_each_death_once_and_says_the_unplanned(tmp_path: Path) -> None:
+    """`Fleet` on real child processes: a planned crash is counted where it is done (also when
+    a restart of the same tick replaces the process before anyone looks), an unplanned death
+    is counted once by the check and kept with how it ended, a hang and its restart are not
+    deaths; nothing is counted twice."""
+    from swarm.net.faults import ProcessFault
+    from swarm.procs.fleet import Fleet
+
+    def spawn(i: int) -> subprocess.Popen[bytes]:
+        return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+
+    fleet = Fleet(spawn, tmp_path, restart_crashed=False)
+    try:
+        for i in range(4):
+            fleet.start(i)
+        first = fleet.procs[0]
+        assert fleet.fault(ProcessFault("crash", 0, 5), 5) == "crash 0@5"
+        assert fleet.fault(ProcessFault("restart", 0, 5), 5) == "restart 0@5"
+        assert fleet.procs[0] is not first and fleet.up(0)
+        fleet.fault(ProcessFault("crash", 1, 7), 7)
+        fleet.fault(ProcessFault("hang", 2, 8), 8)
+        assert fleet.fault(ProcessFault("hang", 2, 9), 9) == "hang 2@9 (hung already: nothing done)"
+        fleet.fault(ProcessFault("restart", 2, 10), 10)
+        fleet.procs[3].send_signal(signal.SIGKILL)  # nobody planned this one
+        fleet.procs[3].wait()
+        fleet.check()
+        fleet.check()
+        assert (fleet.crashes, fleet.restarts) == (3, 2)
+        assert fleet.errors == {"robot 3": "killed by SIGKILL"}
+        assert sorted(fleet.procs) == [0, 2] and not fleet.hung and not fleet.killed
+    finally:
+        for p in fleet.procs.values():
+            p.kill()
+            p.wait()

@@ -285,7 +285,7 @@ def test_a_hung_robot_rejoins_after_it_is_resumed(tmp_path: Path) -> None:
     res = json.loads((tmp_path / "r.json").read_text())
     assert res["completed"] == 5 and res["robots_lost"] == 0 and res["robot_restarts"] == 1
     st = res["robot_status"]["1"]
-    assert st["stalls"] >= 1 and st["rejoins"] >= 1
+    assert st["stalls"] >= 1 and st["rejoins"] >= 1 and res["robot_stalls"] == st["stalls"]
     assert (np.array(res["actions"])[-1, :, 1] != 0).any()  # it acts in the last episode
 
 

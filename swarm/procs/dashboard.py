@@ -164,6 +164,15 @@ class SwarmView:
                 "(`--log-dir DIR` keeps its log, with the reason)"
                 for i, r in sorted(self.robots.items()) if r.errors]
 
+    def stalled(self, planned: set[int]) -> list[str]:
+        """A line for each robot but `planned` (hung on purpose) that was stopped or starved
+        mid-run (SIGSTOP, overload): its session may have dropped, and the world then played on
+        without it until it rejoined."""
+        return [f"robot {i} was stalled {r.stalls} time(s) and rejoined {r.rejoins} time(s) "
+                "(out of the run meanwhile: its ticks there are not timeouts)"
+                for i, r in sorted(self.robots.items())
+                if (r.stalls or r.rejoins) and i not in planned]
+
     def final(self, robots: Iterable[int]) -> bool:
         """Whether each of `robots` has sent its last status (its counts at the run's end)."""
         return all(self.robots.get(i, RobotRow()).final for i in robots)

@@ -34,6 +34,7 @@ class Fleet:
         self.procs: dict[int, Proc] = {}
         self.crashes, self.restarts = 0, 0
         self.hung: set[int] = set()
+        self.hangs: set[int] = set()  # robots hung on purpose at some point
         self.killed: set[int] = set()  # pids of robots a planned crash killed (counted there)
         self.errors: dict[str, str] = {}  # "robot i" -> why it died (not planned)
         self.log: list[str] = []  # the process faults done, or found nothing to act on
@@ -58,6 +59,7 @@ class Fleet:
         elif f.kind == "hang" and p is not None and up and f.robot not in self.hung:
             p.send_signal(signal.SIGSTOP)
             self.hung.add(f.robot)
+            self.hangs.add(f.robot)
         elif f.kind == "restart" and p is not None and up and f.robot in self.hung:
             p.send_signal(signal.SIGCONT)
             self.hung.discard(f.robot)

@@ -332,8 +332,9 @@ class Supervisor:
         errors = self.fleet.errors
         res["robot_crashes"], res["robot_restarts"] = self.fleet.crashes, self.fleet.restarts
         res.update({"child_errors": dict(errors)} if errors else {})
-        for line in [*(f"{w} failed: {why}" for w, why in errors.items()),
-                     *self.view.undecided()]:  # (the run went on: said, not only in the JSON)
+        for line in [*(f"{w} failed: {why}" for w, why in errors.items()),  # (the run went
+                     *self.view.undecided(),  # on: said, not only in the JSON)
+                     *self.view.stalled(self.fleet.hangs)]:
             print(f"swarm: warning: {line}", file=sys.stderr, flush=True)
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
         if self.inbox is not None:  # and what its inbox dropped unread
@@ -363,6 +364,7 @@ class Supervisor:
                                         "rejected"))
             res["learner"] = {**st, "accounting": acc, "out": self.learner_out}
         res["robot_status"] = {str(i): r.counters() for i, r in self.view.robots.items()}
+        res["robot_stalls"] = sum(r.stalls for r in self.view.robots.values())
         rc = self.run_cfg  # what made the result (with --train and no checkpoint: fresh weights)
         ckpt = rc.checkpoint if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)
         res.update(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
@@ -448,11 +450,13 @@ class Supervisor:
     def _check_children(self) -> None:
         """Robots that died are counted, said and restarted with --restart-crashed
         (`Fleet.check`); a child that died of an error ends the run with that error as one
-        line, naming the process, when the run cannot go on without it (the learner; every
-        robot before the first tick)."""
+        line, naming the process, when the run cannot go on without it (the learner; a robot
+        before the first tick, unless --restart-crashed brings it back: the world would wait
+        for it until `start_timeout`, then play without it)."""
         if self.result is None:
             self.fleet.check()
-        if not self.robots and self.fleet.errors and self.view.ticks_done == 0:
+        if self.fleet.errors and self.view.ticks_done == 0 and \
+                (not self.robots or not self.run_cfg.restart_crashed):
             who, why = next(iter(self.fleet.errors.items()))
             raise RuntimeError(f"{who} failed: {why} (logs in {self.log_dir})")
         if self.learner is not None and self.learner.poll() is not None and self.result is None:
