@@ -164,3 +164,16 @@ def test_an_experiment_world_of_another_size_gets_the_blocks_of_its_size(tmp_pat
     assert (world.height, world.width, world.n_robots) == (8, 8, 3)
     assert {"n_static": world.n_static, "n_dynamic": world.n_dynamic} == scaled_blocks(8, 8)
     assert world.n_static < WorldConfig.n_static
+
+
+def test_a_run_with_process_faults_has_no_batched_twin() -> None:
+    """The `twin` column said `differs: episode 0 tick 5 robot 1` for a crash the plan asked
+    for: the batched evaluator has no processes to stop, so there is no twin to compare."""
+    from swarm.procs.runconfig import RunConfig
+    from swarm.studies.experiment import twin
+    from world.config import WorldConfig
+
+    world, rc = WorldConfig(n_robots=3), RunConfig(policy="nearest-frontier", episodes=1)
+    assert twin(world, rc, {"crash": ["1@5"]}, {"actions": []}) == "n/a"
+    assert twin(world, rc, {}, {"actions": [], "robots_lost": 1}) == "n/a"
+    assert twin(world, rc, {}, {"actions": []}).startswith("differs: shapes")

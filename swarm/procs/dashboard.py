@@ -333,7 +333,8 @@ def render_figures(v: SwarmView, compact: bool = False) -> Table:
     rows = [
         *([("replay", v.replay)] if v.replay else []),
         ("run", v.run_id), ("policy", v.policy),
-        ("episode", f"{max(v.episodes_done, 0)}/{v.episodes} done (now ep {v.ep})"),
+        ("episode", f"{max(v.episodes_done, 0)}/{v.episodes} done" + (  # (numbered as eval's)
+            f", playing episode {v.ep}" if v.episodes_done < v.episodes else "")),
         ("tick", str(v.tick)), ("ticks/s (wall)", f"{v.ticks_per_s:.1f}"),
         ("clock", v.clock + (f"  t = {v.vtime:.1f} s" if v.clock == "virtual" else "")),
         ("elratio", f"{v.elratio:.3f}"),

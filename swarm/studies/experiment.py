@@ -150,16 +150,21 @@ def write_record(sweep: Sweep, out_dir: Path) -> str:
 
 def twin(world: WorldConfig, rc: RunConfig, faults: dict[str, Any], res: dict[str, Any]) -> str:
     """The batched evaluator on the run's episodes, seed and fault plan: `identical` when it
-    takes every action the swarm took (a virtual-clock run must), else what differs."""
+    takes every action the swarm took (a virtual-clock run must), else what differs; `n/a`
+    for a run with process faults (crash, hang, restart) or a robot that died: the batched
+    evaluator has no processes to stop, so it has no twin of those."""
     import numpy as np
 
     from swarm.common.policy_spec import build_policy
     from swarm.learn.evaluate import evaluate
 
+    plan = plan_from_table(faults, rc.seed, world.n_robots)
+    if plan.process or res.get("robot_crashes") or res.get("robots_lost"):
+        return "n/a"
     policy = build_policy(rc.policy, world, rc.checkpoint)
     ev = evaluate(world, policy, rc.seed, rc.episodes, first_episode=rc.first_episode,
                   greedy=rc.greedy, record_actions=True, tick_s=rc.tick_timeout,
-                  faults=plan_from_table(faults, rc.seed, world.n_robots))
+                  faults=plan)
     ours = np.array(res.get("actions", []))
     theirs = np.stack(ev.actions, 1) if ev.actions else np.zeros((0,))
     if ours.shape != theirs.shape:
@@ -191,7 +196,7 @@ def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> li
     exp = sweep.exp
     command = shlex.join(["swarm", "experiment", sweep.source, *sweep.overrides])
     walls = [float(r["wall_s"]) for r in rows if r.get("wall_s") not in (None, "")]
-    twins = [r.get("twin") for r in rows if r.get("twin")]
+    twins = [r.get("twin") for r in rows if r.get("twin") not in (None, "", "n/a")]
     same = sum(t == "identical" for t in twins)
     clocks = sorted({str(r.get("clock") or "real") for r in rows})
     w = sweep.world
