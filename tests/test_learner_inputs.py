@@ -151,7 +151,9 @@ def test_swarm_learner_resume_refuses_new_train_flags(trained: Path) -> None:
             str(trained / "l"), "--policy", "vain", "--resume"]
     for extra, says in ((["--batch", "4", "--lr", "0.5"], ["batch = 4", "lr = 0.5"]),
                         (["--checkpoint", str(trained / "l" / "checkpoint.pt")],
-                         ["--checkpoint"])):
+                         ["--checkpoint"]),  # and another world (it went on with the flags')
+                        (["--size", "30x30"], ["on the world it was trained on", "height = 30"]),
+                        (["--robots", "5"], [f"n_robots = 5 differs from its {SMALL.n_robots}"])):
         r = swarm(*base, *extra, timeout=60)
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2, r.stderr[-2000:]

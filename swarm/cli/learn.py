@@ -15,10 +15,17 @@ from swarm.cli.common import (
     file_tables,
     output_file,
     world_config,
+    world_given,
 )
 from swarm.cli.run import LEARNER_TRAIN_FIELDS, _logging, learner_configs
 from swarm.cli.secure import add_secure_flag, secure_options
-from swarm.learn.config import MAX_WORKER_BATCH, MAX_WORKER_ID, check_worker, learner_resume_point
+from swarm.learn.config import (
+    MAX_WORKER_BATCH,
+    MAX_WORKER_ID,
+    check_worker,
+    held_world,
+    learner_resume_point,
+)
 from swarm.net import zconfig
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError
@@ -52,8 +59,10 @@ def cmd_learner(args: argparse.Namespace) -> int:
         from policies.checkpoint import read_checkpoint
 
         out = Path(lc.out)
-        learner_resume_point(read_checkpoint(out / "checkpoint.pt").get("learner"), tc, given,
-                             out)
+        data = read_checkpoint(out / "checkpoint.pt")
+        learner_resume_point(data.get("learner"), tc, given, out)
+        if not args.spec:  # (a run's spec is its own world, checked by `swarm run`)
+            world = held_world(data, world, world_given(args, tables), f"the learner in {out}")
     output_file(args.json)
     from swarm.procs.learner import main as learner_main  # (torch: after the checks)
 

@@ -298,7 +298,15 @@ def resume_point(data: dict[str, Any], cfg: TrainConfig, given: Collection[str] 
         raise CheckpointError(f"{where}/checkpoint.pt holds no trainer state; cannot resume")
     saved = from_dict(TrainConfig, tr["config"], where="checkpoint train config")
     cfg = resumed(saved, cfg, given, tr["epoch"], where)
-    theirs = from_dict(WorldConfig, data["world"], where="checkpoint world")
+    return cfg, held_world(data, world, world_given, where), tr
+
+
+def held_world(data: dict[str, Any], world: WorldConfig, world_given: Collection[str] | None,
+               where: str) -> WorldConfig:
+    """The world a resumed run (`swarm train` or `swarm learner --resume`) goes on with: its
+    checkpoint's; a `world_given` field of `world` that differs from it (None: every field is
+    given) is a one-line ConfigError."""
+    theirs = from_dict(WorldConfig, data.get("world"), where="checkpoint world")
     names = [f.name for f in dataclasses.fields(WorldConfig)] if world_given is None \
         else sorted(world_given)
     key = next((k for k in names if getattr(world, k) != getattr(theirs, k)), None)
@@ -306,7 +314,7 @@ def resume_point(data: dict[str, Any], cfg: TrainConfig, given: Collection[str] 
         raise ConfigError(f"--resume continues {where} on the world it was trained on: "
                           f"{key} = {getattr(world, key)!r} differs from its "
                           f"{getattr(theirs, key)!r}")
-    return cfg, theirs, tr
+    return theirs
 
 
 LEARNER_MAY_CHANGE = ("threads",)
