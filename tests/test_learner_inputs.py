@@ -13,6 +13,7 @@ import threading
 import time
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 import zenoh
@@ -237,3 +238,35 @@ def test_rollout_worker_help_states_the_bounds() -> None:
     assert r.returncode == 0
     text = " ".join(r.stdout.split())
     assert "[1, 4096]" in text and "[0.1, 3600]" in text and "0: never" in text, text
+
+
+def test_a_fresh_learner_takes_over_from_the_one_it_replaced(tmp_path: Path) -> None:
+    """A learner killed at v23 and replaced by a fresh one (same run, new --out): workers kept
+    the v23 weights (they took only higher versions) and the new learner trained on their
+    episodes as if they were its own (UA pass). Weights now name the learner process that made
+    them: a worker follows another learner's whatever their version, and a learner drops
+    episodes played with weights newer than its own, counted as rejected."""
+    from swarm.learn.config import LearnerConfig
+    from swarm.learn.join import episodes_of
+    from swarm.learn.rollout import collect
+    from swarm.learn.weights import weights_of
+    from swarm.net.learning import Weights
+    from swarm.procs.learner import Learner
+
+    old = Learner(SMALL, LearnerConfig(run_id="fresh", policy="vain", out=str(tmp_path / "a")),
+                  TrainConfig(batch=2, threads=1))
+    new = Learner(SMALL, LearnerConfig(run_id="fresh", policy="vain", out=str(tmp_path / "b")),
+                  TrainConfig(batch=2, threads=1))
+    assert old.origin != new.origin and min(old.origin, new.origin) > 0
+    w = Weights.unpack(new.weights_payload)
+    assert (w.version, w.origin) == (0, new.origin)
+    assert w.newer_than(23, old.origin) and not w.newer_than(0, new.origin)
+    assert Weights.unpack(weights_of(new.policy, 24, new.origin).pack()).newer_than(23, new.origin)
+    legacy = msgpack.unpackb(w.pack())[:-1]  # a message of four fields (before the origin)
+    assert Weights.unpack(msgpack.packb(legacy)).origin == 0
+    roll = collect(new.policy, SMALL, 0, np.arange(3))
+    for er in episodes_of(roll, 23):  # played with the replaced learner's v23
+        new._accept(er)
+    for er in episodes_of(roll, 0):
+        new._accept(er)
+    assert new.c.rejected == 3 and new.c.episodes == 3 and len(new.ready) == 3

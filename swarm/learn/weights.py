@@ -34,9 +34,9 @@ def fresh_checkpoint(policy: str, cfg: WorldConfig, seed: int, path: Path) -> Pa
     return path
 
 
-def weights_of(policy: InferencePolicy, version: int) -> Weights:
+def weights_of(policy: InferencePolicy, version: int, origin: int = 0) -> Weights:
     return Weights(policy.name, version, dataclasses.asdict(policy.model_cfg),
-                   {k: np.array(v, dtype=np.float32) for k, v in policy.weights.items()})
+                   {k: np.array(v, dtype=np.float32) for k, v in policy.weights.items()}, origin)
 
 
 def adopt(policy: InferencePolicy, w: Weights) -> None:

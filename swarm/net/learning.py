@@ -67,15 +67,22 @@ class Weights:
     version: int
     model: dict[str, Any]  # the network's config dataclass as a dict
     tensors: dict[str, np.ndarray]  # float32 state_dict
+    origin: int = 0
+    """Which learner process publishes them (drawn at its start): a worker follows a learner
+    that replaced the one it knew, whatever its versions (they start again from its own)."""
 
     def pack(self) -> bytes:
         data = {k: [list(a.shape), np.ascontiguousarray(a, "<f4").tobytes()]
                 for k, a in self.tensors.items()}
-        return _pack(K_WEIGHTS, self.policy, self.version, self.model, data)
+        return _pack(K_WEIGHTS, self.policy, self.version, self.model, data, self.origin)
+
+    def newer_than(self, version: int, origin: int) -> bool:
+        """Whether a holder of `version` from learner `origin` should take these."""
+        return self.origin != origin or self.version > version
 
     @classmethod
     def unpack(cls, payload: bytes) -> Weights:
-        policy, version, model, data = _unpack(payload, K_WEIGHTS, 4)
+        policy, version, model, data, *rest = _unpack(payload, K_WEIGHTS, (4, 5))
         if not isinstance(policy, str) or not isinstance(model, dict) or not isinstance(data, dict):
             raise BadMessage("weights need a policy name, a model map and a tensor map")
         tensors = {}
@@ -85,7 +92,8 @@ class Weights:
                                                        for d in v[0])):
                 raise BadMessage(f"tensor {k!r} must be [shape, float32 bytes]")
             tensors[k] = _array(v[1], f"tensor {k}", "<f4", tuple(v[0]), finite=True)
-        return cls(policy, _int(version, "version", 0, BIG), model, tensors)
+        return cls(policy, _int(version, "version", 0, BIG), model, tensors,
+                   _int(rest[0], "origin", 0, BIG) if rest else 0)
 
 
 class RolloutTick(NamedTuple):

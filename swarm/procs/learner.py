@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import secrets
 import sys
 import tempfile
 import time
@@ -55,7 +56,7 @@ from swarm.learn.weights import weights_of
 from swarm.net.inbox import Inbox, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
-from swarm.net.messages import K_LSTATUS, BadMessage, pack_record
+from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
@@ -74,7 +75,8 @@ class LearnerCounters:
     stale_used: int = 0
     stale_dropped: int = 0
     incomplete: int = 0  # an acting robot's record (or the world's) never came
-    rejected: int = 0  # its records came but do not fit together (or are not whole episodes)
+    rejected: int = 0  # records that do not fit together, are not whole episodes, or were
+    # played with weights newer than this learner's (another learner's)
     trained: int = 0  # episodes that went into an update
     received: int = 0  # distinct episodes heard of (swarm episodes + worker episodes)
     late_records: int = 0  # robot or world records of an episode already joined or given up
@@ -128,7 +130,8 @@ class Learner:
         self.closed: set[int] = set()  # swarm episodes joined or given up
         self.last_closed = -1  # the highest of them (a lockstep world waits for it: train_sync)
         self.ready: list[EpisodeRollout] = []
-        self.weights_payload = weights_of(self.policy, self.version).pack()
+        self.origin = 1 + secrets.randbelow(BIG)  # this process's weights (Weights.origin)
+        self.weights_payload = weights_of(self.policy, self.version, self.origin).pack()
         self.curve: list[float] = []  # the dashboard's sparkline: elratio per update
         self.t0 = time.monotonic()
         self._last_status = 0.0
@@ -238,6 +241,12 @@ class Learner:
             log.warning("learner dropped episode %d: %d of %d ticks", er.ep,
                         er.actions.shape[0], self.cfg.horizon)
             return
+        if er.version > self.version:  # weights this learner never made: another's (one it
+            self.c.rejected += 1  # replaced, or a forger's); their log-probabilities are not ours
+            if self.c.rejected & (self.c.rejected - 1) == 0:  # (the 1st, 2nd, 4th, ...)
+                log.warning("learner dropped episode %d: played with weights v%d, newer than its "
+                            "own v%d (another learner's)", er.ep, er.version, self.version)
+            return
         if self.version - er.version > self.lc.max_staleness:
             self.c.stale_dropped += 1
             return
@@ -302,7 +311,7 @@ class Learner:
                "episodes_per_s": len(batch) / max(time.perf_counter() - t0, 1e-9),
                "elapsed_s": time.monotonic() - self.t0}
         self.save()  # acknowledged only once durable ...
-        self.weights_payload = weights_of(self.policy, self.version).pack()
+        self.weights_payload = weights_of(self.policy, self.version, self.origin).pack()
         self.weights_pub.put(self.weights_payload)  # ... then published
         self.curves.append(row, version=self.version, episode_ids=[e.ep for e in batch],
                            versions=[e.version for e in batch])

@@ -56,7 +56,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         for reply in session.get(keys.weights, timeout=2.0):
             if reply.ok is not None:
                 inbox.q.put(Event("w", keys.weights, reply.ok.payload.to_bytes()))
-        version, sent, bad, batches, sent_bytes = -1, 0, 0, 0, 0
+        version, origin, sent, bad, batches, sent_bytes = -1, -1, 0, 0, 0, 0
         seed = tc.train_seed_offset + tc.seed + worker_id + 1
         t0 = time.monotonic()
         try:
@@ -68,9 +68,9 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
                     elif kind == "w":
                         try:
                             w = Weights.unpack(payload or b"")
-                            if w.version > version:
+                            if w.newer_than(version, origin):  # (or another learner's)
                                 adopt(policy, w)
-                                version = w.version
+                                version, origin = w.version, w.origin
                         except (BadMessage, ValueError) as exc:  # (numpy's, should a check miss)
                             bad += 1
                             log.warning("worker %d rejected weights: %s", worker_id, exc)
