@@ -167,3 +167,13 @@ def test_message_rates_count_from_the_first_tick_live_and_replayed() -> None:
     assert "msgs/s          50" in _text(render(v))
     v.elapsed_s = 4.0  # a replay: recorded seconds since the first status
     assert "msgs/s          25" in _text(render(v))
+
+
+def test_robots_not_up_at_the_first_tick_are_kept() -> None:
+    """The run's first status names who was up when the world stopped waiting (`swarm run`
+    warns about the others, `absent_at_start`); later statuses do not change it."""
+    v = SwarmView("demo", "nearest-frontier", 6, 8, 3, 10.0, episodes=1)
+    assert v.absent_at_start == []
+    v.apply_status({"ep": 0, "t": 1, "pos": [[0, 0]] * 3, "alive": [True, False, True]}, now=0.0)
+    v.apply_status({"ep": 0, "t": 2, "pos": [[0, 0]] * 3, "alive": [True, True, True]}, now=0.1)
+    assert v.absent_at_start == [1]

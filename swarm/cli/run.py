@@ -73,6 +73,10 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--watchdog", type=float, metavar="S",
                    help="virtual clock: wall seconds before a hung robot is stepped without "
                         "(default 10)")
+    g.add_argument("--start-timeout", type=float, metavar="S",
+                   help="seconds the world waits for every robot before the first tick, then "
+                        "starts without the missing ones (default 60; `swarm run`: 60 or 0.6 s "
+                        "a robot, the longer)")
 
 
 def _add_train_flags(p: argparse.ArgumentParser) -> None:
@@ -105,7 +109,8 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
              "train": getattr(args, "train", None),
              "rollout_loss": getattr(args, "rollout_loss", None),
              "train_sync": getattr(args, "train_sync", None),
-             "restart_crashed": getattr(args, "restart_crashed", None) or None}
+             "restart_crashed": getattr(args, "restart_crashed", None) or None,
+             "start_timeout": getattr(args, "start_timeout", None)}
     table = dict(tables.get("run", {}))
     given = {k: v for k, v in flags.items() if v is not None}
     data = {**table, **given}
@@ -120,6 +125,9 @@ def _logging(verbose: bool) -> None:
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
 
+
+START_S_PER_ROBOT = 0.6
+"""`swarm run`'s default start timeout per robot it spawns (when over the 60 s default)."""
 
 LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_norm", "ent_coef",
                         "max_grad_norm", "threads", "chunk_ticks", "algo", "ppo_epochs")
@@ -173,6 +181,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_clock(args, tables, run, faults)
     check_fault_ticks(faults, run, world)
     check_run_free(run.run_id)
+    if args.start_timeout is None and "start_timeout" not in tables.get("run", {}):
+        # (spawning N interpreters: ~0.3 s of CPU each, on a machine that may be busy)
+        run = dataclasses.replace(run, start_timeout=max(run.start_timeout,
+                                                         START_S_PER_ROBOT * world.n_robots))
     output_file(args.json)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")

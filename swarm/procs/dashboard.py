@@ -75,6 +75,7 @@ class SwarmView:
     block_coll: int = 0
     robot_coll: int = 0
     ticks_done: int = 0
+    absent_at_start: list[int] = field(default_factory=list)  # robots not up at the first tick
     started: float = field(default_factory=time.monotonic)
     tick_times: list[float] = field(default_factory=list)
     world_alive: bool = False
@@ -113,6 +114,7 @@ class SwarmView:
         now = time.monotonic() if now is None else now
         if self.first_status is None:
             self.first_status = now
+            self.absent_at_start = [i for i, a in enumerate(rec.get("alive", [])) if not a]
         if rec.get("ep") != self.ep:
             if self.ep >= 0:
                 self.episodes_done += 1

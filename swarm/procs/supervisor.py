@@ -81,6 +81,7 @@ class Supervisor:
         self.faults = dict(faults or {})
         plan = plan_from_table(self.faults, run.seed)
         self.process_faults = sorted(plan.process, key=lambda p: p.tick)
+        self.planned = list(self.process_faults)  # (the plan's, kept: the queue is used up)
         self.run_tick = 0  # the world's run tick, from its last status
         self.console = console or Console()
         self.keys = Keys(run.run_id)
@@ -365,6 +366,12 @@ class Supervisor:
             res["learner"] = {**st, "accounting": acc, "out": self.learner_out}
         res["robot_status"] = {str(i): r.counters() for i, r in self.view.robots.items()}
         res["robot_stalls"] = sum(r.stalls for r in self.view.robots.values())
+        planned = {f.robot for f in self.planned if f.kind == "crash" and f.tick == 0}
+        res["absent_at_start"] = [i for i in self.view.absent_at_start if i not in planned]
+        if res["absent_at_start"]:  # (the world waited `start_timeout` for them, then began)
+            print(f"swarm: warning: robots {res['absent_at_start']} were not up within the "
+                  f"start timeout ({self.run_cfg.start_timeout:g} s; --start-timeout S): the run "
+                  "began without them", file=sys.stderr, flush=True)
         rc = self.run_cfg  # what made the result (with --train and no checkpoint: fresh weights)
         ckpt = rc.checkpoint if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)
         res.update(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
