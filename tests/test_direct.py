@@ -107,6 +107,8 @@ def test_each_robot_decides_its_copies_as_the_radio_does(table: dict) -> None:
     assert mine["traj_in"] == 2 * 12 * n  # what robots sent (the world counts what it got)
     if table:
         assert sum(mine[k] for k in ("lost", "cut", "late", "dropped_bw")) > 0
+    if table.get("overflow") == "expire":  # hidden states that waited for tokens count too
+        assert mine["by_kind"]["hidden"]["queued"] > 0
     assert tally.faulted_links() == radio.counters.faulted_links()  # what the dashboard shows
     assert bool(tally.faulted_links()) == bool(table)
 

@@ -147,6 +147,17 @@ def test_radio_bundles_arrive_after_latency_and_late_copies_are_cut() -> None:
     assert radio2.counters.late == 6
 
 
+def test_a_hidden_state_that_waited_for_tokens_counts_as_queued_on_the_real_clock() -> None:
+    """A 266-byte hidden state under a 150 B/s cap (150 bytes deep) waits 0.77 s: late for a
+    0.05-s deadline, and counted queued by kind, like a trajectory message that waited."""
+    radio = Radio(WorldConfig(n_robots=3), plan_from_table({"bandwidth": "150B/s"}))
+    radio.pred = np.array([-1, 0, 1])
+    assert radio.hidden_deliveries(0, 0, 0, 266, now=1.0, deadline=1.05) == []
+    hidden = radio.counters.totals()["by_kind"]["hidden"]
+    assert hidden["queued"] == hidden["late"] == 1 and radio.counters.queued == 1
+    assert radio.counters.faulted_links() == {"0-1": [0, 0, 1, 1]}
+
+
 # ------------------------------------------------------------------------------- real swarm
 
 

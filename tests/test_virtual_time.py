@@ -87,6 +87,20 @@ def test_virtual_swarm_equals_batched_eval_under_each_fault(tmp_path: Path, poli
 
 
 @pytest.mark.procs
+def test_hidden_states_that_waited_for_tokens_count_as_queued(tmp_path: Path) -> None:
+    """Under a 150 B/s cap CommAttn's 266-byte hidden states wait in their senders' queues:
+    counted queued per kind by the radio and by direct delivery alike, and the run still takes
+    its batched twin's actions."""
+    faults = {"bandwidth": "150B/s"}
+    radio = _run(tmp_path, "hqr", "commattn", faults)
+    direct = _run(tmp_path, "hqd", "commattn", faults, "--delivery", "direct")
+    hidden = radio["messages"]["by_kind"]["hidden"]
+    assert hidden["late"] > 0 and hidden["queued"] >= hidden["late"]  # no latency: the queue
+    assert direct["messages"]["by_kind"] == radio["messages"]["by_kind"]
+    assert np.array_equal(np.array(radio["actions"]), _batched("commattn", faults))
+
+
+@pytest.mark.procs
 def test_two_virtual_runs_agree_while_the_cpu_is_loaded(tmp_path: Path) -> None:
     hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     try:

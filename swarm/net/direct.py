@@ -27,7 +27,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from swarm.net.channel import CUT, FATES, HIDDEN_FRAC, LOST, OK, TRAJ_FRAC, VirtualChannel
+from swarm.net.channel import CUT, FATES, HIDDEN_FRAC, LATE, LOST, OK, TRAJ_FRAC, VirtualChannel
 from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, plan_from_table
 from swarm.net.keys import Keys
 from swarm.net.messages import (
@@ -293,6 +293,8 @@ class DirectLink:
             else:
                 fate = int(self.channel.column(KIND_HIDDEN, self.ep, self.t, pred, q)[self.robot])
         self.decided.add(key)
+        if got is not None:  # (a copy lost or cut is decided without it: never counted queued)
+            c.count_queued("hidden", fate in (OK, LATE) and q > 0, pred, self.robot)
         if fate != OK or not isinstance(msg, Hidden):
             c.miss("hidden", FATES[fate], pred, self.robot)
             return Hidden.miss(*key)

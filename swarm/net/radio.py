@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm.net.channel import FATES, OK, VirtualChannel
+from swarm.net.channel import FATES, LATE, OK, VirtualChannel
 from swarm.net.faults import KIND_HIDDEN, KIND_TRAJ, FaultPlan, delay_ms, delivery_mask, link_arrays
 from swarm.net.messages import Action, Bundle, Hidden
 from world.config import WorldConfig
@@ -107,9 +107,7 @@ class RadioCounters:
         self.out_of_range += int(len(rows) * present.sum() - hears.sum())
         others = hears & (rows[:, None] != np.arange(hears.shape[1])[None])
         for r, j in zip(*np.nonzero(others & queued[None]), strict=True):
-            self.queued += 1
-            self.link(int(j), int(rows[r])).queued += 1
-            self.kinds["traj"]["queued"] += 1
+            self.count_queued("traj", True, int(j), int(rows[r]))
         for r, j in zip(*np.nonzero(hears & (fate != OK)), strict=True):
             self.miss("traj", FATES[fate[r, j]], int(j), int(rows[r]))
         ok = hears & (fate == OK)
@@ -119,6 +117,13 @@ class RadioCounters:
         full[rows] = ok
         self.count_delivered(full)
         return ok
+
+    def count_queued(self, kind: str, waited: bool, j: int, i: int) -> None:
+        """One copy j -> i of `kind` whose sender's message waited for tokens (if `waited`)."""
+        if waited:
+            self.queued += 1
+            self.link(j, i).queued += 1
+            self.kinds[kind]["queued"] += 1
 
     def miss(self, kind: str, what: str, j: int, i: int) -> None:
         """One copy j -> i of `kind` that was lost, cut, late or dropped (`what`)."""
@@ -219,7 +224,6 @@ class Radio:
                 for i in np.flatnonzero(hears[:, j]):
                     if i == j:
                         continue
-                    s = c.link(j, int(i))
                     if grp[i] != grp[j]:
                         ok[i, j] = False
                         c.miss("traj", "cut", j, int(i))
@@ -231,10 +235,7 @@ class Radio:
                         c.miss("traj", "dropped_bw", j, int(i))
                     else:
                         arrival[i, j] = t_recv + q + delay[i, j]
-                        if q > 0:
-                            s.queued += 1
-                            c.queued += 1
-                            c.kinds["traj"]["queued"] += 1
+                        c.count_queued("traj", q > 0, j, int(i))
                         if arrival[i, j] > deadline:
                             ok[i, j] = False
                             c.miss("traj", "late", j, int(i))
@@ -294,6 +295,7 @@ class Radio:
             elif q is None:
                 c.miss("hidden", "dropped_bw", sender, i)
             else:
+                c.count_queued("hidden", q > 0, sender, i)
                 when = now + q + delay[i, sender]
                 if when > deadline:
                     c.miss("hidden", "late", sender, i)
@@ -365,10 +367,12 @@ class Radio:
         successors = self.successors(sender)
         if self.channel.plan.zero:  # no loss, delay, cap or cut: every copy on time
             return [(i, True) for i in successors]
-        fates = self.channel.hidden_from(ep, t, sender, size)  # O(N): per message
+        q = self.channel.charge(t, sender, size, KIND_HIDDEN)
+        fates = self.channel.column(KIND_HIDDEN, ep, t, sender, q)  # O(N): per message
         out = []
         for i in successors:
             fate = int(fates[i])
+            self.counters.count_queued("hidden", fate in (OK, LATE) and q > 0, sender, i)
             if fate != OK:
                 self.counters.miss("hidden", FATES[fate], sender, i)
             out.append((i, fate == OK))
