@@ -467,10 +467,9 @@ class WorldProcess:
                 out["chain_ms_by_depth"] = [s / max(n, 1) for s, n in self.chain_ms]
         c = self.radio.counters
         messages = c.totals() if self.direct is None else self.direct.totals()
-        if self.virtual:  # wall-clock arrivals after their tick changed nothing: apart
-            messages["stale"] = self.late
-        else:
-            messages["late"] += self.late  # radio-late copies + messages of an older tick
+        # messages that reached the world after their tick (whole messages, not copies): apart
+        # from `late`, which counts copies and is the sum of `by_kind[*].late`
+        messages["stale"] = self.late
         out.update({
             "ticks": ticks, "ticks_per_s": ticks / wall if wall > 0 else 0.0,
             "clock": rc.clock, "virtual_s": ticks * rc.tick_timeout if rc.clock == "virtual"
