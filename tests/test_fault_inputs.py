@@ -68,6 +68,17 @@ def test_a_process_fault_beyond_the_runs_last_tick_is_refused() -> None:
              why="--hang 0@20 is beyond the run's last tick 19")
 
 
+def test_a_zero_kernel_bandwidth_or_lease_is_refused_not_read_as_the_default() -> None:
+    """0 is the fields' "unlimited" and "the usual 1 s": given on the command line it is a
+    one-line error before any namespace or process is made, like `--bandwidth 0`."""
+    run = ("run", "--headless", "--robots", "4", "--episodes", "1", "--policy",
+           "nearest-frontier", "--netns")
+    _refused(*run, "--kernel-bandwidth", "0", why="bad --kernel-bandwidth '0'")
+    _refused(*run, "--kernel-bandwidth", "0kB/s", why="a cap must be above 0 B/s")
+    _refused(*run, "--netns-lease", "0ms", why="bad --netns-lease '0ms'")
+    _refused(*run, "--netns-lease", "0", why="a lease must be above 0 ms")
+
+
 def test_robot_wait_must_be_finite_and_positive() -> None:
     for wait in ("nan", "inf", "0"):
         _refused("robot", "--id", "0", "--run-id", "r1", "--wait", wait, why="--wait")

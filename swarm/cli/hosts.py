@@ -19,10 +19,12 @@ def add_netns_flags(p: argparse.ArgumentParser) -> None:
                    help="with --netns: packet drop probability per direction of each robot link "
                         "(iptables statistic; TCP retransmits, so messages arrive late)")
     g.add_argument("--kernel-bandwidth", metavar="RATE",
-                   help="with --netns: tc tbf cap per direction of each robot link, e.g. 8kB/s")
+                   help="with --netns: tc tbf cap per direction of each robot link, e.g. 8kB/s "
+                        "(above 0; default none: no cap)")
     g.add_argument("--netns-lease", metavar="DUR",
-                   help="with --netns: Zenoh lease of every session (default 1s); TCP's "
-                        "retransmission backoff under loss can outlast a short one")
+                   help="with --netns: Zenoh lease of every session, above 0 (default 1s; a "
+                        "number alone is ms); TCP's retransmission backoff under loss can "
+                        "outlast a short one")
     g.add_argument("--netns-transport", choices=["tcp", "udp"],
                    help="with --netns: the robots' Zenoh link (default tcp; udp is best effort)")
 

@@ -73,9 +73,16 @@ class NetnsConfig:
             p = float(loss) if loss is not None else 0.0
         except (TypeError, ValueError):
             raise ConfigError(f"bad kernel loss {loss!r}") from None
-        return cls(loss=p, bandwidth=parse_rate(bandwidth) if bandwidth is not None else 0.0,
-                   lease_ms=parse_duration_ms(lease) if lease is not None else 0.0,
-                   transport=transport or "tcp")
+        rate = parse_rate(bandwidth) if bandwidth is not None else 0.0
+        if bandwidth is not None and rate == 0 and str(bandwidth).strip().lower() != "none":
+            # (0 is the field's "unlimited": a user asking for no bandwidth got all of it)
+            raise ConfigError(f"bad --kernel-bandwidth {bandwidth!r}: a cap must be above 0 B/s "
+                              "(no cap: leave it out, or write none)")
+        lease_ms = parse_duration_ms(lease) if lease is not None else 0.0
+        if lease is not None and lease_ms == 0:  # (0 is the field's "the usual 1 s")
+            raise ConfigError(f"bad --netns-lease {lease!r}: a lease must be above 0 ms "
+                              "(the usual 1s: leave it out)")
+        return cls(loss=p, bandwidth=rate, lease_ms=lease_ms, transport=transport or "tcp")
 
     def zenoh_cfg(self) -> list[str]:
         """`KEY:JSON5` settings every session of the run takes: a client retries its connection
