@@ -79,6 +79,28 @@ def test_a_zero_kernel_bandwidth_or_lease_is_refused_not_read_as_the_default() -
     _refused(*run, "--netns-lease", "0", why="a lease must be above 0 ms")
 
 
+@pytest.mark.parametrize("table,why", [
+    ("loss = true", "bad loss True: a number is expected"),
+    ("burst = false\nbandwidth = \"1kB/s\"", "bad burst False"),
+    ("[faults.robot.1]\nloss = true", "bad loss True"),
+    ("[faults.link.\"0-0\"]\nloss = 0.5", "bad link '0-0': a robot's link to itself"),
+])
+def test_nonsense_in_a_faults_table_is_refused(tmp_path: Path, table: str, why: str) -> None:
+    """A bool where a number is expected (`loss = true` was loss 1.0) and a link from a robot
+    to itself are one-line errors, not a plan."""
+    conf = tmp_path / "f.toml"
+    conf.write_text(f"[faults]\n{table}\n")
+    _refused("run", "--headless", "--robots", "4", "--episodes", "1", "--policy",
+             "nearest-frontier", "--config", str(conf), why=why)
+
+
+def test_a_partition_with_an_empty_group_is_refused() -> None:
+    for groups in ("0-1/", "0-1//2-3", "/0"):
+        _refused("run", "--headless", "--robots", "4", "--episodes", "1", "--policy",
+                 "nearest-frontier", "--partition", groups,
+                 why=f"bad partition '{groups}': an empty group")
+
+
 def test_robot_wait_must_be_finite_and_positive() -> None:
     for wait in ("nan", "inf", "0"):
         _refused("robot", "--id", "0", "--run-id", "r1", "--wait", wait, why="--wait")

@@ -224,8 +224,12 @@ def parse_ids(text: str) -> tuple[int, ...]:
 
 
 def parse_partition(text: str) -> tuple[tuple[int, ...], ...]:
-    """`0-4/5-9` -> ((0..4), (5..9)); a robot may be in one group only."""
-    groups = tuple(parse_ids(g) for g in str(text).split("/") if g.strip())
+    """`0-4/5-9` -> ((0..4), (5..9)); a robot may be in one group only, and the robots in no
+    group form one more (`0` on 4 robots is `0/1-3`); `""` is no partition."""
+    parts = [g.strip() for g in str(text).split("/")]
+    if parts != [""] and "" in parts:
+        raise ConfigError(f"bad partition {text!r}: an empty group (use e.g. 0-4/5-9)")
+    groups = tuple(parse_ids(g) for g in parts if g)
     seen: set[int] = set()
     for g in groups:
         if seen & set(g):
@@ -246,6 +250,14 @@ LINK_KEYS = ("latency", "jitter", "loss", "bandwidth", "burst", "overflow", "com
 """The keys of one link's faults in a `[faults]` table (human units)."""
 
 
+def _number(v: Any, name: str) -> float:
+    """A fault's number (a float or its text); a bool is refused (`loss = true` became 1.0)."""
+    try:
+        return float(v if not isinstance(v, bool) else "bool")
+    except (TypeError, ValueError):
+        raise ConfigError(f"bad {name} {v!r}: a number is expected") from None
+
+
 def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFault:
     """A LinkFault from a TOML/CLI mapping with human units (latency = "50ms", ...)."""
     base = base or LinkFault()
@@ -262,10 +274,7 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
     if "compute" in d:
         ch["compute_ms"] = parse_duration_ms(d["compute"])
     if "loss" in d:
-        try:
-            ch["loss"] = float(d["loss"])
-        except (TypeError, ValueError):
-            raise ConfigError(f"bad loss {d['loss']!r}") from None
+        ch["loss"] = _number(d["loss"], "loss")
     if "bandwidth" in d:
         ch["bandwidth"] = parse_rate(d["bandwidth"])
         if ch["bandwidth"] == 0 and str(d["bandwidth"]).strip().lower() != "none":
@@ -273,7 +282,7 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
             raise ConfigError(f"bad bandwidth {d['bandwidth']!r}: a cap must be above 0 B/s "
                               "(no cap: leave it out, or write none)")
     if "burst" in d:
-        ch["burst"] = float(d["burst"])
+        ch["burst"] = _number(d["burst"], "burst")
     if "overflow" in d:
         ch["overflow"] = str(d["overflow"])
     return replace(base, **ch)
@@ -313,6 +322,9 @@ def _plan(t: dict[str, Any], seed: int) -> FaultPlan:
         a, sep, b = str(k).partition("-")
         if not sep or not a.isdigit() or not b.isdigit():
             raise ConfigError(f"bad link {k!r}: use \"SENDER-RECEIVER\"")
+        if int(a) == int(b):
+            raise ConfigError(f"bad link {k!r}: a robot's link to itself (its own message is "
+                              "always delivered)")
         per_link[(int(a), int(b))] = link_fault_from(v, default)
     return FaultPlan(default, per_robot, per_link, partition, tuple(process), fseed)
 
