@@ -101,6 +101,12 @@ def test_a_partition_with_an_empty_group_is_refused() -> None:
                  why=f"bad partition '{groups}': an empty group")
 
 
+def test_unknown_robots_are_listed_with_how_many_more_there_are() -> None:
+    _refused("run", "--headless", "--robots", "4", "--episodes", "1", "--policy",
+             "nearest-frontier", "--partition", "0-9",
+             why="faults name robot(s) 4, 5, 6, 7, 8 and 1 more but the team has robots 0..3")
+
+
 def test_robot_wait_must_be_finite_and_positive() -> None:
     for wait in ("nan", "inf", "0"):
         _refused("robot", "--id", "0", "--run-id", "r1", "--wait", wait, why="--wait")

@@ -96,9 +96,10 @@ class FaultPlan:
         ids = [*self.per_robot, *(x for pair in self.per_link for x in pair),
                *(r for g in self.partition for r in g), *(p.robot for p in self.process)]
         bad = sorted({r for r in ids if not 0 <= r < n_robots})
+        shown = ", ".join(map(str, bad[:5])) + f" and {len(bad) - 5} more" * (len(bad) > 5)
         if bad:
-            raise ConfigError(f"faults name robot(s) {', '.join(map(str, bad[:5]))} but the team "
-                              f"has robots 0..{n_robots - 1}")
+            raise ConfigError(f"faults name robot(s) {shown} but the team has robots "
+                              f"0..{n_robots - 1}")
         return self
 
     def link(self, sender: int, receiver: int) -> LinkFault:
@@ -267,12 +268,9 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
         raise ConfigError(f"unknown fault key(s) {', '.join(sorted(unknown))}; known: "
                           f"{', '.join(sorted(known))}")
     ch: dict[str, Any] = {}
-    if "latency" in d:
-        ch["latency_ms"] = parse_duration_ms(d["latency"])
-    if "jitter" in d:
-        ch["jitter_ms"] = parse_duration_ms(d["jitter"])
-    if "compute" in d:
-        ch["compute_ms"] = parse_duration_ms(d["compute"])
+    for key in ("latency", "jitter", "compute"):
+        if key in d:
+            ch[f"{key}_ms"] = parse_duration_ms(d[key])
     if "loss" in d:
         ch["loss"] = _number(d["loss"], "loss")
     if "bandwidth" in d:
