@@ -67,6 +67,21 @@ def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str
 
 
 @pytest.mark.procs
+def test_a_run_with_a_log_dir_leaves_nothing_in_the_temp_folder(tmp_path: Path) -> None:
+    """--log-dir: the logs and the run's spec are in the log dir; the temp folder the run
+    made for its children (the spec, the world's result file) is gone after a clean run."""
+    temp, logs = Path(tempfile.gettempdir()), tmp_path / "logs"
+    before = set(temp.glob("swarm-logdir1-*"))
+    r = swarm("run", "--headless", "--robots", "3", "--episodes", "1", "--policy",
+              "nearest-frontier", "--run-id", "logdir1", "--log-dir", str(logs), "--json",
+              str(tmp_path / "r.json"))
+    assert r.returncode == 0, r.stderr
+    assert set(temp.glob("swarm-logdir1-*")) == before
+    spec = json.loads((logs / "spec.json").read_text())
+    assert spec["run"]["run_id"] == "logdir1" and (logs / "world.log").is_file()
+
+
+@pytest.mark.procs
 def test_range_limited_delivery_out_of_range_hears_nothing(tmp_path: Path) -> None:
     """comm_range 0: every bundle holds exactly the receiver's own message."""
     out = tmp_path / "run.json"
