@@ -107,6 +107,20 @@ def test_unknown_robots_are_listed_with_how_many_more_there_are() -> None:
              why="faults name robot(s) 4, 5, 6, 7, 8 and 1 more but the team has robots 0..3")
 
 
+def test_the_help_says_what_a_bare_number_and_a_partial_partition_mean() -> None:
+    """What the help says is what the plan does: `--latency 50` is 50 ms, `--partition 0` on
+    4 robots is `0/1-3`."""
+    from swarm.net.faults import plan_from_table
+
+    text = " ".join(swarm("run", "--help", timeout=60).stdout.split())
+    assert "a number alone is ms: 50 is 50ms" in text and "(a number alone is ms)" in text
+    assert "the robots left out form one more group (0 on 4 robots is 0/1-3)" in text
+    assert plan_from_table({"latency": "50"}) == plan_from_table({"latency": "50 ms"}) == \
+        plan_from_table({"latency": "50ms"})
+    assert plan_from_table({"partition": "0"}).group_of(4).tolist() == [0, 1, 1, 1] == \
+        plan_from_table({"partition": "0/1-3"}).group_of(4).tolist()
+
+
 def test_robot_wait_must_be_finite_and_positive() -> None:
     for wait in ("nan", "inf", "0"):
         _refused("robot", "--id", "0", "--run-id", "r1", "--wait", wait, why="--wait")

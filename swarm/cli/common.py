@@ -291,8 +291,10 @@ def add_fault_flags(p: argparse.ArgumentParser, process: bool = True, config: bo
     `config`: the command reads `--config` (whose `[faults]` the flags override)."""
     g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)"
                              if config else "faults (see docs/DECISIONS.md)")
-    g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms")
-    g.add_argument("--jitter", metavar="DUR", help="extra uniform delay in [0, DUR), e.g. 10ms")
+    g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms, 0.2s or "
+                   "\"50 ms\" (us, ms, s; a number alone is ms: 50 is 50ms)")
+    g.add_argument("--jitter", metavar="DUR", help="extra uniform delay in [0, DUR), e.g. 10ms "
+                   "(a number alone is ms)")
     g.add_argument("--loss", metavar="P", help="message loss probability, e.g. 0.1")
     g.add_argument("--bandwidth", metavar="RATE", help="per-robot radio cap, e.g. 2kB/s")
     g.add_argument("--overflow", choices=["queue", "drop", "expire"],
@@ -300,7 +302,8 @@ def add_fault_flags(p: argparse.ArgumentParser, process: bool = True, config: bo
                         "(default), drop them, or expire them (queue, but never send one "
                         "that would leave the queue after its deadline)")
     g.add_argument("--partition", metavar="GROUPS", help="groups that cannot hear each other, "
-                   "e.g. 0-4/5-9")
+                   "e.g. 0-4/5-9; the robots left out form one more group (0 on 4 robots is "
+                   "0/1-3)")
     g.add_argument("--compute-ms", type=float, metavar="MS",
                    help="virtual clock: every robot's modelled compute time before it sends "
                         "(per robot: [faults.robot.K] compute)")
