@@ -158,6 +158,20 @@ def test_a_hidden_state_that_waited_for_tokens_counts_as_queued_on_the_real_cloc
     assert radio.counters.faulted_links() == {"0-1": [0, 0, 1, 1]}
 
 
+def test_queued_trajectory_copies_count_alike_on_both_clocks() -> None:
+    """A trajectory copy whose sender's message waited for tokens is queued whatever became of
+    it (here cut by a partition), on the real clock as on the virtual one (`count_traj`)."""
+    cfg = WorldConfig(n_robots=3, comm_range=float("inf"))
+    plan = plan_from_table({"bandwidth": "150B/s", "partition": "0/1-2"})
+    pos = np.array([[0, 0], [0, 1], [0, 2]])
+    real, virtual = Radio(cfg, plan), Radio(cfg, plan)
+    real.bundles(0, 0, pos, {i: (bytes(266), 1.0) for i in range(3)}, deadline=1.5)
+    virtual.use_virtual_clock(2.0)
+    virtual.virtual_bundles(0, 0, pos, {i: bytes(266) for i in range(3)})
+    for radio in (real, virtual):
+        assert radio.counters.kinds["traj"]["queued"] == 6 and radio.counters.cut == 4
+
+
 # ------------------------------------------------------------------------------- real swarm
 
 

@@ -224,6 +224,7 @@ class Radio:
                 for i in np.flatnonzero(hears[:, j]):
                     if i == j:
                         continue
+                    c.count_queued("traj", q is not None and q > 0, j, int(i))  # (as count_traj)
                     if grp[i] != grp[j]:
                         ok[i, j] = False
                         c.miss("traj", "cut", j, int(i))
@@ -235,7 +236,6 @@ class Radio:
                         c.miss("traj", "dropped_bw", j, int(i))
                     else:
                         arrival[i, j] = t_recv + q + delay[i, j]
-                        c.count_queued("traj", q > 0, j, int(i))
                         if arrival[i, j] > deadline:
                             ok[i, j] = False
                             c.miss("traj", "late", j, int(i))
