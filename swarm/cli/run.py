@@ -40,7 +40,6 @@ from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.common.flags import check_wait
 from swarm.common.policy_spec import build_inference
 from swarm.common.report import json_line, provenance
-from swarm.common.spawn import temp_beside_logs
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
@@ -228,8 +227,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         learning = {"learner": {**dataclasses.asdict(lc), "out": args.learner_out or lc.out},
                     "train": dataclasses.asdict(tc)}
     try:
-        with temp_beside_logs(run.run_id, args.log_dir):  # nothing left in /tmp, --log-dir or not
-            res = supervise(world, run, opts, console=out, faults=faults, learning=learning)
+        res = supervise(world, run, opts, console=out, faults=faults, learning=learning)
     except KeyboardInterrupt:
         print("swarm: interrupted; every process of the run was stopped", file=sys.stderr)
         return 130

@@ -10,7 +10,6 @@ child closes its session and writes what it owes on the way out. A supervisor's 
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import json
 import os
@@ -22,7 +21,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -188,26 +186,6 @@ def tidy_logs(folder: Path, res: dict[str, Any], keep: bool = False) -> None:
         res["logs"] = str(folder)
         return
     shutil.rmtree(folder, ignore_errors=True)
-
-
-@contextlib.contextmanager
-def temp_beside_logs(run_id: str, log_dir: str | None) -> Iterator[None]:
-    """With `--log-dir`, the temp folder the supervisor makes for run `run_id` (the spec its
-    children read, the world's result file) goes when the run ends, however it ends; the spec
-    is kept in the log dir (`spec.json`). Without `--log-dir`, `tidy_logs` decides."""
-    def made() -> set[Path]:  # mkdtemp's names: the prefix and 8 characters of [a-z0-9_]
-        prefix = f"swarm-{run_id}-"
-        return {p for p in Path(tempfile.gettempdir()).iterdir() if p.name.startswith(prefix)
-                and len(p.name) == len(prefix) + 8 and "-" not in p.name[len(prefix):]}
-
-    before = made() if log_dir is not None else set()
-    try:
-        yield
-    finally:
-        for folder in (made() - before) if log_dir is not None else ():
-            if (folder / "spec.json").is_file():
-                shutil.copyfile(folder / "spec.json", Path(log_dir) / "spec.json")
-            shutil.rmtree(folder, ignore_errors=True)
 
 
 def tidy_interrupted(folder: Path, keep: bool = False) -> None:

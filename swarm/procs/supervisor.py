@@ -90,8 +90,11 @@ class Supervisor:
         self.topo = topology(run.run_id, cfg.n_robots, opts.netns, opts.hosts)
         self.routers: list[subprocess.Popen[bytes]] = []  # --hosts: one per host but the world's
         self.zcfg = [] if opts.netns is None else opts.netns.zenoh_cfg()  # --cfg of every session
-        self.tmp = Path(tempfile.mkdtemp(prefix=f"swarm-{run.run_id}-"))
-        self.log_dir = Path(opts.log_dir) if opts.log_dir else self.tmp
+        # the run's files (children's logs, the spec they read, the world's result file): in
+        # --log-dir, kept; else in a temp folder, removed after a clean run (`tidy_logs`)
+        self.tmp = Path(opts.log_dir) if opts.log_dir else \
+            Path(tempfile.mkdtemp(prefix=f"swarm-{run.run_id}-"))
+        self.log_dir = self.tmp
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.zfiles: dict[str, Path] = {}  # --secure: identity -> its session's config file
         extra = (learning is not None, bool(opts.record))  # (a learner's, a recorder's files)
