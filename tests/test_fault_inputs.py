@@ -229,6 +229,9 @@ def test_two_live_changes_for_later_ticks_both_apply_each_at_its_tick(tmp_path: 
     assert [(c["tick"], c["at_tick"], c["faults"]) for c in ch["changes"]] == [
         (t1, t1, ["all: loss 0.5"]), (t2, t2, ["all: latency 50+0ms loss 0.5"])]
     assert ch["late"] == ch["dropped"] == 0
+    assert result["faults"]["default"]["loss"] == 0.0  # the plan it began with (UA pass: it
+    assert result["faults_end"]["default"] == {  # was the last one, under the same key)
+        **result["faults"]["default"], "loss": 0.5, "latency_ms": 50.0}
     by_tick = {s["run_tick"]: [f for f in s["faults"] if not f.startswith("restart")]
                for s in statuses}  # status k: tick k - 1 played; its link faults
     assert by_tick[t1] == [] and by_tick[t1 + 1] == ["all: loss 0.5"]

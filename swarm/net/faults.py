@@ -451,6 +451,7 @@ class FaultSchedule:
 
     def __init__(self, table: dict[str, Any], seed: int, n_robots: int) -> None:
         self.table, self.seed, self.n_robots = dict(table), seed, n_robots
+        self.first = plan_from_table(self.table, seed).to_record()  # the plan the run began with
         self.pending: list[tuple[int, int, Control]] = []  # heap: (tick due, arrival, change)
         self.arrivals = 0
         self.log: list[dict[str, Any]] = []  # the first MAX_LOGGED changes applied
