@@ -273,6 +273,17 @@ def test_renderers_show_the_figures() -> None:
     text = _render(eval_table([s], "eval test"))
     for x in ("nearest-frontier", "0.853 ± 0.041", "37.5%", "0.123", "eval test"):
         assert x in text
+    # on an 80-column terminal every figure stays whole (it was `0.…`), the sd left out
+    t = {**s, "policy": "coordinated-frontier", "reward_mean": -295.67, "collisions_mean": 87.0,
+         "block_collisions_mean": 84.33, "elratio_paired": {"vs": "x", "mean": -0.3225,
+                                                            "se": 0.0088}}
+    console = Console(record=True, width=80, file=StringIO())
+    console.print(eval_table([t, t], "eval test", width=console.width))
+    text = console.export_text()
+    for x in ("coordinated-frontier", "0.853", "-295.7", "87.00", "84.33", "37.5%", "0.123",
+              "-0.3225±0.0088", "means only"):
+        assert x in text, text
+    assert "…" not in text
 
     env = {"robots": 10, "horizon": 30, "repeats": 3, "bar": {"batch": 1024,
                                                               "agent_steps_per_s": 4e6},

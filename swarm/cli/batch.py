@@ -164,7 +164,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     shown_faults = "; ".join(faults.describe()) if faults is not None else ""
     out.print(eval_table(summaries, f"eval: {world.n_robots} robots, {map_kind} map, "
                                     f"{cfg.episodes} episodes, seed {cfg.seed}"
-                                    + (f"; faults: {shown_faults}" if shown_faults else "")))
+                                    + (f"; faults: {shown_faults}" if shown_faults else ""),
+                         out.width))
     if cfg.json:
         if len(summaries) == 1:
             obj: dict[str, Any] = summaries[0]

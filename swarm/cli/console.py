@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from rich import box
 from rich.table import Table
 from rich.text import Text
 
@@ -24,27 +25,42 @@ def _pm(mean: float, std: float, fmt: str = ".3f") -> str:
     return f"{mean:{fmt}} ± {std:{fmt}}"
 
 
-def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation") -> Table:
+NARROW = 110
+"""Columns below which `eval_table` leaves out the standard deviations (an 80-column terminal
+cut every figure to `0.…`); they stay in `--json`."""
+
+
+def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation",
+               width: int = NARROW) -> Table:
     """One row per policy from `EvalResult.summary` dicts; * marks a reference planner that is
     not decentralized (oracle, central); with several policies, each one's elratio minus the
-    first's, paired over the same episodes."""
-    table = Table(title=title, title_justify="left")
+    first's, paired over the same episodes. Narrower than NARROW (the console's `width`):
+    means without their standard deviations, so that every figure stays whole."""
+    narrow = width < NARROW
+    table = Table(title=title, title_justify="left", **(  # (no vertical rules, no edges)
+        {"box": None, "pad_edge": False, "collapse_padding": True} if narrow else {}))
     table.add_column("policy", style="bold", no_wrap=True)  # (not `coordinated-fron…`)
     vs = next((s["elratio_paired"]["vs"] for s in summaries if "elratio_paired" in s), None)
-    for col in ("elratio ± sd", "reward ± sd", "coll.", "block coll.", "success",
-                "plan ms", *(["Δ elratio ± se"] if vs else [])):
+    sd = "" if narrow else " ± sd"
+    for col in (f"elratio{sd}", f"reward{sd}", "coll.", "block" if narrow else "block coll.",
+                "success", "plan ms", *(["Δ elratio ± se"] if vs else [])):
         table.add_column(col, justify="right", no_wrap=True)
+
+    def pm(mean: float, std: float, fmt: str = ".3f") -> str:
+        return f"{mean:{fmt}}" if narrow else _pm(mean, std, fmt)
+
     for s in summaries:
         pair = s.get("elratio_paired")
         table.add_row(
             str(s["policy"]) + ("" if s.get("decentralized", True) else " *"),
-            _pm(s["elratio_mean"], s["elratio_std"]),
-            _pm(s["reward_mean"], s.get("reward_std", 0.0), ".1f"),
+            pm(s["elratio_mean"], s["elratio_std"]),
+            pm(s["reward_mean"], s.get("reward_std", 0.0), ".1f"),
             f"{s['collisions_mean']:.2f}",
             f"{s['block_collisions_mean']:.2f}",
             f"{100 * s['success_rate']:.1f}%",
             f"{s['planning_ms_per_decision']:.3f}",
-            *([paired_cell(pair["mean"], pair["se"]) if pair else "-"] if vs else []),
+            *([(paired_cell(pair["mean"], pair["se"]).replace(" ± ", "±") if narrow else
+                paired_cell(pair["mean"], pair["se"])) if pair else "-"] if vs else []),
         )
     notes = ([f"Δ: elratio minus {vs}'s on the same episodes (paired; se of the mean)"]
              if vs else [])
@@ -52,6 +68,8 @@ def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation"
                  "episodes; run: every robot's own decision, summed)")
     if any(not s.get("decentralized", True) for s in summaries):
         notes.append("* a reference planner, not decentralized (see README, Reference planners)")
+    if narrow:
+        notes.append(f"means only: the standard deviations need {NARROW} columns (or --json)")
     if notes:
         table.caption = "\n".join(notes)
         table.caption_justify = "left"

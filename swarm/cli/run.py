@@ -238,7 +238,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         m = res.get("messages", {})
         out.print()
-        out.print(eval_table([res], title=f"swarm run {run.run_id}"))
+        out.print(eval_table([res], title=f"swarm run {run.run_id}", width=out.width))
         out.print(f"ticks/s {res.get('ticks_per_s', 0):.1f}   "
                   f"startup {res.get('startup_s') or 0:.1f} s"
                   f"   messages delivered {m.get('traj_delivered')} lost {m.get('lost')} "
