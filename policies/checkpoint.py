@@ -68,14 +68,20 @@ def check_exists(path: Path) -> None:
         raise CheckpointError(f"checkpoint not found: {path}{where}")
 
 
+def check_readable(path: Path) -> None:
+    """`check_exists`, and a one-line CheckpointError unless `path` is a zip archive (what
+    torch.save writes): both readers refuse a truncated or foreign file in the same words."""
+    check_exists(path)
+    if not zipfile.is_zipfile(path):  # (else torch's advice, or zipfile's, misleads)
+        raise CheckpointError(f"checkpoint {path} is unreadable: not a torch checkpoint file "
+                              "(a .pt that swarm train wrote)")
+
+
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
     """Read a checkpoint written by `save_checkpoint`; any problem is a one-line CheckpointError."""
     import torch
 
-    check_exists(path := Path(path))
-    if not zipfile.is_zipfile(path):  # what torch.save writes; else torch's advice misleads
-        raise CheckpointError(f"checkpoint {path} is unreadable: not a torch checkpoint file "
-                              "(a .pt that swarm train wrote)")
+    check_readable(path := Path(path))
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling problem means "not a checkpoint"
@@ -91,7 +97,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """`load_checkpoint` without torch: the same dict with numpy arrays for tensors."""
     from policies.infer.ptfile import PtFileError, load_pt
 
-    check_exists(path := Path(path))
+    check_readable(path := Path(path))
     try:
         data = load_pt(path)
     except PtFileError as exc:
