@@ -9,6 +9,9 @@ A checkpoint is a torch file holding a plain dict:
     state_dict  the network's weights
     meta        command, seed, epoch, update, ... (free-form, JSON-safe)
     train       optional trainer state (optimizer, RNG, counters) for `swarm train --resume`
+    learner     optional field learner state (`swarm learner --resume`)
+
+Both readers check the same: the fields' types.
 
 Writes are atomic (temp file in the same directory, fsync, os.replace), so a crash mid-write
 leaves the previous checkpoint intact. `read_checkpoint` reads one without torch (numpy arrays,
@@ -105,10 +108,31 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     return _checked(data, path)
 
 
+FIELDS = {"policy": str, "model": dict, "world": dict, "state_dict": dict}
+"""The fields every checkpoint has, and their type."""
+OPTIONAL = {"meta": dict, "train": dict, "learner": dict}
+"""Fields some checkpoints have (trainer or learner state), and their type."""
+
+
 def _checked(data: Any, path: Path) -> dict[str, Any]:
+    """`data` if it is a checkpoint dict: the fields of their types, weights arrays (numpy or
+    torch) with names; a one-line CheckpointError naming the file and the field otherwise."""
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise CheckpointError(f"checkpoint {path} is not a format-{FORMAT} checkpoint")
-    missing = [k for k in ("policy", "model", "world", "state_dict") if k not in data]
+    missing = [k for k in FIELDS if k not in data]
     if missing:
         raise CheckpointError(f"checkpoint {path} lacks {', '.join(missing)}")
+    for key, kind in {**FIELDS, **OPTIONAL}.items():
+        if key in data and not isinstance(data[key], kind):
+            what = "None" if data[key] is None else f"a {type(data[key]).__name__}"
+            raise CheckpointError(f"checkpoint {path}: field {key!r} is {what}, not a "
+                                  f"{kind.__name__}")
+    for key in ("model", "world"):
+        if not all(isinstance(k, str) for k in data[key]):
+            raise CheckpointError(f"checkpoint {path}: field {key!r} has a key that is not a "
+                                  "name")
+    for key, value in data["state_dict"].items():
+        if not isinstance(key, str) or not (hasattr(value, "shape") and hasattr(value, "dtype")):
+            raise CheckpointError(f"checkpoint {path}: field 'state_dict' holds {key!r}, which "
+                                  "is not a named weight array")
     return data

@@ -28,6 +28,34 @@ def tiny_checkpoint(path: Path, **changes: Any) -> Path:
     return path
 
 
+BROKEN = {
+    "model-str": ({"model": "garbage"}, "field 'model' is a str, not a dict"),
+    "model-none": ({"model": None}, "field 'model' is None, not a dict"),
+    "state-dict-list": ({"state_dict": [1, 2]}, "field 'state_dict' is a list, not a dict"),
+    "weight-not-array": ({"state_dict": {"w": 3}}, "'w', which is not a named weight array"),
+    "world-str": ({"world": "x"}, "field 'world' is a str, not a dict"),
+    "meta-str": ({"meta": "x"}, "field 'meta' is a str, not a dict"),
+    "train-list": ({"train": [1]}, "field 'train' is a list, not a dict"),
+}
+
+
+@pytest.mark.parametrize("case", BROKEN)
+def test_both_readers_refuse_a_checkpoint_of_wrong_types_or_non_finite_weights(
+        tmp_path: Path, case: str) -> None:
+    changes, words = BROKEN[case]
+    path = tiny_checkpoint(tmp_path / "bad.pt", **changes)
+    messages = []
+    for reader in (load_checkpoint, read_checkpoint):
+        with pytest.raises(CheckpointError) as err:
+            reader(path)
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
+    assert words in messages[0] and str(path) in messages[0] and "\n" not in messages[0]
+    good = tiny_checkpoint(tmp_path / "good.pt")
+    assert read_checkpoint(good)["meta"] == {"command": "test"}
+    assert set(load_checkpoint(good)["state_dict"]) == set(read_checkpoint(good)["state_dict"])
+
+
 def test_both_readers_call_a_truncated_checkpoint_not_a_torch_file(tmp_path: Path) -> None:
     raw = tiny_checkpoint(tmp_path / "good.pt").read_bytes()
     cut = tmp_path / "cut.pt"
@@ -45,7 +73,12 @@ def one_line_error(r: Any, words: str) -> None:
 
 
 @pytest.mark.procs
-def test_train_resume_calls_a_truncated_checkpoint_not_a_torch_file(tmp_path: Path) -> None:
+def test_every_command_refuses_a_bad_checkpoint_in_one_line(tmp_path: Path) -> None:
+    garbage = str(tiny_checkpoint(tmp_path / "garbage.pt", model="garbage"))
+    one_line_error(swarm("bench", "policy", "--policies", "commattn", "--checkpoint",
+                         f"commattn={garbage}", timeout=60), "field 'model' is a str")
+    one_line_error(swarm("train", "--init", garbage, "--out", str(tmp_path / "t"),
+                         "--epochs", "1", timeout=60), "field 'model' is a str")
     run = tmp_path / "run"
     run.mkdir()
     raw = tiny_checkpoint(tmp_path / "good.pt").read_bytes()
