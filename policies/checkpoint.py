@@ -11,7 +11,7 @@ A checkpoint is a torch file holding a plain dict:
     train       optional trainer state (optimizer, RNG, counters) for `swarm train --resume`
     learner     optional field learner state (`swarm learner --resume`)
 
-Both readers check the same: the fields' types.
+Both readers check the same: the fields' types and that every weight is finite.
 
 Writes are atomic (temp file in the same directory, fsync, os.replace), so a crash mid-write
 leaves the previous checkpoint intact. `read_checkpoint` reads one without torch (numpy arrays,
@@ -25,6 +25,8 @@ import tempfile
 import zipfile
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from world.config import ConfigError
 
@@ -116,7 +118,8 @@ OPTIONAL = {"meta": dict, "train": dict, "learner": dict}
 
 def _checked(data: Any, path: Path) -> dict[str, Any]:
     """`data` if it is a checkpoint dict: the fields of their types, weights arrays (numpy or
-    torch) with names; a one-line CheckpointError naming the file and the field otherwise."""
+    torch) with names, and every weight finite (a diverged run's NaNs left robots standing
+    still); a one-line CheckpointError naming the file and the field otherwise."""
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise CheckpointError(f"checkpoint {path} is not a format-{FORMAT} checkpoint")
     missing = [k for k in FIELDS if k not in data]
@@ -135,4 +138,7 @@ def _checked(data: Any, path: Path) -> dict[str, Any]:
         if not isinstance(key, str) or not (hasattr(value, "shape") and hasattr(value, "dtype")):
             raise CheckpointError(f"checkpoint {path}: field 'state_dict' holds {key!r}, which "
                                   "is not a named weight array")
+        if not np.isfinite(np.asarray(value)).all():
+            raise CheckpointError(f"checkpoint {path} has non-finite weights (NaN or inf) in "
+                                  f"{key}: the run that wrote it diverged")
     return data

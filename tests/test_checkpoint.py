@@ -21,14 +21,22 @@ TINY_NET = CommAttnConfig(embed=4, hidden=4, state=4, match=4, action_embed=4)
 
 def tiny_checkpoint(path: Path, **changes: Any) -> Path:
     """A commattn checkpoint of a tiny network for the default world, with `changes` to its
-    top-level fields."""
+    top-level fields (`nan`/`inf`: the first weight's first entry set to that)."""
     torch.manual_seed(0)
     payload = make_policy("commattn", WorldConfig(), model=TINY_NET).payload({"command": "test"})
+    for bad in ("nan", "inf"):
+        if changes.pop(bad, False):
+            key = next(iter(payload["state_dict"]))
+            weight = payload["state_dict"][key].detach().clone()
+            weight.view(-1)[0] = float(bad)
+            payload["state_dict"][key] = weight
     save_checkpoint(path, {**payload, **changes})
     return path
 
 
 BROKEN = {
+    "nan": ({"nan": True}, "non-finite weights"),
+    "inf": ({"inf": True}, "non-finite weights"),
     "model-str": ({"model": "garbage"}, "field 'model' is a str, not a dict"),
     "model-none": ({"model": None}, "field 'model' is None, not a dict"),
     "state-dict-list": ({"state_dict": [1, 2]}, "field 'state_dict' is a list, not a dict"),
@@ -74,7 +82,12 @@ def one_line_error(r: Any, words: str) -> None:
 
 @pytest.mark.procs
 def test_every_command_refuses_a_bad_checkpoint_in_one_line(tmp_path: Path) -> None:
+    nan = str(tiny_checkpoint(tmp_path / "nan.pt", nan=True))
     garbage = str(tiny_checkpoint(tmp_path / "garbage.pt", model="garbage"))
+    one_line_error(swarm("eval", "--policy", "commattn", "--checkpoint", nan, "--episodes", "2",
+                         timeout=60), "non-finite weights")
+    one_line_error(swarm("run", "--policy", "commattn", "--checkpoint", nan, "--episodes", "1",
+                         "--log-dir", str(tmp_path / "logs"), timeout=60), "non-finite weights")
     one_line_error(swarm("bench", "policy", "--policies", "commattn", "--checkpoint",
                          f"commattn={garbage}", timeout=60), "field 'model' is a str")
     one_line_error(swarm("train", "--init", garbage, "--out", str(tmp_path / "t"),
