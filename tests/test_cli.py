@@ -139,6 +139,19 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str]) -> No
 
 
 @pytest.mark.procs
+@pytest.mark.parametrize("policy", [[], ["--policy", "commattn"]], ids=["default", "given"])
+def test_a_checkpoint_for_a_name_that_is_no_policy_says_so(policy: list[str]) -> None:
+    """`--checkpoint NAME=FILE` with an unknown NAME is refused as no policy (it was taken for a
+    file and "not found"); a policy not evaluated is named as not among --policy."""
+    r = swarm("eval", *policy, "--checkpoint", "foo=checkpoints/commattn.pt")
+    assert r.returncode == 2 and r.stderr.strip() == (
+        "swarm: error: --checkpoint foo=...: 'foo' is not a policy (learned ones: bicnet, "
+        "commattn, commnet, vain)"), r.stderr
+    r = swarm("eval", *policy, "--checkpoint", "commnet=checkpoints/commnet.pt")
+    assert r.returncode == 2 and "'commnet' is not among --policy" in r.stderr, r.stderr
+
+
+@pytest.mark.procs
 def test_config_file_unknown_key_and_table_rejected(tmp_path: Path) -> None:
     for body, word in [("[world]\nn_robotz = 3\n", "n_robotz"),
                        ("[eval]\nepisodez = 3\n", "episodez"),

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.bench.train import TrainBenchConfig
-from swarm.cli.checks import eval_checkpoints
+from swarm.cli.checks import eval_checkpoints, stray_checkpoints
 from swarm.cli.common import (
     RichProgress,
     _checkpoint_pairs,
@@ -89,9 +89,7 @@ def eval_policies(world: WorldConfig, cfg: EvalConfig) -> list[tuple[str, Any]]:
     if cfg.checkpoint is not None and len(names) > 1:
         raise ConfigError("--checkpoint FILE needs a single --policy; name each policy's "
                           "checkpoint with --checkpoint NAME=FILE")
-    stray = sorted(set(cfg.checkpoints) - set(names))
-    if stray:
-        raise ConfigError(f"--checkpoint {stray[0]}=...: {stray[0]!r} is not among --policy")
+    stray_checkpoints(cfg.checkpoints, names, "--policy")
     return [(n, build_policy(n, world, checkpoint_of(cfg, n))) for n in names]
 
 
@@ -286,9 +284,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                       "warmup": args.warmup, "seed": args.seed, "json": args.json,
                       "one_robot": args.one_robot}, where)
         ckpts = _checkpoint_pairs(args.checkpoint) or {}
-        for name in ckpts:
-            if name not in cfg.policies:
-                raise ConfigError(f"--checkpoint {name}=...: {name!r} is not among --policies")
+        stray_checkpoints(ckpts, list(cfg.policies), "--policies")
         for name in cfg.policies:  # fail on an unloadable policy before timing anything
             build_policy(name, world, ckpts.get(name))
         with RichProgress(err) as progress:

@@ -5,6 +5,7 @@ one line and exit 2 before anything is spawned or sent."""
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 from typing import Any
 
@@ -104,14 +105,26 @@ def status_tick(payload: bytes) -> int:
     return tick if type(tick) is int and 0 <= tick < 2**40 else -1
 
 
+def stray_checkpoints(checkpoints: dict[str, str], names: list[str], flag: str) -> None:
+    """A one-line ConfigError if `--checkpoint NAME=FILE` names a policy not among `names` (those
+    `flag` gives), or no policy at all."""
+    from policies import LEARNED, REGISTRY
+
+    stray = sorted(set(checkpoints) - set(names))
+    if stray:
+        what = f"not among {flag} {','.join(names)}" if stray[0] in REGISTRY else \
+            f"not a policy (learned ones: {', '.join(sorted(LEARNED))})"
+        raise ConfigError(f"--checkpoint {stray[0]}=...: {stray[0]!r} is {what}")
+
+
 def eval_checkpoints(given: list[str] | None) -> tuple[str | None, dict[str, str] | None]:
     """`--checkpoint FILE` (one policy) or `--checkpoint NAME=FILE` (repeatable): a value whose
-    part before `=` names a policy is a pair, anything else a file."""
-    from policies import REGISTRY
-
+    part before `=` is a name (no path) is a pair, unless it is an existing file; anything else
+    a file. (A NAME that is no policy is then refused as such, not as a missing file.)"""
     if not given:
         return None, None
-    pairs = [g for g in given if g.partition("=")[0] in REGISTRY]
+    pairs = [g for g in given if re.fullmatch(r"[A-Za-z][\w-]*", g.partition("=")[0])
+             and "=" in g and not Path(g).is_file()]
     files = [g for g in given if g not in pairs]
     if len(files) > 1 or (files and pairs):
         raise ConfigError("give one --checkpoint FILE (one policy) or --checkpoint NAME=FILE "
