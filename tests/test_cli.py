@@ -126,6 +126,8 @@ def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) 
     ["eval", "--policy", "commattn,commnet", "--checkpoint", "a.pt"],  # whose is it?
     ["eval", "--policy", "commattn", "--checkpoint", "a.pt", "--checkpoint", "commattn=b.pt"],
     ["eval", "--policy", "commattn", "--checkpoint", "commnet=checkpoints/commnet.pt"],
+    ["train", "--out", "{tmp}/malformed.toml/run"],  # (a path under a file: errno, exit 1)
+    ["train", "--out", "/proc/swarm-train"],  # (the probe writes: root may write anywhere)
     ["frobnicate"],
 ])
 @pytest.mark.procs

@@ -201,6 +201,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.resume and not ckpt.is_file():  # (a mistyped --out started a fresh run)
         raise ConfigError(f"--resume: {ckpt} does not exist, nothing to resume (without "
                           "--resume a new run starts there)")
+    output_dir(args.out, "--out", make=False)  # (a path under a file failed once running)
     if args.resume:  # a refused resume costs no torch import
         from policies.checkpoint import read_checkpoint
 

@@ -269,17 +269,25 @@ def output_file(path: str | None, flag: str = "--json") -> None:
         raise ConfigError(f"{flag} {path} is not writable ({exc.strerror or exc})") from None
 
 
-def output_dir(path: str | None, flag: str) -> None:
+def output_dir(path: str | None, flag: str, make: bool = True) -> None:
     """A directory a run will write into, made now and probed with a file (permission bits do
-    not say it for root or for a special file system such as /proc)."""
+    not say it for root or for a special file system such as /proc). `make=False` leaves a
+    missing one to the run (made once it is known to start) and probes the nearest folder that
+    exists: a path under a file, or where nothing can be made, is refused all the same."""
     if path is None:
         return
     target = Path(path)
     if target.exists() and not target.is_dir():
         raise ConfigError(f"{flag} {path} exists and is not a directory")
+    probe = target
+    if not make:
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        if not probe.is_dir():
+            raise ConfigError(f"{flag} {path} is under {probe}, which is not a directory")
     try:
-        target.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=target):
+        probe.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=probe):
             pass
     except OSError as exc:
         raise ConfigError(f"{flag} {path} is not writable ({exc.strerror or exc})") from None
