@@ -128,6 +128,7 @@ def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) 
     ["eval", "--policy", "commattn", "--checkpoint", "commnet=checkpoints/commnet.pt"],
     ["train", "--out", "{tmp}/malformed.toml/run"],  # (a path under a file: errno, exit 1)
     ["train", "--out", "/proc/swarm-train"],  # (the probe writes: root may write anywhere)
+    ["repro", "fig8", "--out", "{tmp}/o", "--json", "{tmp}/o/fig8.json"],  # (overwrote it)
     ["frobnicate"],
 ])
 @pytest.mark.procs

@@ -401,12 +401,18 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
     if item == "fig10":  # studies, on the run's map size and team: they ignored --config's)
         res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt,
                             cfg=static)
-        names = ("fig10.png", "fig10.csv", "fig10_scores.csv", "fig10_scores.md")
     else:
         res = commviz.fig11(out, seed=cfg.seed, episodes=cfg.fig11_episodes, checkpoint=ckpt,
                             cfg=static)
-        names = ("fig11.png", "fig11.csv", "fig11_by_neighbours.csv", "fig11_by_neighbours.md")
-    return {"item": item, "rows": [res], "files": [str(out / n) for n in names]}
+    return {"item": item, "rows": [res], "files": [str(out / n) for n in item_files(item)]}
+
+
+def item_files(item: str) -> tuple[str, ...]:
+    """The names of the files `item` writes into the output directory."""
+    if item in ("fig10", "fig11"):
+        extra = "scores" if item == "fig10" else "by_neighbours"
+        return (f"{item}.png", f"{item}.csv", f"{item}_{extra}.csv", f"{item}_{extra}.md")
+    return tuple(f"{item}.{ext}" for ext in ("csv", "md", "png", "json"))
 
 
 def expand(item: str) -> list[str]:
@@ -442,6 +448,10 @@ def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[
         for name in learned_of(cfg):
             if not cfg.curve(name).is_file():
                 raise ConfigError(f"no training curve for {name}: {cfg.curve(name)} not found")
+    for name in (n for item in items for n in item_files(item)) if cfg.json else ():
+        if Path(cfg.json).resolve() == (Path(cfg.out) / name).resolve():
+            raise ConfigError(f"--json {cfg.json} is a file repro writes ({name}); give "
+                              "another path for the summary")
     return list(items)
 
 
