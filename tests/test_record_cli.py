@@ -178,3 +178,32 @@ def test_a_recorder_waiting_for_its_world_stops_on_ctrl_c(tmp_path: Path) -> Non
         if proc.poll() is None:
             proc.kill()
     assert not out.exists()
+
+
+@pytest.mark.procs
+def test_bench_record_without_out_removes_its_recordings_also_when_interrupted(
+        tmp_path: Path) -> None:
+    """`swarm bench record` without --out keeps no recordings: its temporary folder is gone
+    after a finished run and after Ctrl-C (it stayed in the temp dir)."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp)}
+    r = swarm("bench", "record", "--pairs", "1", "--episodes", "1", "--robots", "2", "--json",
+              str(tmp_path / "b.json"), env={"TMPDIR": str(tmp)})
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "b.json").read_text())["median_bytes"] > 0
+    assert not list(tmp.glob("swarm-bench-record-*"))
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "bench", "record", "--pairs",
+                             "200", "--episodes", "5", "--robots", "2"], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(tmp.glob("swarm-bench-record-*/run0.mcap")):
+            assert time.monotonic() < deadline and proc.poll() is None, proc.communicate()
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert not list(tmp.glob("swarm-bench-record-*"))

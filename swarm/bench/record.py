@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import resource
+import shutil
 import statistics
 import tempfile
 from collections.abc import Callable
@@ -34,7 +35,7 @@ class RecordBenchConfig:
     seed: int = 0
     """Episode seed of the first pair."""
     out: str | None = None
-    """Directory for the recordings (default: a temporary one)."""
+    """Directory for the recordings (default: a temporary one, removed at the end)."""
     json: str | None = None
     """Write the figures here."""
 
@@ -54,8 +55,20 @@ def _cpu() -> float:
 
 def bench_record(world: WorldConfig, cfg: RecordBenchConfig,
                  progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
-    out = Path(cfg.out or tempfile.mkdtemp(prefix="swarm-bench-record-"))
-    out.mkdir(parents=True, exist_ok=True)
+    """The pairs' rows and their medians; the recordings stay in `cfg.out` if given, else go to
+    a temporary folder removed at the end, an interrupted or failed run's too."""
+    if cfg.out:
+        Path(cfg.out).mkdir(parents=True, exist_ok=True)
+        return _bench(world, cfg, Path(cfg.out), progress)
+    tmp = Path(tempfile.mkdtemp(prefix="swarm-bench-record-"))
+    try:
+        return {**_bench(world, cfg, tmp, progress), "recordings": None}
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _bench(world: WorldConfig, cfg: RecordBenchConfig, out: Path,
+           progress: Callable[[dict[str, Any]], None] | None) -> dict[str, Any]:
     rows = []
     for k in range(cfg.pairs):
         for recorded in (False, True):

@@ -425,7 +425,8 @@ def add_parsers(sub: Any) -> None:
     b.add_argument("--checkpoint", metavar="FILE", help="checkpoint of a learned policy")
     b.add_argument("--episodes", type=int, help="episodes per run (default 3)")
     b.add_argument("--pairs", type=int, help="(plain, recorded) pairs (default 5)")
-    b.add_argument("--out", metavar="DIR", help="keep the recordings here")
+    b.add_argument("--out", metavar="DIR", help="keep the recordings here (default: a temporary "
+                                                "folder, removed at the end)")
     add_common(b)
     add_world(b)
     b.set_defaults(func=cmd_bench)
