@@ -37,6 +37,14 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     return path
 
 
+def remove_stale(directory: str | Path, names: tuple[str, ...]) -> None:
+    """Delete the temporary files a writer of `directory/NAME` (one of `names`) left when it was
+    killed mid-write (`.NAME.*.tmp`); call it where nothing else writes them, e.g. on resume."""
+    for name in names:
+        for stale in Path(directory).glob(f".{name}.*.tmp"):
+            stale.unlink(missing_ok=True)
+
+
 def write_text(path: str | Path, text: str) -> Path:
     """Atomically write UTF-8 `text` to `path`."""
     return write_bytes(path, text.encode("utf-8"))

@@ -10,13 +10,18 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from swarm.common.atomic import write_text
+from swarm.common.atomic import remove_stale, write_text
 from swarm.common.report import save_png
 from world.config import ConfigError
 
 CURVE_FIELDS = ["update", "epoch", "episodes", "n_dynamic", "elratio", "success", "reward",
                 "collisions", "block_collisions", "entropy", "loss", "pg", "baseline", "grad_norm",
                 "episodes_per_s", "elapsed_s"]
+
+
+RUN_FILES = ("checkpoint.pt", "curve.csv", "log.jsonl", "curve.png")
+"""The files of a training run's folder written atomically (a temp file, then a rename): a
+kill mid-write leaves `.NAME.XXXX.tmp`, removed when the run starts or resumes."""
 
 
 class CurveLog:
@@ -27,13 +32,15 @@ class CurveLog:
 
     def start(self) -> None:
         """A fresh run: the header only."""
+        remove_stale(self.csv.parent, RUN_FILES)
         self.csv.write_text(",".join(CURVE_FIELDS) + "\n")
         self.jsonl.write_text("")
 
     def resume(self, update: int) -> None:
         """Drop rows past update `update` (written after the checkpoint a run resumes from) and
         any row a kill cut short. The files are replaced atomically (a kill here leaves the old
-        rows), and only if rows go."""
+        rows), and only if rows go. Temp files a killed run left (RUN_FILES) are removed."""
+        remove_stale(self.csv.parent, RUN_FILES)
         for path, is_csv in ((self.csv, True), (self.jsonl, False)):
             if not path.exists():
                 continue
