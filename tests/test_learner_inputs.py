@@ -270,3 +270,23 @@ def test_a_fresh_learner_takes_over_from_the_one_it_replaced(tmp_path: Path) -> 
     for er in episodes_of(roll, 0):
         new._accept(er)
     assert new.c.rejected == 3 and new.c.episodes == 3 and len(new.ready) == 3
+
+
+def test_a_robot_follows_a_fresh_learner_too() -> None:
+    """A world started by hand with a learner that is replaced: robots that kept the old
+    learner's v23 ignored the new one's v0..v23 while it dropped their v23 episodes, so
+    neither moved again (review). Robots follow another learner's weights as workers do."""
+    from policies.infer.policy import inference_class
+    from swarm.learn.weights import weights_of
+    from swarm.procs.robot import RobotProcess
+    from swarm.procs.runconfig import RunConfig
+
+    pol = inference_class("vain")(SMALL)
+    with open_session(ZenohOptions()) as session:
+        robot = RobotProcess(0, SMALL, RunConfig(policy="vain", train=True), session, pol)
+        for version, origin, then in ((23, 7, (23, 7)), (5, 7, (23, 7)), (0, 9, (0, 9)),
+                                      (1, 9, (1, 9))):
+            robot.offer_weights(weights_of(pol, version, origin).pack(), "w")
+            robot.adopt_weights()
+            assert (robot.version, robot.origin) == then
+        assert robot.c.weights_bad == 0

@@ -22,7 +22,7 @@ from policies.base import Policy
 from swarm.common.policy_spec import build_inference
 from swarm.net.inbox import Inbox, check_free, publisher, tally
 from swarm.net.keys import Keys
-from swarm.net.learning import RolloutTick
+from swarm.net.learning import RobotRollout, RolloutTick, Weights
 from swarm.net.messages import (
     K_RESULT,
     K_RSTATUS,
@@ -63,6 +63,7 @@ class RobotProcess:
     attn: tuple[int, list[float]] | None = None  # the last decision's attention (t, weights)
     direct: Any = None  # swarm.procs.robot_direct.DirectDelivery with --delivery direct
     sent_hidden = (-1, -1)  # (episode, tick) of the last hidden-state message sent
+    origin = -1  # the learner whose weights it acts with (Weights.origin; -1: a checkpoint's)
 
     def __init__(self, robot: int, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
                  policy: Policy) -> None:
@@ -222,7 +223,6 @@ class RobotProcess:
     def offer_weights(self, payload: bytes, key: str) -> None:
         """Keep a newer weights version for the next episode boundary; reject bad ones."""
         from swarm.learn.weights import check_weights
-        from swarm.net.learning import Weights
 
         try:
             w = Weights.unpack(payload)
@@ -232,8 +232,8 @@ class RobotProcess:
             log.warning("robot %d rejected weights on %s: %s", self.robot, key, exc)
             self.status()  # visible at once on the dashboard
             return
-        newest = self.next_weights.version if self.next_weights is not None else self.version
-        if w.version > newest:
+        have = self.next_weights or self  # (the newest kept: for the next episode, or in use)
+        if w.newer_than(have.version, have.origin):  # (another learner's: whatever version)
             self.next_weights = w
 
     def adopt_weights(self) -> None:
@@ -245,7 +245,7 @@ class RobotProcess:
             return
         try:
             adopt(self.policy, w)  # type: ignore[arg-type]
-            self.version = w.version
+            self.version, self.origin = w.version, w.origin
         except BadMessage as exc:
             self.c.weights_bad += 1
             log.warning("robot %d rejected weights: %s", self.robot, exc)
@@ -291,7 +291,6 @@ class RobotProcess:
         self.recent = (self.recent + [cell])[-cfg.recent_len:]
         if obs.done:
             if self.train and self.record and self.roll_pub is not None:
-                from swarm.net.learning import RobotRollout
                 from world.noise import uniform
 
                 lost = self.run_cfg.rollout_loss > 0 and float(uniform(
