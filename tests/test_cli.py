@@ -300,6 +300,17 @@ def test_renderers_show_the_figures() -> None:
               "-0.3225±0.0088", "means only"):
         assert x in text, text
     assert "…" not in text
+    console = Console(record=True, width=110, file=StringIO())  # (too narrow with a Δ column)
+    console.print(eval_table([t, t], "eval test", width=console.width))
+    text = console.export_text()
+    assert "…" not in text and "-0.3225±0.0088" in text, text
+    from swarm.learn.evaluate import EvalResult  # a run stopped before any episode ended
+    from world.config import WorldConfig
+
+    none = EvalResult.none("commattn", 0, WorldConfig()).summary(WorldConfig())
+    for w in (80, 200):
+        text = _render(eval_table([none], "stopped", width=w))
+        assert "commattn" in text and "0.0%" not in text and " - " in text, text
 
     env = {"robots": 10, "horizon": 30, "repeats": 3, "bar": {"batch": 1024,
                                                               "agent_steps_per_s": 4e6},

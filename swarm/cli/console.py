@@ -5,9 +5,12 @@ The CLI prints what these return; tests render them into a capture console.
 
 from __future__ import annotations
 
+import io
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from rich.console import Console
+from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 
@@ -24,18 +27,26 @@ def _pm(mean: float, std: float, fmt: str = ".3f") -> str:
     return f"{mean:{fmt}} ± {std:{fmt}}"
 
 
-NARROW = 110
-"""Columns below which `eval_table` leaves out the standard deviations (an 80-column terminal
-cut every figure to `0.…`); they stay in `--json`."""
+def _num(x: float | None, fmt: str) -> str:
+    return "-" if x is None else f"{x:{fmt}}"  # (None: a run stopped before any episode ended)
 
 
 def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation",
-               width: int = NARROW) -> Table:
+               width: int | None = None) -> Table:
     """One row per policy from `EvalResult.summary` dicts; * marks a reference planner that is
     not decentralized (oracle, central); with several policies, each one's elratio minus the
-    first's, paired over the same episodes. Narrower than NARROW (the console's `width`):
-    means without their standard deviations, so that every figure stays whole."""
-    narrow = width < NARROW
+    first's, paired over the same episodes. When the table would be wider than `width` (the
+    console's), means without their standard deviations and no rules, so that every figure
+    stays whole (an 80-column terminal cut them to `0.…`); the sds stay in `--json`."""
+    wide = _eval_table(summaries, title, narrow=False)
+    if width is None:
+        return wide
+    probe = Console(width=10_000, file=io.StringIO())
+    need = Measurement.get(probe, probe.options, wide).maximum
+    return wide if need <= width else _eval_table(summaries, title, narrow=True)
+
+
+def _eval_table(summaries: Sequence[Mapping[str, Any]], title: str, narrow: bool) -> Table:
     table = Table(title=title, title_justify="left", **(  # (no vertical rules, no edges)
         {"box": None, "pad_edge": False, "collapse_padding": True} if narrow else {}))
     table.add_column("policy", style="bold", no_wrap=True)  # (not `coordinated-fron…`)
@@ -45,19 +56,20 @@ def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation"
                 "success", "plan ms", *(["Δ elratio ± se"] if vs else [])):
         table.add_column(col, justify="right", no_wrap=True)
 
-    def pm(mean: float, std: float, fmt: str = ".3f") -> str:
-        return f"{mean:{fmt}}" if narrow else _pm(mean, std, fmt)
+    def pm(mean: float | None, std: float | None, fmt: str = ".3f") -> str:
+        return _num(mean, fmt) if narrow or mean is None else _pm(mean, std or 0.0, fmt)
 
     for s in summaries:
         pair = s.get("elratio_paired")
+        success = s.get("success_rate")
         table.add_row(
             str(s["policy"]) + ("" if s.get("decentralized", True) else " *"),
             pm(s["elratio_mean"], s["elratio_std"]),
             pm(s["reward_mean"], s.get("reward_std", 0.0), ".1f"),
-            f"{s['collisions_mean']:.2f}",
-            f"{s['block_collisions_mean']:.2f}",
-            f"{100 * s['success_rate']:.1f}%",
-            f"{s['planning_ms_per_decision']:.3f}",
+            _num(s["collisions_mean"], ".2f"),
+            _num(s["block_collisions_mean"], ".2f"),
+            "-" if success is None else f"{100 * success:.1f}%",
+            _num(s["planning_ms_per_decision"], ".3f"),
             *([(paired_cell(pair["mean"], pair["se"]).replace(" ± ", "±") if narrow else
                 paired_cell(pair["mean"], pair["se"])) if pair else "-"] if vs else []),
         )
@@ -68,10 +80,9 @@ def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation"
     if any(not s.get("decentralized", True) for s in summaries):
         notes.append("* a reference planner, not decentralized (see README, Reference planners)")
     if narrow:
-        notes.append(f"means only: the standard deviations need {NARROW} columns (or --json)")
-    if notes:
-        table.caption = "\n".join(notes)
-        table.caption_justify = "left"
+        notes.append("means only, to fit the terminal: the standard deviations are in --json")
+    table.caption = "\n".join(notes)
+    table.caption_justify = "left"
     return table
 
 

@@ -290,12 +290,16 @@ def _save(fig: Any, png: Path) -> None:
     atomic.write_bytes(png, buf.getvalue())
 
 
+def _f(x: Any, fmt: str) -> str:
+    return "-" if x in (None, "") else f"{float(x):{fmt}}"  # (a run that completed nothing)
+
+
 def main(sweep: Sweep, out: str, resume: bool) -> int:
     """`swarm experiment`: run a checked sweep into directory `out`, one line per run on stderr,
     the files written on stdout."""
     res = run_experiment(sweep, out, resume, on_row=lambda r: print(
-        f"  {r['policy']} {r['value']} seed {r['seed']}: elratio {r['elratio_mean']:.3f} "
-        f"collisions {r['collisions_mean']:.1f} ticks/s {r['ticks_per_s']:.1f} "
+        f"  {r['policy']} {r['value']} seed {r['seed']}: elratio {_f(r['elratio_mean'], '.3f')} "
+        f"collisions {_f(r['collisions_mean'], '.1f')} ticks/s {_f(r['ticks_per_s'], '.1f')} "
         f"{r.get('twin') or ''}",
         file=sys.stderr, flush=True))
     for f in res["files"]:
