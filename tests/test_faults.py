@@ -387,6 +387,7 @@ def test_the_fleet_counts_each_death_once_and_says_the_unplanned(tmp_path: Path)
     def spawn(i: int) -> subprocess.Popen[bytes]:
         return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
 
+    (tmp_path / "robot3.log").write_text("ValueError: an earlier run's robot 3\n")
     fleet = Fleet(spawn, tmp_path, restart_crashed=False)
     try:
         for i in range(4):
@@ -406,6 +407,18 @@ def test_the_fleet_counts_each_death_once_and_says_the_unplanned(tmp_path: Path)
         assert (fleet.crashes, fleet.restarts) == (3, 2)
         assert fleet.errors == {"robot 3": "killed by SIGKILL"}
         assert sorted(fleet.procs) == [0, 2] and not fleet.hung and not fleet.killed
+        # a death nobody planned, then a restart before any check: counted and said (review)
+        fleet.procs[2].send_signal(signal.SIGKILL)
+        fleet.procs[2].wait()
+        fleet.fault(ProcessFault("hang", 0, 11), 11)  # (hung: a later death must forget it)
+        fleet.fault(ProcessFault("restart", 2, 12), 12)
+        assert (fleet.crashes, fleet.restarts) == (4, 3) and fleet.up(2)
+        assert fleet.errors["robot 2"] == "killed by SIGKILL"
+        fleet.procs[0].send_signal(signal.SIGCONT)
+        fleet.procs[0].terminate()  # (SIGTERM: an exit that is not 0)
+        fleet.procs[0].wait()
+        fleet.check()
+        assert 0 not in fleet.hung and fleet.crashes == 5 and 0 not in fleet.procs
     finally:
         for p in fleet.procs.values():
             p.kill()

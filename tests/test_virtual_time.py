@@ -259,7 +259,7 @@ def test_one_hidden_message_at_a_time_equals_the_batched_channel(table: dict) ->
         hs = rng.integers(200, 300, (1, 10)).astype(float)
         want = batch.hidden(np.array([3]), t, senders, hs).fate[0]
         for j in np.flatnonzero(senders[0]):
-            assert np.array_equal(one.hidden_from(3, t, int(j), float(hs[0, j])), want[:, j])
+            assert np.array_equal(one.hidden_from(3, t, int(j), float(hs[0, j]))[0], want[:, j])
 
 
 def test_a_live_restart_without_a_tick_releases_a_robot_a_planned_crash_holds() -> None:

@@ -183,8 +183,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_run_free(run.run_id)
     if args.start_timeout is None and "start_timeout" not in tables.get("run", {}):
         # (spawning N interpreters: ~0.3 s of CPU each, on a machine that may be busy)
-        run = dataclasses.replace(run, start_timeout=max(run.start_timeout,
-                                                         START_S_PER_ROBOT * world.n_robots))
+        run = dataclasses.replace(run, start_timeout=min(3600.0, max(
+            run.start_timeout, START_S_PER_ROBOT * world.n_robots)))
     output_file(args.json)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")

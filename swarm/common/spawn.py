@@ -118,8 +118,12 @@ def check_run_free(run_id: str) -> None:
     one id would each take `swarm fault --run ID` for the other's."""
     try:
         lookup_run(run_id)
-    except ConfigError:
-        return  # none, or a stale entry (removed)
+        pid = int(json.loads(registry(run_id).read_text())["pid"])
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except (ConfigError, OSError, ValueError, KeyError, TypeError):
+        return  # none, or a stale entry (removed), or one that vanished meanwhile
+    if b"swarm" not in cmd:  # (its pid now another program's: stale)
+        return
     raise ConfigError(f"run id {run_id!r} is taken by a swarm running on this machine; give "
                       "another --run-id")
 
@@ -144,12 +148,13 @@ def wait_port(host: str, port: int, proc: subprocess.Popen[bytes], timeout: floa
     raise TimeoutError(f"{name} did not listen on {host}:{port} within {timeout:g} s")
 
 
-def last_error(log: Path, tail: int = 4096) -> str:
+def last_error(log: Path, tail: int = 4096, since: int = 0) -> str:
     """The last exception line (`SomeError: message`) or one-line CLI error (`swarm: error:
-    message`, given as the message) of a child's log, or "" if none."""
+    message`, given as the message) of a child's log after byte `since` (where this child
+    began writing: a log is appended to by every process of that name), or "" if none."""
     try:
         with log.open("rb") as fh:
-            fh.seek(max(fh.seek(0, os.SEEK_END) - tail, 0))
+            fh.seek(max(fh.seek(0, os.SEEK_END) - tail, since, 0))
             lines = fh.read().decode("utf-8", "replace").splitlines()
     except OSError:
         return ""

@@ -201,12 +201,13 @@ class VirtualChannel:
         fate[receiver] = OK
         return fate, arrival
 
-    def hidden_from(self, episode: int, t: int, sender: int, size: float) -> np.ndarray:
+    def hidden_from(self, episode: int, t: int, sender: int, size: float
+                    ) -> tuple[np.ndarray, float]:
         """Fates [N] of one hidden-state message of `sender` (one group) to every receiver:
         column `sender` of `hidden()` for that sender alone, in O(N) (a swarm's world decides
-        each message as it arrives)."""
-        return self.column(KIND_HIDDEN, episode, t, sender,
-                           self.charge(t, sender, size, KIND_HIDDEN))
+        each message as it arrives); and the ms it waited for tokens."""
+        q = self.charge(t, sender, size, KIND_HIDDEN)
+        return self.column(KIND_HIDDEN, episode, t, sender, q), q
 
     def traj(self, episodes: np.ndarray, t: int, senders: np.ndarray,
              sizes: np.ndarray) -> Fates:

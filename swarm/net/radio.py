@@ -367,8 +367,7 @@ class Radio:
         successors = self.successors(sender)
         if self.channel.plan.zero:  # no loss, delay, cap or cut: every copy on time
             return [(i, True) for i in successors]
-        q = self.channel.charge(t, sender, size, KIND_HIDDEN)
-        fates = self.channel.column(KIND_HIDDEN, ep, t, sender, q)  # O(N): per message
+        fates, q = self.channel.hidden_from(ep, t, sender, size)  # O(N): per message
         out = []
         for i in successors:
             fate = int(fates[i])

@@ -17,13 +17,13 @@ Proc = subprocess.Popen[bytes]
 
 
 def how_it_ended(code: int) -> str:
-    """'killed by SIGKILL' for -9, 'exit code 3' for 3."""
+    """'killed by SIGKILL' for -9, 'exit code 3' for 3, and for 0 that it left on its own."""
     if code < 0:
         try:
             return f"killed by {signal.Signals(-code).name}"
         except ValueError:
             return f"killed by signal {-code}"
-    return f"exit code {code}"
+    return f"exit code {code}" if code else "left on its own (exit code 0) while the run went on"
 
 
 class Fleet:
@@ -36,10 +36,14 @@ class Fleet:
         self.hung: set[int] = set()
         self.hangs: set[int] = set()  # robots hung on purpose at some point
         self.killed: set[int] = set()  # pids of robots a planned crash killed (counted there)
+        self.seen: set[int] = set()  # pids whose end was accounted for
+        self.log_from: dict[int, int] = {}  # robot -> where its current process's log begins
         self.errors: dict[str, str] = {}  # "robot i" -> why it died (not planned)
         self.log: list[str] = []  # the process faults done, or found nothing to act on
 
     def start(self, i: int) -> None:
+        log = self.log_dir / f"robot{i}.log"
+        self.log_from[i] = log.stat().st_size if log.exists() else 0  # (it appends there)
         self.procs[i] = self.spawn(i)
 
     def up(self, i: int) -> bool:
@@ -48,6 +52,7 @@ class Fleet:
 
     def fault(self, f: ProcessFault, run_tick: int) -> str:
         """Do `f` and log it (at the plan's tick, or a live one's: `run_tick`); the log line."""
+        self._reaped(f.robot)  # (a death nobody planned, before a restart replaces it unseen)
         p, up = self.procs.get(f.robot), self.up(f.robot)
         note = ""  # a fault with nothing to act on is logged as such, never as done
         if f.kind == "crash" and p is not None and up:
@@ -66,8 +71,6 @@ class Fleet:
             self.restarts += 1  # resumed: it rejoins the run (counted by the robot too)
         elif f.kind == "restart" and not up:
             self.restarts += 1
-            if p is not None:
-                self.killed.discard(p.pid)
             self.start(f.robot)
         else:
             note = " (not down: nothing done)" if f.kind == "restart" else \
@@ -78,17 +81,30 @@ class Fleet:
     def check(self) -> None:
         """Robots that died: a death nobody planned is counted and its reason kept; each dead
         robot is respawned with --restart-crashed, else forgotten."""
-        for i, p in list(self.procs.items()):
-            if p.poll() is None:
-                continue
-            if p.pid in self.killed:
-                self.killed.discard(p.pid)
-            elif p.returncode != 0:
-                self.crashes += 1
-                self.errors[f"robot {i}"] = last_error(self.log_dir / f"robot{i}.log") or \
-                    how_it_ended(p.returncode)
-            if self.restart_crashed:
-                self.restarts += 1
-                self.start(i)
-            else:
-                del self.procs[i]
+        for i in list(self.procs):
+            if self._reaped(i):
+                if self.restart_crashed:
+                    self.restarts += 1
+                    self.start(i)
+                else:
+                    del self.procs[i]
+
+    def _reaped(self, i: int) -> bool:
+        """Whether robot i's process has ended; the first time it is seen ended, a death
+        nobody planned is counted (a crash, or an exit on its own while the run goes on) and
+        said (`errors`). It stays in `procs` (the caller replaces or forgets it)."""
+        p = self.procs.get(i)
+        if p is None or p.poll() is None:
+            return False
+        self.hung.discard(i)
+        if p.pid in self.seen:
+            return True
+        self.seen.add(p.pid)
+        if p.pid in self.killed:
+            self.killed.discard(p.pid)
+        else:
+            self.crashes += p.returncode != 0
+            self.errors[f"robot {i}"] = last_error(
+                self.log_dir / f"robot{i}.log", since=self.log_from.get(i, 0)) or \
+                how_it_ended(p.returncode)
+        return True

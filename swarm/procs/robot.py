@@ -10,6 +10,7 @@ and exits by itself when the world's liveliness token disappears.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -334,7 +335,8 @@ class RobotProcess:
                       type(exc).__name__, exc)
             action, chain_ok = 0, False
             if self.policy.chained and self.sent_hidden != (obs.ep, obs.t):
-                self.send_hidden(Hidden(obs.ep, obs.t, r, 0, b""), bundle.succ)
+                with contextlib.suppress(Exception):  # (a session that fails: nothing to do)
+                    self.send_hidden(Hidden(obs.ep, obs.t, r, 0, b""), bundle.succ)
         # planning time without the wait for the predecessor (reported apart, as wait_ms)
         ms = max(0.0, 1e3 * (time.perf_counter() - t0) - (self.c.wait_ms - waited))
         self.c.compute_ms += ms
@@ -400,7 +402,7 @@ class RobotProcess:
         """This tick's hidden-state message to the radio, or on a fast-lane tick (`succ`) to
         each successor first (each one's decode waits for it). An empty state says that none
         will come this tick: the successors decode without it at once."""
-        payload = h.pack()
+        payload, self.sent_hidden = h.pack(), (h.ep, h.t)  # (sent once, even if a put fails)
         for i in succ or ():
             pub = self._succ_pubs.get(i)
             if pub is None:
@@ -412,7 +414,6 @@ class RobotProcess:
         n_out = len(succ) if succ is not None else 1
         self.c.msgs_out += n_out
         self.c.bytes_out += len(payload) * n_out
-        self.sent_hidden = (h.ep, h.t)
 
     def status(self, final: bool = False) -> None:
         rec = {"robot": self.robot, "ep": self.ep, "final": final, "msgs_in": self.c.msgs_in,
@@ -421,8 +422,8 @@ class RobotProcess:
                "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
                "latency_ms": self.c.last_latency_ms, "version": self.version,
                "weights_bad": self.c.weights_bad, "weights_late": self.c.weights_late,
-               "rollouts_lost": self.c.rollouts_lost,
-               "stalls": self.c.stalls, "rejoins": self.c.rejoins, "errors": self.c.errors,
+               "rollouts_lost": self.c.rollouts_lost, "stalls": self.c.stalls,
+               "rejoins": self.c.rejoins, "errors": self.c.errors,
                "compute_ms": self.c.compute_ms / max(self.c.decisions, 1),
                "wait_ms": self.c.wait_ms / max(self.c.decisions, 1),
                **(self.inbox.dropped if self.inbox is not None else {})}

@@ -131,9 +131,10 @@ class Supervisor:
         hub, ns = self.hub, None
         if self.topo is not None:  # its own namespace, through its link to the world
             hub, ns = self.topo.robot_endpoint(i, self.port), self.topo.robot_ns[i]
+        wait = max(30.0, self.run_cfg.start_timeout)  # for the world's record (as the world
         return self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
-                                      "--connect", hub, "--zenoh-mode", "client"],
-                                     f"robot{i}", ns)
+                            "--connect", hub, "--zenoh-mode", "client",
+                            "--wait", f"{wait:g}"], f"robot{i}", ns)  # waits for the robots)
 
     def start(self) -> float:
         """Write the spec and start the world; robots follow once the supervisor listens."""
@@ -250,7 +251,10 @@ class Supervisor:
                 log.warning("supervisor dropped a %s record on %s: %s", kind, key, exc)
 
     def _process_fault(self, f: ProcessFault) -> None:
-        """Do `f` (`Fleet.fault`) and show it among the dashboard's events."""
+        """Do `f` (`Fleet.fault`) and show it among the dashboard's events (not once the run
+        has its result: there is nothing left to fault)."""
+        if self.result is not None:
+            return
         self.view.events = self.view.events[-5:] + [self.fleet.fault(f, self.run_tick)]
 
     def supervise(self) -> dict[str, Any]:
@@ -369,7 +373,7 @@ class Supervisor:
             res["learner"] = {**st, "accounting": acc, "out": self.learner_out}
         res["robot_status"] = {str(i): r.counters() for i, r in self.view.robots.items()}
         res["robot_stalls"] = sum(r.stalls for r in self.view.robots.values())
-        planned = {f.robot for f in self.planned if f.kind == "crash" and f.tick == 0}
+        planned = {f.robot for f in self.planned if f.kind in ("crash", "hang") and f.tick == 0}
         res["absent_at_start"] = [i for i in self.view.absent_at_start if i not in planned]
         if res["absent_at_start"]:  # (the world waited `start_timeout` for them, then began)
             print(f"swarm: warning: robots {res['absent_at_start']} were not up within the "
@@ -462,11 +466,12 @@ class Supervisor:
         (`Fleet.check`); a child that died of an error ends the run with that error as one
         line, naming the process, when the run cannot go on without it (the learner; a robot
         before the first tick, unless --restart-crashed brings it back: the world would wait
-        for it until `start_timeout`, then play without it)."""
+        for it until `start_timeout`, then play without it; not with --netns/--hosts, where a
+        robot may never join through a faulty link, `never_joined`)."""
         if self.result is None:
             self.fleet.check()
-        if self.fleet.errors and self.view.ticks_done == 0 and \
-                (not self.robots or not self.run_cfg.restart_crashed):
+        if self.fleet.errors and self.view.ticks_done == 0 and (not self.robots or not (
+                self.run_cfg.restart_crashed or self.topo)):  # (--netns: may never join)
             who, why = next(iter(self.fleet.errors.items()))
             raise RuntimeError(f"{who} failed: {why} (logs in {self.log_dir})")
         if self.learner is not None and self.learner.poll() is not None and self.result is None:

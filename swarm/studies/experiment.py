@@ -40,7 +40,7 @@ __all__ = ["ExperimentConfig", "Sweep", "load", "main", "plan", "run_experiment"
 
 COLUMNS = ("policy", "value", "seed", "elratio_mean", "elratio_std", "collisions_mean",
            "success_rate", "reward_mean", "ticks_per_s", "timeouts", "lost", "late", "cut",
-           "queued", "dropped_bw", "delivered", "clock", "twin", "wall_s", "episodes")
+           "queued", "dropped_bw", "stale", "delivered", "clock", "twin", "wall_s", "episodes")
 KERNEL_COLUMNS = ("robots_lost", "never_joined", "startup_s", "error")  # kernel = true only
 
 
@@ -100,7 +100,8 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
                **{k: res.get(k) for k in ("elratio_mean", "elratio_std", "collisions_mean",
                                           "success_rate", "reward_mean", "ticks_per_s",
                                           "timeouts")},
-               **{k: m.get(k) for k in ("lost", "late", "cut", "queued", "dropped_bw")},
+               **{k: m.get(k) for k in ("lost", "late", "cut", "queued", "dropped_bw",
+                                        "stale")},  # (stale: whole messages after their tick)
                "delivered": m.get("traj_delivered"), "clock": rc.clock,
                "twin": twin(world, rc, faults, res) if rc.clock == "virtual" else "",
                "wall_s": round(time.monotonic() - t0, 2), "episodes": rc.episodes,

@@ -79,8 +79,9 @@ class NetnsConfig:
             raise ConfigError(f"bad --kernel-bandwidth {bandwidth!r}: a cap must be above 0 B/s "
                               "(no cap: leave it out, or write none)")
         lease_ms = parse_duration_ms(lease) if lease is not None else 0.0
-        if lease is not None and lease_ms == 0:  # (0 is the field's "the usual 1 s")
-            raise ConfigError(f"bad --netns-lease {lease!r}: a lease must be above 0 ms "
+        if lease is not None and lease_ms < 1:  # (0 is the field's "the usual 1 s"; Zenoh
+            # takes whole ms: 0.4 would be a lease of 0)
+            raise ConfigError(f"bad --netns-lease {lease!r}: a lease must be at least 1 ms "
                               "(the usual 1s: leave it out)")
         return cls(loss=p, bandwidth=rate, lease_ms=lease_ms, transport=transport or "tcp")
 

@@ -46,7 +46,8 @@ BUCKET = {"bucket": {"type": "array", "items": NUM, "minItems": 2, "maxItems": 2
 TRAJ = _obj({**HEAD, "y": INT, "x": INT, "visited": B64, "visited_cells": INT,
              "recent": INTS, "patch": INTS}, "swarm trajectory message")
 HIDDEN = _obj({**HEAD, "action": INT, "miss": BOOL, "state": NUMS},
-              "swarm hidden-state message (miss: the radio's word that it will not come)")
+              "swarm hidden-state message (miss: word that it will not come, from the "
+              "radio or from its sender that could not decide)")
 RECORD = {"type": "object", "additionalProperties": True}
 STATUS_PROPS = {"ep": INT, "t": INT, "run_tick": INT, "elratio": NUM, "block_coll": INT,
                 "robot_coll": INT, "pos": {"type": "array", "items": INTS},
@@ -85,7 +86,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "end": _record({"run_id": {"type": "string"}}, "swarm end of run", ("run_id",)),
     "control": _record({"stop": BOOL}, "swarm control"),
     "lstatus": _record({"version": INT}, "swarm learner status"),
-    "weights": _obj({"policy": {"type": "string"}, "version": INT, "model": RECORD,
+    "weights": _obj({"policy": {"type": "string"}, "version": INT, "origin": INT, "model": RECORD,
                      "shapes": {"type": "object", "additionalProperties": INTS}},
                     "swarm weights (tensor shapes only: the data is on the msgpack channel)"),
     "rollout": _obj({"ep": INT, "robot": INT, "actions": INTS, "heard": INTS,
@@ -186,7 +187,8 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
         return safe(rec)
     if kind == "weights":
         w = learning.Weights.unpack(payload)
-        return {"policy": w.policy, "version": w.version, "model": safe(w.model),
+        return {"policy": w.policy, "version": w.version, "origin": w.origin,
+                "model": safe(w.model),
                 "shapes": {k: list(a.shape) for k, a in w.tensors.items()}}
     if kind == "rollout":
         r = learning.RobotRollout.unpack(payload, cfg)
