@@ -157,7 +157,7 @@ class Supervisor:
             listen = self.topo.world_listen(self.port)
         write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
-        self.world = self._spawn(["world", "--spec", str(spec),
+        self.world = self._spawn(["world", "--spec", str(spec), "--run-id", self.run_cfg.run_id,
                                   "--json", str(self.tmp / "world_result.json"),
                                   *(x for e in listen for x in ("--listen", e)),
                                   "--zenoh-mode", "router"], "world", ns)
