@@ -106,7 +106,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from swarm.learn.config import LearnerConfig
     from swarm.learn.join import episodes_of
     from swarm.learn.rollout import collect
-    from swarm.procs.learner import Learner
+    from swarm.procs.learning.learner import Learner
 
     tmp = tmp_path_factory.mktemp("trained")
     fields = ("height", "width", "n_static", "n_dynamic", "n_robots", "horizon", "add_every",
@@ -133,7 +133,7 @@ def test_resume_holds_the_given_train_settings_against_the_checkpoint(trained: P
     """A given setting that differs from the checkpoint's is refused, each named; equal ones and
     threads (not the run's math) pass; settings not given keep the checkpoint's."""
     from swarm.learn.config import LearnerConfig
-    from swarm.procs.learner import Learner
+    from swarm.procs.learning.learner import Learner
 
     lc = LearnerConfig(run_id="resumed", policy="vain", out=str(trained / "l"), resume=True)
     with pytest.raises(ConfigError, match=r"batch = 4 .*lr = 0.5") as err:
@@ -251,7 +251,7 @@ def test_a_fresh_learner_takes_over_from_the_one_it_replaced(tmp_path: Path) -> 
     from swarm.learn.rollout import collect
     from swarm.learn.weights import weights_of
     from swarm.net.learning import Weights
-    from swarm.procs.learner import Learner
+    from swarm.procs.learning.learner import Learner
 
     old = Learner(SMALL, LearnerConfig(run_id="fresh", policy="vain", out=str(tmp_path / "a")),
                   TrainConfig(batch=2, threads=1))

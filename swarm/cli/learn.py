@@ -64,7 +64,7 @@ def cmd_learner(args: argparse.Namespace) -> int:
         if not args.spec:  # (a run's spec is its own world, checked by `swarm run`)
             world = held_world(data, world, world_given(args, tables), f"the learner in {out}")
     output_file(args.json)
-    from swarm.procs.learner import main as learner_main  # (torch: after the checks)
+    from swarm.procs.learning.learner import main as learner_main  # (torch: after the checks)
 
     try:
         zopts = secure_options(args, zconfig.from_args(args), "learner", lc.run_id)
@@ -82,7 +82,7 @@ def cmd_learner(args: argparse.Namespace) -> int:
 def cmd_rollout_worker(args: argparse.Namespace) -> int:
     _logging(args.verbose)
     check_worker(args.worker_id, args.batch, args.threads, args.max_batches, args.wait)
-    from swarm.procs.rollout_worker import main as worker_main  # (torch: after the checks)
+    from swarm.procs.learning.rollout_worker import main as worker_main  # (torch: after the checks)
 
     try:
         zopts = secure_options(args, zconfig.from_args(args), f"worker-{args.worker_id}",

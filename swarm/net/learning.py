@@ -258,9 +258,9 @@ MAX_COUNT = 2**62
 
 
 def check_learner_status(rec: dict[str, Any]) -> dict[str, Any]:
-    """A learner status record (swarm.procs.learner.Learner.status) with every field its readers
-    use in range: the supervisor's dashboard and result, a lockstep world. BadMessage (one line)
-    otherwise; the reader drops and counts it."""
+    """A learner status record (swarm.procs.learning.learner.Learner.status) with every field
+    its readers use in range: the supervisor's dashboard and result, a lockstep world.
+    BadMessage (one line) otherwise; the reader drops and counts it."""
     for name in LSTATUS_COUNTS:
         _int(rec.get(name, 0), f"learner status {name}", 0, MAX_COUNT)
     _int(rec.get("last_closed", -1), "learner status last_closed", -1, MAX_COUNT)

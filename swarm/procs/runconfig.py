@@ -119,7 +119,7 @@ class RunRecord:
     faults: dict[str, Any] = field(default_factory=dict)
     """The `[faults]` table in human units (swarm.net.faults.plan_from_table reads it)."""
     learner: dict[str, Any] | None = None
-    """LearnerConfig fields (swarm.procs.learner) of a run that trains, else None."""
+    """LearnerConfig fields (swarm.procs.learning.learner) of a run that trains, else None."""
     train: dict[str, Any] | None = None
     """TrainConfig fields (swarm.learn.config) of a run that trains, else None."""
     model: dict[str, Any] | None = None

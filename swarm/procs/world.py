@@ -126,7 +126,7 @@ class WorldProcess:
         inbox = Inbox(self.session)
         if self.direct is not None:  # the robots' counters of direct delivery
             inbox.subscribe(k.robot_status("*"), "rstatus")
-        if self.run_cfg.train:  # its token follows its subscriptions (swarm.procs.learner)
+        if self.run_cfg.train:  # its token follows its subscriptions (swarm.procs.learning.learner)
             inbox.liveliness(k.alive_learner, "learner")
         if self.gate is not None:
             inbox.subscribe(k.learner_status, "lstatus")

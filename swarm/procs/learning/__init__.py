@@ -1,0 +1,1 @@
+"""The processes of learning in the field: the learner and the rollout workers."""
