@@ -345,8 +345,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
         # the run's tick, from its status (an operator of a --secure run may not read it)
         ticks: list[int] = []
         timed = [int(t.rpartition("@")[2]) for t in process if "@" in t]  # ROBOT@TICK
-        sub = None if (args.at_tick is None and not timed) or args.secure else \
-            session.declare_subscriber(
+        sub = None if args.secure else session.declare_subscriber(
             keys.status, lambda s: ticks.append(status_tick(s.payload.to_bytes())))
         try:  # the run is there, and the faults fit it: else nothing is sent
             run = fetch_config(session, keys, args.wait)
@@ -372,9 +371,16 @@ def cmd_fault(args: argparse.Namespace) -> int:
                   f"{args.run}'s tick (no status read); if it has passed, the change applies "
                   "at the next tick, counted late in the result's fault_changes",
                   file=sys.stderr, flush=True)
-        sent_at = time.time()
+        sent_at, seen = time.time(), len(ticks)
         put_once(session, keys.control, pack_record(K_CONTROL, rec))
         time.sleep(0.1)
+        wait = time.monotonic() + max(3.0, 2 * run.run.tick_timeout)  # a tick's status
+        while sub is not None and 0 < seen == len(ticks) and time.monotonic() < wait:
+            time.sleep(0.05)
+        if sub is not None and 0 < seen == len(ticks):  # (after its last tick, nothing applies)
+            print(f"swarm: warning: run {args.run} sent no status after the change: it may "
+                  "have ended first (its result's fault_changes says what applied)",
+                  file=sys.stderr, flush=True)
     print(json.dumps({"run": args.run, "sent_at": sent_at, "control": rec}))
     return 0
 
