@@ -819,3 +819,17 @@ def test_numpy_scalars_are_taken_as_the_numbers_they_are() -> None:
                       horizon=6, r_back=np.float32(-10))
     assert type(cfg.height) is int and type(cfg.r_back) is float  # (JSON and msgpack take them)
     assert core.reset(cfg, np.int64(3), np.arange(2)).pos.shape == (2, 2)
+
+
+def test_a_config_file_bool_is_no_number() -> None:
+    """`[world] comm_range = true` ran with range 1.0 and `[run] pace = true` at 1 tick/s (UA
+    pass): float fields of a config file refuse a bool, as int fields did."""
+    from swarm.procs.runconfig import RunConfig
+    from world.config import from_dict
+
+    for cls, table in ((WorldConfig, {"comm_range": True}), (RunConfig, {"pace": True}),
+                       (RunConfig, {"tick_timeout": True}), (RunConfig, {"watchdog": False})):
+        key = next(iter(table))
+        with pytest.raises(ConfigError, match=f"{key} must be float, got (True|False)"):
+            from_dict(cls, table, "[x]")
+    assert from_dict(WorldConfig, {"comm_range": 3}).comm_range == 3.0  # (an int is a number)

@@ -201,7 +201,9 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
                 if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
                     raise ValueError
                 kwargs[key] = int(value)
-            elif ftype == "float":
+            elif ftype == "float":  # (true is no number: float(True) would be 1.0)
+                if isinstance(value, bool):
+                    raise ValueError
                 kwargs[key] = float(value)
             elif ftype == "bool":
                 if isinstance(value, str):
