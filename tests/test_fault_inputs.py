@@ -66,6 +66,10 @@ def test_a_process_fault_beyond_the_runs_last_tick_is_refused() -> None:
              why="beyond the run's last tick 29")
     _refused("run", "--headless", "--episodes", "2", "--horizon", "10", "--hang", "0@20",
              why="--hang 0@20 is beyond the run's last tick 19")
+    # (a restart at tick 0 of a robot crashed at tick 0 waited out the start timeout: the
+    # world waited for a new process the supervisor starts only after the first tick)
+    _refused("run", "--headless", "--episodes", "1", "--crash", "1@0", "--restart", "1@0",
+             why="--crash 1@0 --restart 1@0: a robot restarted at tick 0")
 
 
 def test_a_zero_kernel_bandwidth_or_lease_is_refused_not_read_as_the_default() -> None:

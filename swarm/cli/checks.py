@@ -53,6 +53,12 @@ def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig
     if late:
         raise ConfigError(f"{late[0]} is beyond the run's last tick {last} ({run.episodes} "
                           f"episode(s) x {world.horizon} ticks)")
+    at0 = {(p.kind, p.robot) for p in plan_from_table(faults).process if p.tick == 0}
+    both = sorted(r for k, r in at0 if k == "crash" and ("restart", r) in at0)
+    if both:  # (the world waits at tick 0 for a new process the supervisor only starts later)
+        raise ConfigError(f"--crash {both[0]}@0 --restart {both[0]}@0: a robot restarted at "
+                          "tick 0 is one that never crashed; give the crash or the restart a "
+                          "later tick")
 
 
 def check_by_hand(faults: dict[str, Any]) -> None:
