@@ -419,6 +419,10 @@ def test_the_fleet_counts_each_death_once_and_says_the_unplanned(tmp_path: Path)
         fleet.procs[0].wait()
         fleet.check()
         assert 0 not in fleet.hung and fleet.crashes == 5 and 0 not in fleet.procs
+        fleet.procs[2] = subprocess.Popen([sys.executable, "-c", "pass"])  # left on its own
+        fleet.procs[2].wait()
+        fleet.check()
+        assert fleet.crashes == 5 and "robot 2" in fleet.errors and not fleet.procs
     finally:
         for p in fleet.procs.values():
             p.kill()

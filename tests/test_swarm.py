@@ -611,3 +611,27 @@ def test_a_run_id_held_by_a_running_swarm_is_refused(tmp_path: Path) -> None:
     finally:
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=60)
+
+
+@pytest.mark.procs
+def test_robots_that_left_while_the_world_played_on_are_said(tmp_path: Path) -> None:
+    """A world stopped past its lease drops every robot's session; its robots take it for the
+    run's end and leave, and the world plays the rest without them. That ended with exit 0
+    and no word (UA pass); now a warning line names them."""
+    out = tmp_path / "r.json"
+    proc = swarm_started("run", "--headless", "--robots", "2", "--policy", "nearest-frontier",
+                         "--episodes", "3", "--seed", "1", "--run-id", "wstall", "--pace", "10",
+                         "--json", str(out))
+    try:
+        world = next(p for p in run_procs("wstall")
+                     if b"world\x00--spec" in Path(f"/proc/{p}/cmdline").read_bytes())
+        os.kill(world, signal.SIGSTOP)
+        time.sleep(4.0)  # (the lease is 1 s)
+        os.kill(world, signal.SIGCONT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "robots [0, 1] left the run before its end; the world played on without them" in err
+    assert json.loads(out.read_text())["robots_lost"] == 2

@@ -17,13 +17,13 @@ Proc = subprocess.Popen[bytes]
 
 
 def how_it_ended(code: int) -> str:
-    """'killed by SIGKILL' for -9, 'exit code 3' for 3, and for 0 that it left on its own."""
+    """'killed by SIGKILL' for -9, 'exit code 3' for 3."""
     if code < 0:
         try:
             return f"killed by {signal.Signals(-code).name}"
         except ValueError:
             return f"killed by signal {-code}"
-    return f"exit code {code}" if code else "left on its own (exit code 0) while the run went on"
+    return f"exit code {code}"
 
 
 class Fleet:
@@ -91,8 +91,8 @@ class Fleet:
 
     def _reaped(self, i: int) -> bool:
         """Whether robot i's process has ended; the first time it is seen ended, a death
-        nobody planned is counted (a crash, or an exit on its own while the run goes on) and
-        said (`errors`). It stays in `procs` (the caller replaces or forgets it)."""
+        nobody planned (a non-zero exit) is counted and said (`errors`). It stays in `procs`
+        (the caller replaces or forgets it)."""
         p = self.procs.get(i)
         if p is None or p.poll() is None:
             return False
@@ -102,8 +102,8 @@ class Fleet:
         self.seen.add(p.pid)
         if p.pid in self.killed:
             self.killed.discard(p.pid)
-        else:
-            self.crashes += p.returncode != 0
+        elif p.returncode != 0:  # (0: it left on its own, at the run's end or when its world
+            self.crashes += 1  # was gone: the world's `robots_lost` says which)
             self.errors[f"robot {i}"] = last_error(
                 self.log_dir / f"robot{i}.log", since=self.log_from.get(i, 0)) or \
                 how_it_ended(p.returncode)

@@ -375,6 +375,14 @@ class Supervisor:
         res["robot_stalls"] = sum(r.stalls for r in self.view.robots.values())
         planned = {f.robot for f in self.planned if f.kind in ("crash", "hang") and f.tick == 0}
         res["absent_at_start"] = [i for i in self.view.absent_at_start if i not in planned]
+        down = {f.robot for f in self.planned if f.kind == "crash"} | {
+            int(w.split()[1]) for w in errors}  # (said above)
+        left = [i for i, r in sorted(self.view.robots.items()) if r.state == "lost"
+                and i not in down]
+        if left:  # (a world stalled past its lease: the robots' sessions dropped, and on the
+            # virtual clock an absence nobody planned is for good)
+            print(f"swarm: warning: robots {left} left the run before its end; the world played "
+                  "on without them", file=sys.stderr, flush=True)
         if res["absent_at_start"]:  # (the world waited `start_timeout` for them, then began)
             print(f"swarm: warning: robots {res['absent_at_start']} were not up within the "
                   f"start timeout ({self.run_cfg.start_timeout:g} s; --start-timeout S): the run "
@@ -464,16 +472,18 @@ class Supervisor:
     def _check_children(self) -> None:
         """Robots that died are counted, said and restarted with --restart-crashed
         (`Fleet.check`); a child that died of an error ends the run with that error as one
-        line, naming the process, when the run cannot go on without it (the learner; a robot
+        line, naming the process, when the run cannot go on without it (the learner; the last
+        robot, which would leave the world playing episodes nobody plays; a robot
         before the first tick, unless --restart-crashed brings it back: the world would wait
         for it until `start_timeout`, then play without it; not with --netns/--hosts, where a
         robot may never join through a faulty link, `never_joined`)."""
         if self.result is None:
             self.fleet.check()
-        if self.fleet.errors and self.view.ticks_done == 0 and (not self.robots or not (
-                self.run_cfg.restart_crashed or self.topo)):  # (--netns: may never join)
+        early = self.view.ticks_done == 0 and not (self.run_cfg.restart_crashed or self.topo)
+        if self.fleet.errors and (early or not self.robots):  # (--netns: may never join)
             who, why = next(iter(self.fleet.errors.items()))
-            raise RuntimeError(f"{who} failed: {why} (logs in {self.log_dir})")
+            raise RuntimeError(f"{who} failed: {why}{'' if self.robots else '; no robot is left'}"
+                               f" (logs in {self.log_dir})")
         if self.learner is not None and self.learner.poll() is not None and self.result is None:
             why = last_error(self.log_dir / "learner.log") or f"exit code {self.learner.returncode}"
             raise RuntimeError(f"the learner failed: {why} (logs in {self.log_dir})")
