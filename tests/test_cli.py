@@ -289,6 +289,10 @@ def test_renderers_show_the_figures() -> None:
     text = _render(eval_table([s], "eval test"))
     for x in ("nearest-frontier", "0.853 ± 0.041", "37.5%", "0.123", "eval test"):
         assert x in text
+    for bad, why in ((["certs", "--out", str(Path(__file__)) + "/x", "--robots", "1"],
+                      "which is not a directory"),):  # (a path under a file: errno, exit 1)
+        r = swarm(*bad)
+        assert r.returncode == 2 and why in r.stderr and r.stderr.count("\n") == 1, r.stderr
     # on an 80-column terminal every figure stays whole (it was `0.…`), the sd left out
     t = {**s, "policy": "coordinated-frontier", "reward_mean": -295.67, "collisions_mean": 87.0,
          "block_collisions_mean": 84.33, "elratio_paired": {"vs": "x", "mean": -0.3225,
@@ -310,7 +314,7 @@ def test_renderers_show_the_figures() -> None:
     none = EvalResult.none("commattn", 0, WorldConfig()).summary(WorldConfig())
     for w in (80, 200):
         text = _render(eval_table([none], "stopped", width=w))
-        assert "commattn" in text and "0.0%" not in text and " - " in text, text
+        assert "commattn" in text and "0.0%" not in text and "0.000" not in text, text
 
     env = {"robots": 10, "horizon": 30, "repeats": 3, "bar": {"batch": 1024,
                                                               "agent_steps_per_s": 4e6},

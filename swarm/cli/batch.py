@@ -262,6 +262,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                       "episodes": args.episodes, "pairs": args.pairs, "seed": args.seed,
                       "out": args.out, "json": args.json}, where)
         build_policy(cfg.policy, world, cfg.checkpoint)
+        output_dir(cfg.out, "--out", make=False)  # (a path under a file: one line, exit 2)
         result = bench_record(world, cfg, lambda row: err.print(_row_line(row)))
         out.print(kv_table("Recording cost (medians of interleaved pairs)",
                            {k: v for k, v in result.items() if k != "rows"}))

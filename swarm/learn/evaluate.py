@@ -139,7 +139,7 @@ class EvalResult:
             "block_collisions_mean": stat(self.block_collisions),
             "robot_collisions_mean": stat(self.robot_collisions),
             "success_rate": stat(self.success), "repeat_ratio_mean": stat(self.repeat_ratio),
-            "planning_ms_per_decision": self.planning_ms_per_decision,
+            "planning_ms_per_decision": self.planning_ms_per_decision if n else None,
             "wall_s": self.wall_s,
         }
 

@@ -272,6 +272,9 @@ def make_certs(out: str | Path, robots: int, workers: int = 0, hosts: list[str] 
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a directory")
+    above = next((p for p in out.parents if p.exists()), None)
+    if above is not None and not above.is_dir():
+        raise ConfigError(f"--out {out} is under {above}, which is not a directory")
     check_hosts(list(hosts or []))  # everything that can be checked first: a refused
     crypto()  # command leaves no directory behind
     old = read_roster(out) if out.is_dir() else {}
