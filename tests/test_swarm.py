@@ -10,6 +10,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -576,25 +577,32 @@ def test_a_chained_robot_that_cannot_decide_says_so_to_its_successor(tmp_path: P
     assert status["2"]["missed_hidden"] >= 3, status  # robot 1 is robot 2's predecessor
 
 
+def upset_run(tmp_path: Path, run_id: str, robots: int, mark: bytes,
+              upset: Callable[[int], None]) -> tuple[int, str, dict]:
+    """A paced 3-episode run of `robots` nearest-frontier robots; once it plays, `upset` the
+    pid of its process whose command line holds `mark`. Its exit status, stderr and result."""
+    out = tmp_path / "r.json"
+    proc = swarm_started("run", "--headless", "--robots", str(robots), "--policy",
+                         "nearest-frontier", "--episodes", "3", "--seed", "1", "--run-id", run_id,
+                         "--pace", "10", "--json", str(out))
+    try:
+        upset(next(p for p in run_procs(run_id)
+                   if mark in Path(f"/proc/{p}/cmdline").read_bytes()))
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, err, json.loads(out.read_text())
+
+
 @pytest.mark.procs
 def test_a_robot_killed_by_nobody_is_counted_and_said(tmp_path: Path) -> None:
     """A robot process that dies unplanned (SIGKILL, no error line in its log) is a crash and
     a warning line; the run goes on without it. Before, it was counted silently (exit 0, no
     word): only a death with an error in the log was said."""
-    out = tmp_path / "r.json"
-    proc = swarm_started("run", "--headless", "--robots", "3", "--policy", "nearest-frontier",
-                         "--episodes", "3", "--seed", "1", "--run-id", "unplanned", "--pace", "10",
-                         "--json", str(out))
-    try:
-        pid = next(p for p in run_procs("unplanned")
-                   if b"--id\x002\x00" in Path(f"/proc/{p}/cmdline").read_bytes())
-        os.kill(pid, signal.SIGKILL)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0 and "robot 2 failed: killed by SIGKILL" in err, err
-    res = json.loads(out.read_text())
+    code, err, res = upset_run(tmp_path, "unplanned", 3, b"--id\x002\x00",
+                               lambda pid: os.kill(pid, signal.SIGKILL))
+    assert code == 0 and "robot 2 failed: killed by SIGKILL" in err, err
     assert res["robot_crashes"] == 1 and res["child_errors"] == {"robot 2": "killed by SIGKILL"}
 
 
@@ -618,20 +626,12 @@ def test_robots_that_left_while_the_world_played_on_are_said(tmp_path: Path) -> 
     """A world stopped past its lease drops every robot's session; its robots take it for the
     run's end and leave, and the world plays the rest without them. That ended with exit 0
     and no word (UA pass); now a warning line names them."""
-    out = tmp_path / "r.json"
-    proc = swarm_started("run", "--headless", "--robots", "2", "--policy", "nearest-frontier",
-                         "--episodes", "3", "--seed", "1", "--run-id", "wstall", "--pace", "10",
-                         "--json", str(out))
-    try:
-        world = next(p for p in run_procs("wstall")
-                     if b"world\x00--spec" in Path(f"/proc/{p}/cmdline").read_bytes())
-        os.kill(world, signal.SIGSTOP)
+    def stall(pid: int) -> None:
+        os.kill(pid, signal.SIGSTOP)
         time.sleep(4.0)  # (the lease is 1 s)
-        os.kill(world, signal.SIGCONT)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, err
+        os.kill(pid, signal.SIGCONT)
+
+    code, err, res = upset_run(tmp_path, "wstall", 2, b"world\x00--spec", stall)
+    assert code == 0, err
     assert "robots [0, 1] left the run before its end; the world played on without them" in err
-    assert json.loads(out.read_text())["robots_lost"] == 2
+    assert res["robots_lost"] == 2
