@@ -131,10 +131,11 @@ class Supervisor:
         hub, ns = self.hub, None
         if self.topo is not None:  # its own namespace, through its link to the world
             hub, ns = self.topo.robot_endpoint(i, self.port), self.topo.robot_ns[i]
-        wait = max(30.0, self.run_cfg.start_timeout)  # for the world's record (as the world
+        # a robot waits for the world's record as long as the world waits for the robots
+        wait = max(30.0, self.run_cfg.start_timeout)
         return self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
                             "--connect", hub, "--zenoh-mode", "client",
-                            "--wait", f"{wait:g}"], f"robot{i}", ns)  # waits for the robots)
+                            "--wait", f"{wait:g}"], f"robot{i}", ns)
 
     def start(self) -> float:
         """Write the spec and start the world; robots follow once the supervisor listens."""
