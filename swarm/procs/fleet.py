@@ -35,8 +35,8 @@ class Fleet:
         self.crashes, self.restarts = 0, 0
         self.hung: set[int] = set()
         self.hangs: set[int] = set()  # robots hung on purpose at some point
-        self.killed: set[int] = set()  # pids of robots a planned crash killed (counted there)
-        self.seen: set[int] = set()  # pids whose end was accounted for
+        self.killed: set[Proc] = set()  # processes a planned crash killed (counted there)
+        self.seen: set[Proc] = set()  # processes whose end was accounted for (not pids: reused)
         self.log_from: dict[int, int] = {}  # robot -> where its current process's log begins
         self.errors: dict[str, str] = {}  # "robot i" -> why it died (not planned)
         self.log: list[str] = []  # the process faults done, or found nothing to act on
@@ -60,7 +60,7 @@ class Fleet:
             p.wait()  # (a SIGKILL is quick; a hang or restart of the same tick sees it down)
             self.hung.discard(f.robot)
             self.crashes += 1  # (here: a restart of the same tick replaces it before a check)
-            self.killed.add(p.pid)
+            self.killed.add(p)
         elif f.kind == "hang" and p is not None and up and f.robot not in self.hung:
             p.send_signal(signal.SIGSTOP)
             self.hung.add(f.robot)
@@ -97,11 +97,11 @@ class Fleet:
         if p is None or p.poll() is None:
             return False
         self.hung.discard(i)
-        if p.pid in self.seen:
+        if p in self.seen:
             return True
-        self.seen.add(p.pid)
-        if p.pid in self.killed:
-            self.killed.discard(p.pid)
+        self.seen.add(p)
+        if p in self.killed:
+            self.killed.discard(p)
         elif p.returncode != 0:  # (0: it left on its own, at the run's end or when its world
             self.crashes += 1  # was gone: the world's `robots_lost` says which)
             self.errors[f"robot {i}"] = last_error(
