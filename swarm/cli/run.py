@@ -362,7 +362,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
                               "time on the virtual clock; nothing was sent")
         time.sleep(0.3)  # the world's subscriptions reach this session too before the one put
         deadline = time.monotonic() + args.wait
-        while sub is not None and max(ticks, default=-1) < 0 and time.monotonic() < deadline:
+        while sub is not None and (args.at_tick is not None or timed) and \
+                max(ticks, default=-1) < 0 and time.monotonic() < deadline:  # (a tick to check)
             time.sleep(0.05)
         now = max(ticks, default=-1)
         check_not_played(args.at_tick, timed, now, args.run)
@@ -374,7 +375,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
         sent_at, seen = time.time(), len(ticks)
         put_once(session, keys.control, pack_record(K_CONTROL, rec))
         time.sleep(0.1)
-        wait = time.monotonic() + max(3.0, 2 * run.run.tick_timeout)  # a tick's status
+        pace = run.run.pace  # (two ticks' statuses at most: its tick time, or its pace's)
+        wait = time.monotonic() + max(3.0, 2 * run.run.tick_timeout, 2 / pace if pace else 0)
         while sub is not None and 0 < seen == len(ticks) and time.monotonic() < wait:
             time.sleep(0.05)
         if sub is not None and 0 < seen == len(ticks):  # (after its last tick, nothing applies)
