@@ -26,12 +26,16 @@ def test_a_sigkilled_recorder_leaves_a_readable_file(tmp_path: Path) -> None:
     f = tmp_path / "cut.mcap"
     proc = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "2", "--episodes",
-         "2", "--pace", "25", "--run-id", "rec15kill", "--record", str(f), "--log-dir",
+         "3", "--pace", "12", "--run-id", "rec15kill", "--record", str(f), "--log-dir",
          str(tmp_path / "logs")], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True)
     try:
         assert proc.stdout is not None
-        proc.stdout.readline()  # the first tick's status: the robots run, the recorder writes
+        # the first tick's status: the robots run, the recorder writes. The run lasts ~7.5 s
+        # (90 ticks at 12/s), long enough under load for a chunk to be flushed and the
+        # recorder killed before the run would have ended it (at 25 ticks/s and 2 episodes the
+        # run could end first on a loaded machine).
+        proc.stdout.readline()
         size, deadline = f.stat().st_size, time.monotonic() + 30
         while f.stat().st_size <= size and time.monotonic() < deadline:
             time.sleep(0.05)  # until a chunk of messages is flushed
