@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from swarm.common.spawn import last_error
 from swarm.net.faults import ProcessFault
+from swarm.procs.dashboard import SwarmView
 
 Proc = subprocess.Popen[bytes]
 
@@ -108,3 +111,30 @@ class Fleet:
                 self.log_dir / f"robot{i}.log", since=self.log_from.get(i, 0)) or \
                 how_it_ended(p.returncode)
         return True
+
+    def account(self, res: dict[str, Any], view: SwarmView, planned: list[ProcessFault],
+                start_timeout: float) -> None:
+        """The robots' part of a run's result (`res`), and a warning line on stderr for each
+        thing that went wrong with them that nobody planned (the run went on: said, not only
+        in the JSON)."""
+        errors = self.errors
+        res["robot_crashes"], res["robot_restarts"] = self.crashes, self.restarts
+        res.update({"child_errors": dict(errors)} if errors else {})
+        said = [*(f"{w} failed: {why}" for w, why in errors.items()), *view.undecided(),
+                *view.stalled(self.hangs)]
+        res["robot_status"] = {str(i): r.counters() for i, r in view.robots.items()}
+        res["robot_stalls"] = sum(r.stalls for r in view.robots.values())
+        absent = {f.robot for f in planned if f.kind in ("crash", "hang") and f.tick == 0}
+        res["absent_at_start"] = [i for i in view.absent_at_start if i not in absent]
+        down = {f.robot for f in planned if f.kind == "crash"} | {
+            int(w.split()[1]) for w in errors}  # (said above)
+        left = [i for i, r in sorted(view.robots.items()) if r.state == "lost" and i not in down]
+        if left:  # (a world stalled past its lease: the robots' sessions dropped, and on the
+            # virtual clock an absence nobody planned is for good)
+            said.append(f"robots {left} left the run before its end; the world played on "
+                        "without them")
+        if res["absent_at_start"]:  # (the world waited `start_timeout` for them, then began)
+            said.append(f"robots {res['absent_at_start']} were not up within the start timeout "
+                        f"({start_timeout:g} s; --start-timeout S): the run began without them")
+        for line in said:
+            print(f"swarm: warning: {line}", file=sys.stderr, flush=True)

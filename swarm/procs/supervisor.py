@@ -338,13 +338,7 @@ class Supervisor:
         res = dict(self.result)
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["first_tick_s"] = self.first_tick_age  # from the command (this process's start)
-        errors = self.fleet.errors
-        res["robot_crashes"], res["robot_restarts"] = self.fleet.crashes, self.fleet.restarts
-        res.update({"child_errors": dict(errors)} if errors else {})
-        for line in [*(f"{w} failed: {why}" for w, why in errors.items()),  # (the run went
-                     *self.view.undecided(),  # on: said, not only in the JSON)
-                     *self.view.stalled(self.fleet.hangs)]:
-            print(f"swarm: warning: {line}", file=sys.stderr, flush=True)
+        self.fleet.account(res, self.view, self.planned, self.run_cfg.start_timeout)
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
         if self.inbox is not None:  # and what its inbox dropped unread
             res["supervisor_dropped"] = self.inbox.dropped
@@ -372,22 +366,6 @@ class Supervisor:
                 acc.get(k, 0) for k in ("trained", "pending", "stale_dropped", "incomplete",
                                         "rejected"))
             res["learner"] = {**st, "accounting": acc, "out": self.learner_out}
-        res["robot_status"] = {str(i): r.counters() for i, r in self.view.robots.items()}
-        res["robot_stalls"] = sum(r.stalls for r in self.view.robots.values())
-        planned = {f.robot for f in self.planned if f.kind in ("crash", "hang") and f.tick == 0}
-        res["absent_at_start"] = [i for i in self.view.absent_at_start if i not in planned]
-        down = {f.robot for f in self.planned if f.kind == "crash"} | {
-            int(w.split()[1]) for w in errors}  # (said above)
-        left = [i for i, r in sorted(self.view.robots.items()) if r.state == "lost"
-                and i not in down]
-        if left:  # (a world stalled past its lease: the robots' sessions dropped, and on the
-            # virtual clock an absence nobody planned is for good)
-            print(f"swarm: warning: robots {left} left the run before its end; the world played "
-                  "on without them", file=sys.stderr, flush=True)
-        if res["absent_at_start"]:  # (the world waited `start_timeout` for them, then began)
-            print(f"swarm: warning: robots {res['absent_at_start']} were not up within the "
-                  f"start timeout ({self.run_cfg.start_timeout:g} s; --start-timeout S): the run "
-                  "began without them", file=sys.stderr, flush=True)
         rc = self.run_cfg  # what made the result (with --train and no checkpoint: fresh weights)
         ckpt = rc.checkpoint if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)
         res.update(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
