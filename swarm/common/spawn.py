@@ -5,12 +5,15 @@ hangs). Each one gets the supervisor's pid in `SWARM_SUPERVISOR`; `die_with_pare
 the CLI before anything else) asks the kernel to send it SIGTERM when that process dies
 (`prctl(PR_SET_PDEATHSIG)`), SIGKILL included, and turns SIGTERM into a KeyboardInterrupt so the
 child closes its session and writes what it owes on the way out. A supervisor's registry entry
-(`swarm fault --run ID` finds the run through it) is ignored and removed once its pid is gone.
+(`swarm fault --run ID` finds the run through it) is ignored and removed once its pid is gone;
+a run id is taken atomically, for the run's life, by an exclusive lock beside it (`claim_run`).
 """
 
 from __future__ import annotations
 
+import atexit
 import ctypes
+import fcntl
 import json
 import os
 import shutil
@@ -113,19 +116,65 @@ def lookup_run(run_id: str) -> str:
     return hub
 
 
+_CLAIMS: dict[str, int] = {}  # run id -> the fd of its lock: the ids this process holds
+
+
+def claim_run(run_id: str) -> None:
+    """Take `run_id` for this process (the supervisor, for its run's life), or a one-line
+    ConfigError if a live process on this machine holds it, this one included: two runs of one
+    id would each take `swarm fault --run ID` for the other's. Atomic (an exclusive flock on
+    `swarm-runs/ID.lock`, beside the registry), so of two runs started in the same instant one
+    is refused, where both passed a check of the registry the supervisor wrote later; the
+    kernel drops the lock when its holder dies, SIGKILL included, so a dead holder's lock is
+    never in the way. `release_run` gives it back."""
+    if run_id in _CLAIMS:
+        raise _taken(run_id)
+    path = registry(run_id).with_suffix(".lock")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise _taken(run_id) from None
+        try:  # the file we locked is still the one at `path` (its last holder unlinks it)
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode())
+    _CLAIMS[run_id] = fd
+    if len(_CLAIMS) == 1:
+        atexit.register(_release_all)
+
+
+def _taken(run_id: str) -> ConfigError:
+    return ConfigError(f"run id {run_id!r} is taken by a swarm running on this machine; give "
+                       "another --run-id")
+
+
+def release_run(run_id: str) -> None:
+    """Give back a `claim_run` of this process (the lock file removed, then unlocked)."""
+    fd = _CLAIMS.pop(run_id, None)
+    if fd is not None:
+        registry(run_id).with_suffix(".lock").unlink(missing_ok=True)
+        os.close(fd)
+
+
+def _release_all() -> None:
+    for run_id in list(_CLAIMS):
+        release_run(run_id)
+
+
 def check_run_free(run_id: str) -> None:
-    """ConfigError (one line) if a live `swarm run` on this machine holds `run_id`: two runs of
-    one id would each take `swarm fault --run ID` for the other's."""
-    try:
-        lookup_run(run_id)
-        pid = int(json.loads(registry(run_id).read_text())["pid"])
-        cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
-    except (ConfigError, OSError, ValueError, KeyError, TypeError):
-        return  # none, or a stale entry (removed), or one that vanished meanwhile
-    if b"swarm" not in cmd:  # (its pid now another program's: stale)
-        return
-    raise ConfigError(f"run id {run_id!r} is taken by a swarm running on this machine; give "
-                      "another --run-id")
+    """`claim_run`'s refusal early, before a command's other checks (its supervisor then takes
+    the id for good, and refuses it still if another run took it meanwhile)."""
+    claim_run(run_id)
+    release_run(run_id)
 
 
 def cli_args(*args: str) -> list[str]:

@@ -32,9 +32,11 @@ from swarm.common.report import json_line, provenance
 from swarm.common.spawn import (
     child_env,
     child_result,
+    claim_run,
     cli_args,
     last_error,
     registry,
+    release_run,
     stop_children,
     tidy_interrupted,
     tidy_logs,
@@ -64,7 +66,7 @@ from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.fleet import Fleet
 from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
-from world.config import WorldConfig, to_dict
+from world.config import ConfigError, WorldConfig, to_dict
 
 log = logging.getLogger("swarm.supervisor")
 
@@ -259,6 +261,12 @@ class Supervisor:
         self.view.events = self.view.events[-5:] + [self.fleet.fault(f, self.run_tick)]
 
     def supervise(self) -> dict[str, Any]:
+        try:  # the id is this run's until it ends, or refused (nothing started yet)
+            claim_run(self.run_cfg.run_id)
+        except ConfigError:
+            if self.opts.log_dir is None:
+                tidy_interrupted(self.tmp)
+            raise
         stopped = False
         try:  # whatever happens, no process and no namespace of the run is left behind
             return self._supervise()
@@ -273,6 +281,7 @@ class Supervisor:
                     self.topo.down()
                 if stopped and self.opts.log_dir is None:  # no result names the temp folder
                     tidy_interrupted(self.tmp, bool(self.zfiles) or self.learner_out is not None)
+                release_run(self.run_cfg.run_id)
 
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()
