@@ -177,3 +177,22 @@ def test_a_run_with_process_faults_has_no_batched_twin() -> None:
     assert twin(world, rc, {"crash": ["1@5"]}, {"actions": []}) == "n/a"
     assert twin(world, rc, {}, {"actions": [], "robots_lost": 1}) == "n/a"
     assert twin(world, rc, {}, {"actions": []}).startswith("differs: shapes")
+
+
+@pytest.mark.procs
+def test_a_sweep_with_process_faults_leaves_nothing_in_the_temp_dir(tmp_path: Path) -> None:
+    """A run with a planned crash keeps its logs (`tidy_logs`: crashes are trouble); in a sweep
+    nothing named that temp folder, and one was left in /tmp per run. Now it is moved beside
+    the sweep's CSV and named on the run's line."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    head = "[world]\nn_robots = 3\n\n[run]\nepisodes = 1\n\n[faults]\ncrash = [\"1@5\"]\n"
+    out = tmp_path / "out"
+    r = swarm("experiment", sweep_file(tmp_path, BASE + 'policies = ["nearest-frontier"]\n',
+                                       head), "--out", str(out), env={"TMPDIR": str(tmp)})
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert [p.name for p in tmp.iterdir() if p.name != "swarm-runs"] == []
+    assert not list((tmp / "swarm-runs").glob("*"))
+    kept = out / "t-0-logs"
+    assert f"logs in {kept}" in r.stderr, r.stderr
+    assert (kept / "robot1.log").is_file() and (kept / "spec.json").is_file()

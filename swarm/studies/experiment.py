@@ -11,6 +11,8 @@ With `kernel = true` every run is `swarm run --netns` and the swept loss or band
 by the kernel (swarm/net/kernel/netns.py) instead of the radio; `compare = "other.csv"` then
 also draws `<name>_compare.png` against another sweep of the same parameter (e.g. the radio's).
 With `record = true` every run's traffic is also recorded into `<name>-<k>.mcap` beside the CSV.
+A run that keeps its logs (process faults, or something went wrong) keeps them in `<name>-<k>-logs`
+beside the CSV, named on its line, never in a temp folder nothing names.
 `--episodes K` and `--seeds A,B` override `[run] episodes` and `[experiment] seeds` (a quick try
 of a shipped file, with `--out DIR`); the CSV's `episodes` column and the Markdown record them.
 The whole sweep is checked before the first run (swarm/studies/experiment_plan.py).
@@ -23,6 +25,7 @@ import dataclasses
 import io
 import math
 import shlex
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -95,6 +98,7 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
                          "episodes": rc.episodes, "error": str(exc).split(";")[0]})
             _write_csv(csv_path, rows, columns)
             continue
+        logs = _keep_logs(res, out_dir / f"{exp.name}-{len(rows)}-logs")
         m = res["messages"]
         row = {"policy": policy, "value": value, "seed": seed,
                **{k: res.get(k) for k in ("elratio_mean", "elratio_std", "collisions_mean",
@@ -105,7 +109,7 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
                "delivered": m.get("traj_delivered"), "clock": rc.clock,
                "twin": twin(world, rc, faults, res) if rc.clock == "virtual" else "",
                "wall_s": round(time.monotonic() - t0, 2), "episodes": rc.episodes,
-               "recording": recording}
+               "recording": recording, "logs": logs}
         if exp.kernel:
             row.update(robots_lost=res.get("robots_lost"), startup_s=res.get("startup_s"),
                        never_joined=res["netns"]["never_joined"])
@@ -118,6 +122,18 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
         files.append(write_comparison(rows, _read_rows(Path(exp.compare)), exp, out_dir,
                                       sweep.source))
     return {"rows": rows, "files": files}
+
+
+def _keep_logs(res: dict[str, Any], dest: Path) -> str | None:
+    """A run's temp log folder that it kept (`res["logs"]`: process faults, or trouble) moved
+    to `dest` beside the sweep's CSV, where a user finds it (in /tmp nothing named it); None
+    when the run removed its folder (a clean run)."""
+    if not res.get("logs"):
+        return None
+    shutil.rmtree(dest, ignore_errors=True)  # (a rerun's point of the same number)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    shutil.move(res["logs"], dest)
+    return str(dest)
 
 
 def checkpoints_of(sweep: Sweep) -> dict[str, str | None]:
@@ -301,7 +317,7 @@ def main(sweep: Sweep, out: str, resume: bool) -> int:
     res = run_experiment(sweep, out, resume, on_row=lambda r: print(
         f"  {r['policy']} {r['value']} seed {r['seed']}: elratio {_f(r['elratio_mean'], '.3f')} "
         f"collisions {_f(r['collisions_mean'], '.1f')} ticks/s {_f(r['ticks_per_s'], '.1f')} "
-        f"{r.get('twin') or ''}",
+        f"{r.get('twin') or ''}{'  logs in ' + r['logs'] if r.get('logs') else ''}",
         file=sys.stderr, flush=True))
     for f in res["files"]:
         print(f"wrote {f}")
