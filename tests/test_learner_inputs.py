@@ -115,6 +115,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
         f"{k} = {getattr(SMALL, k)}\n" for k in fields))
     learner = Learner(SMALL, LearnerConfig(run_id="resumed", policy="vain", out=str(tmp / "l")),
                       TrainConfig(batch=2, threads=1))
+    learner.seed = 0  # (what `run` notes: the run's seed, which `collect` below plays)
     assert not (tmp / "l").exists()  # nothing is written before open_out
     with open_session(ZenohOptions()) as session:
         learner.open_out()
@@ -154,12 +155,30 @@ def test_swarm_learner_resume_refuses_new_train_flags(trained: Path) -> None:
                         (["--checkpoint", str(trained / "l" / "checkpoint.pt")],
                          ["--checkpoint"]),  # and another world (it went on with the flags')
                         (["--size", "30x30"], ["on the world it was trained on", "height = 30"]),
-                        (["--robots", "5"], [f"n_robots = 5 differs from its {SMALL.n_robots}"])):
+                        (["--robots", "5"], [f"n_robots = 5 differs from its {SMALL.n_robots}"]),
+                        (["--seed", "5"], ["seed = 5 differs from its 0"])):  # (was taken)
         r = swarm(*base, *extra, timeout=60)
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2, r.stderr[-2000:]
         assert len(lines) == 1 and lines[0].startswith("swarm: error: "), r.stderr
         assert all(s in lines[0] for s in says), lines[0]
+
+
+def test_a_resumed_learner_joins_with_its_runs_seed(trained: Path) -> None:
+    """The seed its episodes were joined with is in the checkpoint: a resume without --seed
+    goes on with it (it went on with 0 whatever the run's); a checkpoint without one takes the
+    given seed, as before."""
+    from policies.checkpoint import read_checkpoint
+    from swarm.learn.config import held_seed
+
+    state = read_checkpoint(trained / "l" / "checkpoint.pt")["learner"]
+    assert state["seed"] == 0 and held_seed(state, None, trained) == 0
+    assert held_seed({**state, "seed": 7}, None, trained) == 7
+    assert held_seed({**state, "seed": 7}, 7, trained) == 7
+    with pytest.raises(ConfigError, match="seed = 3 differs from its 7"):
+        held_seed({**state, "seed": 7}, 3, trained)
+    old = {k: v for k, v in state.items() if k != "seed"}
+    assert held_seed(old, 3, trained) == 3 and held_seed(old, None, trained) == 0
 
 
 @pytest.mark.procs

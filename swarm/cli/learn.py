@@ -23,6 +23,7 @@ from swarm.learn.config import (
     MAX_WORKER_BATCH,
     MAX_WORKER_ID,
     check_worker,
+    held_seed,
     held_world,
     learner_resume_point,
 )
@@ -63,6 +64,7 @@ def cmd_learner(args: argparse.Namespace) -> int:
         learner_resume_point(data.get("learner"), tc, given, out)
         if not args.spec:  # (a run's spec is its own world, checked by `swarm run`)
             world = held_world(data, world, world_given(args, tables), f"the learner in {out}")
+            seed = held_seed(data.get("learner"), args.seed, out)
     output_file(args.json)
     from swarm.procs.learning.learner import main as learner_main  # (torch: after the checks)
 

@@ -339,6 +339,21 @@ def learner_resume_point(state: Any, asked: TrainConfig, given: Collection[str] 
         f"weights"))
 
 
+def held_seed(state: Any, asked: int | None, out: Path) -> int:
+    """The seed a resumed learner joins its episodes with: its checkpoint's (the run's seed its
+    episodes were joined with, held like its train settings); a given `--seed` that differs is
+    a one-line ConfigError. A checkpoint from before the seed was saved: `asked`, else 0."""
+    held = state.get("seed") if isinstance(state, dict) else None
+    if not isinstance(held, int) or isinstance(held, bool):
+        return asked or 0
+    if asked is not None and asked != held:
+        raise ConfigError(f"--resume continues the learner in {out} on its run's episodes: "
+                          f"seed = {asked} differs from its {held} (the seed they are joined "
+                          f"with; a new --out with --checkpoint {out / 'checkpoint.pt'} learns "
+                          "from another run)")
+    return held
+
+
 # ---------------------------------------------------------------------------- rollout worker
 MAX_WORKER_ID = 2**31 - 1
 """Worker ids are seeds (and go on the wire as msgpack ints): [0, MAX_WORKER_ID]."""

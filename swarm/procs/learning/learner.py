@@ -105,6 +105,7 @@ class Learner:
         self.curves = CurveLog(self.out)
         self.c = LearnerCounters()
         self.version = 0
+        self.seed: int | None = None  # the run's seed its episodes are joined with (`run`)
         check_learned(lc.policy, "the learner")
         cls = policy_class(lc.policy)
         if lc.resume:
@@ -327,7 +328,8 @@ class Learner:
                                        "provenance": provenance()})
         payload["learner"] = {"version": self.version, "optimizer": self.opt.state_dict(),
                               "train": dataclasses.asdict(self.tc),
-                              "counters": dataclasses.asdict(self.c)}
+                              "counters": dataclasses.asdict(self.c),
+                              **({} if self.seed is None else {"seed": self.seed})}
         save_checkpoint(self.ckpt, payload)
 
     def accounting(self) -> dict[str, int]:
@@ -377,6 +379,7 @@ class Learner:
     def run(self, session: zenoh.Session, seed: int, stop: Any = lambda: False
             ) -> dict[str, Any]:
         inbox = self._declare(session)
+        self.seed = seed
         try:
             self.weights_pub.put(self.weights_payload)  # late joiners also query it
             while not stop():
