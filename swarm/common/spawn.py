@@ -12,6 +12,7 @@ a run id is taken atomically, for the run's life, by an exclusive lock beside it
 from __future__ import annotations
 
 import atexit
+import contextlib
 import ctypes
 import fcntl
 import json
@@ -24,6 +25,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -253,6 +255,27 @@ def tidy_interrupted(folder: Path, keep: bool = False) -> None:
         print(f"swarm: the run's logs are in {folder}", file=sys.stderr)
     else:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def stops_held() -> Iterator[None]:
+    """SIGINT and SIGTERM held while the block runs, then raised as KeyboardInterrupt: a stop
+    that lands between a child's fork and its Popen's return loses that child (never told to
+    stop, it ran on and failed to join a run that was gone). A no-op off the main thread."""
+    held: list[int] = []
+    stops = (signal.SIGINT, signal.SIGTERM)
+    if threading.current_thread() is not threading.main_thread() or \
+            any(signal.getsignal(s) is None for s in stops):  # (not ours to put back)
+        yield
+        return
+    before = {s: signal.signal(s, lambda n, f: held.append(n)) for s in stops}
+    try:
+        yield
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)
+    if held:
+        raise KeyboardInterrupt
 
 
 def _reap(p: subprocess.Popen[Any], block: bool) -> bool:

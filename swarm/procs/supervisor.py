@@ -38,6 +38,7 @@ from swarm.common.spawn import (
     registry,
     release_run,
     stop_children,
+    stops_held,
     tidy_interrupted,
     tidy_logs,
     wait_port,
@@ -106,6 +107,7 @@ class Supervisor:
             self.hub, self.zfiles = run_configs(opts.secure, run.run_id, cfg.n_robots, self.port,
                                                 self.log_dir / "zenoh", *extra)
         self.world: subprocess.Popen[bytes] | None = None
+        self.children: list[subprocess.Popen[bytes]] = []  # every one spawned (`_spawn`)
         self.fleet = Fleet(self._spawn_robot, self.log_dir, run.restart_crashed)
         self.robots = self.fleet.procs  # robot id -> its running process
         self.inbox: Inbox | None = None
@@ -126,8 +128,11 @@ class Supervisor:
         args = [*args, *(x for c in self.zcfg for x in ("--cfg", c))]
         if self.zfiles:  # --secure: its own identity's TLS and access control
             args += ["--zenoh-config", str(self.zfiles[identity_of(name)])]
-        return subprocess.Popen([*prefix, *cli_args(*args)], stdout=subprocess.DEVNULL, stderr=err,
-                                stdin=subprocess.DEVNULL, env=env)
+        with stops_held():  # (every child ever spawned is in `children`, so stopped at the end)
+            self.children.append(subprocess.Popen([*prefix, *cli_args(*args)], env=env,
+                                                  stdout=subprocess.DEVNULL, stderr=err,
+                                                  stdin=subprocess.DEVNULL))
+        return self.children[-1]
 
     def _spawn_robot(self, i: int) -> subprocess.Popen[bytes]:
         hub, ns = self.hub, None
@@ -190,8 +195,9 @@ class Supervisor:
         return t0
 
     def stop_all(self, grace: float = 2.0) -> None:
-        procs = [p for p in [self.world, *self.robots.values(), self.learner, self.recorder,
-                             *self.routers] if p is not None]
+        procs = list(dict.fromkeys(p for p in [self.world, *self.robots.values(), self.learner,
+                                               self.recorder, *self.routers, *self.children]
+                                   if p is not None))
         for p in [self.robots[i] for i in self.fleet.hung if i in self.robots]:
             if p.poll() is None:  # a stopped process cannot take SIGINT
                 p.send_signal(signal.SIGCONT)
