@@ -211,3 +211,55 @@ def test_bench_record_without_out_removes_its_recordings_also_when_interrupted(
         if proc.poll() is None:
             proc.kill()
     assert not list(tmp.glob("swarm-bench-record-*"))
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_bench_record_interrupted_while_its_robots_start_leaves_nothing(
+        tmp_path: Path, sig: signal.Signals) -> None:
+    """Interrupted as its robots started, `bench record` left its run's log folder in the temp
+    dir (named on stderr): each robot stopped while it still loaded its modules wrote the
+    KeyboardInterrupt's traceback, which was read as more than an interruption."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "bench", "record", "--pairs",
+                             "200", "--episodes", "5", "--robots", "4"], cwd=ROOT,
+                            env={**os.environ, "TMPDIR": str(tmp)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        while not list(tmp.glob("swarm-brec-*/robot*.log")):  # (the robots are loading)
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.01)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    kept = {str(p): p.read_text(errors="replace")[-1500:] for p in tmp.rglob("*.log")}
+    assert proc.returncode == 130 and "logs are in" not in err, (err, kept)
+    assert [p.name for p in tmp.iterdir()] == ["swarm-runs"], list(tmp.rglob("*"))
+    assert not list((tmp / "swarm-runs").iterdir())
+
+
+def test_an_interrupts_traceback_says_no_more_than_interrupted() -> None:
+    """What a child stopped while it loaded its modules writes (even inside `site`, before any
+    line of ours) is an interruption; any other exception, or other words, are more."""
+    from swarm.common.spawn import says_more_than_interrupted as more
+
+    tb = ["Traceback (most recent call last):", '  File "x.py", line 1, in <module>', "    a",
+          "    ^^^", ""]
+    site = ["Fatal Python error: init_import_site: Failed to import the site module",
+            "Python runtime state: initialized"]
+    assert not more(["swarm: interrupted", ""])
+    assert not more([*tb, "KeyboardInterrupt"]) and not more([*site, *tb, "KeyboardInterrupt"])
+    assert not more(["Fatal Python error: init_sys_streams: can't initialize sys standard "
+                     "streams", "Python runtime state: core initialized", *tb,
+                     "KeyboardInterrupt"])
+    assert not more([*tb, "KeyboardInterrupt", "swarm: interrupted"])
+    assert more([*tb, "ValueError: bad"]) and more([*site, *tb, "ImportError: no"])
+    assert not more(["Could not import runpy module", *tb, "KeyboardInterrupt"])
+    chained = "During handling of the above exception, another exception occurred:"
+    assert not more([*site, *tb, "KeyError: '/lib-dynload'", "", chained, "", *tb,
+                     "KeyboardInterrupt"])  # (an exception that importing handles, then ^C)
+    assert more([*tb, "KeyboardInterrupt", "", chained, "", *tb, "OSError: x"])
+    assert more(["WARNING zenoh: something"]) and more(tb)  # (a traceback cut short)

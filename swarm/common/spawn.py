@@ -25,7 +25,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -244,12 +244,44 @@ def tidy_logs(folder: Path, res: dict[str, Any], keep: bool = False) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
+_TRACEBACK_HEAD = ("Traceback (most recent call last):", "Fatal Python error: init_",
+                   "Python runtime state: ", "Could not import runpy module",
+                   "Could not access runpy._run_module_as_main")
+"""What heads a traceback in a child's log (the others: the interpreter stopped while it
+still started, in `site`, its standard streams or `-m`'s runpy, before any line of ours)."""
+
+
+_CHAINED = ("During handling of the above exception, another exception occurred:",
+            "The above exception was the direct cause of the following exception:")
+
+
+def says_more_than_interrupted(lines: Iterable[str]) -> bool:
+    """Whether a child's log says more than that it was interrupted: its one line `swarm:
+    interrupted`, or the traceback of a KeyboardInterrupt (a child stopped while it still
+    loaded its modules, before its CLI could take the signal; in a chain, the last exception
+    is the one that ended it) are not more; anything else is, another exception included."""
+    block, last = False, None  # in a traceback's frames; the exception line that ended one
+    for line in (x.rstrip() for x in lines):
+        if line.startswith(_TRACEBACK_HEAD) or block and (not line or line[0].isspace()):
+            block = True
+        elif block:
+            block, last = False, line
+        elif line in _CHAINED and last is not None:  # (the next traceback's is the last one)
+            last = None
+        elif line:
+            if last not in (None, "KeyboardInterrupt") or \
+                    line not in ("swarm: interrupted", "KeyboardInterrupt"):
+                return True
+            last = None
+    return block or last not in (None, "KeyboardInterrupt")  # (cut short: read as more)
+
+
 def tidy_interrupted(folder: Path, keep: bool = False) -> None:
     """An interrupted run's temp folder: removed when no log in it says more than that it was
     interrupted, else kept and named on stderr (no result names it)."""
     def says(log: Path) -> bool:
         with log.open(errors="replace") as fh:
-            return any(line.strip() not in ("", "swarm: interrupted") for line in fh)
+            return says_more_than_interrupted(fh)
 
     if folder.is_dir() and (keep or any(says(p) for p in folder.rglob("*.log") if p.is_file())):
         print(f"swarm: the run's logs are in {folder}", file=sys.stderr)
