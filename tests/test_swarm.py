@@ -607,6 +607,21 @@ def test_a_robot_killed_by_nobody_is_counted_and_said(tmp_path: Path) -> None:
 
 
 @pytest.mark.procs
+def test_a_robot_stopped_until_after_the_run_is_counted_and_said(tmp_path: Path) -> None:
+    """A robot SIGSTOPped by nobody's plan and never resumed: the stall warning and count
+    came from the robot itself once it resumed, so this one went unsaid as a stall (at most
+    "left the run", once its lease ran out). The run's end finds it stopped: one warning, one
+    stall counted, and it is resumed to take the stop (no process left)."""
+    code, err, res = upset_run(tmp_path, "sigstopend", 3, b"--id\x002\x00",
+                               lambda pid: os.kill(pid, signal.SIGSTOP))
+    assert code == 0 and res["completed"] == 3, err
+    assert "robot 2 was stopped (SIGSTOP) and not resumed by the run's end" in err, err
+    assert "left the run" not in err  # (one line for it)
+    assert res["robot_stalls"] == 1 and res["robots_stopped_at_end"] == [2], res["robot_stalls"]
+    assert run_procs("sigstopend") == []
+
+
+@pytest.mark.procs
 def test_a_run_id_held_by_a_running_swarm_is_refused(tmp_path: Path) -> None:
     """Two runs of one id on one machine both started, and `swarm fault --run ID` reached only
     the second (UA pass): the second is refused in one line before it spawns anything."""

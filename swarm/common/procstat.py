@@ -18,6 +18,15 @@ def cpu_seconds(pid: int) -> float | None:
         return None
 
 
+def stopped(pid: int) -> bool:
+    """Whether process `pid` is stopped (SIGSTOP, SIGTSTP, a debugger): state T or t."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] in ("T", "t")
+    except (OSError, IndexError):
+        return False
+
+
 def _kb(path: str, field: str) -> float | None:
     try:
         with open(path) as fh:

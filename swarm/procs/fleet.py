@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from swarm.common.procstat import stopped
 from swarm.common.spawn import last_error
 from swarm.net.faults import ProcessFault
 from swarm.procs.dashboard import SwarmView
@@ -43,6 +44,7 @@ class Fleet:
         self.log_from: dict[int, int] = {}  # robot -> where its current process's log begins
         self.errors: dict[str, str] = {}  # "robot i" -> why it died (not planned)
         self.log: list[str] = []  # the process faults done, or found nothing to act on
+        self.stopped_at_end: set[int] = set()  # robots found stopped by nobody's plan (`halt`)
 
     def start(self, i: int) -> None:
         log = self.log_dir / f"robot{i}.log"
@@ -80,6 +82,14 @@ class Fleet:
                 f" ({'hung' if up and f.robot in self.hung else 'down'} already: nothing done)"
         self.log.append(f"{f.kind} {f.robot}@{f.tick if f.tick >= 0 else run_tick}{note}")
         return self.log[-1]
+
+    def halted(self) -> list[Proc]:
+        """The run is over: robots stopped (SIGSTOP) that no planned hang stopped are noted
+        (`stopped_at_end`: the stall detection of a robot that rejoins never ran in them); the
+        processes to resume, planned hangs too, so that they take the stop."""
+        found = {i for i, p in self.procs.items() if p.poll() is None and stopped(p.pid)}
+        self.stopped_at_end |= found - self.hung
+        return [self.procs[i] for i in sorted(found | self.hung) if self.up(i)]
 
     def check(self) -> None:
         """Robots that died: a death nobody planned is counted and its reason kept; each dead
@@ -122,13 +132,18 @@ class Fleet:
         res.update({"child_errors": dict(errors)} if errors else {})
         said = [*(f"{w} failed: {why}" for w, why in errors.items()), *view.undecided(),
                 *view.stalled(self.hangs)]
+        said += [f"robot {i} was stopped (SIGSTOP) and not resumed by the run's end: out of the "
+                 "run from then on (counted in robot_stalls)" for i in sorted(self.stopped_at_end)]
         res["robot_status"] = {str(i): r.counters() for i, r in view.robots.items()}
-        res["robot_stalls"] = sum(r.stalls for r in view.robots.values())
+        res["robot_stalls"] = sum(r.stalls for r in view.robots.values()) + \
+            len(self.stopped_at_end)  # (its own count never saw that stall: it never resumed)
+        res["robots_stopped_at_end"] = sorted(self.stopped_at_end)
         absent = {f.robot for f in planned if f.kind in ("crash", "hang") and f.tick == 0}
         res["absent_at_start"] = [i for i in view.absent_at_start if i not in absent]
         down = {f.robot for f in planned if f.kind == "crash"} | {
             int(w.split()[1]) for w in errors}  # (said above)
-        left = [i for i, r in sorted(view.robots.items()) if r.state == "lost" and i not in down]
+        left = [i for i, r in sorted(view.robots.items()) if r.state == "lost" and i not in down
+                and i not in self.stopped_at_end]  # (said above)
         if left:  # (a world stalled past its lease: the robots' sessions dropped, and on the
             # virtual clock an absence nobody planned is for good)
             said.append(f"robots {left} left the run before its end; the world played on "

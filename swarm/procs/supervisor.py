@@ -198,9 +198,8 @@ class Supervisor:
         procs = list(dict.fromkeys(p for p in [self.world, *self.robots.values(), self.learner,
                                                self.recorder, *self.routers, *self.children]
                                    if p is not None))
-        for p in [self.robots[i] for i in self.fleet.hung if i in self.robots]:
-            if p.poll() is None:  # a stopped process cannot take SIGINT
-                p.send_signal(signal.SIGCONT)
+        for p in self.fleet.halted():  # a stopped process cannot take SIGINT
+            p.send_signal(signal.SIGCONT)
         try:
             registry(self.run_cfg.run_id).unlink()
         except OSError:
