@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import subprocess
 import sys
 from io import StringIO
@@ -498,3 +499,46 @@ def test_repro_fig11_runs_on_the_configs_world(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr[-2000:]
     md = (tmp_path / "fig11_by_neighbours.md").read_text()
     assert "3 robots" in md and "10 robots" not in md, md[:400]
+
+
+def on_terminal(columns: int, *args: str) -> str:
+    """`swarm ARGS`'s stdout on a pseudo-terminal `columns` wide (ANSI codes removed)."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import termios
+
+    main_fd, sub_fd = pty.openpty()
+    fcntl.ioctl(sub_fd, termios.TIOCSWINSZ, struct.pack("HHHH", 40, columns, 0, 0))
+    env = {k: v for k, v in os.environ.items() if k not in ("COLUMNS", "LINES")}
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", *args], cwd=ROOT, env=env,
+                            stdin=subprocess.DEVNULL, stdout=sub_fd, stderr=subprocess.PIPE)
+    os.close(sub_fd)
+    out = b""
+    while True:
+        try:
+            chunk = os.read(main_fd, 65536)
+        except OSError:  # (EIO: the process closed its end)
+            break
+        if not chunk:
+            break
+        out += chunk
+    os.close(main_fd)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err.decode()[-2000:]
+    return re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", out.decode()).replace("\r", "")
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("columns", [75, 60, 50])
+def test_swarm_eval_results_stay_whole_on_a_narrow_terminal(columns: int) -> None:
+    """Below ~75 columns the results table cut its figures (`0.…`, `-17…`); it now turns the
+    policies into columns, then stacks one block per policy: every figure whole to 50 columns."""
+    res = on_terminal(columns, "eval", "--policy", "coordinated-frontier,nearest-frontier",
+                      "--episodes", "3", "--robots", "4")
+    assert "…" not in res and max(len(line.rstrip()) for line in res.splitlines()) <= columns
+    assert "coordinated-frontier" in res and "nearest-frontier" in res
+    figures = re.findall(r"-?\d+\.\d+%?(?:±\d+\.\d+)?", res)
+    assert len(figures) >= 13, res  # six figures a policy, and the paired Δ
+    assert re.search(r"-?\d\.\d{4}±\d\.\d{4}", res), res

@@ -35,35 +35,44 @@ def eval_table(summaries: Sequence[Mapping[str, Any]], title: str = "Evaluation"
                width: int | None = None) -> Table:
     """One row per policy from `EvalResult.summary` dicts; * marks a reference planner that is
     not decentralized (oracle, central); with several policies, each one's elratio minus the
-    first's, paired over the same episodes. When the table would be wider than `width` (the
-    console's), means without their standard deviations and no rules, so that every figure
-    stays whole (an 80-column terminal cut them to `0.…`); the sds stay in `--json`."""
+    first's, paired over the same episodes. The table degrades to fit `width` (the console's)
+    so that every figure stays whole (an 80-column terminal cut them to `0.…`): means without
+    their standard deviations (in `--json`) and no rules; then the policies as columns and the
+    figures as rows; then one block of figures per policy, stacked (~30 columns)."""
     wide = _eval_table(summaries, title, narrow=False)
     if width is None:
         return wide
+    for layout in (lambda: wide, lambda: _eval_table(summaries, title, narrow=True),
+                   lambda: _eval_table(summaries, title, narrow=True, turned=True)):
+        table = layout()
+        if _natural_width(table) <= width:
+            return table
+    return _eval_table(summaries, title, narrow=True, stacked=True)
+
+
+def _natural_width(table: Table) -> int:
+    """The columns a table takes when nothing is cut."""
     probe = Console(width=10_000, file=io.StringIO())
-    need = Measurement.get(probe, probe.options, wide).maximum
-    return wide if need <= width else _eval_table(summaries, title, narrow=True)
+    return Measurement.get(probe, probe.options, table).maximum
 
 
-def _eval_table(summaries: Sequence[Mapping[str, Any]], title: str, narrow: bool) -> Table:
-    table = Table(title=title, title_justify="left", **(  # (no vertical rules, no edges)
-        {"box": None, "pad_edge": False, "collapse_padding": True} if narrow else {}))
-    table.add_column("policy", style="bold", no_wrap=True)  # (not `coordinated-fron…`)
+def _eval_table(summaries: Sequence[Mapping[str, Any]], title: str, narrow: bool,
+                turned: bool = False, stacked: bool = False) -> Table:
+    """The results as rows per policy; `turned`: a column per policy instead; `stacked`: one
+    block per policy (its name, then a row per figure)."""
     vs = next((s["elratio_paired"]["vs"] for s in summaries if "elratio_paired" in s), None)
     sd = "" if narrow else " ± sd"
-    for col in (f"elratio{sd}", f"reward{sd}", "coll.", "block" if narrow else "block coll.",
-                "success", "plan ms", *(["Δ elratio ± se"] if vs else [])):
-        table.add_column(col, justify="right", no_wrap=True)
+    heads = [f"elratio{sd}", f"reward{sd}", "coll.", "block" if narrow else "block coll.",
+             "success", "plan ms", *(["Δ elratio ± se"] if vs else [])]
 
     def pm(mean: float | None, std: float | None, fmt: str = ".3f") -> str:
         return _num(mean, fmt) if narrow or mean is None else _pm(mean, std or 0.0, fmt)
 
+    rows: list[tuple[str, list[str]]] = []  # (policy, its figures under `heads`)
     for s in summaries:
         pair = s.get("elratio_paired")
         success = s.get("success_rate")
-        table.add_row(
-            str(s["policy"]) + ("" if s.get("decentralized", True) else " *"),
+        rows.append((str(s["policy"]) + ("" if s.get("decentralized", True) else " *"), [
             pm(s["elratio_mean"], s["elratio_std"]),
             pm(s["reward_mean"], s.get("reward_std", 0.0), ".1f"),
             _num(s["collisions_mean"], ".2f"),
@@ -71,8 +80,30 @@ def _eval_table(summaries: Sequence[Mapping[str, Any]], title: str, narrow: bool
             "-" if success is None else f"{100 * success:.1f}%",
             _num(s["planning_ms_per_decision"], ".3f"),
             *([(paired_cell(pair["mean"], pair["se"]).replace(" ± ", "±") if narrow else
-                paired_cell(pair["mean"], pair["se"])) if pair else "-"] if vs else []),
-        )
+                paired_cell(pair["mean"], pair["se"])) if pair else "-"] if vs else [])]))
+    table = Table(title=title, title_justify="left", **(  # (no vertical rules, no edges)
+        {"box": None, "pad_edge": False, "collapse_padding": True} if narrow else {}))
+    if stacked:
+        table.add_column("policy", no_wrap=True)
+        table.add_column("", justify="right", no_wrap=True)
+        for k, (policy, cells) in enumerate(rows):
+            table.add_row(Text(policy, style="bold"), "")
+            for head, cell in zip(heads, cells, strict=True):
+                table.add_row(f"  {head}", cell, end_section=k < len(rows) - 1 and
+                              head == heads[-1])
+    elif turned:
+        table.add_column("", no_wrap=True)
+        for policy, _ in rows:
+            table.add_column(policy, justify="right", style=None, header_style="bold",
+                             no_wrap=True)
+        for j, head in enumerate(heads):
+            table.add_row(head, *(cells[j] for _, cells in rows))
+    else:
+        table.add_column("policy", style="bold", no_wrap=True)  # (not `coordinated-fron…`)
+        for head in heads:
+            table.add_column(head, justify="right", no_wrap=True)
+        for policy, cells in rows:
+            table.add_row(policy, *cells)
     notes = ([f"Δ: elratio minus {vs}'s on the same episodes (paired; se of the mean)"]
              if vs else [])
     notes.append("plan ms: per team decision (eval: the batched act amortized over its "
