@@ -478,6 +478,11 @@ BAD_INPUTS = [
     ["run", "--robots", "3", "--attention", "7"], ["run", "--robots", "3", "--hosts", "9"],
     ["eval", "--latency", "-5ms"], ["eval", "--bandwidth", "2kb/s"],
     ["eval", "--policy", "commattn", "--checkpoint", "README.md"],
+    # an empty name was taken as "none" (--record, --log-dir: a run with neither, silently) or
+    # as the working directory (certs: its keys written there and the directory made 0700)
+    ["run", "--record", ""], ["run", "--log-dir", ""], ["run", "--json", ""],
+    ["certs", "--out", "", "--robots", "1"],
+    ["robot", "--id", "-1", "--run-id", "x"],  # (it waited 30 s for a world first)
 ]
 
 

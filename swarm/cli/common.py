@@ -254,6 +254,8 @@ def output_file(path: str | None, flag: str = "--json") -> None:
     """A result file must be writable before the work that produces it starts."""
     if path is None:
         return
+    if not path.strip():
+        raise ConfigError(f"{flag} wants a file name, got an empty one")
     target = Path(path)
     if target.is_dir():
         raise ConfigError(f"{flag} {path} is a directory, not a file")
@@ -276,6 +278,8 @@ def output_dir(path: str | None, flag: str, make: bool = True) -> None:
     exists: a path under a file, or where nothing can be made, is refused all the same."""
     if path is None:
         return
+    if not path.strip():
+        raise ConfigError(f"{flag} wants a directory, got an empty name")
     target = Path(path)
     if target.exists() and not target.is_dir():
         raise ConfigError(f"{flag} {path} exists and is not a directory")

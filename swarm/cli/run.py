@@ -37,7 +37,7 @@ from swarm.cli.common import (
 from swarm.cli.hosts import add_hosts_flag, add_netns_flags, hosts_option, netns_faults
 from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, secure_options
-from swarm.common.flags import check_wait
+from swarm.common.flags import check_wait, robot_id
 from swarm.common.policy_spec import build_inference
 from swarm.common.report import json_line, provenance
 from swarm.net import zconfig
@@ -188,7 +188,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     output_file(args.json)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")
-    if args.record:  # the file and the package, before any spawn
+    if args.record is not None:  # the file and the package, before any spawn
         from swarm.net.record.recording import need_mcap
 
         need_mcap()
@@ -490,7 +490,7 @@ def add_robot_parser(sub: Any) -> None:
     """Register `robot` on the `swarm` subparsers."""
     p = sub.add_parser("robot", help="one robot process, by hand",
                        description="Join run RUN_ID as robot ID; the config comes from the world.")
-    p.add_argument("--id", type=int, required=True, help="robot id 0..N-1")
+    p.add_argument("--id", type=robot_id, required=True, help="robot id 0..N-1")
     p.add_argument("--run-id", required=True, help="the run to join (printed by `swarm world`)")
     p.add_argument("--wait", type=float, default=30.0, metavar="S",
                    help="seconds to wait for the world, in [0.1, 3600] (default 30)")

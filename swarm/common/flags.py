@@ -36,6 +36,19 @@ def _bool(text: str) -> bool:
     return text.lower() in ("1", "true", "yes")
 
 
+def robot_id(text: str) -> int:
+    """An argparse type: a robot id is an integer >= 0 (its upper end is the run's team, which
+    only the world knows), refused before any connection is tried."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a robot id (an integer >= 0), got {text!r}"
+                                         ) from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"a robot id is >= 0, got {value}")
+    return value
+
+
 def add_flags(parser: argparse.ArgumentParser | Any, cls: type, skip: tuple[str, ...] = (),
               dest_prefix: str = "") -> None:
     """One `--field-name` flag per field of `cls` (ints, floats, strings, bools); fields in

@@ -269,6 +269,8 @@ def make_certs(out: str | Path, robots: int, workers: int = 0, hosts: list[str] 
                           f"in [0, 64], got {robots}, {workers} and {routers}")
     if not 1 <= days <= 10_000:
         raise ConfigError(f"--days must lie in [1, 10000], got {days}")
+    if not str(out).strip():  # (Path("") is the working directory, which would be chmod 0700)
+        raise ConfigError("--out wants a directory, got an empty name")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a directory")
