@@ -10,12 +10,16 @@ event instead of growing without bound under a flood.
 from __future__ import annotations
 
 import heapq
+import logging
 import queue
 import time
-from collections.abc import Callable
-from typing import Any, NamedTuple
+from collections.abc import Callable, Iterator
+from typing import Any, NamedTuple, TypeVar
 
 import zenoh
+
+log = logging.getLogger("swarm.inbox")
+T = TypeVar("T")
 
 DEFAULT_MAX_BYTES = 4 << 20  # far above any message of a run (weights of the largest net: ~1 MB)
 DEFAULT_MAX_EVENTS = 100_000
@@ -123,21 +127,40 @@ class Inbox:
         self.close()
 
 
-def query(session: zenoh.Session, key: str, timeout: float, what: str = "",
-          stop: Callable[[], bool] = lambda: False) -> bytes:
-    """The first reply's payload to a query on `key`, retried until `timeout` seconds; a
-    one-line TimeoutError naming `what` (default: the key) when nobody answers, and
-    KeyboardInterrupt once `stop()` (a signal handler's flag) is true."""
+def replies(session: zenoh.Session, key: str, timeout: float) -> Iterator[bytes]:
+    """Every reply's payload to one query on `key`, with no consolidation: Zenoh's default
+    keeps one reply per key (the latest), so a foreign peer's queryable on the same key could
+    hide the real answer behind its own. The caller checks each one."""
+    for reply in session.get(key, timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE):
+        if reply.ok is not None:
+            yield reply.ok.payload.to_bytes()
+
+
+def query(session: zenoh.Session, key: str, timeout: float, parse: Callable[[bytes], T],
+          what: str = "", stop: Callable[[], bool] = lambda: False) -> T:
+    """`parse` of the first reply on `key` that it takes, retried until `timeout` seconds. A
+    reply `parse` refuses (a ValueError: BadMessage, ConfigError) is hostile input: dropped,
+    counted and logged, and the next one is tried, so a foreign peer answering with garbage
+    cannot stop a process from joining its run. A one-line TimeoutError naming `what` (default:
+    the key) and the replies dropped when no good one came, and KeyboardInterrupt once `stop()`
+    (a signal handler's flag) is true."""
     deadline = time.monotonic() + timeout
+    dropped, last = 0, ""
     while True:
         if stop():
             raise KeyboardInterrupt
         left = deadline - time.monotonic()
-        for reply in session.get(key, timeout=max(0.05, min(1.0, left))):
-            if reply.ok is not None:
-                return reply.ok.payload.to_bytes()
+        for payload in replies(session, key, max(0.05, min(1.0, left))):
+            try:
+                return parse(payload)
+            except ValueError as exc:
+                dropped, last = dropped + 1, str(exc)
+                if dropped & (dropped - 1) == 0:  # the 1st, 2nd, 4th...: no flood fills the log
+                    log.warning("dropped an unreadable reply on %s (%d so far): %s", key,
+                                dropped, last)
         if time.monotonic() >= deadline:
-            raise TimeoutError(f"no {what or 'answer on ' + key} within {timeout:g} s")
+            why = f" ({dropped} unreadable replies dropped; the last: {last})" if dropped else ""
+            raise TimeoutError(f"no {what or 'answer on ' + key} within {timeout:g} s{why}")
         time.sleep(0.1)
 
 

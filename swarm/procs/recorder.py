@@ -86,10 +86,9 @@ class Recorder:
         sub = self.session.declare_subscriber(f"{self.keys.base}/**", self._on_sample)
         inbox = Inbox(self.session)
         try:
-            rec = RunRecord.unpack(query(self.session, self.keys.config, self.wait_world,
-                                         f"world answered on {self.keys.config}",
-                                         lambda: self.stop),
-                                   f"run record from {self.keys.config}")
+            rec = query(self.session, self.keys.config, self.wait_world,
+                        lambda b: RunRecord.unpack(b, f"run record from {self.keys.config}"),
+                        f"world answered on {self.keys.config}", lambda: self.stop)
             w = RecordingWriter(self.out, self.keys.run, rec.to_record(), rec.world,
                                 rec.run.clock, rec.run.tick_timeout, flush_s=self.flush_s)
             inbox.liveliness(self.keys.alive_world, "world").token(self.keys.alive_recorder)

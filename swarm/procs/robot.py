@@ -21,7 +21,7 @@ import zenoh
 
 from policies.base import Policy
 from swarm.common.policy_spec import build_inference
-from swarm.net.inbox import Inbox, check_free, publisher, tally
+from swarm.net.inbox import Inbox, check_free, publisher, replies, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import RobotRollout, RolloutTick, Weights
 from swarm.net.messages import (
@@ -265,9 +265,8 @@ class RobotProcess:
 
     def fetch_weights(self, timeout: float = 1.0) -> None:
         """A late joiner asks the learner for the current weights (none: keep its own)."""
-        for reply in self.session.get(self.keys.weights, timeout=timeout):
-            if reply.ok is not None:
-                self.offer_weights(reply.ok.payload.to_bytes(), self.keys.weights)
+        for payload in replies(self.session, self.keys.weights, timeout):
+            self.offer_weights(payload, self.keys.weights)
 
     def heard(self, bundle: Bundle) -> TrajMessages:
         """The bundle's messages as the policy's input (`swarm.net.messages.heard_messages`)."""

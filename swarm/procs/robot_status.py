@@ -118,5 +118,6 @@ def hop_deadline(t_recv: float, deadline: float, robot: int, n: int) -> float:
 
 def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecord:
     """Ask the world for the run's record, retrying until `timeout`."""
-    payload = query(session, keys.config, timeout, f"world answered on {keys.config}")
-    return RunRecord.unpack(payload, f"run record from {keys.config}")
+    return query(session, keys.config, timeout,
+                 lambda b: RunRecord.unpack(b, f"run record from {keys.config}"),
+                 f"world answered on {keys.config}")

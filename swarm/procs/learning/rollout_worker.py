@@ -24,7 +24,7 @@ from swarm.learn.config import TrainConfig, check_worker
 from swarm.learn.join import episodes_of
 from swarm.learn.rollout import collect
 from swarm.learn.weights import adopt
-from swarm.net.inbox import Event, Inbox, publisher, query
+from swarm.net.inbox import Event, Inbox, publisher, query, replies
 from swarm.net.keys import Keys
 from swarm.net.learning import Weights
 from swarm.net.messages import BadMessage
@@ -41,9 +41,9 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
     keys = Keys(run_id)
     torch.set_num_threads(threads)
     with open_session(zopts) as session:
-        rec = RunRecord.unpack(query(session, keys.learner_config, wait,
-                                     f"learner answered on {keys.learner_config}"),
-                               "the learner's run record")
+        rec = query(session, keys.learner_config, wait,
+                    lambda b: RunRecord.unpack(b, "the learner's run record"),
+                    f"learner answered on {keys.learner_config}")
         cfg = rec.world
         if rec.train is None or rec.model is None:
             raise ConfigError("the learner's run record has no train or model table")
@@ -53,9 +53,8 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         inbox = Inbox(session).subscribe(keys.weights, "w").liveliness(keys.alive_learner,
                                                                          "learner")
         pub = publisher(session, keys.worker_episodes)
-        for reply in session.get(keys.weights, timeout=2.0):
-            if reply.ok is not None:
-                inbox.q.put(Event("w", keys.weights, reply.ok.payload.to_bytes()))
+        for payload in replies(session, keys.weights, 2.0):
+            inbox.q.put(Event("w", keys.weights, payload))
         version, origin, sent, bad, batches, sent_bytes = -1, -1, 0, 0, 0, 0
         seed = tc.train_seed_offset + tc.seed + worker_id + 1
         t0 = time.monotonic()
