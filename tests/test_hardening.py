@@ -483,6 +483,9 @@ BAD_INPUTS = [
     ["run", "--record", ""], ["run", "--log-dir", ""], ["run", "--json", ""],
     ["certs", "--out", "", "--robots", "1"],
     ["robot", "--id", "-1", "--run-id", "x"],  # (it waited 30 s for a world first)
+    # a config "file" that is a directory or not UTF-8 (exit 1; a 20-line traceback for the 2nd)
+    ["eval", "--config", "{tmp}"], ["run", "--config", "{tmp}/latin.toml"],
+    ["train", "--out", "{tmp}/t", "--config", "{tmp}/latin.toml"],
 ]
 
 
@@ -494,6 +497,7 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
     (tmp_path / "crash.toml").write_text('[faults]\ncrash = ["1@3"]\n')
     (tmp_path / "types.toml").write_text("[eval]\ncheckpoint = 3\n")  # (a TypeError once)
     (tmp_path / "height.toml").write_text('[world]\nheight = "abc"\n')
+    (tmp_path / "latin.toml").write_bytes(b"[world]\nheight = 20\n# caf\xe9\n")
     r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=30)
     assert r.returncode in (1, 2), (r.returncode, r.stderr)
     lines = r.stderr.strip().splitlines()
