@@ -486,6 +486,10 @@ BAD_INPUTS = [
     # a config "file" that is a directory or not UTF-8 (exit 1; a 20-line traceback for the 2nd)
     ["eval", "--config", "{tmp}"], ["run", "--config", "{tmp}/latin.toml"],
     ["train", "--out", "{tmp}/t", "--config", "{tmp}/latin.toml"],
+    # a run's process fault without its tick ("at once", before any robot was up: the run said
+    # they were not up within the start timeout), from a flag or a file
+    ["run", "--robots", "4", "--crash", "1"], ["run", "--config", "{tmp}/crash_now.toml"],
+    ["eval", "--config", "{tmp}/robot_int.toml"], ["eval", "--config", "{tmp}/robot_list.toml"],
 ]
 
 
@@ -498,10 +502,14 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
     (tmp_path / "types.toml").write_text("[eval]\ncheckpoint = 3\n")  # (a TypeError once)
     (tmp_path / "height.toml").write_text('[world]\nheight = "abc"\n')
     (tmp_path / "latin.toml").write_bytes(b"[world]\nheight = 20\n# caf\xe9\n")
+    (tmp_path / "crash_now.toml").write_text("[world]\nn_robots = 4\n[faults]\ncrash = [1]\n")
+    (tmp_path / "robot_int.toml").write_text('[faults.robot]\n"3" = 5\n')
+    (tmp_path / "robot_list.toml").write_text("[faults]\nrobot = []\n")
     r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=30)
     assert r.returncode in (1, 2), (r.returncode, r.stderr)
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("swarm: error: "), r.stderr
+    assert " object " not in lines[0], r.stderr  # ("'int' object is not iterable")
     assert run_pids(str(tmp_path)) == []
 
 

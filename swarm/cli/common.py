@@ -345,7 +345,7 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
             table[kind] = list(getattr(args, kind))
     if getattr(args, "fault_seed", None) is not None:
         table["seed"] = args.fault_seed
-    plan_from_table(table, n_robots=n_robots)  # a bad value: one line before anything runs
+    plan_from_table(table, n_robots=n_robots, at_once=not whole)  # one line before any run
     if whole and getattr(args, "overflow", None) is not None and not _has_key(table, "bandwidth"):
         raise ConfigError("--overflow says what a bandwidth cap does with excess messages; "
                           "there is no cap (give --bandwidth, or a bandwidth in [faults])")

@@ -239,10 +239,11 @@ def parse_partition(text: str) -> tuple[tuple[int, ...], ...]:
     return groups
 
 
-def parse_process(kind: str, text: str) -> ProcessFault:
-    """`3@20` -> robot 3 at run tick 20; `3` -> robot 3 at once (tick -1)."""
+def parse_process(kind: str, text: str, at_once: bool = True) -> ProcessFault:
+    """`3@20` -> robot 3 at run tick 20; `3` -> robot 3 at once (tick -1), if `at_once` (a live
+    change: a run's plan names its tick)."""
     m = re.fullmatch(r"\s*(\d{1,9})\s*(?:@\s*(\d{1,12}))?\s*", str(text))
-    if not m:
+    if not m or not (at_once or m.group(2)):
         raise ConfigError(f"bad --{kind} {text!r}: use ROBOT@TICK, e.g. 3@20")
     return ProcessFault(kind, int(m.group(1)), int(m.group(2)) if m.group(2) else -1)
 
@@ -261,8 +262,9 @@ def _number(v: Any, name: str) -> float:
 
 def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFault:
     """A LinkFault from a TOML/CLI mapping with human units (latency = "50ms", ...)."""
-    base = base or LinkFault()
-    known = set(LINK_KEYS)
+    if not isinstance(d, dict):
+        raise ConfigError(f"bad faults table: {d!r:.40} is not a table of link faults")
+    base, known = base or LinkFault(), set(LINK_KEYS)
     unknown = set(d) - known
     if unknown:
         raise ConfigError(f"unknown fault key(s) {', '.join(sorted(unknown))}; known: "
@@ -286,15 +288,17 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
     return replace(base, **ch)
 
 
-def plan_from_table(t: dict[str, Any], seed: int = 0, n_robots: int | None = None) -> FaultPlan:
+def plan_from_table(t: dict[str, Any], seed: int = 0, n_robots: int | None = None,
+                    at_once: bool = False) -> FaultPlan:
     """`[faults]` of an experiment file: latency, jitter, loss, bandwidth, overflow, partition,
     crash/hang/restart lists, `[faults.robot.K]` and `[faults.link."A-B"]` overrides. Anything
     malformed (also from a live `swarm fault` message) is a one-line ConfigError; with
-    `n_robots`, so is a robot id outside the team."""
+    `n_robots`, so is a robot id outside the team. A process fault names its tick unless
+    `at_once` (a live change's may strike at once)."""
     if not isinstance(t, dict):
         raise ConfigError("faults must be a table")
     try:
-        plan = _plan(dict(t), seed)
+        plan = _plan(dict(t), seed, at_once)
     except (TypeError, ValueError, AttributeError, OverflowError) as exc:
         if isinstance(exc, ConfigError):
             raise
@@ -302,15 +306,16 @@ def plan_from_table(t: dict[str, Any], seed: int = 0, n_robots: int | None = Non
     return plan if n_robots is None else plan.check(n_robots)
 
 
-def _plan(t: dict[str, Any], seed: int) -> FaultPlan:
-    per_robot_t = t.pop("robot", {})
-    per_link_t = t.pop("link", {})
+def _plan(t: dict[str, Any], seed: int, at_once: bool) -> FaultPlan:
+    per_robot_t, per_link_t = t.pop("robot", {}), t.pop("link", {})
+    if not isinstance(per_robot_t, dict) or not isinstance(per_link_t, dict):
+        raise ConfigError("bad faults table: robot and link are tables ([faults.robot.K] ...)")
     partition = parse_partition(t.pop("partition")) if "partition" in t else ()
     process: list[ProcessFault] = []
     for kind in ("crash", "hang", "restart"):
         items = t.pop(kind, [])
         items = [items] if isinstance(items, str) else items
-        process += [parse_process(kind, x) for x in items]
+        process += [parse_process(kind, x, at_once) for x in items]
     fseed = t.pop("seed", seed)
     check_seed(fseed, "faults seed")
     default = link_fault_from(t)
@@ -346,8 +351,7 @@ def delivery_mask(plan: FaultPlan, episodes: np.ndarray, tick: int, n: int,
     if plan.zero:
         return ok
     loss, lat, jit = links if links is not None else link_arrays(plan, n)
-    recv = np.arange(n)[:, None]
-    send = np.arange(n)[None, :]
+    recv, send = np.arange(n)[:, None], np.arange(n)[None, :]
     u = uniform(plan.seed, episodes[:, None, None], tick, send * 1000 + recv, 1,
                 stream=STREAM_LOSS + 100 * kind)[..., 0]
     ok &= ~(u < loss.T[None])  # loss[j, i] is the link j -> i; ok[g, i, j]
@@ -363,9 +367,7 @@ def delivery_mask(plan: FaultPlan, episodes: np.ndarray, tick: int, n: int,
 
 def link_arrays(plan: FaultPlan, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-link loss, latency and jitter as [sender, receiver] arrays."""
-    loss = np.zeros((n, n))
-    lat = np.zeros((n, n))
-    jit = np.zeros((n, n))
+    loss, lat, jit = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
     for j in range(n):
         for i in range(n):
             f = plan.link(j, i)
@@ -378,8 +380,7 @@ def delay_ms(plan: FaultPlan, episodes: np.ndarray, tick: int, n: int, kind: int
     """[G, N(receiver), N(sender)] one-way delay of each message, latency + jitter draw."""
     if lat is None or jit is None:
         _, lat, jit = link_arrays(plan, n)
-    recv = np.arange(n)[:, None]
-    send = np.arange(n)[None, :]
+    recv, send = np.arange(n)[:, None], np.arange(n)[None, :]
     u = uniform(plan.seed, np.asarray(episodes)[:, None, None], tick, send * 1000 + recv, 1,
                 stream=STREAM_JITTER + 100 * kind)[..., 0]
     return lat.T[None] + jit.T[None] * u
