@@ -262,6 +262,9 @@ def test_only_a_checked_stop_ends_a_run_and_the_run_says_so(tmp_path: Path) -> N
             session.put(keys.control, msgpack.packb([1, K_CONTROL, {"stop": "no"}]))
             session.put(keys.control, pack_record(K_CONTROL, {"stop": True,
                                                               "faults_table": {"loss": 7}}))
+            for k in range(MAX_PENDING + 3):  # 3 more well-formed changes than a run holds
+                session.put(keys.control, pack_record(K_CONTROL, {
+                    "faults_table": {"loss": 0.01}, "at_tick": 10**6 + k}))
             time.sleep(2.0)
             assert proc.poll() is None  # neither stopped it
             session.put(keys.control, pack_record(K_CONTROL, {"stop": True}))
@@ -276,6 +279,10 @@ def test_only_a_checked_stop_ends_a_run_and_the_run_says_so(tmp_path: Path) -> N
     assert res["stopped"] == "control" and res["completed"] < 50
     assert res["messages"]["bad_by_key"][keys.control] == 2
     assert res["supervisor_bad"] == 2  # (the supervisor checks the whole record too)
+    # each message in one counter: the 3 changes the queue had no room for are
+    # fault_changes.dropped, not bad as well (they were counted in both)
+    assert res["fault_changes"]["dropped"] == 3 and len(res["fault_changes"]["pending"]) == \
+        MAX_PENDING
 
 
 def test_run_help_names_the_exit_status_of_a_stopped_run() -> None:
