@@ -624,3 +624,14 @@ def test_a_world_status_must_fit_the_run_before_a_process_fault_fires_on_it() ->
                           ({"timeouts": list(range(1000))}, "timeouts")):
         with pytest.raises(BadMessage, match=words):
             check_world_status({**ok, **change}, cfg, first_episode=2, episodes=4)
+
+
+def test_swarm_version_names_the_package_and_the_commit() -> None:
+    """`swarm --version` (there was none): the installed version and the source tree's commit,
+    as a result's `provenance` names them."""
+    from swarm.common.report import provenance
+
+    r = swarm("--version")
+    assert r.returncode == 0, r.stderr
+    git = provenance()["git"]
+    assert r.stdout.startswith("swarm 0.1.0") and (git is None or git in r.stdout), r.stdout

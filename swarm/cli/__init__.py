@@ -34,9 +34,34 @@ from swarm.common.spawn import die_with_parent, terminate_as_interrupt  # noqa: 
 from world.config import ConfigError  # noqa: E402
 
 
+def _version() -> str:
+    """The installed package's version and the commit it was installed from (results name it
+    too: `provenance`)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from swarm.common.report import provenance
+
+    try:
+        v = version("commattn-swarm")
+    except PackageNotFoundError:  # (run from a source tree, not installed)
+        v = "(not installed)"
+    git = provenance().get("git")
+    return f"{v} ({git})" if git else v
+
+
+class _Version(argparse.Action):
+    """`--version`, computed only when asked (it runs git)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: object) -> None:
+        print(f"swarm {_version()}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="swarm", description="CommAttn swarm emulator: evaluate, benchmark "
                      "and reproduce the paper's experiments.")
+    parser.add_argument("--version", action=_Version, nargs=0,
+                        help="print the version and the source tree's commit, then exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     batch.add_parsers(sub)
     run.add_parsers(sub)

@@ -86,7 +86,8 @@ class ZenohOptions:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("zenoh")
-    g.add_argument("--zenoh-mode", default="peer", choices=["peer", "client", "router"])
+    g.add_argument("--zenoh-mode", default="peer", choices=["peer", "client", "router"],
+                   help="this process's Zenoh mode (default peer)")
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
