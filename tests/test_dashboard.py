@@ -96,6 +96,9 @@ def test_the_last_episode_counts_and_a_dead_robot_draws_no_attention() -> None:
     assert w.robots[0].state == "lost"
     w.apply_robot({"robot": 0, "final": True, "msgs_in": 7, "wait_ms": 1.5})
     assert w.robots[0].state == "done" and w.robots[0].msgs_in == 7
+    w.set_alive(1, True)  # its last status while its token is still up: done, not acting
+    w.apply_robot({"robot": 1, "final": True})
+    assert w.robots[1].state == "done"
     v.attention = {0: (2, [0.99, 9e-3, 1e-3]), 1: (2, [1e-4, 0.9999, 0.0])}
     assert attention_lines(v) == {}  # a weight of 1e-2 or less draws no line (UA pass)
     v.attention = {0: (2, [0.1, 0.9, 0.0]), 1: (2, [0.8, 0.2, 0.0])}

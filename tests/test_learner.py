@@ -233,6 +233,8 @@ def test_lockstep_field_training_is_its_batched_twin(tmp_path: Path) -> None:
     learner = res["learner"]
     assert learner["version"] == 3 and learner["stale_used"] == learner["stale_dropped"] == 0
     assert all(st["weights_late"] == 0 for st in res["robot_status"].values())
+    # each robot's counts are its final ones (they come after the learner's stop, not before)
+    assert all(st["final"] for st in res["robot_status"].values()), res["robot_status"]
     pol = make_policy("commattn", SMALL, checkpoint=init)
     tc = TrainConfig(batch=4)
     opt = torch.optim.Adam(pol.net.parameters(), lr=tc.lr)

@@ -154,8 +154,8 @@ class SwarmView:
         for k in ("latency_ms", "compute_ms", "wait_ms"):
             setattr(row, k, float(rec.get(k, 0.0)))
         row.final = rec.get("final") is True
-        if row.final and not row.alive:  # (its token may go before its last status comes)
-            row.state = "done"
+        if row.final:  # its last status: it is leaving the ended run (its token may go
+            row.state = "done"  # before or after this comes, or not be seen going at all)
         if isinstance(rec.get("attn"), list):  # range-checked by messages.check_robot_status
             self.attention[int(rec["robot"])] = (int(rec.get("attn_t", 0)),
                                                  [float(x) for x in rec["attn"]])

@@ -326,10 +326,12 @@ class Supervisor:
                     if self.world is not None and self.world.poll() is not None and \
                             inbox.q.empty():
                         break
-                self._late_status()
+                # a training world stays up after its result until the learner is drained and
+                # stopped; robots send their final counts only once the world has ended
                 self._drain_learner()
                 if self.learner is not None:
                     put_once(session, k.control, pack_record(K_CONTROL, {"stop": True}))
+                self._late_status()
                 self._finish_recorder()
             except KeyboardInterrupt:
                 put_once(session, k.control, pack_record(K_CONTROL, {"stop": True}))
