@@ -66,6 +66,7 @@ from swarm.net.security.tls import identity_of, run_configs, topology_configs, t
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.fleet import Fleet
+from swarm.procs.learning.supervised import drain, learner_result
 from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
 from world.config import ConfigError, WorldConfig, to_dict
 
@@ -374,14 +375,8 @@ class Supervisor:
                              "configs": str(self.log_dir / "zenoh")}
         res.update(self.procstat.summary())
         if self.learning is not None:
-            st = self.learner_status or {}
-            acc = dict(st.get("accounting") or {})
-            acc["played"] = int(res.get("completed", 0))
-            # every episode played ends in exactly one of the learner's counters
-            acc["unaccounted"] = acc["played"] - sum(
-                acc.get(k, 0) for k in ("trained", "pending", "stale_dropped", "incomplete",
-                                        "rejected"))
-            res["learner"] = {**st, "accounting": acc, "out": self.learner_out}
+            res["learner"] = learner_result(self.learner_status, int(res.get("completed", 0)),
+                                            self.learner_out)
         rc = self.run_cfg  # what made the result (with --train and no checkpoint: fresh weights)
         ckpt = rc.checkpoint if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)
         res.update(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
@@ -396,28 +391,10 @@ class Supervisor:
             write_json(self.opts.json_path, res)
         return res
 
-    def _drain_learner(self, grace: float = 30.0) -> None:
-        """After the last episode: let the learner take in every episode of the run, then stop
-        it first (its final status still routes through the world) and keep that status; a
-        partial batch is never trained on (its episodes stay pending, counted)."""
-        if self.learner is None or self.result is None:
-            return
-        done = int(self.result.get("completed", 0))
-        deadline = time.monotonic() + grace
-        while time.monotonic() < deadline and self.learner.poll() is None:
-            st = self.learner_status or {}
-            acc = st.get("accounting") or {}
-            joining = acc.get("pending", 0) - st.get("ready", 0)
-            if acc.get("received", 0) >= done and joining == 0 and \
-                    st.get("ready", 0) < int(self.learning["train"]["batch"]):  # type: ignore
-                break
-            self._pump_inbox(0.1)
-        if self.learner.poll() is None:
-            self.learner.send_signal(signal.SIGINT)
-            deadline = time.monotonic() + 5.0
-            while self.learner.poll() is None and time.monotonic() < deadline:
-                self._pump_inbox(0.1)
-        self._pump_inbox(0.3)  # its final status
+    def _drain_learner(self) -> None:
+        if self.learner is not None and self.result is not None:
+            drain(self.learner, lambda: self.learner_status, self._pump_inbox,
+                  int(self.result.get("completed", 0)), int(self.learning["train"]["batch"]))
 
     def _wait_recorder(self, inbox: Inbox, timeout: float = 60.0) -> None:
         """Until the recorder's token is up (it listens and its file is open)."""

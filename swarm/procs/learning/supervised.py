@@ -1,0 +1,45 @@
+"""What `swarm run --train`'s supervisor does with its learner process once the world has its
+result: let it take in the run's last episodes, stop it first (`drain`), and account for every
+episode played in the run's result (`learner_result`)."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import time
+from collections.abc import Callable
+from typing import Any
+
+LEARNER_COUNTERS = ("trained", "pending", "stale_dropped", "incomplete", "rejected")
+
+
+def drain(proc: subprocess.Popen[bytes], status: Callable[[], dict[str, Any] | None],
+          pump: Callable[[float], None], done: int, batch: int, grace: float = 30.0) -> None:
+    """After the last episode: let the learner `proc` take in every one of the `done` episodes
+    of the run (`status`: its last status; `pump` takes in the supervisor's records for some
+    seconds), then stop it first (its final status still routes through the world) and keep
+    that status; a partial batch is never trained on (its episodes stay pending, counted)."""
+    deadline = time.monotonic() + grace
+    while time.monotonic() < deadline and proc.poll() is None:
+        st = status() or {}
+        acc = st.get("accounting") or {}
+        joining = acc.get("pending", 0) - st.get("ready", 0)
+        if acc.get("received", 0) >= done and joining == 0 and st.get("ready", 0) < batch:
+            break
+        pump(0.1)
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + 5.0
+        while proc.poll() is None and time.monotonic() < deadline:
+            pump(0.1)
+    pump(0.3)  # its final status
+
+
+def learner_result(status: dict[str, Any] | None, played: int, out: str | None) -> dict[str, Any]:
+    """The result's `learner`: its last status, with every episode `played` ending in exactly
+    one of its counters (`unaccounted`: 0 when it heard every episode), and its folder."""
+    st = status or {}
+    acc = dict(st.get("accounting") or {})
+    acc["played"] = played
+    acc["unaccounted"] = played - sum(acc.get(k, 0) for k in LEARNER_COUNTERS)
+    return {**st, "accounting": acc, "out": out}
