@@ -17,14 +17,16 @@ from swarm.cli.common import (
     world_config,
     world_given,
 )
-from swarm.cli.run import LEARNER_TRAIN_FIELDS, _logging, learner_configs
+from swarm.cli.run import _logging
 from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.learn.config import (
+    LEARNER_TRAIN_FIELDS,
     MAX_WORKER_BATCH,
     MAX_WORKER_ID,
     check_worker,
     held_seed,
     held_world,
+    learner_configs,
     learner_resume_point,
 )
 from swarm.net import zconfig

@@ -8,7 +8,6 @@ import argparse
 import dataclasses
 import json
 import logging
-import os
 import secrets
 import sys
 from typing import Any
@@ -40,6 +39,7 @@ from swarm.cli.secure import add_secure_flag, secure_options
 from swarm.common.flags import check_wait, robot_id
 from swarm.common.policy_spec import build_inference
 from swarm.common.report import json_line, provenance
+from swarm.learn.config import learner_configs
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
@@ -128,44 +128,6 @@ def _logging(verbose: bool) -> None:
 
 START_S_PER_ROBOT = 0.6
 """`swarm run`'s default start timeout per robot it spawns (when over the 60 s default)."""
-
-LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_norm", "ent_coef",
-                        "max_grad_norm", "threads", "chunk_ticks", "algo", "ppo_epochs")
-
-# TrainConfig fields that only the batched trainer implements
-BATCH_TRAIN_FIELDS = ("init", "team_memory", "belief", "hint", "hint_planner", "hint_prior",
-                      "model", "imitate", "imitate_samples")
-
-
-def learner_configs(args: argparse.Namespace, tables: dict[str, Any]) -> tuple[Any, Any]:
-    """LearnerConfig and TrainConfig from `[learner]` / `[train]` of the file and the flags."""
-    from swarm.learn.config import LearnerConfig, TrainConfig
-
-    lflags = {"run_id": getattr(args, "run_id", None), "policy": getattr(args, "policy", None),
-              "checkpoint": getattr(args, "checkpoint", None), "out": getattr(args, "out", None),
-              "resume": True if getattr(args, "resume", False) else None,
-              "max_staleness": getattr(args, "max_staleness", None),
-              "join_timeout": getattr(args, "join_timeout", None),
-              "gather_only": True if getattr(args, "gather_only", False) else None,
-              "seed": getattr(args, "seed", None)}
-    ldata = {**tables.get("learner", {}), **{k: v for k, v in lflags.items() if v is not None}}
-    tflags = {k: getattr(args, f"train_{k}", None) for k in LEARNER_TRAIN_FIELDS}
-    tdata = {**tables.get("train", {}), **{k: v for k, v in tflags.items() if v is not None}}
-    # A learner shares the machine with the world and every robot: on two cores a second torch
-    # thread only fights them (updates 50-100x slower under contention), so one by default.
-    tdata.setdefault("threads", 1 if (os.cpu_count() or 1) <= 2 else 2)
-    defaults = TrainConfig()
-    batch_only = sorted(k for k in BATCH_TRAIN_FIELDS
-                        if k in tdata and tdata[k] != getattr(defaults, k))
-    if batch_only:  # the learner would ignore them: say so instead of training without them
-        raise ConfigError(f"[train] {', '.join(batch_only)}: only `swarm train` (the batched "
-                          f"trainer) takes these; a field learner starts from --checkpoint")
-    try:
-        return (from_dict(LearnerConfig, ldata, "[learner]"),
-                from_dict(TrainConfig, tdata, "[train]"))
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-
 
 def cmd_run(args: argparse.Namespace) -> int:
     from swarm.common.spawn import check_run_free
