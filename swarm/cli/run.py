@@ -208,6 +208,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                   f"robots lost {res.get('robots_lost')}")
         if args.json:
             out.print(f"wrote {args.json}")
+    if res.get("recording", {}).get("partial"):  # the recording asked for is lost in part
+        return 1
     return EXIT_INCOMPLETE if res.get("completed", 0) < run.episodes else 0
 
 
@@ -388,7 +390,8 @@ def add_parsers(sub: Any) -> None:
                        description="The distributed swarm: one world process and N robot "
                                    "processes, each with its own Zenoh session, on loopback. "
                                    "Exit status: 0 every episode done, 1 a process of the run "
-                                   "failed (its log named), 2 bad input (nothing "
+                                   "failed (its log named; a recorder too: the recording is "
+                                   "partial), 2 bad input (nothing "
                                    f"run), {EXIT_INCOMPLETE} stopped before every episode "
                                    "completed (a stop on the run's control key; the result says "
                                    "stopped: control), 130 interrupted.")

@@ -65,7 +65,7 @@ from swarm.net.messages import (
 from swarm.net.security.tls import identity_of, run_configs, topology_configs, topology_secure
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
-from swarm.procs.fleet import Fleet
+from swarm.procs.fleet import Fleet, how_it_ended
 from swarm.procs.learning.supervised import drain, learner_result
 from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
 from world.config import ConfigError, WorldConfig, to_dict
@@ -360,8 +360,8 @@ class Supervisor:
         if self.inbox is not None:  # and what its inbox dropped unread
             res["supervisor_dropped"] = self.inbox.dropped
         res["result_message_lost"] = lost
-        if self.recorder is not None:
-            res["recording"] = {"path": self.opts.record, "exit": self.recorder.returncode}
+        if self.recorder is not None:  # one that failed cut the file: data lost, said
+            self._recording(res, self.recorder.returncode)
         res["process_faults"] = self.fleet.log
         if res.get("stopped"):  # a stop on the control key ended the run early: said, not hidden
             print(f"swarm: run {self.run_cfg.run_id} was stopped by a control message after "
@@ -386,7 +386,8 @@ class Supervisor:
                 r.state == "starting" for r in self.view.robots.values())}
         if self.opts.log_dir is None:  # a temp folder: removed after a clean run
             tidy_logs(self.tmp, res, keep=bool(self.zfiles) or self.learner_out is not None and
-                      Path(self.learner_out).resolve().is_relative_to(self.tmp.resolve()))
+                      Path(self.learner_out).resolve().is_relative_to(self.tmp.resolve())
+                      or res.get("recording", {}).get("partial", False))
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res
@@ -419,6 +420,16 @@ class Supervisor:
             self.recorder.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             log.warning("the recorder did not finish within %g s; stopping it", timeout)
+
+    def _recording(self, res: dict[str, Any], code: int) -> None:
+        """The result's `recording`; a recorder that failed (killed, an error) left its file
+        cut at its last flushed chunk: `partial`, a warning line, and `swarm run` exits 1."""
+        res["recording"] = {"path": self.opts.record, "exit": code, "partial": code != 0}
+        if code != 0:
+            why = last_error(self.log_dir / "recorder.log") or how_it_ended(code)
+            print(f"swarm: warning: the recorder failed ({why}): {self.opts.record} is partial, "
+                  "cut at its last flushed chunk (`swarm replay --partial` reads it; logs in "
+                  f"{self.log_dir})", file=sys.stderr, flush=True)
 
     def _late_status(self, grace: float = 2.0) -> None:
         """Wait (up to `grace` s) for what can reach us after the result on a loaded machine:
