@@ -444,3 +444,69 @@ def test_rollout_loss_drops_records_and_the_learner_counts_incomplete_episodes(
     hit = {ep for ep, _ in lost}
     assert st["incomplete"] == len(hit) and st["episodes"] + st["stale_dropped"] == 12 - len(hit)
     assert 0 < len(hit) < 12
+
+
+def _hand_run(tmp_path: Path, run_id: str) -> tuple[str, Path, list[subprocess.Popen[bytes]]]:
+    """A lockstep training run started by hand (README: `swarm world` and `swarm robot`s): its
+    hub, its config file (a team of 2 on the SMALL map) and its processes."""
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    cfg = dataclasses.replace(SMALL, n_robots=2)
+    conf = world_toml(tmp_path, cfg)
+    conf.write_text(conf.read_text() + "[run]\ntrain = true\ntrain_sync = true\n"
+                    f"checkpoint = \"{initial(tmp_path, cfg)}\"\n")
+    procs = [spawn("world", "--run-id", run_id, "--config", str(conf), "--episodes", "4",
+                   "--listen", hub, "--json", str(tmp_path / "world.json"),
+                   log=tmp_path / "world.log")]
+    procs += [spawn("robot", "--id", str(i), "--run-id", run_id, "--connect", hub,
+                    log=tmp_path / f"robot{i}.log") for i in range(2)]
+    return hub, conf, procs
+
+
+@pytest.mark.procs
+def test_a_learner_by_hand_ends_with_its_run(tmp_path: Path) -> None:
+    """`swarm learner` started by hand beside a world and its robots ends when the run ends
+    (the world's end record), as its banner says, with its checkpoint written and one line
+    saying where; it ran on until stopped."""
+    hub, conf, procs = _hand_run(tmp_path, "handend")
+    out = tmp_path / "l"
+    learner = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "learner", "--run-id", "handend", "--config",
+         str(conf), "--out", str(out), "--batch", "2", "--connect", hub, "--zenoh-mode",
+         "client"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        assert procs[0].wait(timeout=120) == 0, (tmp_path / "world.log").read_text()[-1500:]
+        _, err = learner.communicate(timeout=60)  # (without the fix: it never ended)
+        assert learner.returncode == 0, err[-1500:]
+        assert f"run handend ended (the world's end record); version 2 in {out}" in err, err
+        assert load_checkpoint(out / "checkpoint.pt")["learner"]["version"] == 2
+        assert json.loads((tmp_path / "world.json").read_text())["completed"] == 4
+    finally:
+        for p in (*procs, learner):
+            if p.poll() is None:
+                p.kill()
+
+
+@pytest.mark.procs
+def test_a_learner_by_hand_of_another_world_is_one_error(tmp_path: Path) -> None:
+    """A hand learner whose world differs from its run's (here: no team size given, so 3
+    robots, while the run has 2) learns the run's record from the world and stops with one
+    line naming the difference, exit 2 (it dropped every episode with a warning, never
+    trained, and a lockstep world waited on it)."""
+    hub, _, procs = _hand_run(tmp_path, "handbad")
+    (tmp_path / "mine").mkdir()
+    learner = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "learner", "--run-id", "handbad", "--config",
+         str(world_toml(tmp_path / "mine", SMALL)), "--out", str(tmp_path / "l"), "--batch", "2",
+         "--connect", hub, "--zenoh-mode", "client"], cwd=ROOT, stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = learner.communicate(timeout=120)
+        assert learner.returncode == 2, err[-1500:]
+        last = err.strip().splitlines()[-1]
+        assert last.startswith("swarm: error: this learner does not fit run handbad: n_robots "
+                               "3 here, 2 in the run"), err
+        assert "dropped bad payload" not in err
+    finally:
+        for p in (*procs, learner):
+            if p.poll() is None:
+                p.kill()

@@ -58,6 +58,7 @@ from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
+from swarm.procs.learning.watch import RunWatch
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
 
@@ -138,6 +139,7 @@ class Learner:
         self._last_status = 0.0
         self.inbox: Inbox | None = None  # (its drops go in the status)
         self.last_row: dict[str, Any] = {}
+        self.ended = ""  # why the run is over, when its end stopped the learner (`RunWatch`)
 
     def open_out(self) -> None:
         """Make the output directory (only now: a learner that fails its checks leaves nothing
@@ -174,6 +176,7 @@ class Learner:
                 .subscribe(k.worker_episodes, "worker")
                 .queryable(k.weights, lambda: self.weights_payload)
                 .queryable(k.learner_config, self.record)
+                .subscribe(k.end, "end").liveliness(k.alive_world, "world")
                 .token(k.alive_learner))
 
     def record(self) -> bytes:
@@ -380,15 +383,17 @@ class Learner:
             ) -> dict[str, Any]:
         inbox = self._declare(session)
         self.seed = seed
+        watch = RunWatch(session, self.keys, self.cfg, self.lc.policy, seed)
         try:
             self.weights_pub.put(self.weights_payload)  # late joiners also query it
-            while not stop():
+            while not stop() and not watch.ended:  # (the run's end: its last episodes are in)
                 ev = inbox.next(0.05)
-                if ev is not None:
+                if ev is not None and not watch.see(ev):
                     self.handle(ev.kind, ev.key, ev.payload or b"")
                 settled = self.join_ready(seed)
                 updated = self.maybe_update()  # (an update publishes its status itself)
                 self.status(force=settled and not updated)  # a settled episode is told at once
+            self.ended = watch.ended
             return self.finish(inbox, seed)
         except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (the supervisor stopping or gone)
             return self.finish(inbox, seed)
@@ -400,12 +405,18 @@ def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptio
          seed: int, stop: Any = lambda: False, given: Collection[str] | None = None
          ) -> dict[str, Any]:
     """Check and load (before anything is opened or written), open a session, make the output
-    directory and learn until interrupted (or `stop()`); returns the last status. `given`: see
-    `Learner`."""
+    directory and learn until the run ends, it is interrupted or `stop()`; returns the last
+    status. `given`: see `Learner`."""
     learner = Learner(cfg, lc, tc, given)
     with open_session(zopts) as session:
         learner.open_out()
         print(f"swarm learner: run {lc.run_id}, {lc.policy}, writing {lc.out}; it trains on "
               "the run's episodes until the run ends (Ctrl-C stops it)", file=sys.stderr,
               flush=True)
-        return learner.run(session, seed, stop)
+        status = learner.run(session, seed, stop)
+    if learner.ended:  # (its checkpoint is written, atomically, at every update)
+        kept = f"version {learner.version} in {learner.ckpt}" if learner.ckpt.is_file() else \
+            f"no update (fewer than {learner.tc.batch} episodes): no checkpoint written"
+        print(f"swarm learner: run {lc.run_id} ended ({learner.ended}); {kept}",
+              file=sys.stderr, flush=True)
+    return status
