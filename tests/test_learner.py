@@ -510,3 +510,20 @@ def test_a_learner_by_hand_of_another_world_is_one_error(tmp_path: Path) -> None
         for p in (*procs, learner):
             if p.poll() is None:
                 p.kill()
+
+
+@pytest.mark.procs
+def test_a_training_run_says_where_its_weights_went(tmp_path: Path) -> None:
+    """`swarm run --train` with neither --learner-out nor --json ends with one line naming the
+    trained checkpoint (in the run's temp folder, kept): it was said nowhere."""
+    cfg = dataclasses.replace(SMALL, n_robots=2)
+    r = swarm("run", "--train", "--train-sync", "--headless", "--config",
+              str(world_toml(tmp_path, cfg)), "--policy", "commattn", "--checkpoint",
+              str(initial(tmp_path, cfg)), "--episodes", "4", "--train-batch", "2", "--seed", "1",
+              env={"TMPDIR": str(tmp_path)})
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(r.stdout.strip().splitlines()[-1])["result"]
+    ckpt = Path(res["learner"]["out"]) / "checkpoint.pt"
+    assert ckpt.is_relative_to(tmp_path) and load_checkpoint(ckpt)["learner"]["version"] == 2
+    said = [x for x in r.stderr.splitlines() if "trained weights" in x]
+    assert said == [f"swarm: trained weights (version 2): {ckpt}"], r.stderr[-2000:]

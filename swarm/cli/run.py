@@ -208,6 +208,10 @@ def cmd_run(args: argparse.Namespace) -> int:
                   f"robots lost {res.get('robots_lost')}")
         if args.json:
             out.print(f"wrote {args.json}")
+    if learning is not None and "learner" in res:  # where the trained weights went
+        from swarm.procs.learning.supervised import trained_line
+
+        print(trained_line(res["learner"], learning["train"]["batch"]), file=sys.stderr)
     if res.get("recording", {}).get("partial"):  # the recording asked for is lost in part
         return 1
     return EXIT_INCOMPLETE if res.get("completed", 0) < run.episodes else 0

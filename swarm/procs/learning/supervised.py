@@ -1,6 +1,7 @@
 """What `swarm run --train`'s supervisor does with its learner process once the world has its
-result: let it take in the run's last episodes, stop it first (`drain`), and account for every
-episode played in the run's result (`learner_result`)."""
+result: let it take in the run's last episodes, stop it first (`drain`), account for every
+episode played in the run's result (`learner_result`) and say where its weights went
+(`trained_line`)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import signal
 import subprocess
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 LEARNER_COUNTERS = ("trained", "pending", "stale_dropped", "incomplete", "rejected")
@@ -43,3 +45,14 @@ def learner_result(status: dict[str, Any] | None, played: int, out: str | None) 
     acc["played"] = played
     acc["unaccounted"] = played - sum(acc.get(k, 0) for k in LEARNER_COUNTERS)
     return {**st, "accounting": acc, "out": out}
+
+
+def trained_line(learner: dict[str, Any], batch: int) -> str:
+    """The one line `swarm run --train` ends with: where the trained checkpoint is (without
+    --learner-out, in the run's kept temp folder), or that no update made one."""
+    out = Path(str(learner.get("out")))
+    if (out / "checkpoint.pt").is_file():
+        return f"swarm: trained weights (version {learner.get('version', 0)}): " \
+            f"{out / 'checkpoint.pt'}"
+    return f"swarm: the learner made no update (fewer than {batch} episodes reached it): no " \
+        f"checkpoint in {out}"
