@@ -196,3 +196,58 @@ def test_a_sweep_with_process_faults_leaves_nothing_in_the_temp_dir(tmp_path: Pa
     kept = out / "t-0-logs"
     assert f"logs in {kept}" in r.stderr, r.stderr
     assert (kept / "robot1.log").is_file() and (kept / "spec.json").is_file()
+
+
+@pytest.mark.procs
+def test_resume_refuses_a_csv_of_another_world_faults_or_run_and_extends_values(
+        tmp_path: Path) -> None:
+    """`--resume` kept a sweep's rows after its world, base faults or tick changed, and the
+    Markdown relabelled them with the new settings. Now the sweep record beside the CSV must
+    match, field by field; more values (new rows) may be added."""
+    head = ('[world]\nn_robots = 2\n\n[run]\nepisodes = 1\ntick_timeout = 0.5\n\n'
+            '[faults]\njitter = "50ms"\n')
+    exp = ('name = "r"\nparameter = "latency"\nvalues = ["0ms"]\nseeds = [0]\n'
+           'policies = ["nearest-frontier"]\n')
+    src = sweep_file(tmp_path, exp, head)
+    out = tmp_path / "out"
+    r = swarm("experiment", src, "--out", str(out), timeout=240)
+    assert r.returncode == 0, r.stderr[-2000:]
+    before = (out / "r.csv").read_text()
+    for old, new, words in (("n_robots = 2", "n_robots = 3", "world.n_robots is 2 there, 3"),
+                            ('jitter = "50ms"', 'jitter = "0ms"',
+                             "[faults] at 0ms: jitter is '50ms' there, '0ms' here"),
+                            ("tick_timeout = 0.5", "tick_timeout = 1.0",
+                             "[run] tick_timeout is 0.5 there, 1.0 here"),
+                            ('values = ["0ms"]', 'values = ["5ms"]', "value 0ms, not in")):
+        Path(src).write_text((head + "\n[experiment]\n" + exp).replace(old, new))
+        r = swarm("experiment", src, "--out", str(out), "--resume", timeout=60)
+        assert r.returncode == 2 and words in r.stderr, r.stderr[-500:]
+        assert len(r.stderr.strip().splitlines()) == 1
+        assert (out / "r.csv").read_text() == before
+    Path(src).write_text(head + "\n[experiment]\n" + exp.replace('["0ms"]', '["0ms", "5ms"]'))
+    r = swarm("experiment", src, "--out", str(out), "--resume", timeout=240)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert [a["value"] for a in _rows(out / "r.csv")] == ["0ms", "5ms"]
+    assert (out / "r.csv").read_text().startswith(before)
+
+
+def test_resume_refuses_a_csv_made_with_another_checkpoint(tmp_path: Path) -> None:
+    """A policy's checkpoint is part of its rows: another file for it is refused (the rows
+    are checked against a real plan of each file, no process run)."""
+    from swarm.studies.experiment import write_record
+    from swarm.studies.experiment_plan import check_resume
+
+    exp = ('name = "c"\nparameter = "loss"\nvalues = [0.0]\nseeds = [0]\n'
+           'policies = ["commattn", "nearest-frontier"]\n')
+    made = plan(sweep_file(tmp_path, exp + 'checkpoints = {commattn = '
+                           f'"{ROOT}/checkpoints/commattn_loss30.pt"}}\n'))
+    write_record(made, tmp_path)
+    rows = [{"policy": "commattn", "value": "0.0", "seed": "0", "episodes": "3"}]
+    check_resume(rows, made, tmp_path / "c.csv")  # the same sweep: resumed
+    other = plan(sweep_file(tmp_path, exp))  # commattn on the shipped checkpoint
+    with pytest.raises(ConfigError, match="checkpoint of commattn is "
+                       "'checkpoints/commattn_loss30.pt' there, 'checkpoints/commattn.pt' here"):
+        check_resume(rows, other, tmp_path / "c.csv")
+    (tmp_path / "c.json").unlink()
+    with pytest.raises(ConfigError, match="no readable sweep record"):
+        check_resume(rows, made, tmp_path / "c.csv")

@@ -36,7 +36,15 @@ from swarm.common import atomic
 from swarm.net.faults import plan_from_table
 from swarm.procs.runconfig import RunConfig
 from swarm.procs.supervisor import SuperviseOptions, Supervisor
-from swarm.studies.experiment_plan import ExperimentConfig, Sweep, check_resume, load, plan
+from swarm.studies.experiment_plan import (
+    ExperimentConfig,
+    Sweep,
+    check_resume,
+    checkpoints_of,
+    load,
+    plan,
+    sweep_record,
+)
 from world.config import WorldConfig
 
 __all__ = ["ExperimentConfig", "Sweep", "load", "main", "plan", "run_experiment"]
@@ -72,7 +80,8 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
     out_dir = Path(out)
     csv_path = out_dir / f"{exp.name}.csv"
     rows = _read_rows(csv_path) if resume else []
-    check_resume(rows, sweep, csv_path)  # a CSV of other episodes or seeds: one line, no run
+    check_resume(rows, sweep, csv_path)  # a CSV of another sweep: one line, no run
+    write_record(sweep, out_dir)  # before the first run: a killed sweep's CSV has its record
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
     if exp.record:
@@ -136,20 +145,11 @@ def _keep_logs(res: dict[str, Any], dest: Path) -> str | None:
     return str(dest)
 
 
-def checkpoints_of(sweep: Sweep) -> dict[str, str | None]:
-    """The checkpoint each policy of the sweep ran with (a shipped one named as such)."""
-    from swarm.common.policy_spec import effective_checkpoint, shown
-
-    return {pt.policy: shown(effective_checkpoint(pt.run.policy, pt.run.checkpoint))
-            for pt in sweep.points}
-
-
 def write_record(sweep: Sweep, out_dir: Path) -> str:
     """`<name>.json`: everything that made the sweep, beside its CSV: the command, the
     experiment file's text, the world, the run and fault settings, every policy's
     checkpoint and the software's provenance (the CSV holds only the figures)."""
     from swarm.common.report import provenance
-    from world.config import to_dict
 
     exp = sweep.exp
     try:
@@ -159,9 +159,7 @@ def write_record(sweep: Sweep, out_dir: Path) -> str:
     path = out_dir / f"{exp.name}.json"
     atomic.write_json(path, {
         "command": shlex.join(["swarm", "experiment", sweep.source, *sweep.overrides]),
-        "experiment_file": text, "world": to_dict(sweep.world), "run": to_dict(sweep.run),
-        "experiment": to_dict(exp), "faults": {str(pt.value): pt.faults for pt in sweep.points},
-        "checkpoints": checkpoints_of(sweep), "provenance": provenance()})
+        "experiment_file": text, **sweep_record(sweep), "provenance": provenance()})
     return str(path)
 
 

@@ -248,10 +248,53 @@ def plan(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
     return Sweep(path, world, run, exp, tuple(points), overrides)
 
 
+def checkpoints_of(sweep: Sweep) -> dict[str, str | None]:
+    """The checkpoint each policy of the sweep ran with (a shipped one named as such)."""
+    from swarm.common.policy_spec import effective_checkpoint, shown
+
+    return {pt.policy: shown(effective_checkpoint(pt.run.policy, pt.run.checkpoint))
+            for pt in sweep.points}
+
+
+RUN_PER_POINT = ("run_id", "seed", "policy", "checkpoint")
+"""`[run]` fields each point sets itself (compared per row or per policy, not as `[run]`)."""
+
+
+def sweep_record(sweep: Sweep) -> dict[str, Any]:
+    """What makes a row of the sweep, as `<name>.json` holds it (`write_record`) and
+    `check_resume` compares it: the world, `[run]`, the parameter, the kernel switch, each
+    value's `[faults]` table and each policy's checkpoint."""
+    from world.config import to_dict
+
+    return {"world": to_dict(sweep.world), "run": to_dict(sweep.run),
+            "experiment": to_dict(sweep.exp),
+            "faults": {str(pt.value): pt.faults for pt in sweep.points},
+            "checkpoints": checkpoints_of(sweep)}
+
+
+def _differs(old: dict[str, Any], new: dict[str, Any], where: str,
+             keys: Any = None) -> str | None:
+    """`where.KEY: A there, B here` for the first key of `keys` (default: all) whose value
+    differs between two records (compared as JSON, the way the record was stored)."""
+    import json
+
+    from swarm.common.atomic import json_safe
+
+    old, new = (json.loads(json.dumps(json_safe(d))) for d in (old, new))
+    for key in sorted(set(old) | set(new)) if keys is None else keys:
+        if old.get(key) != new.get(key):
+            there, here = (repr(d[key]) if key in d else "unset" for d in (old, new))
+            return f"{where}{key} is {there} there, {here} here"
+    return None
+
+
 def check_resume(rows: list[dict[str, Any]], sweep: Sweep, csv_path: Path) -> None:
-    """`--resume` adds runs to a CSV of the same sweep only: its rows must have been made with
-    this sweep's episodes per run and seeds (older CSVs without an `episodes` column are taken
-    as they are)."""
+    """`--resume` adds runs to a CSV of the same sweep only: the sweep record beside it
+    (`<name>.json`) must hold this sweep's world, `[run]` (episodes, tick_timeout, delivery,
+    ...), parameter and kernel switch, the `[faults]` table of every value in the CSV and the
+    checkpoint of every policy in it; the CSV's policies, values and seeds must be among this
+    sweep's (more of each may be added: they are new rows, keyed by them). Anything else is
+    one line naming the first field that differs."""
     if not rows:
         return
     if not {"policy", "value", "seed"} <= set(rows[0]):
@@ -267,3 +310,42 @@ def check_resume(rows: list[dict[str, Any]], sweep: Sweep, csv_path: Path) -> No
         raise ConfigError(f"--resume: {csv_path} holds runs of seed(s) {', '.join(other)}, not "
                           f"in this sweep's seeds {', '.join(seeds)}; give another --out or "
                           f"the same --seeds")
+    for key, ours in (("policy", sweep.exp.policies), ("value", sweep.exp.values)):
+        theirs = sorted({str(r[key]) for r in rows} - {str(x) for x in ours})
+        if theirs:
+            raise ConfigError(f"--resume: {csv_path} holds runs of {key} {', '.join(theirs)}, "
+                              f"not in this sweep's {', '.join(map(str, ours))}; give another "
+                              f"--out")
+    old = _read_record(csv_path.with_suffix(".json"), csv_path)
+    new = sweep_record(sweep)
+    for k in RUN_PER_POINT:
+        old["run"].pop(k, None), new["run"].pop(k, None)
+    values = sorted({str(r["value"]) for r in rows})
+    policies = sorted({str(r["policy"]) for r in rows})
+    diff = (_differs(old["world"], new["world"], "world.")
+            or _differs(old["run"], new["run"], "[run] ")
+            or _differs(old["experiment"], new["experiment"], "[experiment] ",
+                        ("parameter", "kernel"))
+            or next((d for v in values if (d := _differs(
+                old["faults"].get(v, {}), new["faults"][v], f"[faults] at {v}: "))), None)
+            or _differs(old["checkpoints"], new["checkpoints"], "checkpoint of ", policies))
+    if diff:
+        raise ConfigError(f"--resume: {csv_path} was made by another sweep ({diff}); give "
+                          f"another --out, or the sweep that made it")
+
+
+def _read_record(path: Path, csv_path: Path) -> dict[str, Any]:
+    """The sweep record beside a CSV to resume; missing or unreadable: one line."""
+    import json
+
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"--resume: {csv_path} has no readable sweep record {path} ("
+                          f"{getattr(exc, 'strerror', None) or exc}): nothing tells whether it "
+                          f"is this sweep; give another --out") from None
+    keys = ("world", "run", "experiment", "faults", "checkpoints")
+    if not isinstance(rec, dict) or not all(isinstance(rec.get(k), dict) for k in keys):
+        raise ConfigError(f"--resume: {path} is not the record of a `swarm experiment` sweep; "
+                          f"give another --out")
+    return rec
