@@ -213,6 +213,10 @@ def test_resume_refuses_a_csv_of_another_world_faults_or_run_and_extends_values(
     r = swarm("experiment", src, "--out", str(out), timeout=240)
     assert r.returncode == 0, r.stderr[-2000:]
     before = (out / "r.csv").read_text()
+    md = (out / "r.md").read_text()  # the settings that change the figures, all named
+    assert "Run: tick 0.5 s, delivery radio. Faults at every point besides the swept " \
+        "latency: jitter 50ms." in md, md
+    assert "| nearest-frontier | 0ms | " in md and " ± - |" in md  # one seed: no sd
     for old, new, words in (("n_robots = 2", "n_robots = 3", "world.n_robots is 2 there, 3"),
                             ('jitter = "50ms"', 'jitter = "0ms"',
                              "[faults] at 0ms: jitter is '50ms' there, '0ms' here"),
@@ -251,3 +255,12 @@ def test_resume_refuses_a_csv_made_with_another_checkpoint(tmp_path: Path) -> No
     (tmp_path / "c.json").unlink()
     with pytest.raises(ConfigError, match="no readable sweep record"):
         check_resume(rows, made, tmp_path / "c.csv")
+
+
+def test_the_sd_over_seeds_is_the_sample_sd() -> None:
+    """The Markdown's `± sd over seeds` divided by n; it is the sample sd (n - 1), as it says."""
+    from swarm.studies.experiment import _stats
+
+    rows = [{"policy": "p", "value": "0.1", "elratio_mean": x} for x in ("0.5", "0.7")]
+    mean, sd = _stats(rows, "p", 0.1, "elratio_mean")
+    assert mean == pytest.approx(0.6) and sd == pytest.approx(0.1 * 2 ** 0.5)

@@ -196,8 +196,16 @@ def _stats(rows: list[dict[str, Any]], policy: str, value: Any, key: str) -> tup
           and r.get(key) not in (None, "")]  # a kernel run that failed has no metrics
     if not xs:
         return math.nan, math.nan
-    mean = sum(xs) / len(xs)
-    return mean, math.sqrt(sum((x - mean) ** 2 for x in xs) / len(xs))
+    mean = sum(xs) / len(xs)  # sd: the sample sd (n - 1) over seeds; none from one seed
+    sd = math.sqrt(sum((x - mean) ** 2 for x in xs) / (len(xs) - 1)) if len(xs) > 1 else math.nan
+    return mean, sd
+
+
+def base_faults(sweep: Sweep) -> str:
+    """The file's `[faults]` table (every point's faults but the swept key), as the Markdown
+    says it: `jitter 50ms, crash ['1@5']`, or `none`."""
+    base = {k: v for k, v in sweep.points[0].faults.items() if k != sweep.exp.parameter}
+    return ", ".join(f"{k} {v}" for k, v in base.items()) or "none"
 
 
 def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> list[str]:
@@ -223,8 +231,11 @@ def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> li
              + f"). World: {w.n_robots} robots, {w.height} x {w.width}, "
              + (f"dynamic (m={w.add_every})" if w.dynamic else "static")
              + f", vision {w.vision}, comm range {w.comm_range}, horizon {w.horizon}"
+             + f". Run: tick {sweep.run.tick_timeout:g} s, delivery {sweep.run.delivery}"
+             + f". Faults at every point besides the swept {exp.parameter}: {base_faults(sweep)}"
              + (f". Checkpoints: {ckpts}" if ckpts else "")
-             + f". Everything that made it: `{exp.name}.json`.", "",
+             + f". Everything that made it: `{exp.name}.json`. ± sd: the sample standard "
+             "deviation (n - 1) of the runs' means over the seeds (- with one seed).", "",
              f"| policy | {exp.parameter} | elratio (± sd over seeds) | collisions | success "
              "| ticks/s |",
              "|---|---|---|---|---|---|"]
@@ -238,7 +249,8 @@ def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> li
                         capsize=3, label=policy)
         for v in exp.values:
             e, c, s, tps = (_stats(rows, policy, v, k) for k in keys)
-            lines.append(f"| {policy} | {v} | {e[0]:.3f} ± {e[1]:.3f} | {c[0]:.1f} | "
+            sd = "-" if math.isnan(e[1]) else f"{e[1]:.3f}"
+            lines.append(f"| {policy} | {v} | {e[0]:.3f} ± {sd} | {c[0]:.1f} | "
                          f"{s[0]:.2f} | {tps[0]:.1f} |")
     for key, ax in zip(keys, axes, strict=True):
         ax.set_xticks(xs, [str(v) for v in exp.values])
