@@ -228,10 +228,15 @@ def test_resume_refuses_a_csv_of_another_world_faults_or_run_and_extends_values(
         assert r.returncode == 2 and words in r.stderr, r.stderr[-500:]
         assert len(r.stderr.strip().splitlines()) == 1
         assert (out / "r.csv").read_text() == before
-    Path(src).write_text(head + "\n[experiment]\n" + exp.replace('["0ms"]', '["0ms", "5ms"]'))
+    Path(src).write_text(head + "\n[experiment]\n" + exp.replace('["0ms"]', '["0ms", "450ms"]'))
     r = swarm("experiment", src, "--out", str(out), "--resume", timeout=240)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert [a["value"] for a in _rows(out / "r.csv")] == ["0ms", "5ms"]
+    rows = _rows(out / "r.csv")
+    assert [a["value"] for a in rows] == ["0ms", "450ms"]
+    # `delivered`: copies that reached another robot (a robot's own message is no delivery);
+    # past the 0.4 s deadline every copy is late and none is delivered
+    assert int(rows[0]["delivered"]) > 0 and int(rows[1]["late"]) > 0
+    assert rows[1]["delivered"] == "0" and rows[0]["late"] == "0"
     assert (out / "r.csv").read_text().startswith(before)
 
 

@@ -416,7 +416,8 @@ def test_trace_writes_tables_and_figures(recorded: dict[str, Any]) -> None:
     links = list(csv.DictReader(open(out / "links.csv")))
     m = recorded["result"]["messages"]
     own = recorded["result"]["ticks"] * ROBOTS  # each robot's own message, in every bundle
-    assert sum(int(x["delivered_traj"]) for x in links) == m["traj_delivered"] - own
+    assert sum(int(x["delivered_traj"]) for x in links) == m["traj_delivered"] - own \
+        == m["traj_to_others"]  # (the experiment CSV's `delivered`)
     assert sum(int(x["dropped"]) for x in links) == m["lost"]
     robots = list(csv.DictReader(open(out / "robots.csv")))
     assert [int(x["decisions"]) for x in robots] == [HORIZON] * ROBOTS

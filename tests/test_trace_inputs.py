@@ -49,6 +49,7 @@ def test_trace_of_a_direct_run_counts_what_each_link_delivered(direct: dict[str,
     links = _rows(out / "links.csv")
     delivered = sum(int(x["delivered_traj"]) for x in links)
     assert delivered == m["traj_delivered"] - ticks * ROBOTS > 0  # less each robot's own
+    assert delivered == m["traj_to_others"]  # the robots' reports, summed by the world
     missed = sum(m["by_kind"][k][f] for k in ("traj", "hidden")
                  for f in ("lost", "cut", "dropped_bw"))
     assert sum(int(x["dropped"]) for x in links) == missed

@@ -335,6 +335,8 @@ def check_direct(rec: Any, n: int) -> tuple[int, dict[str, Any]]:
         raise BadMessage(f"done_ep={done!r} out of range")
     counts, by_kind = d["counts"], d["counts"].get("by_kind")
     out: dict[str, Any] = {k: _count(counts.get(k), k) for k in COUNT_KEYS}
+    others = counts.get("traj_to_others")  # (absent from the records of older recordings)
+    out["traj_to_others"] = None if others is None else _count(others, "traj_to_others")
     if not isinstance(by_kind, dict) or set(by_kind) != {"traj", "hidden"}:
         raise BadMessage("by_kind must hold traj and hidden")
     out["by_kind"] = {kind: {k: _count((by_kind[kind] or {}).get(k) if isinstance(
@@ -417,6 +419,9 @@ class DirectTally:
             for kind in ("traj", "hidden"):
                 for k in KIND_KEYS:
                     out["by_kind"][kind][k] += c["by_kind"][kind][k]
+        others = [rec["counts"].get("traj_to_others") for rec in self._records()]
+        if None not in others:  # (every record has it but an older recording's)
+            out["traj_to_others"] = sum(others)
         out["robot_stale"] = sum(rec["stale"] for rec in self._records())
         out["reported"] = sorted(self.latest)
         if self.retired:  # each crashed incarnation: counted up to its last report

@@ -45,6 +45,7 @@ class RadioCounters:
 
     traj_in: int = 0
     traj_delivered: int = 0  # (sender, receiver) deliveries, own message included
+    # (the copies to other robots alone: `totals()["traj_to_others"]`, the sum of `delivered`)
     hidden_in: int = 0
     hidden_delivered: int = 0
     out_of_range: int = 0  # (sender, receiver) pairs the range limit cut
@@ -93,6 +94,7 @@ class RadioCounters:
         out: dict[str, Any] = {k: getattr(self, k) for k in (
             "traj_in", "traj_delivered", "hidden_in", "hidden_delivered", "out_of_range", "lost",
             "cut", "late", "queued", "dropped_bw", "bytes_in", "bytes_out")}
+        out["traj_to_others"] = int(self.delivered.sum())  # own copies excluded
         out["by_kind"] = {k: dict(v) for k, v in self.kinds.items()}
         return out
 

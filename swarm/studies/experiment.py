@@ -115,7 +115,7 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
                                           "timeouts")},
                **{k: m.get(k) for k in ("lost", "late", "cut", "queued", "dropped_bw",
                                         "stale")},  # (stale: whole messages after their tick)
-               "delivered": m.get("traj_delivered"), "clock": rc.clock,
+               "delivered": m.get("traj_to_others"), "clock": rc.clock,
                "twin": twin(world, rc, faults, res) if rc.clock == "virtual" else "",
                "wall_s": round(time.monotonic() - t0, 2), "episodes": rc.episodes,
                "recording": recording, "logs": logs}
@@ -263,6 +263,12 @@ def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> li
     fig.tight_layout()
     png = out_dir / f"{exp.name}.png"
     _save(fig, png)
+    lines += ["", f"`{exp.name}.csv`, one row per run, counts message copies (sender -> "
+              "receiver): `delivered` trajectory copies that reached another robot in time (a "
+              "robot's own message is not counted); `lost`, `cut`, `late`, `dropped_bw` copies "
+              "of either kind (trajectory or hidden state) that did not; `queued` copies that "
+              "waited for bandwidth tokens (then delivered or late); `stale` whole messages "
+              "that reached the world after their tick."]
     md = out_dir / f"{exp.name}.md"
     atomic.write_text(md, "\n".join(lines) + "\n")
     return [str(md), str(png)]
