@@ -418,7 +418,18 @@ def test_trace_writes_tables_and_figures(recorded: dict[str, Any]) -> None:
     own = recorded["result"]["ticks"] * ROBOTS  # each robot's own message, in every bundle
     assert sum(int(x["delivered_traj"]) for x in links) == m["traj_delivered"] - own \
         == m["traj_to_others"]  # (the experiment CSV's `delivered`)
-    assert sum(int(x["dropped"]) for x in links) == m["lost"]
+    assert sum(int(x["dropped_both_kinds"]) for x in links) == m["lost"]  # both kinds
+    col = {k: sum(int(x[k]) for x in links) for k in ("delivered_hidden", "hidden_miss_sender",
+                                                        "hidden_miss_radio")}
+    # a hidden-state forward carries a state, the sender's word that it had none (delivered
+    # copies both), or the radio's word in place of a copy the loss took
+    assert col["delivered_hidden"] + col["hidden_miss_sender"] == m["hidden_delivered"]
+    assert col["hidden_miss_radio"] == m["by_kind"]["hidden"]["lost"] > 0
+    kinds = {x["kind"]: x for x in csv.DictReader(open(out / "kinds.csv"))}
+    fwd = kinds["radio_hidden"]
+    assert int(fwd["messages"]) == m["hidden_delivered"] + col["hidden_miss_radio"]
+    assert int(fwd["miss_markers"]) == col["hidden_miss_sender"] + col["hidden_miss_radio"]
+    assert int(kinds["bundle"]["miss_markers"]) == 0
     robots = list(csv.DictReader(open(out / "robots.csv")))
     assert [int(x["decisions"]) for x in robots] == [HORIZON] * ROBOTS
     assert all(float(x["latency_ms_p50"]) > 0 for x in robots)

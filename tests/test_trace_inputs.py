@@ -52,8 +52,9 @@ def test_trace_of_a_direct_run_counts_what_each_link_delivered(direct: dict[str,
     assert delivered == m["traj_to_others"]  # the robots' reports, summed by the world
     missed = sum(m["by_kind"][k][f] for k in ("traj", "hidden")
                  for f in ("lost", "cut", "dropped_bw"))
-    assert sum(int(x["dropped"]) for x in links) == missed
-    assert all(x["delivered_hidden"] == "" and x["hidden_missed"] == "" for x in links)
+    assert sum(int(x["dropped_both_kinds"]) for x in links) == missed
+    assert all(x[k] == "" for x in links for k in (
+        "delivered_hidden", "hidden_miss_sender", "hidden_miss_radio", "delivery_ratio"))
     attention = _rows(out / "attention.csv")
     assert attention and any(x["distance"] == "0" for x in attention)
     assert (out / "attention.png").stat().st_size > 0

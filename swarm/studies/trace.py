@@ -1,16 +1,25 @@
 """`swarm trace FILE --out DIR`: what a recording says about the network and the robots, as CSV
 and PNG.
 
-- `links.csv`, `links.png`: per (sender, receiver) the trajectory and hidden-state copies
-  delivered (counted in the recorded bundles and forwards), and the copies the radio dropped
-  (lost, cut or over the bandwidth cap), found late or queued (its own cumulative per-link
-  counters, from the last world status); the heatmaps are delivered copies and the share of
-  copies in range that arrived.
+- `links.csv`, `links.png`: per (sender, receiver), from the recorded bundles and forwards:
+  `delivered_traj`, the trajectory copies delivered (a robot's own message is no link), and the
+  hidden-state forwards: `delivered_hidden` with a state, `hidden_miss_sender` the sender's own
+  word that it had none (a copy delivered: in the result's `hidden_delivered`), and
+  `hidden_miss_radio` the radio's word in place of a copy lost, cut, dropped or late (virtual
+  clock only: on the real clock a missed copy is just not sent; these copies are also in the
+  next columns). Then, from the radio's cumulative per-link counters (the last world status),
+  which do not tell the kinds apart: `dropped_both_kinds` (lost, cut or over the bandwidth cap),
+  `late_both_kinds` and `queued_both_kinds` copies of either kind. `delivery_ratio`: delivered
+  copies of both kinds over those plus the dropped and late ones. The heatmaps are the
+  trajectory copies delivered and that ratio.
 - `robots.csv`, `latency.png`: per robot, the wall time from its observation to its action as
   the recorder heard them (its decision latency, waits included) and the compute time it
   reported per decision (`planning_ms`), as quantiles and histograms.
 - `kinds.csv`: messages and bytes per message kind (direct delivery's stamped messages as
-  `direct_traj` and `direct_hidden`).
+  `direct_traj` and `direct_hidden`), and `miss_markers`: the hidden-state messages among them
+  that carry no state (`hidden`: robots that had none to send; `radio_hidden`: every forward
+  that is a miss marker, the radio's and the senders' alike, so `radio_hidden` messages are the
+  result's `hidden_delivered` plus the radio's markers).
 - `elratio.csv`, `elratio.png`: elratio after every tick, one line per episode.
 - `attention.csv`, `attention.png` (CommAttn robots that report attention): mean attention
   weight per (receiver, distance to the sender in cells, rounded), over the members it heard.
@@ -63,9 +72,12 @@ class Trace:
         self.rec, self.cfg = rec, rec.record.world
         n = self.cfg.n_robots
         self.delivered = np.zeros((2, n, n), dtype=np.int64)  # [traj|hidden, sender, receiver]
-        self.hidden_missed = np.zeros((n, n), dtype=np.int64)
+        self.hidden_miss = np.zeros((2, n, n), dtype=np.int64)  # [sender's|radio's, j, i]
+        self.sender_missed: set[tuple[int, int, int]] = set()  # (ep, t, robot) sent no state
+        self.miss_forwards: list[tuple[int, int, int, int]] = []  # (ep, t, sender, receiver)
         self.links: dict[str, list[int]] = {}
-        self.kinds: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+        self.kinds: dict[str, list[int]] = defaultdict(lambda: [0, 0, 0])  # messages, bytes,
+        # miss markers
         self.obs_at: dict[tuple[int, int, int], int] = {}  # (ep, t, robot) -> wall ns
         self.pos: dict[tuple[int, int, int], tuple[int, int]] = {}
         self.heard: dict[tuple[int, int, int], list[int]] = {}
@@ -84,13 +96,16 @@ class Trace:
             self.kinds[kind][0] += 1
             self.kinds[kind][1] += len(m.payload)
             try:
-                self._take(m)
+                self.kinds[kind][2] += bool(self._take(m))
             except (BadMessage, KeyError, TypeError, ValueError, IndexError, OverflowError):
                 self.bad += 1
+        for ep, t, j, i in self.miss_forwards:  # whose word: the sender's own, else the radio's
+            self.hidden_miss[0 if (ep, t, j) in self.sender_missed else 1, j, i] += 1
         if self.tally is not None and self.tally.latest:
             self.links = self.tally.faulted_links()  # fresher than the world's last status
 
-    def _take(self, m: Any) -> None:
+    def _take(self, m: Any) -> bool:
+        """Take one message; True for a hidden-state miss marker."""
         cfg = self.cfg
         if m.kind == "obs":
             o = Obs.unpack(m.payload, cfg)
@@ -118,10 +133,18 @@ class Trace:
             for j in senders:
                 if j != b.robot:
                     self.delivered[0, j, b.robot] += 1
+        elif m.kind == "hidden":
+            h = Hidden.unpack(m.payload, cfg)
+            if h.is_miss:
+                self.sender_missed.add((h.ep, h.t, h.robot))
+            return h.is_miss
         elif m.kind == "radio_hidden" and m.robot is not None:
             h = Hidden.unpack(m.payload, cfg)
-            (self.hidden_missed[h.robot] if h.is_miss else self.delivered[1, h.robot])[
-                m.robot] += 1
+            if h.is_miss:  # (sorted out once every robot's own message is in)
+                self.miss_forwards.append((h.ep, h.t, h.robot, m.robot))
+            else:
+                self.delivered[1, h.robot, m.robot] += 1
+            return h.is_miss
         elif m.kind == "status":
             st = unpack_record(m.payload, K_STATUS)
             self.elratio.append((int(st["run_tick"]), int(st["ep"]), int(st["t"]),
@@ -136,6 +159,7 @@ class Trace:
                                   [float(x) for x in rs["attn"]]))
             if self.tally is not None and "direct" in rs:
                 self.tally.offer(rs)
+        return False
 
     # ------------------------------------------------------------------------------- tables
     def link_rows(self) -> list[dict[str, Any]]:
@@ -144,16 +168,29 @@ class Trace:
             for i in range(n):
                 faults = self.links.get(f"{j}-{i}", [0, 0, 0, 0])
                 dt, dh = int(self.delivered[0, j, i]), int(self.delivered[1, j, i])
-                if i == j or not (dt or dh or any(faults)):
+                if i == j or not (dt or dh or self.hidden_miss[:, j, i].any() or any(faults)):
                     continue
-                tried = dt + faults[1] + faults[2]
                 unknown = self.direct  # no forward in the file: each receiver decided them
+                ms, mr = (int(x) for x in self.hidden_miss[:, j, i])
+                ratio = self.ratio(j, i, faults)
                 rows.append({"sender": j, "receiver": i, "delivered_traj": dt,
-                             "delivered_hidden": "" if unknown else dh,
-                             "hidden_missed": "" if unknown else int(self.hidden_missed[j, i]),
-                             "dropped": faults[1], "late": faults[2], "queued": faults[3],
-                             "delivery_ratio": round(dt / tried, 4) if tried else ""})
+                             **{k: "" if unknown else v for k, v in (
+                                 ("delivered_hidden", dh), ("hidden_miss_sender", ms),
+                                 ("hidden_miss_radio", mr))},
+                             "dropped_both_kinds": faults[1], "late_both_kinds": faults[2],
+                             "queued_both_kinds": faults[3],
+                             "delivery_ratio": "" if math.isnan(ratio) else round(ratio, 4)})
         return rows
+
+    def ratio(self, j: int, i: int, faults: list[int]) -> float:
+        """Copies of both kinds delivered j -> i over those plus the dropped and late ones; nan
+        when nothing was tried, or in a direct recording with hidden-state messages (which of
+        them each link delivered is not in it)."""
+        if self.direct and self.kinds.get("direct_hidden", [0])[0]:
+            return math.nan
+        done = int(self.delivered[0, j, i] + self.delivered[1, j, i] + self.hidden_miss[0, j, i])
+        tried = done + faults[1] + faults[2]
+        return done / tried if tried else math.nan
 
     def notes(self) -> list[str]:
         """What this recording cannot say (left empty in the CSVs rather than drawn as zeros)."""
@@ -161,8 +198,9 @@ class Trace:
             return []
         out = ["direct delivery: which hidden-state copies each link delivered is not in the "
                "recording (each receiver decides its copies and reports only totals), so "
-               "links.csv leaves delivered_hidden and hidden_missed empty; dropped and late count "
-               "both kinds, from the robots' own per-link counters"]
+               "links.csv leaves delivered_hidden, hidden_miss_* and (with hidden-state messages) "
+               "delivery_ratio empty; dropped_, late_ and queued_both_kinds count both kinds, "
+               "from the robots' own per-link counters"]
         if self.tally is not None and self.tally.latest:
             tot = self.tally.totals()
             missed = sum(tot["by_kind"]["hidden"][k] for k in ("lost", "cut", "late",
@@ -187,8 +225,9 @@ class Trace:
         return rows
 
     def kind_rows(self) -> list[dict[str, Any]]:
-        return [{"kind": k, "messages": c, "bytes": b, "mean_bytes": round(b / max(c, 1), 1)}
-                for k, (c, b) in sorted(self.kinds.items(), key=lambda kv: -kv[1][1])]
+        return [{"kind": k, "messages": c, "bytes": b, "mean_bytes": round(b / max(c, 1), 1),
+                 "miss_markers": x}
+                for k, (c, b, x) in sorted(self.kinds.items(), key=lambda kv: -kv[1][1])]
 
     def attention_rows(self) -> list[dict[str, Any]]:
         acc: dict[tuple[int, int], list[float]] = defaultdict(list)
@@ -230,15 +269,11 @@ def trace(rec: Recording, out: str | Path) -> dict[str, Any]:
         files.append(out / f"{name}.csv")
 
     def draw_links(axes: Any) -> None:
-        tried = tr.delivered[0].copy()
-        for k, v in tr.links.items():
-            a, _, b = k.partition("-")
-            if a.isdigit() and b.isdigit() and int(a) < n and int(b) < n:
-                tried[int(a), int(b)] += v[1] + v[2]
-        ratio = np.where(tried > 0, tr.delivered[0] / np.maximum(tried, 1), np.nan)
+        ratio = np.array([[tr.ratio(j, i, tr.links.get(f"{j}-{i}", [0, 0, 0, 0]))
+                           if i != j else np.nan for i in range(n)] for j in range(n)])
         for ax, mat, title, cmap in ((axes[0], tr.delivered[0], "trajectory copies delivered",
                                       "viridis"),
-                                     (axes[1], ratio, "share of copies in range delivered",
+                                     (axes[1], ratio, "share of copies (both kinds) delivered",
                                       "RdYlGn")):
             im = ax.imshow(mat, cmap=cmap, vmin=0 if cmap != "RdYlGn" else 0.0,
                            vmax=None if cmap != "RdYlGn" else 1.0)
