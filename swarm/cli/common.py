@@ -254,7 +254,7 @@ def output_file(path: str | None, flag: str = "--json") -> None:
     """A result file must be writable before the work that produces it starts."""
     if path is None:
         return
-    if not path.strip():
+    if not str(path).strip():  # (a Path too: `swarm train --out` is one)
         raise ConfigError(f"{flag} wants a file name, got an empty one")
     target = Path(path)
     if target.is_dir():
@@ -278,7 +278,7 @@ def output_dir(path: str | None, flag: str, make: bool = True) -> None:
     exists: a path under a file, or where nothing can be made, is refused all the same."""
     if path is None:
         return
-    if not path.strip():
+    if not str(path).strip():  # (a Path too: `swarm train --out` is one)
         raise ConfigError(f"{flag} wants a directory, got an empty name")
     target = Path(path)
     if target.exists() and not target.is_dir():
