@@ -363,6 +363,9 @@ def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
     assert "90.2" in (out / "table2.md").read_text()
     assert rows[0]["first_minus_elratio"] == 0 and rows[1]["first_minus_elratio_se"] > 0
     assert "vain - this (paired)" in (out / "table2.md").read_text()
+    md = (out / "table2.md").read_text()  # its words are on the rows it has, no others
+    assert not any(w in md for w in ("team-beam", "chain-plan", "oracle", "central", "gap",
+                                     "marked *")), md
     fig8 = list(csv.DictReader((out / "fig8.csv").open()))
     assert [int(row["update"]) for row in fig8] == [3] and fig8[0]["policy"] == "vain"
     assert (out / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -489,6 +492,29 @@ def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_pa
                                  - rows[0]["commattn"]["elratio"]) and se >= 0
 
 
+def test_the_comm_figure_names_the_policies_it_compares() -> None:
+    from swarm.studies.comm import comm_title
+
+    assert comm_title(["commattn", "nearest-frontier"]) == \
+        "Where communication matters: commattn, nearest-frontier"
+    assert comm_title(["commattn", "central"]).endswith("(central: a perfect radio)")
+
+
+def test_table2_describes_only_the_planners_in_it() -> None:
+    from swarm.studies.repro import ReproConfig, table2_notes
+
+    def row(p: str, dec: bool = True, gap: float | None = None) -> dict:
+        return {"policy": p, "decentralized": dec, "gap_closed": gap}
+
+    cfg = ReproConfig(oracle_episodes=7)
+    text = table2_notes([row("commattn"), row("chain-plan"), row("central", False)], cfg)
+    assert "`chain-plan` is a hand-written" in text and "team-beam" not in text
+    assert "Rows marked * are not decentralized: `central` pools" in text
+    assert "oracle" not in text and "gap" not in text
+    text = table2_notes([row("random", gap=0.0), row("oracle", False, 1.0)], cfg)
+    assert "first 7 episodes only" in text and "'gap'" in text and "chain-plan" not in text
+
+
 @pytest.mark.procs
 def test_repro_fig11_runs_on_the_configs_world(tmp_path: Path) -> None:
     """Figs. 10 and 11 are studied on `--config`'s map and team (static), as the other items:
@@ -499,6 +525,9 @@ def test_repro_fig11_runs_on_the_configs_world(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr[-2000:]
     md = (tmp_path / "fig11_by_neighbours.md").read_text()
     assert "3 robots" in md and "10 robots" not in md, md[:400]
+    assert md.startswith(f"# Fig. 11: mean communication-vector norm per cell (seed 1)\n\n"
+                         f"Made by `swarm repro fig11 --out {tmp_path} --config {cfg} "
+                         "--seed 1` (seed 1, "), md[:400]  # as every other item
 
 
 def on_terminal(columns: int, *args: str) -> str:

@@ -149,6 +149,13 @@ def paired_script(argv: Sequence[str], script: str, specs: dict[str, tuple[str, 
     paired_conditions(picks, specs, seed, episodes, on_row=on_row)
 
 
+def comm_title(policies: Sequence[str]) -> str:
+    """comm.png's title: the policies it compares (it said "learned vs frontier vs perfect
+    radio" whichever they were)."""
+    return (f"Where communication matters: {', '.join(policies)}"
+            + (" (central: a perfect radio)" if "central" in policies else ""))
+
+
 def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
          policies: Sequence[str] = POLICIES, checkpoints: dict[str, str | None] | None = None,
          batch: int = 250, tick_s: float = 2.0) -> dict[str, Any]:
@@ -221,7 +228,7 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
         ax.set_xticks(list(xs), conds, rotation=25, ha="right")
         ax.set_ylim(max(0.0, min(values) - 0.02), min(1.0, max(values) + 0.03))  # every bar
         ax.set_ylabel("elratio at the last step")
-        ax.set_title("Where communication matters: learned vs frontier vs perfect radio")
+        ax.set_title(comm_title(policies))
         ax.grid(alpha=0.3, axis="y")
         ax.legend(fontsize=8, loc="upper center", ncol=len(policies))
 

@@ -103,3 +103,11 @@ def fig9(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
     files = write_item(out, "fig9", rows or [{"policy": "", "vision": 0}], md, draw, meta,
                        ncols=max(len(policies), 1))
     return {"item": "fig9", "rows": rows, "files": files}
+
+
+def fig9_item(world: WorldConfig, cfg: Any, command: str) -> dict[str, Any]:
+    """`swarm repro fig9`: CommNet and CommAttn (those of them in `cfg.policies`, else both)
+    with `cfg` (a `ReproConfig`)'s seed, episodes, batch and checkpoints."""
+    names = [n for n in POLICIES if n in cfg.policies] or list(POLICIES)
+    return fig9(world, Path(cfg.out), command, cfg.seed, cfg.fig9_episodes, policies=names,
+                batch=cfg.batch, checkpoints={n: cfg.checkpoint(n) for n in names})

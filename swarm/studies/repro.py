@@ -37,10 +37,15 @@ ITEMS = ("table1", "table2", "fig4", "fig5", "fig8", "fig9", "fig10", "fig11", "
 ANALYSES = ("fig10", "fig11", "comm")  # CommAttn's communication (swarm.studies.commviz, comm)
 LEARNED = learned_names()
 ALL_POLICIES = (*LEARNED, "nearest-frontier", "coordinated-frontier", "cost-utility", "random")
-# planners that bound the others: `team-beam` (decentralized, each robot plans its heard team),
-# `chain-plan` (decentralized, one whole-horizon plan passed down the id chain), `central` (a
-# perfect radio) and `oracle` (foresight), the last two not decentralized
-REFERENCE = ("team-beam", "chain-plan", "central", "oracle")
+SAYS = {  # the planners that bound the others, as Table 2 describes those it holds
+    "team-beam": "`team-beam` is a hand-written decentralized planner (every robot plans the "
+                 "robots it hears with `central`'s search, on its own belief)",
+    "chain-plan": "`chain-plan` is a hand-written decentralized planner (a whole-horizon team "
+                  "plan that each robot refines and passes to its successor in the hidden-state "
+                  "message)",
+    "central": "`central` pools every robot's observations (a perfect radio)",
+    "oracle": "`oracle` knows the whole episode in advance (first {} episodes only)"}
+REFERENCE = tuple(SAYS)
 # Paper's Table 2 (10 robots, 30 s, 1000 episodes): mean reward, collisions, elratio %, std %.
 PAPER_TABLE2: dict[str, tuple[float, float, float, float | None]] = {
     "commattn": (37, 9, 95.2, 3.1), "vain": (21, 15, 90.2, None),
@@ -243,6 +248,19 @@ def learned_of(cfg: ReproConfig) -> list[str]:
     return [p for p in cfg.policies if p in LEARNED]
 
 
+def table2_notes(rows: list[dict[str, Any]], cfg: ReproConfig) -> str:
+    """Table 2's words on the planners and the gap column: only those in the table."""
+    says = [SAYS.get(r["policy"], f"`{r['policy']}`").format(cfg.oracle_episodes) for r in rows]
+    text = "".join(f" {s[0].upper()}{s[1:]}." for r, s in zip(rows, says, strict=True)
+                   if r["decentralized"] and r["policy"] in SAYS)
+    starred = [s for r, s in zip(rows, says, strict=True) if not r["decentralized"]]
+    if starred:
+        text += f" Rows marked * are not decentralized: {'; '.join(starred)}."
+    if any(r["gap_closed"] is not None for r in rows):
+        text += " 'gap' is the share of the oracle-to-random elratio gap a policy closes."
+    return text
+
+
 def table2(world: WorldConfig, cfg: ReproConfig, command: str,
            progress: ProgressSink) -> dict[str, Any]:
     """Table 2: every policy on the same held-out dynamic-map episodes, next to the paper's."""
@@ -287,15 +305,7 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
                 "SPEC's (negative for good policies); the paper's are from its own reward "
                 "scale. Collisions = block + robot collisions per episode. The last column is "
                 f"{cfg.policies[0]}'s elratio minus the row's, episode by episode, with the "
-                "standard error of that paired mean. `team-beam` is a hand-written decentralized "
-                "planner (every robot plans the robots it hears with `central`'s search, on "
-                "its own belief); `chain-plan` another (a whole-horizon team plan that each robot "
-                "refines and passes to its successor in the hidden-state message). Rows marked "
-                "* are reference planners, not "
-                f"decentralized: `central` pools every robot's observations (a perfect radio), "
-                f"`oracle` knows the whole episode in advance (first {cfg.oracle_episodes} "
-                "episodes only); 'gap' is the share of the oracle-to-random elratio gap a "
-                "policy closes.")
+                "standard error of that paired mean." + table2_notes(rows, cfg))
 
     def paper_cell(r: dict[str, Any]) -> str:
         if r["paper_reward"] is None:
@@ -309,14 +319,17 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
             return "-"
         return paired_cell(r["first_minus_elratio"], r["first_minus_elratio_se"])
 
+    gap = any(r["gap_closed"] is not None for r in rows)  # (random and oracle both played)
     md += md_table(
         ["policy", "reward / robot", "collisions (block)", "elratio", "success",
-         "paper: reward / collisions / elratio", f"{cfg.policies[0]} - this (paired)", "gap"],
+         "paper: reward / collisions / elratio", f"{cfg.policies[0]} - this (paired)",
+         *(["gap"] if gap else [])],
         [[r["policy"] + ("" if r["decentralized"] else " *"), f"{r['reward_mean']:.1f}",
           f"{r['collisions_mean']:.2f} ({r['block_collisions_mean']:.2f})",
           f"{r['elratio_mean']:.3f} ± {r['elratio_std']:.3f}", f"{100 * r['success_rate']:.1f}%",
           paper_cell(r), lead(r),
-          "-" if r["gap_closed"] is None else f"{100 * r['gap_closed']:.1f}%"] for r in rows])
+          *(["-" if r["gap_closed"] is None else f"{100 * r['gap_closed']:.1f}%"] if gap
+            else [])] for r in rows])
 
     def draw(ax: Any) -> None:
         xs = range(len(rows))
@@ -404,6 +417,8 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
     else:
         res = commviz.fig11(out, seed=cfg.seed, episodes=cfg.fig11_episodes, checkpoint=ckpt,
                             cfg=static)
+    title, _, rest = (md := out / item_files(item)[3]).read_text().partition("\n\n")
+    atomic.write_text(md, header(title[2:], command, cfg.seed, "")[:-2] + rest)  # Made by
     return {"item": item, "rows": [res], "files": [str(out / n) for n in item_files(item)]}
 
 
@@ -472,13 +487,9 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
         elif item in ANALYSES:
             results[item] = analysis(item, cfg, world, command)
         elif item == "fig9":
-            from swarm.studies.fig9 import fig9
+            from swarm.studies.fig9 import fig9_item
 
-            names = [n for n in ("commnet", "commattn") if n in cfg.policies] or ["commnet",
-                                                                                 "commattn"]
-            results[item] = fig9(world, Path(cfg.out), command, cfg.seed, cfg.fig9_episodes,
-                                 policies=names, batch=cfg.batch,
-                                 checkpoints={n: cfg.checkpoint(n) for n in names})
+            results[item] = fig9_item(world, cfg, command)
         else:
             results[item] = sweep(world, item, cfg, command, progress)
     if cfg.json:
