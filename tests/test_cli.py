@@ -376,9 +376,11 @@ def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
 
 @pytest.mark.procs
 def test_repro_fig9_writes_a_row_per_policy_vision_and_range(tmp_path: Path) -> None:
-    """Fig. 9 with the shipped CommNet (vision 5); visions without a checkpoint are named."""
+    """Fig. 9 with the shipped CommNet (vision 5); visions without a checkpoint are named. A
+    config's world vision and comm range (for other items) are not used and said so: with
+    vision 7 it took the shipped vision-5 checkpoint for vision 7 and failed."""
     cfg = tmp_path / "f9.toml"
-    cfg.write_text("[repro]\nfig9_episodes = 4\n")
+    cfg.write_text("[world]\nvision = 7\ncomm_range = 3.0\n[repro]\nfig9_episodes = 4\n")
     out = tmp_path / "repro"
     r = swarm("repro", "fig9", "--out", str(out), "--config", str(cfg), "--policies", "commnet",
               "--seed", "1")
@@ -393,6 +395,8 @@ def test_repro_fig9_writes_a_row_per_policy_vision_and_range(tmp_path: Path) -> 
                for row in rows)
     md = (out / "fig9.md").read_text()
     assert all(f"commnet v={v}" in md for v in (3, 7, 9) if v not in have)
+    assert "world's vision 7 and comm range 3 (for the other items of the command) are not " \
+        "used here" in md
     assert (out / "fig9.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -490,6 +494,24 @@ def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_pa
     mean, se = rows[0]["nearest_frontier_minus_commattn"]
     assert mean == pytest.approx(rows[0]["nearest-frontier"]["elratio"]
                                  - rows[0]["commattn"]["elratio"]) and se >= 0
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("flags,words", [
+    (["fig9", "--comm-range", "3"], "--comm-range is not used by fig9 (fig9: it sweeps vision "
+                                    "and comm range itself)"),
+    (["fig9", "--vision", "7"], "--vision is not used by fig9"),
+    (["table2", "--episodes", "5"], "--episodes is not used by table2; it is for fig4, fig5"),
+    (["fig8", "--horizon", "20"], "--horizon is not used by fig8 (fig8: it draws training"),
+    (["comm", "--policies", "random"], "it takes --comm-policies"),
+    (["table1", "--robots", "2,4"], "--robots is not used by table1; it is for fig4")])
+def test_repro_refuses_a_flag_its_item_does_not_use(tmp_path: Path, flags: list[str],
+                                                     words: str) -> None:
+    """`repro fig9 --comm-range 3` made the same figure (and its Made-by line recorded the
+    flag); `repro fig9 --vision 7` failed on commnet.pt though fig9 sweeps the vision."""
+    r = swarm("repro", *flags, "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and words in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
 
 
 def test_the_comm_figure_names_the_policies_it_compares() -> None:

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.bench.train import TrainBenchConfig
-from swarm.cli.checks import eval_checkpoints, stray_checkpoints
+from swarm.cli.checks import check_repro_flags, eval_checkpoints, stray_checkpoints
 from swarm.cli.common import (
     RichProgress,
     _checkpoint_pairs,
@@ -314,18 +314,17 @@ def cmd_repro(args: argparse.Namespace) -> int:
 
     tables = file_tables(args.config)
     world = world_config(args, tables)
-    cfg = merged(repro.ReproConfig, tables.get("repro", {}),
-                 {"out": args.out, "episodes": args.episodes, "seed": args.seed,
-                  "policies": args.policies, "checkpoints": _checkpoint_pairs(args.checkpoint),
-                  "robots": args.robots, "add_every": args.add_every,
-                  "decisions": args.decisions, "batch": args.batch, "json": args.json,
-                  "table2_episodes": args.table2_episodes,
-                  "comm_episodes": args.comm_episodes,
-                  "comm_policies": args.comm_policies,
-                  "curves": _checkpoint_pairs(args.curve, "--curve")},
-                 "[repro]")
+    flags = {"out": args.out, "episodes": args.episodes, "seed": args.seed,
+             "policies": args.policies, "checkpoints": _checkpoint_pairs(args.checkpoint),
+             "robots": args.robots, "add_every": args.add_every,
+             "decisions": args.decisions, "batch": args.batch, "json": args.json,
+             "table2_episodes": args.table2_episodes, "comm_episodes": args.comm_episodes,
+             "comm_policies": args.comm_policies,
+             "curves": _checkpoint_pairs(args.curve, "--curve")}
+    cfg = merged(repro.ReproConfig, tables.get("repro", {}), flags, "[repro]")
     # every check before the progress display (whose closing would print a blank line)
     items = repro.prepare(repro.expand(args.item), world, cfg)
+    check_repro_flags(items, args)  # (after prepare: `all` drops the items it cannot make)
     output_dir(cfg.out, "--out")  # before the work, which can take hours
     output_file(cfg.json)
     out, err = _consoles()

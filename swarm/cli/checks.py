@@ -136,3 +136,28 @@ def eval_checkpoints(given: list[str] | None) -> tuple[str | None, dict[str, str
         raise ConfigError("give one --checkpoint FILE (one policy) or --checkpoint NAME=FILE "
                           "per learned policy")
     return (files[0] if files else None), _checkpoint_pairs(pairs)
+
+
+_WORLD_ITEMS = ("table1", "table2", "fig4", "fig5", "fig9", "fig10", "fig11", "comm")
+REPRO_FLAGS = {  # `swarm repro` flag (its dest) -> the items that use it
+    "episodes": ("fig4", "fig5"), "table2_episodes": ("table2",), "robots": ("fig4",),
+    "add_every": ("fig5",), "decisions": ("table1",), "curve": ("fig8",),
+    "comm_episodes": ("comm",), "comm_policies": ("comm",),
+    "policies": ("table1", "table2", "fig4", "fig5", "fig8", "fig9"),
+    **dict.fromkeys(("size", "static_blocks", "horizon", "sense"), _WORLD_ITEMS),
+    **dict.fromkeys(("vision", "comm_range"), tuple(i for i in _WORLD_ITEMS if i != "fig9"))}
+_WHY = {"fig8": "it draws training curves", "fig9": "it sweeps vision and comm range itself",
+        "fig10": "it studies commattn", "fig11": "it studies commattn",
+        "comm": "it takes --comm-policies"}
+
+
+def check_repro_flags(items: list[str], args: argparse.Namespace) -> None:
+    """A `swarm repro` flag none of the items uses is one line, not silently ignored (`repro
+    fig9 --comm-range 3` made the same figure and recorded the flag in its "Made by" line)."""
+    for dest, users in REPRO_FLAGS.items():
+        if getattr(args, dest, None) is None or set(items) & set(users):
+            continue
+        why = "; ".join(f"{i}: {_WHY[i]}" for i in items if i in _WHY)
+        raise ConfigError(f"--{dest.replace('_', '-')} is not used by {', '.join(items)}"
+                          + (f" ({why})" if why else "") + f"; it is for {', '.join(users)}: "
+                          "leave it out")

@@ -1,7 +1,8 @@
 """Fig. 9 of the paper: success rate (and elratio) over vision range x communication range.
 
 The vision range changes a network's input, so each vision v needs a checkpoint trained with
-it: `checkpoints/vision/NAME_vV.pt` (the shipped `checkpoints/NAME.pt` for the default v = 5);
+it: `checkpoints/vision/NAME_vV.pt` (the shipped `checkpoints/NAME.pt`, or the one given, for
+the default v = 5, whatever the world's vision: this figure sweeps it, and the comm range);
 a vision without one is left out and named in the Markdown. The communication range changes
 no weight shape: every range is evaluated with the same checkpoint, which was trained at the
 default range of 10 cells. Every point plays the same held-out episodes (evaluation seed).
@@ -48,7 +49,7 @@ def fig9(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
     missing: list[str] = []
     for name in policies:
         for v in visions:
-            ckpt = vision_checkpoint(name, v, base, checkpoints.get(name), vision_dir)
+            ckpt = vision_checkpoint(name, v, WorldConfig(), checkpoints.get(name), vision_dir)
             if ckpt is None:
                 missing.append(f"{name} v={v}")
                 continue
@@ -69,6 +70,10 @@ def fig9(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
             "at comm range 10; a vision range needs its own checkpoint.")
     if missing:
         note += f" Left out (no checkpoint): {', '.join(missing)}."
+    if (world.vision, world.comm_range) != (WorldConfig.vision, WorldConfig.comm_range):
+        note += (f" The world's vision {world.vision} and comm range {world.comm_range:g} "
+                 "(for the other items of the command) are not used here: this figure sweeps "
+                 "both.")
     md = header("Fig. 9: success rate over vision range x communication range", command, seed,
                 note)
     cols = [str(c) for c in ("inf" if math.isinf(r) else f"{r:g}" for r in ranges)]
