@@ -233,6 +233,24 @@ def elratio(cfg: WorldConfig, state: WorldState) -> np.ndarray:
     return covered.sum(axis=1) / cfg.cells
 
 
+def check_actions(actions: object, shape: tuple[int, int]) -> np.ndarray:
+    """`actions` as an array if they are moves of `shape` ([B, N]) - integers in 0..8 - else a
+    one-line ValueError. The one rule of what a move is: `step`, the batched evaluator and a
+    robot process (which sends its own entry) all check a policy's answer with it, so a policy
+    whose answer one of them refuses is refused by all (NaN, 1.5, True or 42 is no move; a
+    list of ints is as good as its array)."""
+    try:
+        arr = np.asarray(actions)
+    except (TypeError, ValueError) as exc:  # (a ragged list, say)
+        raise ValueError(f"actions must be an array of shape {shape}: {exc}") from None
+    if arr.shape != tuple(shape):
+        raise ValueError(f"actions must have shape {tuple(shape)}, got {arr.shape}")
+    if arr.dtype.kind not in "iu" or arr.min(initial=0) < 0 or arr.max(initial=0) >= N_ACTIONS:
+        raise ValueError(f"actions must be integers in 0..8, got {arr.dtype} "
+                         f"{arr.ravel()[:8].tolist()!r:.80}")
+    return arr
+
+
 def step(cfg: WorldConfig, state: WorldState, actions: np.ndarray) -> np.ndarray:
     """Advance every episode one step with actions [B, N] in 0..8; returns rewards [B, N]
     float32."""
@@ -241,13 +259,7 @@ def step(cfg: WorldConfig, state: WorldState, actions: np.ndarray) -> np.ndarray
     lay = Layout.of(cfg)
     b, n = state.pos.shape
     p = lay.size
-    actions = np.asarray(actions)
-    if actions.shape != (b, n):
-        raise ValueError(f"actions must have shape {(b, n)}, got {actions.shape}")
-    if actions.dtype.kind not in "iu" or actions.min(initial=0) < 0 or \
-            actions.max(initial=0) >= N_ACTIONS:  # (NaN, 1.5 or True is no move)
-        raise ValueError(f"actions must be integers in 0..8, got {actions.dtype} "
-                         f"{actions.ravel()[:8].tolist()!r:.80}")
+    actions = check_actions(actions, (b, n))
     offs = (np.arange(b) * p)[:, None]
     gflat = state.grid.reshape(-1)
     act = np.where(state.alive, actions, 0)

@@ -151,6 +151,23 @@ class EvalResult:
                    elratio_curve=np.zeros((0, cfg.horizon + 1)))
 
 
+def acted(policy: Policy, view: View, greedy: bool = True) -> np.ndarray:
+    """`policy.act(view)`, checked as the world and every robot process check it
+    (`world.core.check_actions`); a policy that raises or answers no move is one line naming
+    it (a ConfigError), not a traceback: a robot process would stay in place and count it."""
+    try:
+        out = policy.act(view, greedy=greedy)
+    except ConfigError:
+        raise
+    except Exception as exc:  # (a plugin's bug: whatever it raises)
+        raise ConfigError(f"policy {type(policy).__name__}: act raised {type(exc).__name__}: "
+                          f"{exc}") from None
+    try:
+        return core.check_actions(out, view.receivers.shape)
+    except ValueError as exc:
+        raise ConfigError(f"policy {type(policy).__name__}: {exc}") from None
+
+
 def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, batch: int = 250,
              first_episode: int = 0, greedy: bool = True, record_actions: bool = False,
              on_progress: Callable[[int], None] | None = None,
@@ -189,15 +206,12 @@ def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, ba
             if channel is not None:
                 channel.apply(view)
             t0 = time.perf_counter()
-            a = policy.act(view, greedy=greedy)
+            a = acted(policy, view, greedy)
             planning += time.perf_counter() - t0
             decisions += len(eps)
             if record_actions:
                 acts.append(a.copy())
-            try:
-                core.step(cfg, state, a)
-            except ValueError as exc:  # (a plugin's NaN: one line naming the policy)
-                raise ConfigError(f"policy {type(policy).__name__}: {exc}") from None
+            core.step(cfg, state, a)
         parts.append(core.metrics(cfg, state))
         curves.append(state.elratio.copy())
         actions.append(acts)

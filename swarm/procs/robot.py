@@ -49,6 +49,7 @@ from swarm.procs.robot_status import (
 )
 from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig
+from world.core import check_actions
 from world.decentral import TrajMessages, robot_view
 
 log = logging.getLogger("swarm.robot")
@@ -390,11 +391,12 @@ class RobotProcess:
                 view, None if hidden is None else hidden.vector()[None],
                 None if hidden is None else np.array([hidden.action]),
                 greedy=self.run_cfg.greedy, prepared=prepared)
-            action = int(actions[0, r])
+            action = int(check_actions(actions, view.receivers.shape)[0, r])  # (as eval's)
             self.send_hidden(Hidden(obs.ep, obs.t, r, action,
                                     np.asarray(state[0], "<f4").tobytes()), succ)
         else:
-            action = int(self.policy.act(view, greedy=self.run_cfg.greedy)[0, r])
+            actions = self.policy.act(view, greedy=self.run_cfg.greedy)
+            action = int(check_actions(actions, view.receivers.shape)[0, r])
         return action, chain_ok
 
     def send_hidden(self, h: Hidden, succ: list[int] | None) -> None:
@@ -415,17 +417,8 @@ class RobotProcess:
         self.c.bytes_out += len(payload) * n_out
 
     def status(self, final: bool = False) -> None:
-        rec = {"robot": self.robot, "ep": self.ep, "final": final, "msgs_in": self.c.msgs_in,
-               "msgs_out": self.c.msgs_out, "bytes_in": self.c.bytes_in,
-               "bytes_out": self.c.bytes_out, "bad": self.c.bad, "stale": self.c.stale,
-               "missed": self.c.missed, "missed_hidden": self.c.missed_hidden,
-               "latency_ms": self.c.last_latency_ms, "version": self.version,
-               "weights_bad": self.c.weights_bad, "weights_late": self.c.weights_late,
-               "rollouts_lost": self.c.rollouts_lost, "stalls": self.c.stalls,
-               "rejoins": self.c.rejoins, "errors": self.c.errors,
-               "compute_ms": self.c.compute_ms / max(self.c.decisions, 1),
-               "wait_ms": self.c.wait_ms / max(self.c.decisions, 1),
-               **(self.inbox.dropped if self.inbox is not None else {})}
+        rec = self.c.record(self.robot, self.ep, final, self.version,
+                            self.inbox.dropped if self.inbox is not None else {})
         if self.attn is not None:
             rec["attn_t"], rec["attn"] = self.attn
         self.status_pub.put(pack_record(K_RSTATUS, rec))

@@ -40,6 +40,20 @@ class RobotCounters:
     wait_ms: float = 0.0  # time spent waiting for bundles and predecessors, summed
     bad_by_key: dict[str, int] = field(default_factory=dict)
 
+    def record(self, robot: int, ep: int, final: bool, version: int,
+               dropped: dict[str, int]) -> dict[str, object]:
+        """The robot status record of these counters (`dropped`: what its inbox dropped)."""
+        return {"robot": robot, "ep": ep, "final": final, "msgs_in": self.msgs_in,
+                "msgs_out": self.msgs_out, "bytes_in": self.bytes_in,
+                "bytes_out": self.bytes_out, "bad": self.bad, "stale": self.stale,
+                "missed": self.missed, "missed_hidden": self.missed_hidden,
+                "latency_ms": self.last_latency_ms, "version": version,
+                "weights_bad": self.weights_bad, "weights_late": self.weights_late,
+                "rollouts_lost": self.rollouts_lost, "stalls": self.stalls,
+                "rejoins": self.rejoins, "errors": self.errors,
+                "compute_ms": self.compute_ms / max(self.decisions, 1),
+                "wait_ms": self.wait_ms / max(self.decisions, 1), **dropped}
+
 
 def attention_of(policy: Policy, robot: int, n: int, t: int) -> tuple[int, list[float]] | None:
     """(t, this robot's attention weights over the team) from the policy's `last_attention`

@@ -1,0 +1,133 @@
+"""Policies of other packages (README, "Building on it: your policy, your analysis") that are
+buggy: the batched evaluator and the swarm take the same answers as moves (one check,
+`world.core.check_actions`), and a plugin that cannot be imported or built is one line naming
+it, never a traceback, nor a command that breaks though it never asked for that plugin."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import swarm
+
+from world import core
+
+PLUGIN = '''
+import numpy as np
+
+from policies.base import Policy, receiver_index
+from policies.chain_plan import ChainPlan
+
+
+class Cyclic(Policy):
+    name = "cyclic"
+
+    def act(self, view, greedy=True):
+        g, i = receiver_index(view)
+        out = np.zeros(view.receivers.shape, dtype=np.int64)
+        out[g, i] = (view.tick + i) % 9
+        return out
+
+
+class OutOfRange(Policy):
+    def act(self, view, greedy=True):
+        return np.full(view.receivers.shape, 42, dtype=np.int64)
+
+
+class Floaty(Policy):
+    def act(self, view, greedy=True):
+        return np.full(view.receivers.shape, 1.5)
+
+
+class Listy(Cyclic):
+    def act(self, view, greedy=True):
+        return super().act(view, greedy).tolist()
+
+
+class Raiser(Policy):
+    def act(self, view, greedy=True):
+        raise RuntimeError("boom from my plugin")
+
+
+class NoAct(Policy):
+    pass
+
+
+class BadInit(Cyclic):
+    def __init__(self, cfg):
+        raise ValueError("init failed")
+
+
+class Chained(ChainPlan):
+    name = "chained"
+'''
+
+ENTRIES = {"cyclic": "ua_plugin:Cyclic", "outofrange": "ua_plugin:OutOfRange",
+           "floaty": "ua_plugin:Floaty", "listy": "ua_plugin:Listy",
+           "raiser": "ua_plugin:Raiser", "noact": "ua_plugin:NoAct",
+           "badinit": "ua_plugin:BadInit", "missing": "ua_plugin:Missing",
+           "noimport": "no_such_module_here:X", "chained": "ua_plugin:Chained"}
+
+
+def install(tmp_path: Path, *names: str) -> dict[str, str]:
+    """PLUGIN on a path of its own with the entry points `names` of ENTRIES; the environment
+    that makes it importable."""
+    (tmp_path / "ua_plugin.py").write_text(PLUGIN)
+    info = tmp_path / "ua_plugin-0.1.dist-info"
+    info.mkdir(exist_ok=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: ua-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(
+        "[commattn_swarm.policies]\n" + "".join(f"{n} = {ENTRIES[n]}\n" for n in names))
+    return {"PYTHONPATH": str(tmp_path)}
+
+
+def test_a_move_is_what_one_check_takes() -> None:
+    """The world, the batched evaluator and a robot process ask `check_actions`: integers in
+    0..8 of the team's shape; a list of them is as good as its array."""
+    ok = core.check_actions([[0, 8, 3]], (1, 3))
+    assert isinstance(ok, np.ndarray) and ok.tolist() == [[0, 8, 3]]
+    for bad, why in (([[0, 42, 0]], "integers in 0..8"), ([[0, 1.5, 0]], "integers in 0..8"),
+                     ([[0, -1, 0]], "integers in 0..8"), ([[True, False, True]], "0..8"),
+                     ([[0, np.nan, 0]], "integers in 0..8"), ([0, 1, 2], "shape (1, 3)"),
+                     ([[0, 1], [2]], "shape (1, 3)")):
+        with pytest.raises(ValueError, match=re.escape(why)):
+            core.check_actions(bad, (1, 3))
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("name", ["outofrange", "floaty"])
+def test_a_plugin_answering_no_move_stays_in_place_in_the_swarm_as_eval_refuses_it(
+        tmp_path: Path, name: str) -> None:
+    """Before, 42 went to the world, which dropped it as a bad payload and waited out its
+    watchdog every tick (0.1 ticks/s, exit 0, no word), and 1.5 moved north (int(1.5)) where
+    `swarm eval` refused it."""
+    env, run = install(tmp_path, name), tmp_path / "run.json"
+    r = swarm("eval", "--policy", name, "--robots", "3", "--episodes", "1", env=env)
+    assert r.returncode == 2 and "actions must be integers in 0..8" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    r = swarm("run", "--headless", "--policy", name, "--robots", "3", "--episodes", "1",
+              "--horizon", "4", "--watchdog", "600", "--json", str(run), env=env, timeout=120)
+    assert r.returncode == 0, r.stderr
+    for i in range(3):
+        assert f"robot {i} could not decide on 4 ticks" in r.stderr, r.stderr
+    res = json.loads(run.read_text())
+    assert res["timeouts"] == 0 and not np.array(res["actions"]).any()
+    assert all(s["errors"] == 4 for s in res["robot_status"].values())
+
+
+@pytest.mark.procs
+def test_a_plugin_answering_a_list_acts_the_same_in_eval_and_in_the_swarm(
+        tmp_path: Path) -> None:
+    """Before, eval took the list and every robot failed on it (an error each tick)."""
+    env, ev, run = install(tmp_path, "listy"), tmp_path / "eval.json", tmp_path / "run.json"
+    common = ["--policy", "listy", "--robots", "3", "--episodes", "1", "--horizon", "6"]
+    r = swarm("eval", *common, "--json", str(ev), env=env)
+    assert r.returncode == 0, r.stderr
+    r = swarm("run", "--headless", *common, "--json", str(run), env=env)
+    assert r.returncode == 0 and "could not decide" not in r.stderr, r.stderr
+    res = json.loads(run.read_text())
+    assert res["elratio_mean"] == pytest.approx(json.loads(ev.read_text())["elratio_mean"])
+    assert np.array_equal(np.array(res["actions"])[0, 0], [0, 1, 2])
