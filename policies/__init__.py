@@ -2,13 +2,16 @@
 
 Imports are lazy so that running a frontier policy never imports torch. Policies of other
 packages join the registry through the `commattn_swarm.policies` entry-point group (README,
-"Adding a policy"): hand-written ones only (a learned policy needs a numpy twin here).
+"Building on it: your policy, your analysis"): hand-written ones only (a learned policy needs a
+numpy twin here).
 """
 
 from __future__ import annotations
 
 import importlib
+import inspect
 import sys
+from collections.abc import Iterable
 from importlib import metadata
 from typing import TYPE_CHECKING
 
@@ -65,8 +68,14 @@ LEARNED = frozenset({"commattn", "commnet", "vain", "bicnet"})
 TEACHERS = ("team-beam", "central", "coordinated-frontier", "nearest-frontier", "cost-utility")
 
 
+class PluginError(ValueError):
+    """A policy of another package that cannot be used: it does not import, is no `Policy`
+    subclass, is abstract, or its constructor raised; one line naming the plugin."""
+
+
 def policy_class(name: str) -> type[Policy]:
-    """The class registered under `name`; an unknown name is a one-line ValueError."""
+    """The class registered under `name`; an unknown name is a one-line ValueError, a plugin
+    that cannot be used a one-line PluginError."""
     try:
         target = REGISTRY[name]
     except KeyError:
@@ -77,20 +86,40 @@ def policy_class(name: str) -> type[Policy]:
     except Exception as exc:  # (another package's module: a SyntaxError there is one line too)
         if name not in PLUGINS:
             raise
-        raise ValueError(f"policy plugin {name!r} ({target}) does not import: "
-                         f"{type(exc).__name__}: {exc}") from None
+        raise PluginError(f"policy plugin {name!r} ({target}) does not import: "
+                          f"{type(exc).__name__}: {exc}") from None
+    if found is None:
+        kind = PluginError if name in PLUGINS else ValueError
+        raise kind(f"policy {'plugin ' if name in PLUGINS else ''}{name!r} ({target}): "
+                   f"{module} has no {cls}")
     if name in PLUGINS:  # another package's class: checked before anyone builds it
         from policies.base import Policy
 
         if not (isinstance(found, type) and issubclass(found, Policy)):
-            raise ValueError(f"policy plugin {name!r} ({target}) is not a policies.base.Policy "
-                             "subclass")
+            raise PluginError(f"policy plugin {name!r} ({target}) is not a policies.base.Policy "
+                              "subclass")
+        if inspect.isabstract(found):
+            missing = ", ".join(sorted(found.__abstractmethods__))
+            raise PluginError(f"policy plugin {name!r} ({target}) does not implement {missing}")
         if found.learned:
-            raise ValueError(f"policy plugin {name!r} is learned: plugins are hand-written "
-                             "policies (a learned one needs a numpy twin in policies.infer)")
-    if found is None:
-        raise ValueError(f"policy {name!r}: {module} has no {cls}")
+            raise PluginError(f"policy plugin {name!r} is learned: plugins are hand-written "
+                              "policies (a learned one needs a numpy twin in policies.infer)")
     return found
+
+
+def loadable(names: Iterable[str] | None = None) -> tuple[str, ...]:
+    """`names` (default: every registered one) but the plugins that cannot be used, each
+    skipped with a one-line warning: for the commands that take every policy by default."""
+    kept = []
+    for name in REGISTRY if names is None else names:
+        if name in PLUGINS:
+            try:
+                policy_class(name)
+            except PluginError as exc:
+                print(f"swarm: warning: {exc}; skipped", file=sys.stderr)
+                continue
+        kept.append(name)
+    return tuple(kept)
 
 
 def is_chained(name: str) -> bool:
@@ -111,12 +140,21 @@ def check_learned(name: str, what: str) -> None:
 
 
 def learned_names() -> tuple[str, ...]:
-    """Registry names of the learned (torch) policies, in registry order (imports them)."""
-    return tuple(name for name in REGISTRY if policy_class(name).learned)
+    """Registry names of the learned (torch) policies, in registry order, from the names alone
+    (a plugin is never learned, so none is imported: one that does not import breaks nothing)."""
+    return tuple(name for name in REGISTRY if name in LEARNED)
 
 
 def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
     """Policy `name` for `cfg` as its class builds it: a learned one without `checkpoint=`
     has fresh random weights (for training and tests). The shipped networks, as every command
-    runs them: `swarm.common.policy_spec.build_policy(name, cfg)`."""
-    return policy_class(name)(cfg, **kwargs)  # type: ignore[call-arg]
+    runs them: `swarm.common.policy_spec.build_policy(name, cfg)`. A plugin whose constructor
+    raises is a one-line PluginError naming it."""
+    cls = policy_class(name)
+    if name not in PLUGINS:
+        return cls(cfg, **kwargs)  # type: ignore[call-arg]
+    try:
+        return cls(cfg, **kwargs)  # type: ignore[call-arg]
+    except Exception as exc:  # (another package's bug: whatever it raises)
+        raise PluginError(f"policy plugin {name!r} ({REGISTRY[name]}) could not be built: "
+                          f"{type(exc).__name__}: {exc}") from None

@@ -131,3 +131,41 @@ def test_a_plugin_answering_a_list_acts_the_same_in_eval_and_in_the_swarm(
     res = json.loads(run.read_text())
     assert res["elratio_mean"] == pytest.approx(json.loads(ev.read_text())["elratio_mean"])
     assert np.array_equal(np.array(res["actions"])[0, 0], [0, 1, 2])
+
+
+@pytest.mark.parametrize(("name", "why"), [
+    ("raiser", "policy Raiser: act raised RuntimeError: boom from my plugin"),
+    ("noact", "policy plugin 'noact' (ua_plugin:NoAct) does not implement act"),
+    ("badinit", "policy plugin 'badinit' (ua_plugin:BadInit) could not be built: "
+                "ValueError: init failed"),
+    ("missing", "policy plugin 'missing' (ua_plugin:Missing): ua_plugin has no Missing")])
+def test_a_plugin_that_cannot_act_or_be_built_is_one_line_naming_it(
+        tmp_path: Path, name: str, why: str) -> None:
+    """Before: a 20-line traceback (abstract class, raising constructor), a line without the
+    policy's name (act raised) or one calling a missing class no Policy subclass."""
+    env = install(tmp_path, name)
+    commands = [["eval", "--policy", name, "--robots", "3", "--episodes", "1"]]
+    if name != "raiser":  # (refused before any process is spawned)
+        commands.append(["run", "--headless", "--policy", name, "--robots", "3",
+                         "--episodes", "1"])
+    for args in commands:
+        r = swarm(*args, env=env)
+        said = [line for line in r.stderr.splitlines() if line.startswith("swarm:")]
+        assert r.returncode == 2 and said == [f"swarm: error: {why}"], r.stderr
+        assert "Traceback" not in r.stderr
+
+
+def test_a_plugin_that_does_not_import_breaks_no_command_that_does_not_ask_for_it(
+        tmp_path: Path) -> None:
+    """Before, `swarm repro` imported every registered policy at start (a traceback for every
+    item) and `swarm bench policy` (every policy by default) stopped at it."""
+    env = install(tmp_path, "noimport", "cyclic")
+    r = swarm("repro", "fig8", "--out", str(tmp_path / "repro"), env=env)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    r = swarm("bench", "policy", "--decisions", "1", "--warmup", "0", "--robots", "3",
+              "--horizon", "4", "--json", str(tmp_path / "bench.json"), env=env)
+    assert r.returncode == 0, r.stderr
+    assert "swarm: warning: policy plugin 'noimport' (no_such_module_here:X) does not " \
+           "import: ModuleNotFoundError" in r.stderr and "; skipped" in r.stderr, r.stderr
+    timed = [row["policy"] for row in json.loads((tmp_path / "bench.json").read_text())["rows"]]
+    assert "cyclic" in timed and "noimport" not in timed and "nearest-frontier" in timed

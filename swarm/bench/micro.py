@@ -12,12 +12,12 @@ import dataclasses
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 
-from policies import REGISTRY
+from policies import loadable
 from swarm.common.policy_spec import build_inference, build_policy, resolve_policies
 from world import core
 from world.config import ConfigError, WorldConfig, check_seed
@@ -101,8 +101,9 @@ class EnvBenchConfig:
 class PolicyBenchConfig:
     """Options of `swarm bench policy` (TOML table `[bench.policy]`)."""
 
-    policies: tuple[str, ...] = tuple(REGISTRY)
-    """Policies to time (default: every registered one)."""
+    policies: tuple[str, ...] = field(default_factory=loadable)
+    """Policies to time (default: every registered one; a plugin that does not import is
+    skipped with a warning line)."""
     decisions: int = 150
     """Timed team decisions per policy (whole episodes are run; surplus ticks are dropped)."""
     warmup: int = 1

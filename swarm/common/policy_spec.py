@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from policies import BASELINES, LEARNED, REGISTRY, policy_class
+from policies import BASELINES, LEARNED, REGISTRY, PluginError, make_policy, policy_class
 from policies.base import Policy
 from world.config import ConfigError, WorldConfig
 
@@ -76,7 +76,10 @@ def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> 
     cls = load_class(name)
     checkpoint = effective_checkpoint(name, checkpoint)
     if checkpoint is None:
-        return cls(cfg)
+        try:
+            return make_policy(name, cfg)
+        except PluginError as exc:  # (a plugin whose constructor raised)
+            raise ConfigError(str(exc)) from None
     if not cls.learned:
         raise ConfigError(f"--checkpoint applies to learned policies only, not {name!r}")
     from policies.checkpoint import CheckpointError, check_exists
