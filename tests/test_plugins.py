@@ -6,12 +6,15 @@ it, never a traceback, nor a command that breaks though it never asked for that 
 from __future__ import annotations
 
 import json
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import swarm
+from conftest import ROOT, swarm
 
 from world import core
 
@@ -169,3 +172,13 @@ def test_a_plugin_that_does_not_import_breaks_no_command_that_does_not_ask_for_i
            "import: ModuleNotFoundError" in r.stderr and "; skipped" in r.stderr, r.stderr
     timed = [row["policy"] for row in json.loads((tmp_path / "bench.json").read_text())["rows"]]
     assert "cyclic" in timed and "noimport" not in timed and "nearest-frontier" in timed
+
+
+def test_the_project_s_own_registry_checks_pass_with_a_chained_plugin_installed(
+        tmp_path: Path) -> None:
+    """tests/test_layout.py compared CHAINED with every registered class, a plugin's too."""
+    env = install(tmp_path, "chained")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider",
+                        "tests/test_layout.py", "-k", "registry"], cwd=ROOT, text=True,
+                       capture_output=True, timeout=300, env={**os.environ, **env})
+    assert r.returncode == 0, r.stdout[-2000:]
