@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -41,6 +41,15 @@ class Policy(ABC):
     @abstractmethod
     def act(self, view: View, greedy: bool = True) -> np.ndarray:
         """Actions [G, N] for the view's receivers; `greedy=False` samples where that differs."""
+
+
+class Decision(NamedTuple):
+    """A chained policy's batched decision (its `decide(view)`): every receiver's action and
+    the hidden-state message it sends on to its successor (SPEC 3.5), zeros off the
+    receivers. A robot process gets the same from `act_with_chain` for its one receiver."""
+
+    actions: np.ndarray  # [G, N] int64
+    state: np.ndarray  # [G, N, state_size] float32
 
 
 def receiver_index(view: View) -> tuple[np.ndarray, np.ndarray]:

@@ -36,7 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from policies.base import Policy
+from policies.base import Decision, Policy
 from policies.belief import Belief, Snapshot
 from policies.horizon_search import belief_episode, fill, improve, zobrist
 from policies.oracle import to_actions
@@ -82,11 +82,6 @@ class Prepared(NamedTuple):
 
 
 Plan = dict[int, np.ndarray]  # robot id -> path of cells over the steps left
-
-
-class Decision(NamedTuple):
-    actions: np.ndarray  # [G, N]
-    state: np.ndarray  # [G, N, S] float32: the message each receiver sends on
 
 
 class ChainPlan(Policy):

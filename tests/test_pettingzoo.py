@@ -232,3 +232,20 @@ def test_hostile_values_through_the_adapter_are_one_line_errors() -> None:
         parallel_env({"n_robots": 3})  # type: ignore[arg-type]
     _, rewards, *_ = env.step({})  # standing still on a fresh start cell: 0 (never -0.0)
     assert all(math.copysign(1.0, r) > 0 for r in rewards.values() if r == 0)
+
+
+def test_the_module_docstring_s_recipe_gives_swarm_eval_s_figures() -> None:
+    """The README points at world/pettingzoo.py's docstring for running a policy of this
+    project inside the adapter with `swarm eval`'s figures; the recipe was not there."""
+    import world.pettingzoo as pz
+    from swarm.common.policy_spec import build_policy
+    from swarm.learn.evaluate import evaluate
+
+    doc = pz.__doc__ or ""
+    start = doc.index("    from swarm.common.policy_spec import build_policy")
+    recipe = "\n".join(line[4:] for line in doc[start:].splitlines())
+    scope: dict = {"parallel_env": parallel_env}
+    exec(recipe, scope)  # noqa: S102 (the docstring's own text)
+    cfg = scope["env"].cfg
+    ev = evaluate(cfg, build_policy("nearest-frontier", cfg), 0, 3)
+    assert scope["elratio"] == pytest.approx(ev.elratio.tolist())

@@ -182,3 +182,12 @@ def test_the_project_s_own_registry_checks_pass_with_a_chained_plugin_installed(
                         "tests/test_layout.py", "-k", "registry"], cwd=ROOT, text=True,
                        capture_output=True, timeout=300, env={**os.environ, **env})
     assert r.returncode == 0, r.stdout[-2000:]
+
+
+def test_a_chained_policy_s_decision_is_public() -> None:
+    """A chained plugin's `decide` returns `policies.base.Decision` (there were two private
+    copies, and the README named none)."""
+    from policies import chain_plan
+    from policies.base import Decision
+
+    assert chain_plan.Decision is Decision and Decision._fields == ("actions", "state")

@@ -525,8 +525,9 @@ def install_plugin(tmp_path: Path) -> dict[str, str]:
 @pytest.mark.procs
 def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path) -> None:
     """A package that declares an entry point in the `commattn_swarm.policies` group (README,
-    "Adding a policy") adds its policy to every command, robot processes included, without
-    touching this repository; a malformed entry is skipped with a warning."""
+    "Building on it: your policy, your analysis") adds its policy to every command, robot
+    processes included, without touching this repository; a malformed entry is skipped with a
+    warning."""
     env = install_plugin(tmp_path)
     ev, run = tmp_path / "eval.json", tmp_path / "run.json"
     r = swarm("eval", "--policy", "cyclic,random", "--robots", "3", "--episodes", "2", "--seed",
