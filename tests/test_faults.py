@@ -305,14 +305,17 @@ def test_a_live_fault_must_fit_the_run_and_a_crash_waits_for_its_tick(tmp_path: 
         assert all("robots 0..2" in e for e in errs[:2]) and "did not answer" in errs[2], errs
         assert "beyond the run's last tick 79" in errs[3], errs[3]
         assert "ROBOT@TICK 0: run livec is at tick" in errs[4], errs[4]
+        r = swarm("fault", "--run", run_id, "--crash", "0", timeout=30)  # ROBOT alone: at once
+        assert r.returncode == 0, r.stderr  # (refused for a day: "use ROBOT@TICK")
         proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
     res = json.loads(out.read_text())
-    assert len(res["process_faults"]) == 1, res["process_faults"]
-    kind, when = res["process_faults"][0].split("@")
-    assert kind == "crash 2" and at <= int(when) <= at + 2  # (logged at the status that fired it)
+    assert len(res["process_faults"]) == 2, res["process_faults"]
+    fired = dict(f.split("@") for f in res["process_faults"])
+    assert at <= int(fired["crash 2"]) <= at + 2  # (logged at the status that fired it)
+    assert int(fired["crash 0"]) < at  # (at once: before the other's tick)
     assert res["process_faults_pending"] == []  # (one for a tick never reached is refused)
 
 

@@ -48,12 +48,13 @@ def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig
     from swarm.net.faults import plan_from_table
 
     last = run.episodes * world.horizon - 1
-    late = [f"--{p.kind} {p.robot}@{p.tick}" for p in plan_from_table(faults).process
+    process = plan_from_table(faults, at_once=True).process  # (a live change's may strike now)
+    late = [f"--{p.kind} {p.robot}@{p.tick}" for p in process
             if p.tick > last] + ([f"--at-tick {at_tick}"] if (at_tick or 0) > last else [])
     if late:
         raise ConfigError(f"{late[0]} is beyond the run's last tick {last} ({run.episodes} "
                           f"episode(s) x {world.horizon} ticks)")
-    at0 = {(p.kind, p.robot) for p in plan_from_table(faults).process if p.tick == 0}
+    at0 = {(p.kind, p.robot) for p in process if p.tick == 0}
     both = sorted(r for k, r in at0 if k == "crash" and ("restart", r) in at0)
     if both:  # (the world waits at tick 0 for a new process the supervisor only starts later)
         raise ConfigError(f"--crash {both[0]}@0 --restart {both[0]}@0: a robot restarted at "
