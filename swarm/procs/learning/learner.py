@@ -345,12 +345,15 @@ class Learner:
                 "stale_dropped": self.c.stale_dropped, "incomplete": self.c.incomplete,
                 "rejected": self.c.rejected}
 
-    def finish(self, inbox: Inbox, seed: int, grace: float = 0.3) -> dict[str, Any]:
-        """On the way out: take in what is still queued, settle every joining episode (a partial
-        batch is never trained on: it stays pending), publish the final status."""
+    def finish(self, inbox: Inbox, seed: int, watch: RunWatch | None = None,
+               grace: float = 0.3) -> dict[str, Any]:
+        """On the way out: take in what is still queued (the world's own events to `watch`, as
+        in the loop: they are no rollouts), settle every joining episode (a partial batch is
+        never trained on: it stays pending), publish the final status."""
         deadline = time.monotonic() + grace
         while (ev := inbox.next(deadline - time.monotonic())) is not None:
-            self.handle(ev.kind, ev.key, ev.payload or b"")
+            if watch is None or not watch.see(ev):
+                self.handle(ev.kind, ev.key, ev.payload or b"")
         self.join_ready(seed, force=True)
         return self.status(force=True)  # type: ignore[return-value]
 
@@ -394,9 +397,9 @@ class Learner:
                 updated = self.maybe_update()  # (an update publishes its status itself)
                 self.status(force=settled and not updated)  # a settled episode is told at once
             self.ended = watch.ended
-            return self.finish(inbox, seed)
+            return self.finish(inbox, seed, watch)
         except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (the supervisor stopping or gone)
-            return self.finish(inbox, seed)
+            return self.finish(inbox, seed, watch)
         finally:
             inbox.close()
 
