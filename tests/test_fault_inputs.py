@@ -265,6 +265,8 @@ def test_only_a_checked_stop_ends_a_run_and_the_run_says_so(tmp_path: Path) -> N
             for k in range(MAX_PENDING + 3):  # 3 more well-formed changes than a run holds
                 session.put(keys.control, pack_record(K_CONTROL, {
                     "faults_table": {"loss": 0.01}, "at_tick": 10**6 + k}))
+                session.put(keys.control, pack_record(K_CONTROL, {  # (the supervisor's queue)
+                    "process": [f"hang:1@{10**6 + k}"]}))
             time.sleep(2.0)
             assert proc.poll() is None  # neither stopped it
             session.put(keys.control, pack_record(K_CONTROL, {"stop": True}))
@@ -282,6 +284,8 @@ def test_only_a_checked_stop_ends_a_run_and_the_run_says_so(tmp_path: Path) -> N
     # each message in one counter: the 3 changes the queue had no room for are
     # fault_changes.dropped, not bad as well (they were counted in both)
     assert res["fault_changes"]["dropped"] == 3 and len(res["fault_changes"]["pending"]) == \
+        MAX_PENDING
+    assert res["process_faults_dropped"] == 3 and len(res["process_faults_pending"]) == \
         MAX_PENDING
 
 

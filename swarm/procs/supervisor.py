@@ -86,6 +86,7 @@ class Supervisor:
         plan = plan_from_table(self.faults, run.seed)
         self.process_faults = sorted(plan.process, key=lambda p: p.tick)
         self.planned = list(self.process_faults)  # (the plan's, kept: the queue is used up)
+        self.process_faults_dropped = 0  # live changes the full queue had no room for
         self.run_tick = 0  # the world's run tick, from its last status
         self.console = console or Console()
         self.keys = Keys(run.run_id)
@@ -235,8 +236,12 @@ class Supervisor:
             elif kind == "control":
                 faults = check_control(unpack_record(payload or b"", K_CONTROL),
                                        self.run_cfg.seed, self.cfg.n_robots).process
-                if len(self.process_faults) + len(faults) > MAX_PENDING:
-                    raise ValueError(f"{MAX_PENDING} process faults wait already")
+                if len(self.process_faults) + len(faults) > MAX_PENDING:  # well-formed: not bad
+                    self.process_faults_dropped += 1
+                    if self.process_faults_dropped & (self.process_faults_dropped - 1) == 0:
+                        log.warning("dropped a process-fault change (%d so far): %d wait "
+                                    "already", self.process_faults_dropped, MAX_PENDING)
+                    return
                 for f in faults:  # ROBOT@TICK waits for run tick TICK, ROBOT alone is now
                     if f.tick < 0:
                         self._process_fault(f)
@@ -370,6 +375,7 @@ class Supervisor:
         # scheduled for a tick the run never reached: named, not silently dropped
         res["process_faults_pending"] = [f"{f.kind} {f.robot}@{f.tick}"
                                          for f in self.process_faults]
+        res["process_faults_dropped"] = self.process_faults_dropped
         if self.zfiles:
             res["secure"] = {"certs": self.opts.secure, "hub": self.hub,
                              "configs": str(self.log_dir / "zenoh")}
