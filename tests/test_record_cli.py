@@ -271,3 +271,14 @@ def test_an_interrupts_traceback_says_no_more_than_interrupted() -> None:
                      "KeyboardInterrupt"])  # (an exception that importing handles, then ^C)
     assert more([*tb, "KeyboardInterrupt", "", chained, "", *tb, "OSError: x"])
     assert more(["WARNING zenoh: something"]) and more(tb)  # (a traceback cut short)
+    # two more forms a robot ^C'd at 1.0-1.2 s wrote (UA pass 41: its folder was kept): an
+    # exception Python could only print, and its dump once stderr itself was gone
+    ignored = "Exception ignored in: <module 'threading' from '/usr/lib/threading.py'>"
+    assert not more([ignored, *tb, "KeyboardInterrupt: "])
+    dump = ["object refcount : 2", "object type     : 0x7fb9c24521e0",
+            "object type name: KeyboardInterrupt", "object repr     : KeyboardInterrupt()",
+            "lost sys.stderr"]
+    assert not more([*tb[:-2], "    ^^^^^^^object address  : 0x7fb9c1ae3fa0", *dump])
+    assert more([*tb[:-2], "    ^^^object address  : 0x1", dump[0], dump[1],
+                 "object type name: MemoryError", "lost sys.stderr"])
+    assert more([ignored, *tb, "ValueError: x"])

@@ -17,6 +17,7 @@ import ctypes
 import fcntl
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -246,9 +247,14 @@ def tidy_logs(folder: Path, res: dict[str, Any], keep: bool = False) -> None:
 
 _TRACEBACK_HEAD = ("Traceback (most recent call last):", "Fatal Python error: init_",
                    "Python runtime state: ", "Could not import runpy module",
-                   "Could not access runpy._run_module_as_main")
+                   "Could not access runpy._run_module_as_main", "Exception ignored in: ")
 """What heads a traceback in a child's log (the others: the interpreter stopped while it
-still started, in `site`, its standard streams or `-m`'s runpy, before any line of ours)."""
+still started, in `site`, its standard streams or `-m`'s runpy, before any line of ours, or
+an exception it could only print, in `threading`'s shutdown say)."""
+
+_DUMP = re.compile(r"object (address|refcount|type|type name|repr) *: (.*)|lost sys\.stderr")
+"""CPython's dump of an exception it could not print (its stderr gone while it stopped); its
+first line may be glued to the traceback's last."""
 
 
 _CHAINED = ("During handling of the above exception, another exception occurred:",
@@ -262,6 +268,10 @@ def says_more_than_interrupted(lines: Iterable[str]) -> bool:
     is the one that ended it) are not more; anything else is, another exception included."""
     block, last = False, None  # in a traceback's frames; the exception line that ended one
     for line in (x.rstrip() for x in lines):
+        if (dump := _DUMP.search(line)) is not None:  # (ends a traceback cut short by it)
+            block, last = False, dump[2] if dump[1] == "type name" else last
+            continue
+        line = "KeyboardInterrupt" if line == "KeyboardInterrupt:" else line  # (no message)
         if line.startswith(_TRACEBACK_HEAD) or block and (not line or line[0].isspace()):
             block = True
         elif block:
