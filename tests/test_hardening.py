@@ -276,6 +276,39 @@ def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Pa
 
 
 @pytest.mark.procs
+def test_foreign_garbage_in_a_recording_is_skipped_by_verify_not_a_divergence(
+        tmp_path: Path) -> None:
+    """A foreign peer's garbage on the run's keys (UA pass: on world/result it was reported as a
+    divergence 'recorded unreadable, recomputed not msgpack'): every live process dropped it, so
+    verification counts it as skipped and the recording verifies."""
+    run_id, f = "gx", tmp_path / "k.mcap"
+    proc = start_run(tmp_path, run_id, "--policy", "nearest-frontier", "--episodes", "2",
+                     "--pace", "10", "--record", str(f))
+    try:
+        hub = hub_of(run_id, proc)
+        keys = Keys(run_id)
+        with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
+            ticks: list[bytes] = []
+            sub = session.declare_subscriber(keys.status, lambda smp: ticks.append(b""))
+            deadline = time.monotonic() + 90
+            while len(ticks) < 3 and time.monotonic() < deadline:  # mid-run
+                time.sleep(0.05)
+            sub.undeclare()
+            for key in (keys.result, keys.status, keys.obs(1)):
+                session.put(key, b"\xff\xfe")
+        assert proc.wait(timeout=120) == 0, proc.stderr.read().decode()[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    r = swarm("replay", str(f), "--verify", "--json", str(tmp_path / "v.json"))
+    assert r.returncode == 0, r.stderr
+    assert "3 unreadable messages skipped, as the live processes dropped them" in r.stdout, \
+        r.stdout
+    v = json.loads((tmp_path / "v.json").read_text())
+    assert v["ok"] and v["unreadable"] == 3 and v["checked"]["results"] == 1, v
+
+
+@pytest.mark.procs
 def test_a_hung_robot_rejoins_after_it_is_resumed(tmp_path: Path) -> None:
     """SIGSTOP past the lease, then SIGCONT (`--hang` / `--restart`): its session dropped, but the
     world did not end: the robot rejoins, acts again, and the stall and the rejoin are counted."""

@@ -140,6 +140,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         checked = ", ".join(f"{v} {k}" for k, v in report.checked.items())
         summary = {"file": args.file, "run_id": rec.record.run.run_id,
                    "clock": rec.record.run.clock, "ticks": report.ticks, "checked": report.checked,
+                   "unreadable": report.unreadable,
                    "notes": report.notes, "ok": div is None,
                    "divergence": None if div is None else vars(div) | {"line": div.line()}}
         _output_json(args.json, summary)
@@ -154,7 +155,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
             return 1
         out.print(f"verified {args.file}: run {rec.record.run.run_id} "
                   f"({rec.record.run.policy}, {rec.record.run.clock} clock), {report.ticks} "
-                  f"ticks recomputed; {checked}: every one as recorded")
+                  f"ticks recomputed; {checked}: every one as recorded" + (
+                      f"; {report.unreadable} unreadable messages skipped, as the live processes "
+                      "dropped them" if report.unreadable else ""))
         return 0
     try:
         view, stats = replay(rec, out, speed=args.speed, from_tick=args.from_tick,

@@ -102,20 +102,24 @@ def load(path: str | Path, partial: bool = False) -> Recording:
 
 
 def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
-                                             tuple[str, Any, Any, int] | None, str | None]:
+                                             tuple[str, Any, Any, int] | None, str | None, int]:
     """The world's result as recorded: its `world/result` message on the wire and the
     recorder's copy (`result.json`) must agree, and either stands alone when the other is
-    missing. (result, the first disagreement as (what, recorded, expected, run tick), a note)."""
+    missing. A `world/result` payload that is not a result record is skipped: the world never
+    sends one (a foreign peer did) and every live process dropped it. (result, the first
+    disagreement as (what, recorded, expected, run tick), a note, the payloads skipped)."""
     norm = lambda x: json.loads(json.dumps(x, default=str))  # noqa: E731 (inf, tuples)
     wire: dict[str, Any] | None = None
+    skipped = 0
     for m in rec.of("result"):
         try:
             got = unpack_record(m.payload, K_RESULT)
-        except BadMessage as exc:
-            return None, ("the world/result message", "unreadable", str(exc), m.tick), None
+        except BadMessage:
+            skipped += 1
+            continue
         if wire is not None and norm(got) != norm(wire):
-            return None, ("the world/result message (a second, different one)", got, wire,
-                          m.tick), None
+            return None, ("a second world/result message (as recorded) against the first (as "
+                          "recomputed)", got, wire, m.tick), None, skipped
         wire = got
     copy = rec.result
     if wire is not None and copy is not None and norm(wire) != norm(copy):
@@ -124,10 +128,10 @@ def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
         return None, (f"{RESULT} (the recorder's copy, as recorded) against the world/result "
                       "message (as recomputed)",
                       {k: a.get(k) for k in diff}, {k: b.get(k) for k in diff},
-                      rec.last_tick), None
+                      rec.last_tick), None, skipped
     if copy is None and wire is not None:
-        return wire, None, f"no {RESULT} attachment: the world/result message checked"
-    return copy if copy is not None else wire, None, None
+        return wire, None, f"no {RESULT} attachment: the world/result message checked", skipped
+    return copy if copy is not None else wire, None, None, skipped
 
 
 @dataclass

@@ -16,14 +16,14 @@ before it forwards the last action to the recorder. So: the world applied every 
 of tick t from a robot that its status does not list as timed out (the status is checked to
 list exactly the live robots without one); its radio saw the trajectory message of every robot
 it sent a bundle to (it always hands a sender its own message back) and the hidden-state
-message of every robot that did not time out. Bad payloads are skipped, as the world drops
-them. A partial recording (`--partial`) is checked up to the tick before its last status: the
-cut may have lost messages of that last tick.
+message of every robot that did not time out. Unreadable payloads (a foreign peer's garbage)
+are skipped and counted, not divergences: every live process dropped them. A partial recording
+(`--partial`) is checked up to the tick before its last status: the cut may have lost messages
+of that last tick.
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -46,7 +46,7 @@ from swarm.net.messages import (
 )
 from swarm.net.radio import Radio
 from swarm.studies.replay import Recording, recorded_result
-from swarm.studies.verify_direct import DirectAudit, stamped_of
+from swarm.studies.verify_direct import DirectAudit, hidden_label, senders_of, stamped_of
 from world import core
 from world.config import ConfigError
 
@@ -81,6 +81,7 @@ class VerifyReport:
     divergence: Divergence | None = None
     notes: list[str] = field(default_factory=list)
     ticks: int = 0
+    unreadable: int = 0  # payloads skipped: every live process dropped them
 
     def count(self, what: str, n: int = 1) -> None:
         self.checked[what] = self.checked.get(what, 0) + n
@@ -130,7 +131,7 @@ def _index(rec: Recording, report: VerifyReport) -> tuple[dict[tuple[int, int], 
             if m.kind not in ("bundle", "radio_hidden", "obs") and msg.robot != m.robot:
                 raise BadMessage("robot id does not match the key")
         except (BadMessage, KeyError, TypeError, ValueError, OverflowError):
-            report.count("bad payloads skipped")
+            report.unreadable += 1
             continue
         bucket = ticks.setdefault((msg.ep, msg.t), _Tick())
         if m.kind in ("traj", "hidden", "radio_hidden"):
@@ -382,7 +383,7 @@ class Auditor:
         got = {b.robot: b.trajs for _, b in bucket.bundle}
         for i in sorted(set(want) | set(got)):
             self.same(f"bundle to robot {i} (senders)",
-                      _senders(got.get(i), self.cfg), _senders(want.get(i), self.cfg))
+                      senders_of(got.get(i), self.cfg), senders_of(want.get(i), self.cfg))
             self.same(f"bundle to robot {i}", got.get(i), want.get(i))
             self.report.count("bundles")
             self.report.count("deliveries", len(want.get(i) or []))
@@ -398,8 +399,8 @@ class Auditor:
                     self.hidden_delivered += on_time
         forwarded = sorted((self._receiver(idx), p) for idx, _, p in bucket.radio_hidden)
         self.same("hidden-state messages forwarded (receiver, sender:state digest)",
-                  [(i, _hid(p, self.cfg)) for i, p in forwarded],
-                  [(i, _hid(p, self.cfg)) for i, p in sorted(expect)])
+                  [(i, hidden_label(p, self.cfg)) for i, p in forwarded],
+                  [(i, hidden_label(p, self.cfg)) for i, p in sorted(expect)])
         self.report.count("hidden forwarded", len(expect))
 
     def _fast_lane(self, bucket: _Tick, succ: dict[int, list[int] | None],
@@ -427,8 +428,9 @@ class Auditor:
         return -1 if robot is None else robot
 
     def _recorded_result(self) -> dict[str, Any] | None:
-        res, bad, note = recorded_result(self.rec)
+        res, bad, note, skipped = recorded_result(self.rec)
         self.report.notes += [note] if note else []
+        self.report.unreadable += skipped
         if bad is not None:  # (at the recording's last run tick: its end)
             k, t = max(bad[3] - 1, 0), self.cfg.horizon
             self.where = (self.run.first_episode + k // t, k % t + 1, bad[3])
@@ -472,27 +474,6 @@ class Auditor:
         for k, v in mine.items():
             self.same(f"result.messages.{k}", msgs.get(k), v)
         self.report.count("results")
-
-
-def _senders(payloads: list[bytes] | None, cfg: Any) -> list[int] | None:
-    if payloads is None:
-        return None
-    out = []
-    for p in payloads:
-        try:
-            out.append(Traj.unpack(p, cfg).robot)
-        except BadMessage:
-            out.append(-1)
-    return out
-
-
-def _hid(payload: bytes, cfg: Any) -> str:
-    """A hidden-state payload as a short label: `sender:miss` or `sender:<digest of all of it>`."""
-    try:
-        h = Hidden.unpack(payload, cfg)
-    except BadMessage:
-        return "bad:" + hashlib.sha1(payload).hexdigest()[:10]
-    return f"{h.robot}:" + ("miss" if h.is_miss else hashlib.sha1(payload).hexdigest()[:10])
 
 
 def verify(rec: Recording) -> VerifyReport:

@@ -15,6 +15,7 @@ reported to; the audit keeps each robot's last few ticks of counts to take that 
 
 from __future__ import annotations
 
+import hashlib
 from collections import deque
 from collections.abc import Callable
 from typing import Any
@@ -24,7 +25,7 @@ import numpy as np
 from policies import is_chained
 from swarm.net.direct import COUNT_KEYS, KIND_KEYS, DirectLink, DirectTally, live_plan
 from swarm.net.faults import plan_from_table
-from swarm.net.messages import K_HIDDEN, K_TRAJ, BadMessage, Obs, Stamped, Traj
+from swarm.net.messages import K_HIDDEN, K_TRAJ, BadMessage, Hidden, Obs, Stamped, Traj
 from world.config import ConfigError, WorldConfig
 from world.decentral import predecessor_of
 
@@ -150,3 +151,25 @@ def stamped_of(key: str, payload: bytes, robot: int | None, cfg: WorldConfig) ->
     if robot != st.robot or key.endswith("/dhidden") != (st.kind == K_HIDDEN):
         raise BadMessage("a stamped message that does not fit its key")
     return st
+
+
+def senders_of(payloads: list[bytes] | None, cfg: Any) -> list[int] | None:
+    """The sender of each trajectory payload of a bundle (-1: unreadable)."""
+    if payloads is None:
+        return None
+    out = []
+    for p in payloads:
+        try:
+            out.append(Traj.unpack(p, cfg).robot)
+        except BadMessage:
+            out.append(-1)
+    return out
+
+
+def hidden_label(payload: bytes, cfg: Any) -> str:
+    """A hidden-state payload as a short label: `sender:miss` or `sender:<digest of all of it>`."""
+    try:
+        h = Hidden.unpack(payload, cfg)
+    except BadMessage:
+        return "bad:" + hashlib.sha1(payload).hexdigest()[:10]
+    return f"{h.robot}:" + ("miss" if h.is_miss else hashlib.sha1(payload).hexdigest()[:10])
