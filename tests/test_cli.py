@@ -184,6 +184,25 @@ def test_config_file_applies_and_flags_override(tmp_path: Path) -> None:
     assert prov["versions"]["commattn-swarm"] and prov["versions"]["numpy"] == np.__version__
 
 
+@pytest.mark.procs
+def test_eval_warns_that_it_plays_without_the_process_faults_of_a_shared_file(
+        tmp_path: Path) -> None:
+    """A `[faults]` table shared with `swarm run` (UA pass: its crash was silently ignored): one
+    warning line, and the link faults still apply."""
+    cfg = tmp_path / "f.toml"
+    cfg.write_text('[world]\nn_robots = 3\nhorizon = 10\n\n'
+                   '[faults]\nloss = 0.2\ncrash = ["1@3"]\nhang = ["2@4"]\n')
+    out = tmp_path / "e.json"
+    r = swarm("eval", "--config", str(cfg), "--policy", "random", "--episodes", "1", "--json",
+              str(out))
+    assert r.returncode == 0, r.stderr
+    warned = [line for line in r.stderr.splitlines() if "warning" in line]
+    assert warned == ["swarm: warning: [faults] crash, hang are the swarm's process faults (swarm "
+                      "run); the batched evaluation plays without them"], r.stderr
+    faults = json.loads(out.read_text())["faults"]
+    assert "loss" in faults and "crash" not in faults, faults
+
+
 def test_merge_precedence_in_process(tmp_path: Path) -> None:
     cfg = tmp_path / "exp.toml"
     cfg.write_text('[world]\nvision = 7\ncomm_range = 3.5\n[eval]\nbatch = 17\n')

@@ -22,6 +22,7 @@ from swarm.cli.common import (
     add_common,
     add_fault_flags,
     add_world,
+    batched_faults,
     fault_table,
     file_tables,
     merged,
@@ -134,7 +135,7 @@ def _eval_faults(args: argparse.Namespace, tables: dict[str, Any], world: WorldC
     `swarm run` reads them (the fault seed defaults to the episode seed there too)."""
     from swarm.net.faults import plan_from_table
 
-    table = fault_table(args, tables, world.n_robots)
+    table = batched_faults(fault_table(args, tables, world.n_robots), "evaluation")
     return plan_from_table(table, seed, world.n_robots) if table else None
 
 
@@ -185,7 +186,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     world = world_config(args, tables)
     base = from_dict(train_config.TrainConfig, tables.get("train", {}), "[train]")
     cfg = train_config.from_args(args, base)
-    faults = fault_table(args, tables, world.n_robots)  # the same flags as swarm run / eval
+    faults = batched_faults(fault_table(args, tables, world.n_robots), "training")  # as eval
     if faults and cfg.faults:
         raise ConfigError("faults given twice: --faults JSON (or [train] faults) and the fault "
                           "flags (or [faults]); give one")

@@ -352,6 +352,19 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
     return table
 
 
+def batched_faults(table: dict[str, Any], what: str) -> dict[str, Any]:
+    """`table` without its process faults (crash, hang, restart: the swarm's supervisor kills
+    and stops processes; a batched evaluation or training has none), with one warning line on
+    stderr when it had any (a config file shared with `swarm run` is a normal use)."""
+    from swarm.net.faults import PROCESS_KINDS, link_table
+
+    given = [k for k in PROCESS_KINDS if table.get(k)]
+    if given:
+        print(f"swarm: warning: [faults] {', '.join(given)} are the swarm's process faults "
+              f"(swarm run); the batched {what} plays without them", file=sys.stderr)
+    return link_table(table)
+
+
 def _has_key(table: Any, key: str) -> bool:
     """Whether `key` is set anywhere in a (nested) faults table (per robot, per link too)."""
     return isinstance(table, dict) and (key in table or any(_has_key(v, key)
