@@ -84,11 +84,14 @@ def test_an_empty_file_a_directory_or_no_file_is_one_line_and_exit_2(tmp_path: P
     (["--seeds", "1,1"], "seeds repeat 1"), (["--seeds", "9999999999"], "seed must lie"),
     (["--episodes", "0"], "--episodes must be >= 1"),
     (["--episodes", "x"], "argument --episodes: invalid int value"),
-    (["--episodes", "1", "--no-out"], "need --out DIR")])
+    (["--episodes", "1", "--no-out"], "need --out DIR"),
+    (["--empty-out"], "--out wants a directory, got an empty name"),  # (fell back to results/)
+    (["--episodes", "1", "--empty-out"], "--out wants a directory, got an empty name")])
 def test_bad_episodes_or_seeds_flags_are_one_line_and_exit_2(flags: list[str],
                                                               words: str) -> None:
-    out = [] if "--no-out" in flags else ["--out", "/nonexistent/x"]
-    flags = [f for f in flags if f != "--no-out"]
+    out = [] if "--no-out" in flags else ["--out", "" if "--empty-out" in flags else
+                                          "/nonexistent/x"]
+    flags = [f for f in flags if f not in ("--no-out", "--empty-out")]
     r = swarm("experiment", "deploy/experiments/tiny.toml", *out, *flags, timeout=60)
     assert r.returncode == 2 and words in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1

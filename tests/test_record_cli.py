@@ -167,6 +167,9 @@ def test_bad_files_are_one_line_errors_with_status_2(tmp_path: Path, capsys: Any
                        (["--from", "2", "--until", "1"], "--until 1 is before --from 2")):
         code, err = swarm_main("replay", str(good), "--speed", "0", *flags, capsys=capsys)
         assert code == 2 and len(err.splitlines()) == 1 and why in err, (flags, err)
+    # an empty --out (Path("") is the working directory) before the file is even read
+    code, err = swarm_main("trace", str(tmp_path / "missing.mcap"), "--out", "", capsys=capsys)
+    assert code == 2 and err == "swarm: error: --out wants a directory, got an empty name", err
     r = swarm("replay", str(tmp_path / "cut.mcap"))  # and no traceback from the real CLI
     assert r.returncode == 2 and "Traceback" not in r.stderr
 

@@ -271,6 +271,13 @@ def output_file(path: str | None, flag: str = "--json") -> None:
         raise ConfigError(f"{flag} {path} is not writable ({exc.strerror or exc})") from None
 
 
+def named_dir(path: str | Path | None, flag: str) -> None:
+    """An empty directory name is refused (Path("") is the working directory): first thing, so
+    `--out ''` is never read as "not given" by an `args.out or DEFAULT` further on."""
+    if path is not None and not str(path).strip():  # (a Path too: `swarm train --out` is one)
+        raise ConfigError(f"{flag} wants a directory, got an empty name")
+
+
 def output_dir(path: str | None, flag: str, make: bool = True) -> None:
     """A directory a run will write into, made now and probed with a file (permission bits do
     not say it for root or for a special file system such as /proc). `make=False` leaves a
@@ -278,8 +285,7 @@ def output_dir(path: str | None, flag: str, make: bool = True) -> None:
     exists: a path under a file, or where nothing can be made, is refused all the same."""
     if path is None:
         return
-    if not str(path).strip():  # (a Path too: `swarm train --out` is one)
-        raise ConfigError(f"{flag} wants a directory, got an empty name")
+    named_dir(path, flag)
     target = Path(path)
     if target.exists() and not target.is_dir():
         raise ConfigError(f"{flag} {path} exists and is not a directory")

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from swarm.cli.common import _consoles, output_dir, output_file
+from swarm.cli.common import _consoles, named_dir, output_dir, output_file
 from swarm.common.flags import check_wait
 from swarm.net import zconfig
 from world.config import ConfigError
@@ -191,6 +191,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
     from swarm.studies.replay import load
     from swarm.studies.trace import trace
 
+    named_dir(args.out, "--out")  # (before the file is read; Path("") is the working directory)
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ConfigError(f"--out {args.out} exists and is not a directory")
     output_file(args.json)

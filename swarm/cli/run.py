@@ -29,6 +29,7 @@ from swarm.cli.common import (
     add_world,
     fault_table,
     file_tables,
+    named_dir,
     output_dir,
     output_file,
     world_config,
@@ -359,6 +360,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     from swarm.studies.experiment import main as experiment_main
     from swarm.studies.experiment_plan import parse_seeds, plan
 
+    named_dir(args.out, "--out")  # (`--out ''` fell back to the file's out: results/)
     seeds = None if args.seeds is None else parse_seeds(args.seeds)
     if (args.episodes is not None or seeds is not None) and not args.out:
         raise ConfigError("--episodes/--seeds need --out DIR: a shrunk sweep would overwrite "
