@@ -203,6 +203,43 @@ def test_eval_warns_that_it_plays_without_the_process_faults_of_a_shared_file(
     assert "loss" in faults and "crash" not in faults, faults
 
 
+def test_the_help_states_defaults_and_what_it_names(monkeypatch: pytest.MonkeyPatch) -> None:
+    """UA pass: help without the defaults of --seed, --fault-seed, record --wait/--flush and the
+    learner's loss flags; eval's `all` unexplained; a module that does not exist; a hint planner
+    left out; `swarm fault` saying "at once" of flags that take ROBOT@TICK; experiment --resume
+    and the learner's description not saying what they do."""
+    import argparse
+
+    from swarm.cli import build_parser
+
+    monkeypatch.setenv("COLUMNS", "2000")  # (no line broken at a hyphen)
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+
+    def text(command: str) -> str:
+        return " ".join(sub.choices[command].format_help().split())
+
+    for command in ("run", "eval", "train", "learner", "world"):
+        assert "noise (default 0)" in text(command), command
+    assert "seed of the fault draws (default: the episode seed, --seed)" in text("eval")
+    assert "seed of the fault draws (default: the run's --seed)" in text("fault")
+    assert "for the world (default 30)" in text("record") and "(default 0.5)" in text("record")
+    learner = text("learner")
+    for flag in ("--lr TRAIN_LR Adam learning rate (default 0.003)", "alpha (default 0.03)",
+                 "discount (default 1)", "entropy bonus (default 0.01)", "(default 2)"):
+        assert flag in learner, flag
+    assert "write OUT/checkpoint.pt (atomically) after each update" in learner
+    assert "'all' (the four baselines: random, nearest-frontier, coordinated-frontier, " \
+        "cost-utility;" in text("eval")
+    train = text("train")
+    assert "swarm.learn.parallel" in train and "swarm.train_parallel" not in train
+    assert '"chain-plan" (its move, ours)' in train
+    fault = text("fault")
+    assert "ROBOT@TICK at run tick TICK, ROBOT alone at once" in fault
+    assert "--crash ROBOT[@TICK]" in fault and "or at once with ROBOT alone" in fault
+    resume = text("experiment")
+    assert "same episodes and seeds" not in resume and "holds this sweep's world, [run]" in resume
+
+
 def test_merge_precedence_in_process(tmp_path: Path) -> None:
     cfg = tmp_path / "exp.toml"
     cfg.write_text('[world]\nvision = 7\ncomm_range = 3.5\n[eval]\nbatch = 17\n')

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from policies import BASELINES
 from swarm.bench.train import TrainBenchConfig
 from swarm.cli.checks import check_repro_flags, eval_checkpoints, stray_checkpoints
 from swarm.cli.common import (
@@ -22,6 +23,7 @@ from swarm.cli.common import (
     add_common,
     add_fault_flags,
     add_world,
+    batched_fault_plan,
     batched_faults,
     fault_table,
     file_tables,
@@ -129,16 +131,6 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
     return out
 
 
-def _eval_faults(args: argparse.Namespace, tables: dict[str, Any], world: WorldConfig,
-                 seed: int) -> Any:
-    """The radio's fault plan for the batched evaluator: `[faults]` and the fault flags, as
-    `swarm run` reads them (the fault seed defaults to the episode seed there too)."""
-    from swarm.net.faults import plan_from_table
-
-    table = batched_faults(fault_table(args, tables, world.n_robots), "evaluation")
-    return plan_from_table(table, seed, world.n_robots) if table else None
-
-
 def cmd_eval(args: argparse.Namespace) -> int:
     from swarm.cli.console import eval_table
 
@@ -152,7 +144,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
                   "greedy": greedy, "json": args.json, "tick_timeout": args.tick_timeout,
                   "episodes_csv": args.episodes_csv},
                  "[eval]")
-    faults = _eval_faults(args, tables, world, cfg.seed)
+    faults = batched_fault_plan(args, tables, world, cfg.seed)
     built = eval_policies(world, cfg)  # every bad input fails before the progress bar
     output_file(cfg.json)
     output_file(cfg.episodes_csv, "--episodes-csv")
@@ -354,7 +346,8 @@ def add_parsers(sub: Any) -> None:
     """Register `eval`, `bench`, `repro` and `train` on the `swarm` subparsers."""
     p = sub.add_parser("eval", help="batched in-process evaluation of one or more policies",
                        description="Batched, in-process evaluation; prints a results table.")
-    p.add_argument("--policy", help="policy name, comma list or 'all' (default nearest-frontier)")
+    p.add_argument("--policy", help="policy name, comma list or 'all' (the four baselines: "
+                   f"{', '.join(BASELINES)}; default nearest-frontier)")
     p.add_argument("--checkpoint", action="append", metavar="FILE|NAME=FILE",
                    help="checkpoint of the learned policy, or NAME=FILE per learned policy "
                         "(repeatable; default: the shipped one)")

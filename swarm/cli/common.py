@@ -135,7 +135,8 @@ def world_config(args: argparse.Namespace, tables: dict[str, Any]) -> WorldConfi
 
 
 def add_common(p: argparse.ArgumentParser, results: bool = True) -> None:
-    p.add_argument("--seed", type=int, help="seed of maps, spawns, schedules and noise")
+    p.add_argument("--seed", type=int, help="seed of maps, spawns, schedules and noise "
+                   "(default 0)")
     p.add_argument("--config", metavar="FILE",
                    help="TOML experiment file ([world] + this command's table)")
     if results:
@@ -303,10 +304,11 @@ def output_dir(path: str | None, flag: str, make: bool = True) -> None:
         raise ConfigError(f"{flag} {path} is not writable ({exc.strerror or exc})") from None
 
 
-def add_fault_flags(p: argparse.ArgumentParser, process: bool = True, config: bool = True
-                    ) -> None:
+def add_fault_flags(p: argparse.ArgumentParser, process: bool = True, config: bool = True,
+                    live: bool = False) -> None:
     """The fault flags of `swarm run`/`world`/`fault` (process faults too) and `swarm eval`;
-    `config`: the command reads `--config` (whose `[faults]` the flags override)."""
+    `config`: the command reads `--config` (whose `[faults]` the flags override); `live`:
+    `swarm fault`, whose process faults also take a robot alone (at once)."""
     g = p.add_argument_group("faults (override [faults] of --config; see docs/DECISIONS.md)"
                              if config else "faults (see docs/DECISIONS.md)")
     g.add_argument("--latency", metavar="DUR", help="one-way radio latency, e.g. 50ms, 0.2s or "
@@ -328,9 +330,13 @@ def add_fault_flags(p: argparse.ArgumentParser, process: bool = True, config: bo
     if process:
         for kind, what in (("crash", "SIGKILL"), ("hang", "SIGSTOP"),
                            ("restart", "restart/SIGCONT")):
-            g.add_argument(f"--{kind}", action="append", metavar="ROBOT@TICK",
-                           help=f"{what} robot ROBOT at run tick TICK (repeatable)")
-    g.add_argument("--fault-seed", type=int, metavar="S", help="seed of the fault draws")
+            g.add_argument(f"--{kind}", action="append",
+                           metavar="ROBOT[@TICK]" if live else "ROBOT@TICK",
+                           help=f"{what} robot ROBOT at run tick TICK" + (
+                               ", or at once with ROBOT alone" if live else "") + " (repeatable)")
+    g.add_argument("--fault-seed", type=int, metavar="S",
+                   help="seed of the fault draws (default: " + (
+                       "the run's --seed)" if live else "the episode seed, --seed)"))
 
 
 def fault_table(args: argparse.Namespace, tables: dict[str, Any],
@@ -369,6 +375,17 @@ def batched_faults(table: dict[str, Any], what: str) -> dict[str, Any]:
         print(f"swarm: warning: [faults] {', '.join(given)} are the swarm's process faults "
               f"(swarm run); the batched {what} plays without them", file=sys.stderr)
     return link_table(table)
+
+
+def batched_fault_plan(args: argparse.Namespace, tables: dict[str, Any], world: WorldConfig,
+                       seed: int) -> Any:
+    """The radio's fault plan for the batched evaluator: `[faults]` and the fault flags, as
+    `swarm run` reads them (the fault seed defaults to the episode seed there too), less the
+    process faults (see `batched_faults`)."""
+    from swarm.net.faults import plan_from_table
+
+    table = batched_faults(fault_table(args, tables, world.n_robots), "evaluation")
+    return plan_from_table(table, seed, world.n_robots) if table else None
 
 
 def _has_key(table: Any, key: str) -> bool:

@@ -23,6 +23,7 @@ from swarm.learn.config import (
     LEARNER_TRAIN_FIELDS,
     MAX_WORKER_BATCH,
     MAX_WORKER_ID,
+    TrainConfig,
     check_worker,
     held_seed,
     held_world,
@@ -107,8 +108,11 @@ def add_parsers(sub: Any) -> None:
     """Register `learner` and `rollout-worker` on the `swarm` subparsers."""
     p = sub.add_parser("learner", help="the learner process: trains from the swarm's rollouts",
                        description="Gather robots' and rollout workers' episodes of run RUN_ID, "
-                                   "update the policy with the batched trainer's REINFORCE step, "
-                                   "publish versioned weights; checkpoint every update.")
+                                   "update the policy with the batched trainer's step (REINFORCE, "
+                                   "or PPO with --algo ppo) every --batch episodes, write "
+                                   "OUT/checkpoint.pt (atomically) after each update and only "
+                                   "then publish its versioned weights; none before the first "
+                                   "update, and a partial batch is never trained on.")
     add_common(p)
     add_world(p)
     p.add_argument("--run-id", help="the run to learn from")
@@ -125,17 +129,23 @@ def add_parsers(sub: Any) -> None:
                         "(default 5)")
     p.add_argument("--gather-only", action="store_true", help="count episodes, never update")
     g = p.add_argument_group("loss (override [train] of --config)")
+    t = TrainConfig()  # (the defaults shown are swarm train's)
     g.add_argument("--batch", dest="train_batch", type=int, metavar="B",
-                   help="episodes per update (default 288)")
-    g.add_argument("--lr", dest="train_lr", type=float, help="Adam learning rate")
-    g.add_argument("--alpha", dest="train_alpha", type=float, help="baseline weight alpha")
-    g.add_argument("--gamma", dest="train_gamma", type=float, help="discount")
-    g.add_argument("--ent-coef", dest="train_ent_coef", type=float, help="entropy bonus")
-    g.add_argument("--threads", dest="train_threads", type=int, help="torch threads")
+                   help=f"episodes per update (default {t.batch})")
+    g.add_argument("--lr", dest="train_lr", type=float,
+                   help=f"Adam learning rate (default {t.lr:g})")
+    g.add_argument("--alpha", dest="train_alpha", type=float,
+                   help=f"baseline weight alpha (default {t.alpha:g})")
+    g.add_argument("--gamma", dest="train_gamma", type=float,
+                   help=f"discount (default {t.gamma:g})")
+    g.add_argument("--ent-coef", dest="train_ent_coef", type=float,
+                   help=f"entropy bonus (default {t.ent_coef:g})")
+    g.add_argument("--threads", dest="train_threads", type=int,
+                   help=f"torch threads (default {t.threads})")
     g.add_argument("--algo", dest="train_algo", choices=["reinforce", "ppo"],
-                   help="estimator (default reinforce, the paper's; ppo is ours)")
+                   help=f"estimator (default {t.algo}, the paper's; ppo is ours)")
     g.add_argument("--ppo-epochs", dest="train_ppo_epochs", type=int, metavar="K",
-                   help="with --algo ppo: passes over each batch (default 4)")
+                   help=f"with --algo ppo: passes over each batch (default {t.ppo_epochs})")
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)

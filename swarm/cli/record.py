@@ -224,9 +224,11 @@ def add_parsers(sub: Any) -> None:
                    help="the run to record (without --connect: the `swarm run` of that id on "
                         "this machine)")
     p.add_argument("--out", required=True, metavar="FILE", help="the MCAP file to write")
-    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the world")
+    p.add_argument("--wait", type=float, default=30.0, metavar="S",
+                   help="seconds to wait for the world (default 30)")
     p.add_argument("--flush", type=float, default=0.5, metavar="S",
-                   help="seconds between chunk flushes (what a killed recorder leaves)")
+                   help="seconds between chunk flushes: what a killed recorder leaves (default "
+                        "0.5)")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
     from swarm.cli.secure import add_secure_flag

@@ -381,14 +381,16 @@ def add_parsers(sub: Any) -> None:
                                    "Markdown and PNG.")
     p.add_argument("file", metavar="FILE", help="TOML experiment file")
     p.add_argument("--out", metavar="DIR",
-                   help="output directory (default: [experiment] out, for the shipped files "
-                        "the committed results/experiments)")
+                   help="output directory, not empty (default: [experiment] out, for the "
+                        "shipped files the committed results/experiments)")
     p.add_argument("--episodes", type=int, metavar="K",
                    help="episodes per run (default: [run] episodes of FILE)")
     p.add_argument("--seeds", metavar="A,B,..",
                    help="seeds per point (default: [experiment] seeds of FILE)")
     p.add_argument("--resume", action="store_true",
-                   help="skip runs already in the CSV (made with the same episodes and seeds)")
+                   help="skip runs already in the CSV; refused unless the sweep record beside "
+                        "it (<name>.json) holds this sweep's world, [run], parameter, kernel, "
+                        "faults and checkpoints (policies, values and seeds may be added)")
     p.add_argument("--seed", type=int, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_experiment)
 
@@ -437,7 +439,8 @@ def add_parsers(sub: Any) -> None:
 
     p = sub.add_parser("fault", help="change the faults of a running swarm",
                        description="Live fault injection into run RUN: link faults apply from "
-                                   "the world's next tick; crash/hang/restart at once.")
+                                   "the world's next tick (or --at-tick K); --crash/--hang/"
+                                   "--restart ROBOT@TICK at run tick TICK, ROBOT alone at once.")
     p.add_argument("--run", required=True, help="run id (see the dashboard)")
     p.add_argument("--replace", action="store_true",
                    help="replace the link faults in force instead of changing the given ones")
@@ -451,7 +454,7 @@ def add_parsers(sub: Any) -> None:
                         "counted late")
     p.add_argument("--wait", type=float, default=5.0, metavar="S",
                    help="seconds to wait for the run's world to answer (default 5)")
-    add_fault_flags(p, config=False)
+    add_fault_flags(p, config=False, live=True)
     zconfig.add_arguments(p)
     add_secure_flag(p)
     p.set_defaults(func=cmd_fault)

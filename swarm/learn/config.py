@@ -45,9 +45,10 @@ class TrainConfig:
     ours) for an --init checkpoint, widened with zero weights like --belief (which it needs,
     from the checkpoint or this run). A fresh network takes '{"belief": true, "hint": true}'."""
     hint_planner: str = ""
-    """Set the planner behind the hint of an --init checkpoint: "team-beam" (its one move, ours)
-    or "coordinated-frontier" (see ModelConfig.hint_planner); "" keeps the checkpoint's. The
-    inputs keep their width and weights. A fresh network takes it in --model."""
+    """Set the planner behind the hint of an --init checkpoint: "team-beam" (its one move, ours),
+    "chain-plan" (its move, ours) or "coordinated-frontier" (see ModelConfig.hint_planner); ""
+    keeps the checkpoint's. The inputs keep their width and weights. A fresh network takes it in
+    --model."""
     hint_prior: float = -1.0
     """Set an --init checkpoint's `hint_prior` (ModelConfig.hint_prior, ours: added to the
     hinted move's logit) to this, in [0, 64]; -1 keeps the checkpoint's. A fresh network takes
@@ -123,7 +124,7 @@ class TrainConfig:
     """torch.set_num_threads of each training process."""
     workers: int = 1
     """Processes that collect and backpropagate the episodes of each update in parallel (this
-    one plus workers - 1 spawned ones, see swarm.train_parallel); the update is the same for
+    one plus workers - 1 spawned ones, see swarm.learn.parallel); the update is the same for
     any count up to float rounding. On 2 cores, --workers 2 --threads 1 is fastest."""
     imitate: str = ""
     """Teacher (ours, not the paper's): a non-learned policy, e.g. `team-beam`, whose action at
