@@ -560,7 +560,10 @@ def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_pa
     (["table2", "--episodes", "5"], "--episodes is not used by table2; it is for fig4, fig5"),
     (["fig8", "--horizon", "20"], "--horizon is not used by fig8 (fig8: it draws training"),
     (["comm", "--policies", "random"], "it takes --comm-policies"),
-    (["table1", "--robots", "2,4"], "--robots is not used by table1; it is for fig4")])
+    (["table1", "--robots", "2,4"], "--robots is not used by table1; it is for fig4"),
+    (["fig9", "--policies", "random"],  # (UA pass: drew CommNet and CommAttn)
+     "fig9 draws commnet and commattn only, not --policies random: name either"),
+    (["fig9", "--policies", "commattn,random"], "only, not --policies random:")])
 def test_repro_refuses_a_flag_its_item_does_not_use(tmp_path: Path, flags: list[str],
                                                      words: str) -> None:
     """`repro fig9 --comm-range 3` made the same figure (and its Made-by line recorded the
@@ -568,6 +571,17 @@ def test_repro_refuses_a_flag_its_item_does_not_use(tmp_path: Path, flags: list[
     r = swarm("repro", *flags, "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and words in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+
+
+def test_fig9_takes_its_own_policies_and_leaves_all_without_them() -> None:
+    from swarm.studies.fig9 import fig9_items
+    from swarm.studies.repro import ALL_POLICIES
+
+    assert fig9_items(["fig9"], ["commnet"], False) == ["fig9"]
+    assert fig9_items(["fig9"], list(ALL_POLICIES), True) == ["fig9"]
+    assert fig9_items(["table1", "fig9"], ["random"], False) == ["table1"]  # (`repro all`)
+    with pytest.raises(ConfigError, match="not --policies random,vain"):
+        fig9_items(["fig9"], ["commattn", "random", "vain"], False)
 
 
 def test_the_comm_figure_names_the_policies_it_compares() -> None:

@@ -18,7 +18,7 @@ from typing import Any
 from swarm.common.policy_spec import SHIPPED, build_policy, shown
 from swarm.common.report import header, md_table, write_item
 from swarm.learn.evaluate import evaluate
-from world.config import WorldConfig, replace, to_dict
+from world.config import ConfigError, WorldConfig, replace, to_dict
 
 VISIONS = (3, 5, 7, 9)
 RANGES = (1.0, 2.0, 3.0, 5.0, 7.0, 9.0, 11.0, 13.0, 15.0, math.inf)
@@ -108,6 +108,23 @@ def fig9(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
     files = write_item(out, "fig9", rows or [{"policy": "", "vision": 0}], md, draw, meta,
                        ncols=max(len(policies), 1))
     return {"item": "fig9", "rows": rows, "files": files}
+
+
+def fig9_items(items: Sequence[str], policies: Sequence[str], default: bool) -> list[str]:
+    """`items` as repro makes them: with other items, fig9 is left out when `policies` name
+    neither CommNet nor CommAttn (a `[repro]` table may serve several items); fig9 alone refuses
+    `policies` it cannot draw (`repro fig9 --policies random` drew CommNet and CommAttn), unless
+    they are repro's default list (`default`)."""
+    if "fig9" not in items:
+        return list(items)
+    if len(items) > 1:
+        return [i for i in items if i != "fig9" or set(policies) & set(POLICIES)]
+    other = [n for n in policies if n not in POLICIES]
+    if other and not default:
+        raise ConfigError(f"fig9 draws {' and '.join(POLICIES)} only, not --policies "
+                          f"{','.join(other)}: name either of them, or leave --policies out for "
+                          "both")
+    return list(items)
 
 
 def fig9_item(world: WorldConfig, cfg: Any, command: str) -> dict[str, Any]:

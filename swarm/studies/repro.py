@@ -447,8 +447,8 @@ def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[
         items = [i for i in items if i != "fig8"]  # `all` without learned policies: no curves
     if len(items) > 1 and "commattn" not in cfg.policies:  # `all` without CommAttn
         items = [i for i in items if i not in ANALYSES]
-    if len(items) > 1 and not set(cfg.policies) & {"commnet", "commattn"}:
-        items = [i for i in items if i != "fig9"]
+    from swarm.studies.fig9 import fig9_items  # (fig9 alone: --policies it cannot draw refused)
+    items = fig9_items(items, cfg.policies, tuple(cfg.policies) == ALL_POLICIES)
     for item in items:
         if item not in ("table1", "fig9", *ANALYSES):
             sweep_worlds(world, item, cfg)  # raises ConfigError on an impossible point
