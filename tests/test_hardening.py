@@ -514,6 +514,7 @@ BAD_INPUTS = [
     # an empty name was taken as "none" (--record, --log-dir: a run with neither, silently) or
     # as the working directory (certs: its keys written there and the directory made 0700)
     ["run", "--record", ""], ["run", "--log-dir", ""], ["run", "--json", ""],
+    ["bench", "env", "--json", ""], ["bench", "swarm", "--json", "", "--robots", "2"],
     ["certs", "--out", "", "--robots", "1"],
     ["robot", "--id", "-1", "--run-id", "x"],  # (it waited 30 s for a world first)
     # a config "file" that is a directory or not UTF-8 (exit 1; a 20-line traceback for the 2nd)

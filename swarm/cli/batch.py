@@ -218,7 +218,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     table = tables.get("bench", {}).get(args.what, {})
     where = f"[bench.{args.what}]"
     # where the figures go, checked before the benchmark runs (a bad path lost them at the end)
-    output_file(getattr(args, "json", None) or table.get("json"))
+    json_flag = getattr(args, "json", None)  # ('' is a name, refused: not "the table's")
+    output_file(json_flag if json_flag is not None else table.get("json"))
     if args.what == "record" and (getattr(args, "out", None) or table.get("out")):
         out_path = Path(args.out or table["out"])
         if out_path.exists() and not out_path.is_dir():
