@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 from pathlib import Path
 
@@ -571,3 +572,28 @@ def test_a_live_fault_change_under_direct_delivery_lands_as_with_the_radio(
         assert direct["messages"][key] == radio["messages"][key], key
     assert direct["messages"]["lost"] > 0 and direct["messages"]["bad"] == 0
     assert all(st["bad"] == 0 for st in direct["robot_status"].values())
+
+
+@pytest.mark.procs
+@needs_hosts
+def test_a_closed_terminal_ends_a_hosts_run_and_leaves_no_namespace(tmp_path: Path) -> None:
+    """SIGHUP (a closed terminal, a dropped ssh) unwinds like Ctrl-C: the supervisor died of it
+    at once, and the hosts' namespaces, bridge and veths stayed (UA pass 43)."""
+    import sys
+
+    run_id = "hupx"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "2", "--policy",
+         "nearest-frontier", "--episodes", "50", "--pace", "10", "--delivery", "direct",
+         "--hosts", "2", "--run-id", run_id], cwd=ROOT, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith('{"status"')
+        assert sorted(_ours(run_id)) == ["swarm-hupx-h0", "swarm-hupx-h1"]
+        proc.send_signal(signal.SIGHUP)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err[-1500:]
+    assert _ours(run_id) == [], _ours(run_id)

@@ -76,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `swarm` console script; returns the exit status."""
     # a child of `swarm run` goes when its supervisor goes, SIGKILL included (with a deadline);
-    # SIGTERM cleans up like Ctrl-C (children stopped, files closed); SIGINT: see the top
+    # SIGTERM and SIGHUP clean up like Ctrl-C (children stopped, files closed, namespaces
+    # removed); SIGINT: see the top
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if _early_interrupt:  # interrupted while the modules loaded: nothing started yet

@@ -71,11 +71,20 @@ def _interrupt_within_grace(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
+def stop_signals() -> tuple[int, ...]:
+    """The signals that stop a command as Ctrl-C does: SIGINT, SIGTERM, and SIGHUP (its
+    terminal closed, its ssh dropped) unless SIGHUP came in ignored (`nohup`: left so)."""
+    hup = () if signal.getsignal(signal.SIGHUP) is signal.SIG_IGN else (signal.SIGHUP,)
+    return (signal.SIGINT, signal.SIGTERM, *hup)
+
+
 def terminate_as_interrupt(grace: bool = False) -> None:
-    """SIGTERM unwinds like Ctrl-C (sessions closed, final records written), not a hard stop;
-    with `grace`, the unwinding has SHUTDOWN_GRACE_S seconds."""
+    """SIGTERM and SIGHUP unwind like Ctrl-C (sessions closed, final records written, network
+    namespaces removed), not a hard stop: a closed terminal left a `--netns`/`--hosts` run's
+    namespaces behind. With `grace`, the unwinding has SHUTDOWN_GRACE_S seconds."""
     try:
-        signal.signal(signal.SIGTERM, _interrupt_within_grace if grace else _interrupt)
+        for sig in stop_signals()[1:]:
+            signal.signal(sig, _interrupt_within_grace if grace else _interrupt)
     except ValueError:  # not the main thread (main() called from a test's thread)
         pass
 
@@ -301,11 +310,11 @@ def tidy_interrupted(folder: Path, keep: bool = False) -> None:
 
 @contextlib.contextmanager
 def stops_held() -> Iterator[None]:
-    """SIGINT and SIGTERM held while the block runs, then raised as KeyboardInterrupt: a stop
+    """The stop signals held while the block runs, then raised as KeyboardInterrupt: a stop
     that lands between a child's fork and its Popen's return loses that child (never told to
     stop, it ran on and failed to join a run that was gone). A no-op off the main thread."""
     held: list[int] = []
-    stops = (signal.SIGINT, signal.SIGTERM)
+    stops = stop_signals()
     if threading.current_thread() is not threading.main_thread() or \
             any(signal.getsignal(s) is None for s in stops):  # (not ours to put back)
         yield
