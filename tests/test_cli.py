@@ -663,3 +663,18 @@ def test_swarm_eval_results_stay_whole_on_a_narrow_terminal(columns: int) -> Non
     figures = re.findall(r"-?\d+\.\d+%?(?:±\d+\.\d+)?", res)
     assert len(figures) >= 13, res  # six figures a policy, and the paired Δ
     assert re.search(r"-?\d\.\d{4}±\d\.\d{4}", res), res
+
+
+@pytest.mark.procs
+def test_swarm_runs_summary_line_counts_copies_to_others_of_both_kinds(tmp_path: Path) -> None:
+    """The line under `swarm run`'s table said `messages delivered` = trajectory copies with
+    each robot's own (never lost) beside `lost` of both kinds: a loss rate from the two was
+    wrong. Both figures now count copies to other robots, of both kinds (UA pass 43)."""
+    out = tmp_path / "r.json"
+    res = on_terminal(120, "run", "--robots", "3", "--episodes", "1", "--policy", "commattn",
+                      "--loss", "0.3", "--json", str(out))
+    m = json.loads(out.read_text())["messages"]
+    found = re.search(r"copies delivered (\d+) lost (\d+)", res)
+    assert found, res[-2000:]
+    assert int(found[1]) == m["traj_to_others"] + m["hidden_delivered"] and m["hidden_delivered"]
+    assert int(found[2]) == m["lost"] > 0

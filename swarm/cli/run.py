@@ -199,12 +199,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         from swarm.cli.console import eval_table
 
-        m = res.get("messages", {})
+        m = res.get("messages", {})  # copies to other robots, both kinds, in each figure
+        to_others = m.get("traj_to_others")
+        sent = "-" if to_others is None else to_others + (m.get("hidden_delivered") or 0)
         out.print()
         out.print(eval_table([res], title=f"swarm run {run.run_id}", width=out.width))
         out.print(f"ticks/s {res.get('ticks_per_s', 0):.1f}   "
                   f"startup {res.get('startup_s') or 0:.1f} s"
-                  f"   messages delivered {m.get('traj_delivered')} lost {m.get('lost')} "
+                  f"   copies delivered {sent} lost {m.get('lost')} "
                   f"late {m.get('late')} bad {m.get('bad')}   timeouts {res.get('timeouts')}   "
                   f"robots lost {res.get('robots_lost')}")
         if args.json:
