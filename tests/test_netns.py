@@ -67,6 +67,21 @@ def test_a_namespace_that_exists_already_is_refused_and_left_alone() -> None:
 
 
 @pytest.mark.procs
+def test_a_run_refused_by_a_namespace_of_its_id_leaves_no_temp_folder(tmp_path: Path) -> None:
+    """`swarm run --netns` refused because a namespace of its id exists: one line, exit 2, and
+    nothing in the temp dir (its spec.json was left in a temp folder; UA pass 43)."""
+    subprocess.run(["ip", "netns", "add", "swarm-nsleft-w"], check=True)
+    try:
+        r = swarm("run", "--netns", "--run-id", "nsleft", "--robots", "2", "--episodes", "1",
+                  "--headless", env={"TMPDIR": str(tmp_path)}, timeout=60)
+    finally:
+        subprocess.run(["ip", "netns", "del", "swarm-nsleft-w"], check=True)
+    assert r.returncode == 2 and "exists already" in r.stderr, r.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["swarm-runs"], list(tmp_path.rglob("*"))
+    assert ours("nsleft") == []
+
+
+@pytest.mark.procs
 def test_bad_use_is_a_one_line_error() -> None:
     r = swarm("run", "--headless", "--robots", "2", "--kernel-loss", "0.1")
     assert r.returncode != 0 and "need --netns" in r.stderr

@@ -281,7 +281,7 @@ class Supervisor:
         stopped = False
         try:  # whatever happens, no process and no namespace of the run is left behind
             return self._supervise()
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, ConfigError):  # (refused by --netns, say: no result either)
             stopped = True
             raise
         finally:
