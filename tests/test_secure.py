@@ -235,10 +235,15 @@ def test_bench_swarm_measures_the_secure_mode_against_the_same_runs_without(
     secure row's ratio is to the same policy's plain run of the round; the same actions."""
     r = swarm("bench", "swarm", "--robots", "6", "--secure", str(certs))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "robot-5" in r.stderr, r.stderr
-    out = tmp_path / "b.json"
+    out, tmp = tmp_path / "b.json", tmp_path / "tmp"
+    tmp.mkdir()
     r = swarm("bench", "swarm", "--robots", "3", "--policy", "nearest-frontier", "--episodes",
-              "1", "--horizon", "8", "--repeats", "2", "--secure", str(certs), "--json", str(out))
+              "1", "--horizon", "8", "--repeats", "2", "--secure", str(certs), "--json", str(out),
+              env={"TMPDIR": str(tmp)})
     assert r.returncode == 0, r.stderr[-2000:]
+    # a clean secure run's folder (its session configs) is a run's to keep, not a bench's: one
+    # was left per secure run, named nowhere (UA pass 43)
+    assert [p.name for p in tmp.iterdir()] == ["swarm-runs"], list(tmp.rglob("*"))
     res = json.loads(out.read_text())
     rows = res["rows"]
     assert [(x["round"], x["policy"]) for x in rows] == [

@@ -14,10 +14,12 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import shutil
 import statistics
 from dataclasses import dataclass
 from typing import Any
 
+from swarm.common.spawn import TROUBLE
 from swarm.procs.runconfig import RunConfig
 from swarm.procs.supervisor import SuperviseOptions, Supervisor
 from world.config import ConfigError, WorldConfig, check_seed
@@ -108,7 +110,10 @@ def _one_run(world: WorldConfig, cfg: SwarmBenchConfig, policy: str, n: int,
     opts = SuperviseOptions(headless=True, status_lines=False, hosts=cfg.hosts,
                             secure=cfg.secure if secure else None)
     res = Supervisor(wcfg, run, opts).supervise()
+    if res.get("logs") and not any(res.get(k) for k in TROUBLE):  # a clean secure run's session
+        shutil.rmtree(res.pop("logs"), ignore_errors=True)  # configs: kept by a run, not here
     return {"policy": f"{policy}+secure" if secure else policy, "robots": n,
+            "logs": res.get("logs"),  # (a run in trouble keeps its folder: named)
             "size": f"{wcfg.height}x{wcfg.width}",
             "actions_sha1": hashlib.sha1(json.dumps(res["actions"]).encode()).hexdigest()[:12],
             "ticks_per_s": res["ticks_per_s"], "startup_s": res["startup_s"],
