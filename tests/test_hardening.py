@@ -669,3 +669,32 @@ def test_swarm_version_names_the_package_and_the_commit() -> None:
     assert r.returncode == 0, r.stderr
     git = provenance()["git"]
     assert r.stdout.startswith("swarm 0.1.0") and (git is None or git in r.stdout), r.stdout
+
+
+@pytest.mark.procs
+def test_a_hand_robot_whose_world_dies_says_so(tmp_path: Path) -> None:
+    """`swarm robot` started by hand, its world SIGKILLed mid-run: one warning line that the
+    world left before the run's end (it exited 0 without a word, as after a whole run)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        hub = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    world = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "world", "--run-id", "handgone", "--robots", "1",
+         "--policy", "nearest-frontier", "--episodes", "200", "--pace", "5", "--listen", hub],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "robot", "--id", "0", "--run-id", "handgone",
+         "--connect", hub], cwd=ROOT, stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(6)  # (the run started: a robot acts once the world is up)
+        assert world.poll() is None and robot.poll() is None, robot.communicate()[1]
+        world.kill()
+        _, err = robot.communicate(timeout=60)
+    finally:
+        for p in (world, robot):
+            if p.poll() is None:
+                p.kill()
+    assert "the world left before the run's end" in err, err

@@ -448,7 +448,8 @@ class RobotProcess:
                     if not self.world_seen:
                         raise TimeoutError(f"no world within {wait_world:g} s")
                     if gone_since is not None and time.monotonic() >= gone_since + grace:
-                        log.info("robot %d: world gone for %.0f s, exiting", self.robot, grace)
+                        log.warning("robot %d: the world left before the run's end (its token "
+                                    "gone %.0f s); exiting", self.robot, grace)
                         break
                     continue
                 kind, msg = item
