@@ -586,7 +586,8 @@ def test_a_closed_terminal_ends_a_hosts_run_and_leaves_no_namespace(tmp_path: Pa
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "2", "--policy",
          "nearest-frontier", "--episodes", "50", "--pace", "10", "--delivery", "direct",
          "--hosts", "2", "--run-id", run_id], cwd=ROOT, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True)
+        stderr=subprocess.PIPE, text=True,  # (a suite run under nohup ignores SIGHUP: the run
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL))  # would too, rightly)
     try:
         assert proc.stdout is not None and proc.stdout.readline().startswith('{"status"')
         assert sorted(_ours(run_id)) == ["swarm-hupx-h0", "swarm-hupx-h1"]
@@ -595,5 +596,7 @@ def test_a_closed_terminal_ends_a_hosts_run_and_leaves_no_namespace(tmp_path: Pa
     finally:
         if proc.poll() is None:
             proc.kill()
+            from swarm.net.kernel import hosts  # (a failure here must leave no namespace for
+            hosts.remove(run_id, 2)            # the next run of this test to trip over)
     assert proc.returncode == 130, err[-1500:]
     assert _ours(run_id) == [], _ours(run_id)
