@@ -698,3 +698,22 @@ def test_a_hand_robot_whose_world_dies_says_so(tmp_path: Path) -> None:
             if p.poll() is None:
                 p.kill()
     assert "the world left before the run's end" in err, err
+
+
+@pytest.mark.procs
+def test_a_hand_world_stopped_by_ctrl_c_says_so() -> None:
+    """`swarm world` by hand, Ctrl-C'd while it waits for its robots: exit 130 and the line
+    `swarm run` gives (it exited 130 without a word; UA pass 43)."""
+    world = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "world", "--run-id", "handint", "--robots", "2"],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        assert world.stderr is not None
+        assert world.stderr.readline().startswith("swarm world: run id handint")
+        time.sleep(1.0)  # (its session open, waiting for robots)
+        world.send_signal(signal.SIGINT)
+        _, err = world.communicate(timeout=30)
+    finally:
+        if world.poll() is None:
+            world.kill()
+    assert world.returncode == 130 and err.strip().splitlines()[-1] == "swarm: interrupted", err

@@ -241,6 +241,8 @@ def cmd_world(args: argparse.Namespace) -> int:
     try:
         res = world_main(world, run, zopts, faults=faults)
     except KeyboardInterrupt:
+        if not args.spec:  # (by hand: said, as `swarm run` says it; a supervisor's says it)
+            print("swarm: interrupted", file=sys.stderr)
         return 130
     if args.json:
         write_json(args.json, {**res, "command": _command(), "provenance": provenance()})
