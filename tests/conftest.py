@@ -58,3 +58,25 @@ def _one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+CYCLIC_PLUGIN = '''
+import numpy as np
+
+from policies.base import Policy, receiver_index
+from policies.chain_plan import ChainPlan
+
+
+class Cyclic(Policy):
+    """A hand-written policy of another package: robot i takes action (tick + i) mod 9."""
+
+    name = "cyclic"
+
+    def act(self, view, greedy=True):
+        g, i = receiver_index(view)
+        out = np.zeros(view.receivers.shape, dtype=np.int64)
+        out[g, i] = (view.tick + i) % 9
+        return out
+'''
+"""The source of a third-party policy package's module (the README's "Building on it"
+example): the tests that install a plugin add their buggy variants to it."""

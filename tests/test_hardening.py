@@ -215,6 +215,16 @@ def test_a_bundles_messages_are_checked_together_as_strictly_as_one_by_one() -> 
         Traj.unpack_many(good[:2] + [b"\x93"], cfg, 0, 1)
 
 
+def three_statuses(session: zenoh.Session, keys: Keys, timeout: float = 90) -> None:
+    """Until a session has seen three of the world's statuses (the run is under way)."""
+    ticks: list[bytes] = []
+    sub = session.declare_subscriber(keys.status, lambda smp: ticks.append(b""))
+    deadline = time.monotonic() + timeout
+    while len(ticks) < 3 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    sub.undeclare()
+
+
 @pytest.mark.procs
 def test_a_lost_result_message_falls_back_to_the_worlds_result_file(tmp_path: Path) -> None:
     from swarm.common.atomic import write_json
@@ -238,12 +248,7 @@ def test_out_of_range_messages_on_every_key_are_dropped_and_counted(tmp_path: Pa
         hub = hub_of(run_id, proc)
         keys = Keys(run_id)
         with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
-            ticks: list[bytes] = []
-            sub = session.declare_subscriber(keys.status, lambda smp: ticks.append(b""))
-            deadline = time.monotonic() + 90
-            while len(ticks) < 3 and time.monotonic() < deadline:  # every robot is acting
-                time.sleep(0.05)
-            sub.undeclare()
+            three_statuses(session, keys)  # every robot is acting
             token = session.liveliness().declare_token(keys.alive_robot(8))  # no such robot
             for _ in range(3):
                 for key, payload in hostile_payloads(keys):
@@ -288,12 +293,7 @@ def test_foreign_garbage_in_a_recording_is_skipped_by_verify_not_a_divergence(
         hub = hub_of(run_id, proc)
         keys = Keys(run_id)
         with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
-            ticks: list[bytes] = []
-            sub = session.declare_subscriber(keys.status, lambda smp: ticks.append(b""))
-            deadline = time.monotonic() + 90
-            while len(ticks) < 3 and time.monotonic() < deadline:  # mid-run
-                time.sleep(0.05)
-            sub.undeclare()
+            three_statuses(session, keys)  # mid-run
             for key in (keys.result, keys.status, keys.obs(1)):
                 session.put(key, b"\xff\xfe")
         assert proc.wait(timeout=120) == 0, proc.stderr.read().decode()[-2000:]

@@ -14,26 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT, swarm
+from conftest import CYCLIC_PLUGIN, ROOT, swarm
 
 from world import core
 
-PLUGIN = '''
-import numpy as np
-
-from policies.base import Policy, receiver_index
-from policies.chain_plan import ChainPlan
-
-
-class Cyclic(Policy):
-    name = "cyclic"
-
-    def act(self, view, greedy=True):
-        g, i = receiver_index(view)
-        out = np.zeros(view.receivers.shape, dtype=np.int64)
-        out[g, i] = (view.tick + i) % 9
-        return out
-
+PLUGIN = CYCLIC_PLUGIN + '''
 
 class OutOfRange(Policy):
     def act(self, view, greedy=True):

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from conftest import ROOT, swarm, swarm_started
+from conftest import CYCLIC_PLUGIN, ROOT, swarm, swarm_started
 
 from policies import make_policy
 from swarm.learn.evaluate import evaluate
@@ -469,24 +469,7 @@ def test_headless_output_into_a_closed_pipe_stops_the_run_quietly_and_tidily() -
     assert list(Path(tempfile.gettempdir()).glob("swarm-pipeclosed-*")) == []
 
 
-PLUGIN = '''
-import numpy as np
-
-from policies.base import Policy, receiver_index
-from policies.chain_plan import ChainPlan
-
-
-class Cyclic(Policy):
-    """A hand-written policy of another package: robot i takes action (tick + i) mod 9."""
-
-    name = "cyclic"
-
-    def act(self, view, greedy=True):
-        g, i = receiver_index(view)
-        out = np.zeros(view.receivers.shape, dtype=np.int64)
-        out[g, i] = (view.tick + i) % 9
-        return out
-
+PLUGIN = CYCLIC_PLUGIN + '''
 
 class Nan(Cyclic):
     """A buggy one: NaN moves."""
