@@ -21,6 +21,11 @@ def check_run_id(run: str) -> str:
     return run
 
 
+WORLD_GONE_S = 2.0
+"""How long the world's liveliness token must stay gone (no `end` record seen) before a
+listener that outlives it (the recorder, a learner) takes the run as over."""
+
+
 class Keys:
     """Key expressions of run `run`."""
 

@@ -27,6 +27,7 @@ import msgpack
 import zenoh
 
 from swarm.net.inbox import DEFAULT_MAX_BYTES, DEFAULT_MAX_EVENTS, Inbox, query, tally
+from swarm.net.keys import WORLD_GONE_S as GONE_S
 from swarm.net.keys import Keys
 from swarm.net.messages import K_RESULT, K_STAMPED, K_STATUS, BadMessage, unpack_record
 from swarm.net.record.recording import RecordingWriter
@@ -34,7 +35,6 @@ from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunRecord
 
 log = logging.getLogger("swarm.recorder")
-GONE_S = 2.0  # the world's token gone this long (and no `end`): the run is over
 GRACE_S = 0.3  # after `end`: the robots' final statuses still come
 BACKLOG = 50_000  # messages whose JSON form waits for the run's end (~3 s to convert)
 INTERRUPT_JSON_S = 1.0  # interrupted: JSON forms for this long, then the footer

@@ -14,14 +14,13 @@ import time
 import zenoh
 
 from swarm.net.inbox import Event, query
+from swarm.net.keys import WORLD_GONE_S as GONE_S
 from swarm.net.keys import Keys
 from swarm.net.messages import K_RESULT, BadMessage, unpack_record
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError, WorldConfig
 
 log = logging.getLogger("swarm.learner")
-GONE_S = 2.0  # the world's token gone this long (and no `end`): the run is over (as the
-# recorder's GONE_S)
 ASK_S = 5.0  # how long the world's record is asked for once its token is up
 
 
