@@ -37,17 +37,21 @@ REGISTRY: dict[str, str] = {
 PLUGIN_GROUP = "commattn_swarm.policies"
 
 
+SKIPPED: list[str] = []
+"""One line per entry point `_plugins` skipped: `swarm` prints them once a command (its
+children, robots included, do not repeat them); a library user reads them here."""
+
+
 def _plugins() -> dict[str, str]:
     """`name = "module:Class"` entry points of installed packages; one that shadows a built-in
-    name or is not `module:Class` is skipped with a one-line warning."""
+    name or is not `module:Class` is skipped, noted in SKIPPED."""
     found: dict[str, str] = {}
     for ep in metadata.entry_points(group=PLUGIN_GROUP):
         module, sep, cls = ep.value.partition(":")
         why = ("shadows a built-in policy" if ep.name in REGISTRY else
                "is not 'module:Class'" if not (module and sep and cls) else "")
         if why:
-            print(f"swarm: warning: policy plugin {ep.name!r} = {ep.value!r} {why}; skipped",
-                  file=sys.stderr)
+            SKIPPED.append(f"policy plugin {ep.name!r} = {ep.value!r} {why}; skipped")
             continue
         found[ep.name] = ep.value
     return found

@@ -146,8 +146,9 @@ def test_a_plugin_that_cannot_act_or_be_built_is_one_line_naming_it(
 def test_a_plugin_that_does_not_import_breaks_no_command_that_does_not_ask_for_it(
         tmp_path: Path) -> None:
     """Before, `swarm repro` imported every registered policy at start (a traceback for every
-    item) and `swarm bench policy` (every policy by default) stopped at it."""
-    env = install(tmp_path, "noimport", "cyclic")
+    item) and `swarm bench policy` (every policy by default) stopped at it, and at a plugin
+    whose constructor raised."""
+    env = install(tmp_path, "noimport", "badinit", "cyclic")
     r = swarm("repro", "fig8", "--out", str(tmp_path / "repro"), env=env)
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     r = swarm("bench", "policy", "--decisions", "1", "--warmup", "0", "--robots", "3",
@@ -155,8 +156,14 @@ def test_a_plugin_that_does_not_import_breaks_no_command_that_does_not_ask_for_i
     assert r.returncode == 0, r.stderr
     assert "swarm: warning: policy plugin 'noimport' (no_such_module_here:X) does not " \
            "import: ModuleNotFoundError" in r.stderr and "; skipped" in r.stderr, r.stderr
+    assert "swarm: warning: policy plugin 'badinit' (ua_plugin:BadInit) could not be built: " \
+           "ValueError: init failed; skipped" in r.stderr, r.stderr
     timed = [row["policy"] for row in json.loads((tmp_path / "bench.json").read_text())["rows"]]
-    assert "cyclic" in timed and "noimport" not in timed and "nearest-frontier" in timed
+    assert "cyclic" in timed and "nearest-frontier" in timed
+    assert "noimport" not in timed and "badinit" not in timed
+    # asked for by name, it stops the command before anything is timed
+    r = swarm("bench", "policy", "--policies", "badinit,cyclic", "--decisions", "1", env=env)
+    assert r.returncode == 2 and "could not be built" in r.stderr, r.stderr
 
 
 def test_the_project_s_own_registry_checks_pass_with_a_chained_plugin_installed(

@@ -518,8 +518,12 @@ def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path)
     assert r.returncode == 0, r.stderr
     assert "policy plugin 'broken' = 'nocolon' is not 'module:Class'; skipped" in r.stderr
     r = swarm("run", "--headless", "--policy", "cyclic", "--robots", "3", "--episodes", "2",
-              "--seed", "4", "--json", str(run), env=env)
+              "--seed", "4", "--json", str(run), "--log-dir", str(tmp_path / "logs"), env=env)
     assert r.returncode == 0, r.stderr
+    # said once a command, not again in each child's log (a swarm of hundreds had hundreds)
+    assert r.stderr.count("is not 'module:Class'") == 1, r.stderr
+    logs = sorted((tmp_path / "logs").glob("*.log"))
+    assert logs and not any("module:Class" in p.read_text() for p in logs)
     batched = json.loads(ev.read_text())["results"][0]
     swarmed = json.loads(run.read_text())
     assert batched["policy"] == swarmed["policy"] == "cyclic"

@@ -86,6 +86,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     if not die_with_parent():
         terminate_as_interrupt()
+        from policies import SKIPPED  # (once a command: not again in each child's log)
+
+        for line in SKIPPED:
+            print(f"swarm: warning: {line}", file=sys.stderr)
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:  # named after the subcommand whose --help lists what it takes
