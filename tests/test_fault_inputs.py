@@ -72,6 +72,17 @@ def test_a_process_fault_beyond_the_runs_last_tick_is_refused() -> None:
              why="--crash 1@0 --restart 1@0: a robot restarted at tick 0")
 
 
+def test_a_refused_process_fault_is_named_as_the_user_gave_it(tmp_path: Path) -> None:
+    """One from the config file is its `[faults]` key, not a flag the user never typed."""
+    conf = tmp_path / "f.toml"
+    conf.write_text('[faults]\ncrash = ["1@99999"]\n')
+    _refused("run", "--headless", "--episodes", "1", "--config", str(conf),
+             why='[faults] crash "1@99999" is beyond the run\'s last tick 29')
+    conf.write_text('[faults]\nrestart = ["1@0"]\n')
+    _refused("run", "--headless", "--episodes", "1", "--config", str(conf), "--crash", "1@0",
+             why='--crash 1@0 [faults] restart "1@0": a robot restarted at tick 0')
+
+
 def test_a_zero_kernel_bandwidth_or_lease_is_refused_not_read_as_the_default() -> None:
     """0 is the fields' "unlimited" and "the usual 1 s": given on the command line it is a
     one-line error before any namespace or process is made, like `--bandwidth 0`."""

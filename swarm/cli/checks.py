@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import re
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -42,14 +43,22 @@ def check_clock(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig
 
 
 def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig,
-                      at_tick: int | None = None) -> None:
+                      at_tick: int | None = None,
+                      flags: Iterable[str] = ("crash", "hang", "restart")) -> None:
     """A fault for a run tick the run never reaches is refused: its ticks are 0 .. episodes x
-    horizon - 1."""
+    horizon - 1. The refusal names a process fault as given: its flag for the kinds in
+    `flags`, else its `[faults]` key."""
     from swarm.net.faults import plan_from_table
+
+    flags = set(flags)
+
+    def named(kind: str, robot: int, tick: int) -> str:
+        return f"--{kind} {robot}@{tick}" if kind in flags else \
+            f'[faults] {kind} "{robot}@{tick}"'
 
     last = run.episodes * world.horizon - 1
     process = plan_from_table(faults, at_once=True).process  # (a live change's may strike now)
-    late = [f"--{p.kind} {p.robot}@{p.tick}" for p in process
+    late = [named(p.kind, p.robot, p.tick) for p in process
             if p.tick > last] + ([f"--at-tick {at_tick}"] if (at_tick or 0) > last else [])
     if late:
         raise ConfigError(f"{late[0]} is beyond the run's last tick {last} ({run.episodes} "
@@ -57,9 +66,9 @@ def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig
     at0 = {(p.kind, p.robot) for p in process if p.tick == 0}
     both = sorted(r for k, r in at0 if k == "crash" and ("restart", r) in at0)
     if both:  # (the world waits at tick 0 for a new process the supervisor only starts later)
-        raise ConfigError(f"--crash {both[0]}@0 --restart {both[0]}@0: a robot restarted at "
-                          "tick 0 is one that never crashed; give the crash or the restart a "
-                          "later tick")
+        raise ConfigError(f"{named('crash', both[0], 0)} {named('restart', both[0], 0)}: a "
+                          "robot restarted at tick 0 is one that never crashed; give the crash "
+                          "or the restart a later tick")
 
 
 def check_by_hand(faults: dict[str, Any]) -> None:

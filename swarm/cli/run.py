@@ -142,7 +142,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     # everything the run needs, checked before a process is spawned: one line, exit 2
     check_training(args, tables, run)
     check_clock(args, tables, run, faults)
-    check_fault_ticks(faults, run, world)
+    check_fault_ticks(faults, run, world, flags=[k for k in ("crash", "hang", "restart")
+                                                 if getattr(args, k, None)])
     check_run_free(run.run_id)
     if args.start_timeout is None and "start_timeout" not in tables.get("run", {}):
         # (spawning N interpreters: ~0.3 s of CPU each, on a machine that may be busy)
