@@ -674,7 +674,8 @@ def test_swarm_version_names_the_package_and_the_commit() -> None:
 @pytest.mark.procs
 def test_a_hand_robot_whose_world_dies_says_so(tmp_path: Path) -> None:
     """`swarm robot` started by hand, its world SIGKILLed mid-run: one warning line that the
-    world left before the run's end (it exited 0 without a word, as after a whole run)."""
+    world left before the run's end (it exited 0 without a word, as after a whole run) and exit
+    status 3, not the 0 of a run that ended."""
     import socket
 
     with socket.socket() as s:
@@ -698,6 +699,9 @@ def test_a_hand_robot_whose_world_dies_says_so(tmp_path: Path) -> None:
             if p.poll() is None:
                 p.kill()
     assert "the world left before the run's end" in err, err
+    said = [line for line in err.splitlines() if line.startswith("swarm robot:")]
+    assert robot.returncode == 3 and len(said) == 1 and "run handgone" in said[0], err
+    assert "Traceback" not in err, err
 
 
 @pytest.mark.procs

@@ -12,11 +12,11 @@ from typing import Any
 
 from swarm.cli.common import _checkpoint_pairs
 from swarm.procs.runconfig import RunConfig
+from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from here)
 from world.config import ConfigError, WorldConfig
 
 TRAIN_FLAGS = ("train_batch", "train_algo", "train_ppo_epochs", "learner_out", "rollout_loss",
                "train_sync")
-EXIT_INCOMPLETE = 3  # `swarm run`: fewer episodes completed than asked (a stop on its control key)
 
 
 def check_clock(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig,

@@ -256,6 +256,7 @@ def cmd_world(args: argparse.Namespace) -> int:
 
 def cmd_robot(args: argparse.Namespace) -> int:
     from swarm.net.keys import check_run_id
+    from swarm.procs.robot import WorldLeft
     from swarm.procs.robot import main as robot_main
 
     check_run_id(args.run_id)
@@ -266,6 +267,9 @@ def cmd_robot(args: argparse.Namespace) -> int:
         robot_main(args.id, args.run_id, zopts, wait_world=args.wait)
     except KeyboardInterrupt:
         return 130
+    except WorldLeft as exc:
+        print(f"swarm robot: {exc}", file=sys.stderr)
+        return EXIT_INCOMPLETE
     except TimeoutError as exc:
         raise ConfigError(str(exc)) from None
     return 0
@@ -468,7 +472,10 @@ def add_parsers(sub: Any) -> None:
 def add_robot_parser(sub: Any) -> None:
     """Register `robot` on the `swarm` subparsers."""
     p = sub.add_parser("robot", help="one robot process, by hand",
-                       description="Join run RUN_ID as robot ID; the config comes from the world.")
+                       description="Join run RUN_ID as robot ID; the config comes from the "
+                                   "world. Exit status: 0 the run ended, 2 bad input or no "
+                                   f"world, {EXIT_INCOMPLETE} the world left before the run's "
+                                   "end, 130 interrupted.")
     p.add_argument("--id", type=robot_id, required=True, help="robot id 0..N-1")
     p.add_argument("--run-id", required=True, help="the run to join (printed by `swarm world`)")
     p.add_argument("--wait", type=float, default=30.0, metavar="S",

@@ -34,6 +34,10 @@ from typing import Any
 from world.config import ConfigError
 
 PARENT_ENV = "SWARM_SUPERVISOR"
+# `swarm run` and `swarm world`: fewer episodes completed than asked (a stop on the control key);
+# `swarm robot`: it gave up on a world gone before the run's end (a supervisor's fleet does not
+# count that as a crash: the world's `robots_lost` says which)
+EXIT_INCOMPLETE = 3
 PR_SET_PDEATHSIG = 1
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.common.procstat import stopped
-from swarm.common.spawn import last_error
+from swarm.common.spawn import EXIT_INCOMPLETE, last_error
 from swarm.net.faults import ProcessFault
 from swarm.procs.dashboard import SwarmView
 
@@ -115,8 +115,8 @@ class Fleet:
         self.seen.add(p)
         if p in self.killed:
             self.killed.discard(p)
-        elif p.returncode != 0:  # (0: it left on its own, at the run's end or when its world
-            self.crashes += 1  # was gone: the world's `robots_lost` says which)
+        elif p.returncode not in (0, EXIT_INCOMPLETE):  # (it left on its own, at the run's end
+            self.crashes += 1  # or when its world was gone: the world's `robots_lost` says which)
             self.errors[f"robot {i}"] = last_error(
                 self.log_dir / f"robot{i}.log", since=self.log_from.get(i, 0)) or \
                 how_it_ended(p.returncode)

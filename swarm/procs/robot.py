@@ -65,6 +65,7 @@ class RobotProcess:
     attn: tuple[int, list[float]] | None = None  # the last decision's attention (t, weights)
     direct: Any = None  # swarm.procs.robot_direct.DirectDelivery with --delivery direct
     sent_hidden = (-1, -1)  # (episode, tick) of the last hidden-state message sent
+    left = False  # it gave up on a world whose token stayed gone (no `end` record came)
     origin = -1  # the learner whose weights it acts with (Weights.origin; -1: a checkpoint's)
 
     def __init__(self, robot: int, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
@@ -450,6 +451,7 @@ class RobotProcess:
                     if gone_since is not None and time.monotonic() >= gone_since + grace:
                         log.warning("robot %d: the world left before the run's end (its token "
                                     "gone %.0f s); exiting", self.robot, grace)
+                        self.left = True
                         break
                     continue
                 kind, msg = item
@@ -477,8 +479,13 @@ class RobotProcess:
             self.inbox.close()
 
 
+class WorldLeft(RuntimeError):
+    """The world's token stayed gone before the run's end: this robot gave up on the run."""
+
+
 def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0) -> RobotCounters:
-    """Join run `run_id` as robot `robot`: fetch the run record, act until the run ends."""
+    """Join run `run_id` as robot `robot`: fetch the run record, act until the run ends; a
+    world gone before its end (no `end` record) is WorldLeft, after the final status."""
     keys = Keys(run_id)
     with open_session(zopts) as session:
         rec = fetch_config(session, keys, wait_world)
@@ -490,4 +497,8 @@ def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0)
         policy = build_inference(run.policy, cfg, run.checkpoint)
         policy.reset(1)
         proc = RobotProcess(robot, cfg, run, session, policy)
-        return with_delivery(proc, rec.faults).run(wait_world)  # swarm.procs.robot_direct
+        counters = with_delivery(proc, rec.faults).run(wait_world)  # swarm.procs.robot_direct
+        if proc.left:
+            raise WorldLeft(f"robot {robot}: the world of run {run_id} left before the run's "
+                            f"end (episode {proc.ep}, {counters.decisions} decisions made)")
+        return counters
