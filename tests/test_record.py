@@ -388,6 +388,23 @@ def test_a_robot_restarted_under_direct_delivery_verifies(tmp_path: Path) -> Non
 
 
 @pytest.mark.procs
+def test_replay_of_a_training_run_shows_the_learner_panel(tmp_path: Path) -> None:
+    """A `--train` run's recording holds the learner's statuses; its replay drew no learner
+    panel (the live dashboard does)."""
+    from swarm.studies.replay import load, replay
+
+    f = tmp_path / "train.mcap"
+    r = swarm("run", "--headless", "--train", "--robots", "3", "--episodes", "3", "--horizon",
+              "10", "--policy", "commattn", "--train-batch", "2", "--record", str(f),
+              "--learner-out", str(tmp_path / "learner"), timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    console = Console(file=io.StringIO(), width=180, record=True, color_system=None)
+    view, stats = replay(load(f), console, speed=0)
+    assert stats.bad == 0 and view.learner is not None and view.learner["version"] >= 1
+    assert "learner" in console.export_text()
+
+
+@pytest.mark.procs
 def test_replay_renders_the_run_into_a_capture_console(recorded: dict[str, Any]) -> None:
     from swarm.studies.replay import load, replay
 

@@ -24,8 +24,10 @@ from rich.live import Live
 
 from swarm.net.faults import ProcessFault, parse_process
 from swarm.net.keys import Keys
+from swarm.net.learning import check_learner_status
 from swarm.net.messages import (
     K_CONTROL,
+    K_LSTATUS,
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
@@ -195,6 +197,8 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
                 kind, _, robot = str(text).partition(":")
                 v.events = v.events[-5:] + [f"{kind} {robot}@{v.ticks_done}" if "@" not in robot
                                             else f"{kind} {robot}"]
+        elif m.kind == "lstatus":  # a --train run's learner panel, as live
+            v.learner = check_learner_status(unpack_record(m.payload, K_LSTATUS))
         elif m.kind == "result":
             v.apply_result(unpack_record(m.payload, K_RESULT))
         elif m.kind == "end":
