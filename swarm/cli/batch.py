@@ -5,14 +5,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from policies import BASELINES, PLUGINS
+from policies import BASELINES
 from swarm.bench.train import TrainBenchConfig
-from swarm.cli.checks import check_repro_flags, eval_checkpoints, stray_checkpoints
+from swarm.cli.checks import buildable, check_repro_flags, eval_checkpoints, stray_checkpoints
 from swarm.cli.common import (
     RichProgress,
     _checkpoint_pairs,
@@ -283,14 +282,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         ckpts = _checkpoint_pairs(args.checkpoint) or {}
         stray_checkpoints(ckpts, list(cfg.policies), "--policies")
         asked_for = args.policies is not None or "policies" in table
-        for name in cfg.policies:  # fail on an unloadable policy before timing anything
-            try:
-                build_policy(name, world, ckpts.get(name))
-            except ConfigError as exc:  # every policy by default: a plugin that cannot be
-                if asked_for or name not in PLUGINS:  # built is skipped like one that does
-                    raise                             # not import
-                print(f"swarm: warning: {exc}; skipped", file=sys.stderr)
-                cfg = dataclasses.replace(cfg, policies=tuple(n for n in cfg.policies if n != name))
+        cfg = dataclasses.replace(cfg, policies=buildable(cfg.policies, world, ckpts, asked_for))
         with RichProgress(err) as progress:
             result = bench.bench_policy(world, cfg, progress, ckpts)
         result["checkpoints"] = {n: shown(c) for n, c in ckpts.items()}

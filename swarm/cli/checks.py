@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import argparse
 import re
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from swarm.cli.common import _checkpoint_pairs
-from swarm.procs.runconfig import RunConfig
 from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from here)
+from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig
 
 TRAIN_FLAGS = ("train_batch", "train_algo", "train_ppo_epochs", "learner_out", "rollout_loss",
@@ -171,3 +172,24 @@ def check_repro_flags(items: list[str], args: argparse.Namespace) -> None:
         raise ConfigError(f"--{dest.replace('_', '-')} is not used by {', '.join(items)}"
                           + (f" ({why})" if why else "") + f"; it is for {', '.join(users)}: "
                           "leave it out")
+
+
+def buildable(names: tuple[str, ...], world: WorldConfig, checkpoints: dict[str, str],
+              asked_for: bool) -> tuple[str, ...]:
+    """`names` each built once before anything is timed: one that cannot be built is a one-line
+    ConfigError, but when the command takes every policy by default (not `asked_for`), a
+    plugin that cannot be built is skipped with a warning, as one that does not import."""
+    from policies import PLUGINS
+    from swarm.common.policy_spec import build_policy
+
+    kept = []
+    for name in names:
+        try:
+            build_policy(name, world, checkpoints.get(name))
+        except ConfigError as exc:
+            if asked_for or name not in PLUGINS:
+                raise
+            print(f"swarm: warning: {exc}; skipped", file=sys.stderr)
+            continue
+        kept.append(name)
+    return tuple(kept)

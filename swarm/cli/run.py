@@ -256,8 +256,8 @@ def cmd_world(args: argparse.Namespace) -> int:
 
 def cmd_robot(args: argparse.Namespace) -> int:
     from swarm.net.keys import check_run_id
-    from swarm.procs.robot import WorldLeft
     from swarm.procs.robot import main as robot_main
+    from swarm.procs.robot_status import WorldLeft
 
     check_run_id(args.run_id)
     check_wait(args.wait)

@@ -42,6 +42,7 @@ from swarm.procs.robot_direct import Heard, with_delivery
 from swarm.procs.robot_status import (
     RobotCounters,
     TickGuard,
+    WorldLeft,
     attention_of,
     count_after_end,
     fetch_config,
@@ -479,13 +480,8 @@ class RobotProcess:
             self.inbox.close()
 
 
-class WorldLeft(RuntimeError):
-    """The world's token stayed gone before the run's end: this robot gave up on the run."""
-
-
 def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0) -> RobotCounters:
-    """Join run `run_id` as robot `robot`: fetch the run record, act until the run ends; a
-    world gone before its end (no `end` record) is WorldLeft, after the final status."""
+    """Join run `run_id` as robot `robot`: act until the run ends (WorldLeft: its world left)."""
     keys = Keys(run_id)
     with open_session(zopts) as session:
         rec = fetch_config(session, keys, wait_world)

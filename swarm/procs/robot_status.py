@@ -18,6 +18,10 @@ from swarm.net.messages import BadMessage
 from swarm.procs.runconfig import RunRecord
 
 
+class WorldLeft(RuntimeError):
+    """The world's token stayed gone before the run's end: this robot gave up on the run."""
+
+
 @dataclass
 class RobotCounters:
     msgs_in: int = 0
