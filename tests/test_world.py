@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from world import core
-from world.config import SEED_MAX, ConfigError, WorldConfig
+from world.config import SEED_MAX, ConfigError, WorldConfig, load_toml
 from world.decentral import (
     TeamMemory,
     batch_view,
@@ -833,3 +833,15 @@ def test_a_config_file_bool_is_no_number() -> None:
         with pytest.raises(ConfigError, match=f"{key} must be float, got (True|False)"):
             from_dict(cls, table, "[x]")
     assert from_dict(WorldConfig, {"comm_range": 3}).comm_range == 3.0  # (an int is a number)
+
+
+def test_a_config_file_with_a_byte_order_mark_reads(tmp_path) -> None:
+    """Some Windows editors start UTF-8 with a byte-order mark; TOML's parser called it an
+    invalid statement at line 1. Bytes that are not UTF-8 are named by their offset in the
+    file, the mark included."""
+    f = tmp_path / "bom.toml"
+    f.write_bytes(b"\xef\xbb\xbf[world]\nheight = 30\n")
+    assert load_toml(f) == {"world": {"height": 30}}
+    f.write_bytes(b"\xef\xbb\xbf[world]\n# caf\xe9\n")
+    with pytest.raises(ConfigError, match=r"is not UTF-8 text \(byte 16\)"):
+        load_toml(f)

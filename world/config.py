@@ -235,16 +235,20 @@ def replace(cfg: T, **changes: Any) -> T:
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML experiment file; a missing or malformed file is a one-line ConfigError."""
+    """Read a TOML experiment file; a missing or malformed file is a one-line ConfigError. A
+    UTF-8 byte-order mark (some Windows editors write one) is read past, not a TOML error."""
     try:
         with open(path, "rb") as fh:
-            return tomllib.load(fh)
+            data = fh.read()
+        bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+        return tomllib.loads(data[bom:].decode("utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"config file not found: {path}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {path}: {exc}") from None
-    except UnicodeDecodeError as exc:  # (tomllib decodes before it parses)
-        raise ConfigError(f"config file {path} is not UTF-8 text (byte {exc.start})") from None
+    except UnicodeDecodeError as exc:
+        where = exc.start + bom
+        raise ConfigError(f"config file {path} is not UTF-8 text (byte {where})") from None
     except IsADirectoryError:
         raise ConfigError(f"config file {path} is a directory") from None
     except OSError as exc:
