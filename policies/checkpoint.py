@@ -75,11 +75,20 @@ def check_exists(path: Path) -> None:
 
 def check_readable(path: Path) -> None:
     """`check_exists`, and a one-line CheckpointError unless `path` is a zip archive (what
-    torch.save writes): both readers refuse a truncated or foreign file in the same words."""
+    torch.save writes) whose every member matches its CRC: both readers refuse a truncated,
+    corrupted or foreign file in the same words (torch.load does not check the CRCs: a file
+    with flipped bytes loaded, and acted, with other weights)."""
     check_exists(path)
     if not zipfile.is_zipfile(path):  # (else torch's advice, or zipfile's, misleads)
         raise CheckpointError(f"checkpoint {path} is unreadable: not a torch checkpoint file "
                               "(a .pt that swarm train wrote)")
+    try:
+        with zipfile.ZipFile(path) as z:
+            bad = z.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        raise CheckpointError(f"checkpoint {path} is unreadable: {exc}") from None
+    if bad is not None:
+        raise CheckpointError(f"checkpoint {path} is unreadable: Bad CRC-32 for file {bad!r}")
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:

@@ -4,6 +4,7 @@ file, by the torch reader and the torch-free one alike (real files, a tiny real 
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +72,28 @@ def test_both_readers_call_a_truncated_checkpoint_not_a_torch_file(tmp_path: Pat
     for reader in (load_checkpoint, read_checkpoint):
         with pytest.raises(CheckpointError, match="unreadable: not a torch checkpoint file"):
             reader(cut)
+
+
+def test_both_readers_refuse_a_checkpoint_with_flipped_bytes(tmp_path: Path) -> None:
+    """torch.load does not check the zip's CRCs: a checkpoint with bytes flipped inside a
+    tensor loaded, and `swarm eval` ran other weights (0.912 for 0.920), while the numpy
+    reader (`swarm run`) refused it."""
+    raw = bytearray(tiny_checkpoint(tmp_path / "good.pt").read_bytes())
+    with zipfile.ZipFile(tmp_path / "good.pt") as z:
+        member = next(i for i in z.infolist() if "/data/" in i.filename and i.file_size >= 16)
+    head = member.header_offset  # (the local header's own name and extra lengths)
+    start = head + 30 + int.from_bytes(raw[head + 26:head + 28], "little") + \
+        int.from_bytes(raw[head + 28:head + 30], "little")
+    raw[start:start + 8] = bytes(b ^ 0xFF for b in raw[start:start + 8])
+    bad = tmp_path / "flipped.pt"
+    bad.write_bytes(raw)
+    messages = []
+    for reader in (load_checkpoint, read_checkpoint):
+        with pytest.raises(CheckpointError) as err:
+            reader(bad)
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
+    assert f"unreadable: Bad CRC-32 for file {member.filename!r}" in messages[0], messages[0]
 
 
 def one_line_error(r: Any, words: str) -> None:
