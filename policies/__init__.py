@@ -155,6 +155,8 @@ def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
     runs them: `swarm.common.policy_spec.build_policy(name, cfg)`. A plugin whose constructor
     raises is a one-line PluginError naming it."""
     cls = policy_class(name)
+    if "checkpoint" in kwargs and not cls.learned:  # (a bare TypeError from its __init__)
+        raise ValueError(f"a checkpoint applies to learned policies only, not {name!r}")
     if name not in PLUGINS:
         return cls(cfg, **kwargs)  # type: ignore[call-arg]
     try:

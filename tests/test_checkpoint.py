@@ -121,3 +121,11 @@ def test_every_command_refuses_a_bad_checkpoint_in_one_line(tmp_path: Path) -> N
     (run / "checkpoint.pt").write_bytes(raw[:len(raw) // 2])
     one_line_error(swarm("train", "--resume", "--out", str(run), timeout=60),
                    "not a torch checkpoint file")
+
+
+def test_a_checkpoint_for_a_hand_written_policy_is_one_line() -> None:
+    """`make_policy("nearest-frontier", cfg, checkpoint=...)` was the class's bare TypeError
+    (an unexpected keyword argument)."""
+    with pytest.raises(ValueError, match="a checkpoint applies to learned policies only, not "
+                                         "'nearest-frontier'"):
+        make_policy("nearest-frontier", WorldConfig(), checkpoint="checkpoints/commattn.pt")
