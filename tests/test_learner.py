@@ -530,3 +530,15 @@ def test_a_training_run_says_where_its_weights_went(tmp_path: Path) -> None:
     assert ckpt.is_relative_to(tmp_path) and load_checkpoint(ckpt)["learner"]["version"] == 2
     said = [x for x in r.stderr.splitlines() if "trained weights" in x]
     assert said == [f"swarm: trained weights (version 2): {ckpt}"], r.stderr[-2000:]
+
+
+def test_no_update_says_what_became_of_the_episodes_that_came() -> None:
+    """It said "fewer than 3 episodes reached it" when 8 had, 7 of them incomplete."""
+    from swarm.procs.learning.supervised import trained_line
+
+    learner = {"out": "/nonexistent/learner", "accounting": {
+        "received": 8, "trained": 0, "pending": 1, "incomplete": 7, "stale_dropped": 0}}
+    assert trained_line(learner, 3) == (
+        "swarm: the learner made no update (a batch is 3 usable episodes; it received 8: 1 "
+        "pending, 7 incomplete): no checkpoint in /nonexistent/learner")
+    assert "it received 0)" in trained_line({"out": "/nonexistent"}, 3)

@@ -54,5 +54,9 @@ def trained_line(learner: dict[str, Any], batch: int) -> str:
     if (out / "checkpoint.pt").is_file():
         return f"swarm: trained weights (version {learner.get('version', 0)}): " \
             f"{out / 'checkpoint.pt'}"
-    return f"swarm: the learner made no update (fewer than {batch} episodes reached it): no " \
-        f"checkpoint in {out}"
+    acc = learner.get("accounting") or {}
+    fates = ", ".join(f"{acc[k]} {k.replace('_', ' ')}" for k in LEARNER_COUNTERS
+                      if k != "trained" and acc.get(k))
+    return f"swarm: the learner made no update (a batch is {batch} usable episodes; it " \
+        f"received {acc.get('received', 0)}{': ' + fates if fates else ''}): no checkpoint " \
+        f"in {out}"
