@@ -85,6 +85,7 @@ class Layout:
 class WorldState:
     """Batched state of B episodes; mutated in place by `step`."""
 
+    cfg: WorldConfig  # the config it was reset with; every (cfg, state) function refuses another
     seed: int
     episodes: np.ndarray  # [B] int64 episode numbers (with seed they key maps and noise)
     t: int  # steps done, shared by the batch
@@ -183,7 +184,7 @@ def from_layout(cfg: WorldConfig, blocks: np.ndarray, starts: np.ndarray, dynami
     if (grid[np.arange(b)[:, None], pos] != FREE).any():
         raise ValueError("a robot starts on a block")
     state = WorldState(
-        seed=int(seed), episodes=np.asarray(episodes, dtype=np.int64), t=0, grid=grid, pos=pos,
+        cfg=cfg, seed=int(seed), episodes=np.asarray(episodes, dtype=np.int64), t=0, grid=grid, pos=pos,
         alive=np.ones((b, n), dtype=bool),
         explored=np.zeros((b, p), dtype=bool),
         visited=np.zeros((b, n, cfg.cells), dtype=bool),
@@ -227,8 +228,19 @@ def _explore(cfg: WorldConfig, state: WorldState, lay: Layout) -> np.ndarray | N
     return revealed
 
 
+def check_config(cfg: WorldConfig, state: WorldState) -> None:
+    """A one-line ConfigError unless `cfg` is the config `state` was reset with: another size,
+    vision or horizon would index the state's arrays wrongly without an error."""
+    if cfg is not state.cfg and cfg != state.cfg:
+        diff = [f"{f.name} {getattr(cfg, f.name)!r} (state's: {getattr(state.cfg, f.name)!r})"
+                for f in fields(cfg) if getattr(cfg, f.name) != getattr(state.cfg, f.name)]
+        raise ConfigError(f"world config differs from the one the state was reset with: "
+                          f"{', '.join(diff)}; pass that config or reset with this one")
+
+
 def elratio(cfg: WorldConfig, state: WorldState) -> np.ndarray:
     """|explored U blocks now active| / (H W), [B]."""
+    check_config(cfg, state)
     covered = state.explored | (state.grid & 1).astype(bool)
     return covered.sum(axis=1) / cfg.cells
 
@@ -254,6 +266,7 @@ def check_actions(actions: object, shape: tuple[int, int]) -> np.ndarray:
 def step(cfg: WorldConfig, state: WorldState, actions: np.ndarray) -> np.ndarray:
     """Advance every episode one step with actions [B, N] in 0..8; returns rewards [B, N]
     float32."""
+    check_config(cfg, state)
     if state.done:
         raise RuntimeError("episode already ran its horizon; call reset")
     lay = Layout.of(cfg)
@@ -313,6 +326,7 @@ def _activate_dynamic(state: WorldState, offs: np.ndarray) -> None:
 
 def patches(cfg: WorldConfig, state: WorldState) -> np.ndarray:
     """Each robot's v x v view [B, N, v, v] uint8: 0 free, 1 block, 2 off-grid, +4 robot there."""
+    check_config(cfg, state)
     lay = Layout.of(cfg)
     b, n = state.pos.shape
     offs = (np.arange(b) * lay.size)[:, None]
@@ -354,6 +368,9 @@ METRIC_NAMES: tuple[str, ...] = tuple(f.name for f in fields(EpisodeMetrics))
 
 
 def metrics(cfg: WorldConfig, state: WorldState) -> EpisodeMetrics:
+    """The per-episode metrics of a batch that ran its horizon (`state.done`). Mid-episode it
+    reports the steps so far, but `success` is still False: it is judged on the last step."""
+    check_config(cfg, state)
     n_alive = np.maximum(state.alive.sum(1), 1)
     steps = np.maximum(state.t, 1) * n_alive
     block = state.block_coll.sum(1)

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from world.config import WorldConfig
-from world.core import Layout, WorldState, patches
+from world.core import Layout, WorldState, check_config, patches
 
 
 @dataclass
@@ -56,6 +56,7 @@ class TrajMessages:
 
 def traj_messages(cfg: WorldConfig, state: WorldState) -> TrajMessages:
     """Every live robot's trajectory message at the current tick, [B, N, ...]."""
+    check_config(cfg, state)
     lay = Layout.of(cfg)
     return TrajMessages(
         pos=lay.to_yx(state.pos), visited=state.visited, recent=state.recent,
