@@ -22,8 +22,9 @@ def test_a_state_refuses_a_config_it_was_not_reset_with(other: WorldConfig, name
     """A 25 x 25 config on a 20 x 20 state divided elratio by 625 cells and decoded positions
     on the wrong row width without a word; every (cfg, state) function now refuses it."""
     state = core.reset(CFG, 0, [0])
-    calls = [lambda: core.step(other, state, np.full((1, 3), 3)), lambda: core.metrics(other, state),
-             lambda: batch_view(other, state), lambda: core.patches(other, state),
+    calls = [lambda: core.step(other, state, np.full((1, 3), 3)),
+             lambda: core.metrics(other, state), lambda: batch_view(other, state),
+             lambda: core.patches(other, state),
              lambda: core.elratio(other, state), lambda: traj_messages(other, state)]
     for call in calls:
         with pytest.raises(ConfigError, match="differs from the one the state was reset with") as e:
@@ -33,3 +34,30 @@ def test_a_state_refuses_a_config_it_was_not_reset_with(other: WorldConfig, name
     same = WorldConfig(n_robots=3)  # an equal config (not the same object) is the same world
     core.step(same, state, np.full((1, 3), 3))
     assert core.metrics(same, state).elratio.shape == (1,) and batch_view(same, state).tick == 1
+
+
+SMALL = WorldConfig(height=5, width=5, n_static=0, n_dynamic=2, n_robots=2, horizon=9)
+
+
+@pytest.mark.parametrize("starts, dynamic, message", [
+    ([[[0, 0], [1, 1]]], [[[9, 9], [1, 2]]], r"dynamic\[0\]\[0\] = \[9, 9\] lies off the 5 x 5"),
+    ([[[0, 0], [1, 5]]], [[[2, 2], [1, 2]]], r"starts\[0\]\[1\] = \[1, 5\] lies off the 5 x 5"),
+    ([[[0.5, 0], [1, 1]]], [[[2, 2], [1, 2]]], "starts must be integer"),
+    ([[[1, 1], [1, 1]]], [[[2, 2], [1, 2]]],
+     r"starts\[0\]\[0\] and starts\[0\]\[1\] are both \[1, 1\]"),
+    ([[[0, 0], [1, 1], [2, 2]]], [[[2, 2], [1, 2]]], r"starts must be \[B, 2, 2\] = \[1, 2, 2\]"),
+    ([[[0, 0], [3, 3]]], [[[2, 2]]], r"dynamic must be \[B, 2, 2\]"),
+    ([[[0, 0], [3, 3]]], [[[2, 2], [1, 2]]], r"starts\[0\]\[1\] = \[3, 3\] is a block")])
+def test_a_hand_built_map_is_checked_up_front(starts: list, dynamic: list, message: str) -> None:
+    """An off-grid dynamic block was accepted and raised IndexError deep in numpy at its step,
+    float starts and two robots on one cell were accepted, a wrong robot count was numpy's
+    reshape error: each is now one line naming the bad entry."""
+    blocks = np.zeros((1, 5, 5), dtype=bool)
+    blocks[0, 3, 3] = True
+    with pytest.raises(ValueError, match=message) as e:
+        core.from_layout(SMALL, blocks, starts, dynamic)
+    assert "\n" not in str(e.value)
+    state = core.from_layout(SMALL, blocks, [[[0, 0], [1, 1]]], [[[4, 4], [1, 2]]])
+    while not state.done:
+        core.step(SMALL, state, np.zeros((1, 2), dtype=np.int64))
+    assert state.dyn_active.all()

@@ -163,28 +163,65 @@ def reset(cfg: WorldConfig, seed: int, episodes: np.ndarray | list[int]) -> Worl
                        np.stack([g[2] for g in gen]), seed=seed, episodes=episodes)
 
 
+def _cells(what: str, cells: object, shape: tuple[int, int, int], cfg: WorldConfig) -> np.ndarray:
+    """`cells` as an int64 array of `shape` ([B, M, 2] (y, x) grid cells) or a one-line
+    ValueError naming the first bad entry."""
+    arr = np.asarray(cells)
+    if arr.size == 0 and shape[1] == 0:
+        return np.zeros(shape, dtype=np.int64)
+    if arr.shape != shape:
+        raise ValueError(f"{what} must be [B, {shape[1]}, 2] = {list(shape)} (y, x) cells, got "
+                         f"shape {list(arr.shape)}")
+    if arr.dtype.kind not in "iu":
+        raise ValueError(f"{what} must be integer (y, x) cells, got {arr.dtype} "
+                         f"{arr.ravel()[:6].tolist()!r:.80}")
+    off = (arr[..., 0] < 0) | (arr[..., 0] >= cfg.height) | (arr[..., 1] < 0) | \
+        (arr[..., 1] >= cfg.width)
+    if off.any():
+        g, i = np.argwhere(off)[0]
+        raise ValueError(f"{what}[{g}][{i}] = {arr[g, i].tolist()} lies off the {cfg.height} x "
+                         f"{cfg.width} grid")
+    return arr.astype(np.int64)
+
+
 def from_layout(cfg: WorldConfig, blocks: np.ndarray, starts: np.ndarray, dynamic: np.ndarray,
                 seed: int = 0, episodes: np.ndarray | None = None) -> WorldState:
     """Start episodes on given maps: static blocks [B, H, W] bool, starts [B, N, 2] and dynamic
-    block cells [B, K, 2] as (y, x) with K = cfg.n_active_dynamic (hand-built maps in tests)."""
+    block cells [B, K, 2] as (y, x) with K = cfg.n_active_dynamic (hand-built maps in tests).
+    Each robot starts on its own free cell; a bad input is a one-line ValueError naming it."""
     lay = Layout.of(cfg)
-    blocks = np.asarray(blocks, dtype=bool)
+    check_seed(seed)
+    blocks = np.asarray(blocks)
+    if blocks.ndim != 3 or blocks.shape[0] < 1 or blocks.shape[1:] != (cfg.height, cfg.width):
+        raise ValueError(f"blocks must be [B, {cfg.height}, {cfg.width}] with B >= 1, got shape "
+                         f"{list(blocks.shape)}")
+    if blocks.dtype != bool and not np.isin(blocks, (0, 1)).all():
+        raise ValueError(f"blocks must be bool (or 0/1), got {blocks.dtype} values")
+    blocks = blocks.astype(bool)
     b, n, p, k = blocks.shape[0], cfg.n_robots, lay.size, cfg.n_active_dynamic
-    starts = np.asarray(starts).reshape(b, n, 2)
-    dynamic = np.asarray(dynamic).reshape(b, k, 2)
-    if blocks.shape[1:] != (cfg.height, cfg.width):
-        raise ValueError(f"blocks must be [B, {cfg.height}, {cfg.width}], got {blocks.shape}")
-    if episodes is None:
-        episodes = np.arange(b)
+    starts = _cells("starts", starts, (b, n, 2), cfg)
+    dynamic = _cells("dynamic", dynamic, (b, k, 2), cfg)
+    for g, i in np.argwhere(blocks[np.arange(b)[:, None], starts[..., 0], starts[..., 1]]):
+        raise ValueError(f"starts[{g}][{i}] = {starts[g, i].tolist()} is a block")
+    flat = starts[..., 0] * cfg.width + starts[..., 1]
+    order = np.argsort(flat, axis=1, kind="stable")
+    same = np.argwhere(np.diff(np.take_along_axis(flat, order, 1), axis=1) == 0)
+    if len(same):
+        g, m = same[0]
+        i, j = order[g, m], order[g, m + 1]
+        raise ValueError(f"starts[{g}][{i}] and starts[{g}][{j}] are both "
+                         f"{starts[g, i].tolist()}: each robot needs its own start cell")
+    episodes = np.arange(b) if episodes is None else np.asarray(episodes)
+    if episodes.shape != (b,) or episodes.dtype.kind not in "iu":
+        raise ValueError(f"episodes must be {b} integers (one per map), got "
+                         f"{episodes.tolist()!r:.80}")
     grid = np.full((b, lay.hp, lay.wp), WALL, dtype=np.uint8)
     inner = (slice(None), slice(lay.pad, lay.pad + cfg.height), slice(lay.pad, lay.pad + cfg.width))
     grid[inner] = np.where(blocks, STATIC, FREE)
     grid = grid.reshape(b, p)
     pos = lay.from_yx(starts).astype(np.int64)
-    if (grid[np.arange(b)[:, None], pos] != FREE).any():
-        raise ValueError("a robot starts on a block")
     state = WorldState(
-        cfg=cfg, seed=int(seed), episodes=np.asarray(episodes, dtype=np.int64), t=0, grid=grid, pos=pos,
+        cfg=cfg, seed=int(seed), episodes=episodes.astype(np.int64), t=0, grid=grid, pos=pos,
         alive=np.ones((b, n), dtype=bool),
         explored=np.zeros((b, p), dtype=bool),
         visited=np.zeros((b, n, cfg.cells), dtype=bool),
