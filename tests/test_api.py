@@ -61,3 +61,21 @@ def test_a_hand_built_map_is_checked_up_front(starts: list, dynamic: list, messa
     while not state.done:
         core.step(SMALL, state, np.zeros((1, 2), dtype=np.int64))
     assert state.dyn_active.all()
+
+
+def test_a_seed_that_is_no_integer_is_called_so() -> None:
+    """`core.reset(cfg, 1.5, [0])` said "seed must lie in [0, 2147483647], got 1.5", as if 1.5
+    were out of range; a bool, a float or a string is now named as no integer."""
+    from world.pettingzoo import SwarmParallelEnv
+
+    env = SwarmParallelEnv(SMALL)
+    for call, name, bad in ((lambda: core.reset(SMALL, 1.5, [0]), "seed", "1.5"),
+                            (lambda: core.reset(SMALL, True, [0]), "seed", "True"),
+                            (lambda: env.reset(seed=1.0), "seed", "1.0"),
+                            (lambda: env.reset(seed=0, options={"episode": "3"}), "episode",
+                             "'3'")):
+        with pytest.raises(ConfigError, match=f"^{name} must be an integer in "
+                                              fr"\[0, 2147483647\], got {bad}$"):
+            call()
+    with pytest.raises(ConfigError, match=r"^seed must lie in \[0, 2147483647\], got -1$"):
+        core.reset(SMALL, -1, [0])

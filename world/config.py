@@ -24,9 +24,12 @@ SEED_MAX = 2**31 - 1  # every seed keys numpy's SeedSequence and the msgpack int
 
 def check_seed(seed: Any, name: str = "seed") -> None:
     """A seed is an int (or numpy integer) in [0, SEED_MAX]; anything else is a one-line
-    ConfigError."""
-    if isinstance(seed, bool) or not isinstance(seed, int) and not (
-            hasattr(seed, "dtype") and seed.dtype.kind in "iu") or not 0 <= seed <= SEED_MAX:
+    ConfigError that says which rule it breaks (1.5, "3" and True are no integers)."""
+    integer = isinstance(seed, int) or (getattr(seed, "ndim", None) == 0
+                                        and seed.dtype.kind in "iu")
+    if isinstance(seed, bool) or not integer:
+        raise ConfigError(f"{name} must be an integer in [0, {SEED_MAX}], got {seed!r}")
+    if not 0 <= seed <= SEED_MAX:
         raise ConfigError(f"{name} must lie in [0, {SEED_MAX}], got {seed!r}")
 
 
