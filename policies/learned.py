@@ -21,13 +21,13 @@ from torch import nn
 from policies.checkpoint import load_checkpoint
 from policies.features import Members
 from policies.infer.layers import Weights
-from policies.infer.policy import Decision, InferencePolicy, pred_rows
+from policies.infer.policy import InferencePolicy, NetDecision, pred_rows
 from policies.infer.tokens import Tokens
 from world.config import ConfigError, to_dict
 from world.core import N_ACTIONS
 from world.decentral import View
 
-__all__ = ["Decision", "Evaluation", "LearnedPolicy"]
+__all__ = ["Evaluation", "LearnedPolicy", "NetDecision"]
 
 
 @dataclass

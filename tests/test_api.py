@@ -79,3 +79,27 @@ def test_a_seed_that_is_no_integer_is_called_so() -> None:
             call()
     with pytest.raises(ConfigError, match=r"^seed must lie in \[0, 2147483647\], got -1$"):
         core.reset(SMALL, -1, [0])
+
+
+def test_one_class_is_called_decision_and_the_networks_record_is_not_it() -> None:
+    """`policies.base.Decision` (actions, state) is the chained-policy interface; the shipped
+    CommAttn's `decide` returned another class of that name, and `actions, state = d` failed
+    on it. The network's record is `NetDecision`, read by name."""
+    import importlib
+    import pkgutil
+
+    import policies
+    from policies.base import Decision
+    from policies.infer.policy import NetDecision
+    from policies.learned import LearnedPolicy
+
+    called = {obj for info in pkgutil.walk_packages(policies.__path__, "policies.")
+              for obj in vars(importlib.import_module(info.name)).values()
+              if isinstance(obj, type) and obj.__name__ == "Decision"}
+    assert called == {Decision}
+    cfg = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=3, horizon=6)
+    policy = policies.make_policy("commattn", cfg)
+    assert isinstance(policy, LearnedPolicy)
+    d = policy.decide(batch_view(cfg, core.reset(cfg, 0, [0])))
+    assert isinstance(d, NetDecision) and d.actions.shape == (1, 3)
+    assert d.state is not None and d.state.shape[:2] == (1, 3)

@@ -39,8 +39,10 @@ class BadWeights(ValueError):
 
 
 @dataclass
-class Decision:
-    """What a batched decision computed, arrays [G, N, ...] (zeros off the receivers)."""
+class NetDecision:
+    """What a network's batched decision computed, arrays [G, N, ...] (zeros off the
+    receivers). Not `policies.base.Decision` (actions, state), the chained plugins' answer:
+    this record has more fields and is read by name, never unpacked."""
 
     actions: np.ndarray  # [G, N] int64
     probs: np.ndarray  # [G, N, 9] float32 action distribution of each receiver
@@ -282,7 +284,7 @@ class InferencePolicy(Policy):
     def act(self, view: View, greedy: bool = True) -> np.ndarray:
         return self.decide(view, greedy).actions
 
-    def decide(self, view: View, greedy: bool = True, keep_inputs: bool = False) -> Decision:
+    def decide(self, view: View, greedy: bool = True, keep_inputs: bool = False) -> NetDecision:
         """Actions, values and (chained) decoder states of every receiver of the view;
         `keep_inputs` keeps the features for a later `evaluate` (the trainer)."""
         self.remember(view)
@@ -300,7 +302,7 @@ class InferencePolicy(Policy):
             probs[g, i] = softmax(logits)
             value[g, i] = v
             self.last_probs = probs
-            return Decision(actions, probs, value, None, None, kept)
+            return NetDecision(actions, probs, value, None, None, kept)
         net: NumpyCommAttn = self.np  # type: ignore[assignment]
         pred = pred_rows([view], tokens)
         if (pred == -2).any():
@@ -315,7 +317,7 @@ class InferencePolicy(Policy):
         state[g, i] = self._with_plans(out.state, g, i)
         context = np.zeros(shape + (out.context.shape[1],), dtype=np.float32)
         context[g, i] = out.context
-        return Decision(actions, probs, value, state, context, kept,
+        return NetDecision(actions, probs, value, state, context, kept,
                         attention_by_id(view, tokens, out.alpha))
 
     # The probabilities and attention of a robot's chained decision are computed when first read,
