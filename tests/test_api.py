@@ -103,3 +103,20 @@ def test_one_class_is_called_decision_and_the_networks_record_is_not_it() -> Non
     d = policy.decide(batch_view(cfg, core.reset(cfg, 0, [0])))
     assert isinstance(d, NetDecision) and d.actions.shape == (1, 3)
     assert d.state is not None and d.state.shape[:2] == (1, 3)
+
+
+def test_python_callers_are_told_the_argument_not_only_the_flag(tmp_path) -> None:
+    """`build_policy(..., checkpoint=...)` on a planner said "--checkpoint applies ...", and
+    `trainer.main` into a used folder "pass --resume or choose another --out": flags a Python
+    caller never typed. Each now names the argument too."""
+    from swarm.common.policy_spec import build_policy
+    from swarm.learn.config import TrainConfig
+    from swarm.learn.trainer import main
+
+    with pytest.raises(ConfigError, match=r"^a checkpoint \(--checkpoint\) applies to learned "
+                                          "policies only, not 'nearest-frontier'$"):
+        build_policy("nearest-frontier", SMALL, checkpoint=str(tmp_path / "x.pt"))
+    (tmp_path / "checkpoint.pt").write_bytes(b"")
+    with pytest.raises(ConfigError, match=r"resume it \(--resume, resume=True\) or choose "
+                                          r"another output folder \(--out\)$"):
+        main(TrainConfig(policy="commattn", epochs=1), SMALL, tmp_path)

@@ -81,7 +81,8 @@ def build_policy(name: str, cfg: WorldConfig, checkpoint: str | None = None) -> 
         except PluginError as exc:  # (a plugin whose constructor raised)
             raise ConfigError(str(exc)) from None
     if not cls.learned:
-        raise ConfigError(f"--checkpoint applies to learned policies only, not {name!r}")
+        raise ConfigError(f"a checkpoint (--checkpoint) applies to learned policies only, not "
+                          f"{name!r}")
     from policies.checkpoint import CheckpointError, check_exists
 
     try:

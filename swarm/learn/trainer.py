@@ -96,7 +96,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                        if epoch0 >= cfg.epochs else ""))
     else:
         if ckpt_path.exists() and not resume:
-            raise ConfigError(f"{out} already holds a run; pass --resume or choose another --out")
+            raise ConfigError(f"{out} already holds a run; resume it (--resume, resume=True) or "
+                              "choose another output folder (--out)")
         torch.set_num_threads(cfg.threads)
         torch.manual_seed(cfg.seed)
         policy = make_policy(cfg.policy, world, **({"model": cfg.model_config()} if cfg.model
