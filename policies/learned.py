@@ -139,8 +139,13 @@ class LearnedPolicy(InferencePolicy):
         return Evaluation(logp, value, entropy, tick, group, members.robot, agree)
 
     def torch_logits(self, view: View) -> tuple[torch.Tensor, torch.Tensor]:
-        """Greedy logits [R, 9] and values [R] of every receiver of a view from the torch network
-        (receivers id-major): the reference the numpy network is tested against."""
+        """Greedy logits [R, 9] and values [R] of every receiver of a view from the torch network:
+        the reference the numpy network is tested against.
+
+        Rows are in the features' order, robot-major (robot 0 of every group, then robot 1 ...;
+        `self.features(view).group/.robot` index them), not `receiver_index`'s group-major order.
+        Like a decision it calls `remember(view)`, so it advances the policy's memory: give it
+        the views a fresh `reset` policy would decide on, in tick order."""
         self.remember(view)
         members = Members.of(self.features(view))
         with torch.inference_mode():

@@ -120,3 +120,47 @@ def test_python_callers_are_told_the_argument_not_only_the_flag(tmp_path) -> Non
     with pytest.raises(ConfigError, match=r"resume it \(--resume, resume=True\) or choose "
                                           r"another output folder \(--out\)$"):
         main(TrainConfig(policy="commattn", epochs=1), SMALL, tmp_path)
+
+
+def test_an_eval_result_labels_its_rows_with_its_own_policy() -> None:
+    """`EvalResult.rows()` asked for the policy name the result already holds."""
+    from policies import make_policy
+    from swarm.learn.evaluate import evaluate
+
+    res = evaluate(SMALL, make_policy("random", SMALL), seed=0, n_episodes=2)
+    assert [(r["policy"], r["episode"]) for r in res.rows()] == [("random", 0), ("random", 1)]
+    assert {r["policy"] for r in res.rows("mine")} == {"mine"}
+
+
+def test_the_public_helpers_say_what_they_are() -> None:
+    """UA pass: these had no docstring (a `help()` user saw only a signature)."""
+    from world.decentral import View
+    from world.pettingzoo import SwarmParallelEnv, obs_size
+
+    for obj in (core.metrics, View.predecessor, obs_size, SwarmParallelEnv.observation_space,
+                SwarmParallelEnv.action_space, SwarmParallelEnv.close, WorldConfig.cells):
+        assert (obj.__doc__ or "").strip(), obj
+    assert "finished episode" in core.metrics.__doc__ and "False" in core.metrics.__doc__
+
+
+def test_torch_logits_rows_are_robot_major_and_it_remembers() -> None:
+    """What `LearnedPolicy.torch_logits`' docstring says: its rows follow the features (robot
+    0 of every group first), not `receiver_index`'s group-major order, and it folds the view
+    into the policy's memory as a decision does."""
+    from policies import make_policy
+    from policies.base import receiver_index
+
+    cfg = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=3, horizon=6)
+    twin, torch_side = make_policy("commattn", cfg), make_policy("commattn", cfg)
+    torch_side.net.load_state_dict(twin.net.state_dict())
+    for policy in (twin, torch_side):
+        policy.reset(2)
+    view = batch_view(cfg, core.reset(cfg, 0, [0, 1]))
+    _, value = torch_side.torch_logits(view)
+    assert torch_side.team.visited.any()  # (the decision's remember(), done by torch_logits)
+    decided = twin.decide(view).value
+    tok = twin.features(view)
+    assert tok.robot.tolist() == [0, 0, 1, 1, 2, 2]
+    np.testing.assert_allclose(value.numpy(), decided[tok.group, tok.robot], atol=1e-5)
+    g, i = receiver_index(view)
+    assert not np.allclose(value.numpy(), decided[g, i], atol=1e-5)

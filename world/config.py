@@ -132,6 +132,7 @@ class WorldConfig:
 
     @property
     def cells(self) -> int:
+        """Grid cells H * W (elratio's denominator, a bitmap's length)."""
         return self.height * self.width
 
     @property

@@ -405,8 +405,9 @@ METRIC_NAMES: tuple[str, ...] = tuple(f.name for f in fields(EpisodeMetrics))
 
 
 def metrics(cfg: WorldConfig, state: WorldState) -> EpisodeMetrics:
-    """The per-episode metrics of a batch that ran its horizon (`state.done`). Mid-episode it
-    reports the steps so far, but `success` is still False: it is judged on the last step."""
+    """The per-episode metrics of a finished episode batch (`state.done`, all T steps run).
+    Mid-episode it reports the steps so far, but `success` is still False: it is judged on the
+    last step."""
     check_config(cfg, state)
     n_alive = np.maximum(state.alive.sum(1), 1)
     steps = np.maximum(state.t, 1) * n_alive

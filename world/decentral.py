@@ -132,6 +132,7 @@ class View:
         return self.hears.shape[1]
 
     def predecessor(self) -> np.ndarray:
+        """Each slot's chain predecessor p(i) [G, N] int64 (-1: none), from `hears`."""
         return predecessor(self.hears)
 
 

@@ -71,7 +71,8 @@ def obs_slices(cfg: WorldConfig) -> dict[str, slice]:
 
 
 def obs_size(cfg: WorldConfig) -> int:
-    return 3 + 3 * cfg.vision ** 2 + 2 * cfg.cells
+    """Length of one robot's observation vector (the feature groups of `obs_slices`)."""
+    return obs_slices(cfg)["heard_positions"].stop
 
 
 def encode(cfg: WorldConfig, view: View) -> np.ndarray:
@@ -129,9 +130,11 @@ class SwarmParallelEnv(ParallelEnv[str, np.ndarray, int]):
         self.world: core.WorldState | None = None
 
     def observation_space(self, agent: str) -> spaces.Box:
+        """Every agent's: a Box [obs_size] float32 in [0, 1] (see `encode`)."""
         return self.observation_spaces[agent]
 
     def action_space(self, agent: str) -> spaces.Discrete:
+        """Every agent's: Discrete(9), the moves of `world.core.ACTIONS` (0 stays)."""
         return self.action_spaces[agent]
 
     def reset(self, seed: int | None = None,
@@ -219,6 +222,7 @@ class SwarmParallelEnv(ParallelEnv[str, np.ndarray, int]):
         return "\n".join("".join(r) for r in rows)
 
     def close(self) -> None:
+        """Drop the episode (nothing else is held); `reset` starts a new one."""
         self.world = None
         self.agents = []
 

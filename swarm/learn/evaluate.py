@@ -110,9 +110,10 @@ class EvalResult:
                    **{k: getattr(m, k) for k in core.METRIC_NAMES},
                    elratio_curve=np.concatenate(curves), **timing)
 
-    def rows(self, policy: str) -> list[dict[str, object]]:
-        """One row per episode: its number and metrics (`swarm eval --episodes-csv`)."""
-        return [{"policy": policy, "episode": int(e),
+    def rows(self, policy: str | None = None) -> list[dict[str, object]]:
+        """One row per episode: its number and metrics (`swarm eval --episodes-csv`), labelled
+        `policy` (by default the result's own `.policy`)."""
+        return [{"policy": self.policy if policy is None else policy, "episode": int(e),
                  **{k: getattr(self, k)[j].item() for k in core.METRIC_NAMES}}
                 for j, e in enumerate(self.episodes)]
 
