@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from policies.commattn import CommAttnPolicy
-from policies.learned import Decision, LearnedPolicy
+from policies.learned import LearnedPolicy, NetDecision
 from swarm.common.policy_spec import SHIPPED
 from world import core
 from world.config import WorldConfig
@@ -60,7 +60,7 @@ def _static(cfg: WorldConfig | None) -> WorldConfig:
 
 
 def _run(cfg: WorldConfig, state: core.WorldState, policies: Sequence[LearnedPolicy],
-         on_tick: Callable[[core.WorldState, View, list[Decision]], None]) -> None:
+         on_tick: Callable[[core.WorldState, View, list[NetDecision]], None]) -> None:
     """One batch to the horizon, greedily; policies[0] acts, the others decide on the same views."""
     for p in policies:
         p.reset(state.batch)
@@ -181,7 +181,7 @@ def fig10(out_dir: str | Path, seed: int = 0, episodes: int = 200, *, points: in
         rec: dict[str, list[np.ndarray]] = {k: [] for k in [*names, "s", "s0", "ep", "t", "i",
                                                            "y", "x", "el"]}
 
-        def on_tick(state: core.WorldState, view: View, dec: list[Decision]) -> None:
+        def on_tick(state: core.WorldState, view: View, dec: list[NetDecision]) -> None:
             g, i = np.nonzero(view.receivers)
             labels = situation_labels(cfg, state, view, dec[0].actions, bucket_of)
             for k, v in labels.items():
@@ -354,7 +354,7 @@ def fig11(out_dir: str | Path, seed: int = 0, episodes: int = 500, *, map_episod
     rec: dict[str, list[np.ndarray]] = {k: [] for k in ("cell", "sn", "cn", "usn", "ucn", "t",
                                                          "hear")}
 
-    def on_tick(state: core.WorldState, view: View, dec: list[Decision]) -> None:
+    def on_tick(state: core.WorldState, view: View, dec: list[NetDecision]) -> None:
         g, i = np.nonzero(view.receivers)
         yx = lay.to_yx(state.pos[g, i])
         rec["cell"].append(yx[:, 0] * cfg.width + yx[:, 1])
