@@ -422,14 +422,16 @@ def test_resume_refuses_what_would_change_the_run(tmp_path: Path) -> None:
 
 
 def test_tiny_training_beats_random(tmp_path: Path) -> None:
-    cfg = TrainConfig(policy="commattn", epochs=1, updates=150, batch=32, lr=3e-3, threads=1,
+    cfg = TrainConfig(policy="commattn", epochs=1, updates=300, batch=32, lr=3e-3, threads=1,
                       val_episodes=0, curriculum_step=0)
     main(cfg, TINY, tmp_path, console=quiet())
     trained = make_policy("commattn", TINY, checkpoint=tmp_path / "checkpoint.pt")
     mine = evaluate(TINY, trained, seed=0, n_episodes=300, greedy=True).elratio.mean()
     rand = evaluate(TINY, make_policy("random", TINY), seed=0, n_episodes=300).elratio.mean()
-    # measured over training seeds 0-4: 0.59-0.66 against random's 0.52 (the trajectory, hence
-    # the figure, moves with the last bit of any float in acting; the margin has to allow that)
+    # the trajectory, hence the figure, moves with the last bit of any float in acting, and so
+    # with the CPU's SIMD kernels: after 150 updates seeds 0-4 gave 0.59-0.66 on one machine,
+    # 0.55-0.64 on another (seed 0: 0.551, below the bar); after 300, seeds 0-2 give 0.71-0.75
+    # there, against random's 0.52
     assert mine > rand + 0.05, (mine, rand)
 
 
