@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 from pathlib import Path
 
 import pytest
@@ -105,7 +104,7 @@ def test_every_shipped_sweep_plans_and_shrinks_to_a_quick_try(path: Path) -> Non
         full = plan(str(path))
         quick = plan(str(path), episodes=1, seeds=(0,))
     except ConfigError as exc:
-        if "--netns needs" in str(exc) and os.geteuid() != 0:
+        if "--netns needs" in str(exc):  # (not root, or no iptables: .ci/run installs it)
             pytest.skip(str(exc))
         raise
     assert len(full.points) == len(full.exp.policies) * len(full.exp.values) * len(full.exp.seeds)
