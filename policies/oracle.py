@@ -162,7 +162,9 @@ def _beam(ep: Episode, start: int, weight: np.ndarray, width: int, rng: np.rando
             nseen = ((bits[par[:, None], nbw] >> nbb) & np.uint64(1)).astype(bool)
             look = (nbv & ~nseen).sum(1)
             rank = sc * 256 + np.minimum(look, 4) * 8 + rng.integers(0, 8, len(q))
-            keep = np.argpartition(-rank, width)[:width]
+            # a stable sort, ties by key order: np.argpartition picks among equal ranks by its
+            # SIMD kernel (AVX2, AVX-512 or none give three different plans of one episode)
+            keep = np.argsort(-rank, kind="stable")[:width]
             q, par, gain, sc, k = q[keep], par[keep], gain[keep], sc[keep], k[keep]
         nbits = bits[par].copy()
         gi = np.flatnonzero(gain)
@@ -242,7 +244,8 @@ def _pick_team(yx: np.ndarray, paths: np.ndarray, missing: np.ndarray, size: int
         return np.concatenate([[first], rng.permutation(rest)[:size - 1]])
     mine = yx[paths[first]]  # [T+1, 2]
     gap = np.abs(yx[paths[rest]][:, :, None] - mine[None, None]).max(-1).min((1, 2))
-    return np.concatenate([[first], rest[np.argsort(gap + rng.random(len(rest)) * 3.0)][:size - 1]])
+    near = np.argsort(gap + rng.random(len(rest)) * 3.0, kind="stable")
+    return np.concatenate([[first], rest[near][:size - 1]])
 
 
 def plan_episode(cfg: WorldConfig, seed: int, episode: int,

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +22,7 @@ from world.decentral import batch_view
 
 CFG = WorldConfig()
 FAST = OracleConfig(iters=8, beam=32)
+ROOT = Path(__file__).resolve().parents[1]
 SMALL = WorldConfig(height=8, width=8, n_static=10, n_dynamic=8, n_robots=2, horizon=10)
 
 
@@ -52,6 +57,19 @@ def test_oracle_replay_matches_evaluator_and_beats_frontier() -> None:
         assert core.metrics(CFG, state).elratio[0] == pytest.approx(res.elratio[k])
     assert (res.elratio >= frontier.elratio).all()
     assert res.success.all()
+
+
+def test_oracle_plan_does_not_depend_on_numpys_simd_kernels() -> None:
+    """The same plan with numpy's AVX2/AVX-512 kernels switched off: the committed oracle figures
+    once came from np.argpartition, whose choice among equal ranks differs by kernel."""
+    code = ("import sys; from world.config import WorldConfig; "
+            "from policies.oracle import OracleConfig, plan_episode; "
+            "sys.stdout.write(plan_episode(WorldConfig(), 0, 0, OracleConfig(iters=8, beam=32))"
+            ".paths.tobytes().hex())")
+    env = dict(os.environ, NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR")
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout
+    assert out == plan_episode(CFG, 0, 0, FAST).paths.tobytes().hex()
 
 
 def test_certificate_bounds_the_plan() -> None:
