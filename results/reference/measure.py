@@ -1,12 +1,15 @@
 """Measure the reference planners (issue 17) on held-out episodes of seed 0; writes JSON here.
 
 Run from the project root: nice -n 19 .venv/bin/python results/reference/measure.py oracle|central N
+(the file's "provenance" says which commit, command and libraries made it).
 """
 
 from __future__ import annotations
 
 import importlib
 import json
+import platform
+import subprocess
 import sys
 import time
 
@@ -26,6 +29,28 @@ def _evaluate():
         except ImportError:
             continue
     raise ImportError("batched evaluator not found")
+
+
+def provenance() -> dict:
+    """What made the file: the commit (and whether tracked files differed from it), the command,
+    the numeric libraries and the CPU features numpy dispatches on."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], capture_output=True, text=True).stdout.strip()
+
+    try:
+        import scipy
+    except ImportError:
+        scipy = None
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as cpu
+    except ImportError:  # numpy 1.x
+        from numpy.core._multiarray_umath import __cpu_features__ as cpu
+    return {"commit": git("rev-parse", "HEAD"),
+            "tracked_changes": bool(git("status", "--porcelain", "--untracked-files=no")),
+            "command": " ".join(["python", *sys.argv]), "python": platform.python_version(),
+            "numpy": np.__version__, "scipy": scipy and scipy.__version__,
+            "machine": platform.machine(),
+            "numpy_cpu_features": sorted(k for k, v in cpu.items() if v)}
 
 
 def oracle(cfg: WorldConfig, n: int, cert_limit: float = 20.0) -> dict:
@@ -86,5 +111,6 @@ if __name__ == "__main__":
         res.update(compare(cfg, n, ["coordinated-frontier"]))
     else:
         res = compare(cfg, n, ["central", "coordinated-frontier", "nearest-frontier"])
+    res["provenance"] = provenance()
     with open(f"{OUT}/{what}_{n}.json", "w") as fh:
         json.dump(res, fh, indent=1, default=float)
