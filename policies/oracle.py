@@ -50,7 +50,8 @@ class OracleConfig:
     depend on the machine's speed: 3 s, the old default, cut 17 of 60 held-out searches short."""
     iters: int = 200
     """Local-search rounds per episode: the search budget (rounds are seeded, so a plan is a
-    function of the seed and this config; ~1.7 s median an episode, ~4 s at most, here)."""
+    function of the seed and this config; 4.7 s median an episode, 11.5 s at most, on a busy
+    2-core machine: results/reference/oracle_60.json)."""
     beam: int = 96
     """Beam width of the single-robot path search."""
     groups: tuple[int, ...] = (2, 2, 3, 4)
