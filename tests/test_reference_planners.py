@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import json
+import math
 import os
 import subprocess
 import sys
@@ -70,6 +72,19 @@ def test_oracle_plan_does_not_depend_on_numpys_simd_kernels() -> None:
     out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True,
                          text=True, check=True).stdout
     assert out == plan_episode(CFG, 0, 0, FAST).paths.tobytes().hex()
+
+
+@pytest.mark.parametrize("episode", [7, 14])
+def test_committed_oracle_figures_reproduce(episode: int) -> None:
+    """results/reference/oracle_60.json is what today's oracle plans (two of its fastest
+    episodes): the README quotes it as what `swarm eval --policy oracle` gives."""
+    saved = json.loads((ROOT / "results/reference/oracle_60.json").read_text())
+    row = saved["per_episode"][episode]
+    plan = plan_episode(CFG, saved["seed"], episode, OracleConfig(**{
+        k: math.inf if v is None else tuple(v) if isinstance(v, list) else v
+        for k, v in saved["search"].items()}))
+    assert (plan.elratio, plan.robot_collisions, plan.rounds, plan.covered) == \
+        (row["elratio"], row["robot_collisions"], row["rounds"], row["covered"])
 
 
 def test_certificate_bounds_the_plan() -> None:
