@@ -50,10 +50,13 @@ def _version() -> str:
 
 
 class _Version(argparse.Action):
-    """`--version`, computed only when asked (it runs git)."""
+    """`--version`, computed only when asked (it runs git); with where the shipped data is (an
+    installed package keeps checkpoints/ and deploy/ outside site-packages)."""
 
     def __call__(self, parser: argparse.ArgumentParser, *args: object) -> None:
-        print(f"swarm {_version()}")
+        from swarm.common.shipped import DATA
+
+        print(f"swarm {_version()}\ndata: {DATA} (checkpoints/, deploy/)")
         parser.exit()
 
 
@@ -61,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="swarm", description="CommAttn swarm emulator: evaluate, benchmark "
                      "and reproduce the paper's experiments.")
     parser.add_argument("--version", action=_Version, nargs=0,
-                        help="print the version and the source tree's commit, then exit")
+                        help="print the version, the source tree's commit and where the "
+                             "shipped checkpoints/ and deploy/ are, then exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     batch.add_parsers(sub)
     run.add_parsers(sub)

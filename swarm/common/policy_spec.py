@@ -10,6 +10,7 @@ from pathlib import Path
 
 from policies import BASELINES, LEARNED, REGISTRY, PluginError, make_policy, policy_class
 from policies.base import Policy
+from swarm.common.shipped import ROOT, SEARCHED, SHIPPED
 from world.config import ConfigError, WorldConfig
 
 
@@ -42,10 +43,6 @@ def load_class(name: str) -> type[Policy]:
         raise ConfigError(f"policy {name!r} is registered but cannot be imported: {exc}") from None
 
 
-ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = ROOT / "checkpoints"
-
-
 def shown(path: str | None) -> str | None:
     """A path as a result file records it: relative to the repository root when inside it
     (so a committed result names no machine's directories), else as given."""
@@ -63,7 +60,7 @@ def effective_checkpoint(name: str, checkpoint: str | None) -> str | None:
         return checkpoint
     shipped = SHIPPED / f"{name}.pt"
     if not shipped.is_file():
-        raise ConfigError(f"policy {name!r} needs --checkpoint FILE (no {shipped} shipped)")
+        raise ConfigError(f"policy {name!r} needs --checkpoint FILE (no {name}.pt in {SEARCHED})")
     return str(shipped)
 
 
