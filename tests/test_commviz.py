@@ -12,7 +12,7 @@ import pytest
 
 from swarm.studies import commviz
 from world import core
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 from world.decentral import batch_view
 
 
@@ -49,7 +49,7 @@ def test_fig10_needs_sklearn_and_a_static_map(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="static"):
         commviz.fig10(tmp_path, cfg=WorldConfig(), episodes=1)
     monkeypatch.setitem(sys.modules, "sklearn", None)
-    with pytest.raises(ImportError, match="scikit-learn"):
+    with pytest.raises(ConfigError, match=r"commattn-swarm\[analysis\]"):
         commviz.fig10(tmp_path, episodes=1)
 
 

@@ -80,3 +80,24 @@ def test_an_installed_package_runs_on_its_shipped_data(tmp_path: Path) -> None:
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert str(target / "checkpoints") in r.stderr and str(data / "checkpoints") in r.stderr
 
+
+@pytest.mark.procs
+@pytest.mark.parametrize(("package", "extra", "args"), [
+    ("sklearn", "analysis", ["repro", "fig10", "--out", "OUT"]),
+    ("cryptography", "secure", ["certs", "--out", "OUT", "--robots", "2"]),
+    ("mcap", "record", ["record", "--run-id", "r", "--out", "OUT/r.mcap"]),
+])
+def test_a_missing_extra_is_one_line_naming_it(tmp_path: Path, package: str, extra: str,
+                                               args: list[str]) -> None:
+    """UA pass: without scikit-learn, `swarm repro fig10` was a 20-line traceback, and the
+    hints said `pip install -e '.[EXTRA]'`, which fails outside the repository root. Without
+    the package (an import of it fails), one line naming the extra, exit status 2."""
+    blocked = tmp_path / "blocked" / package
+    blocked.mkdir(parents=True)
+    (blocked / "__init__.py").write_text(f"raise ImportError('no {package} here')\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(blocked.parent), str(ROOT)])}
+    r = subprocess.run([sys.executable, "-m", "swarm.cli",
+                        *(a.replace("OUT", str(tmp_path)) for a in args)],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"pip install 'commattn-swarm[{extra}]'" in r.stderr, r.stderr

@@ -25,7 +25,7 @@ from policies.commattn import CommAttnPolicy
 from policies.learned import LearnedPolicy, NetDecision
 from swarm.common.policy_spec import SHIPPED
 from world import core
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 from world.decentral import View, batch_view
 
 CHECKPOINT = SHIPPED / "commattn.pt"
@@ -43,7 +43,8 @@ def _sklearn() -> Any:
         import sklearn.model_selection
         import sklearn.preprocessing
     except ImportError:
-        raise ImportError("these studies need scikit-learn: pip install -e '.[analysis]'") from None
+        raise ConfigError("Fig. 10 needs the scikit-learn package: pip install "
+                          "'commattn-swarm[analysis]'") from None
     return sklearn
 
 

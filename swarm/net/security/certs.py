@@ -49,7 +49,7 @@ def crypto() -> Any:
         import cryptography  # noqa: F401
     except ImportError:
         raise ConfigError("swarm certs needs the 'cryptography' package: "
-                          "pip install -e '.[secure]'") from None
+                          "pip install 'commattn-swarm[secure]'") from None
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import ec
