@@ -456,6 +456,21 @@ def test_repro_fig9_writes_a_row_per_policy_vision_and_range(tmp_path: Path) -> 
     assert (out / "fig9.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_fig9_without_vision_checkpoints_warns_on_stderr(tmp_path: Path, capsys) -> None:
+    """UA pass: with checkpoints/vision/ missing, `repro fig9` wrote a partial figure, exit 0,
+    its only trace a line in fig9.md; one warning line on stderr names what was left out."""
+    from swarm.studies.fig9 import fig9
+    from world.config import WorldConfig
+
+    res = fig9(WorldConfig(), tmp_path, "test", seed=1, episodes=1, policies=("commnet",),
+               visions=(3, 5), ranges=(1.0,), batch=1, vision_dir=tmp_path / "none",
+               checkpoints={"commnet": str(ROOT / "checkpoints" / "commnet.pt")})
+    assert [r["vision"] for r in res["rows"]] == [5]
+    warning = capsys.readouterr().err.strip().splitlines()
+    assert len(warning) == 1 and "fig9 leaves out commnet v=3" in warning[0], warning
+    assert str(tmp_path / "none") in warning[0]
+
+
 @pytest.mark.procs
 def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path) -> None:
     cfg = tmp_path / "c.toml"

@@ -3,14 +3,16 @@
 The vision range changes a network's input, so each vision v needs a checkpoint trained with
 it: `checkpoints/vision/NAME_vV.pt` (the shipped `checkpoints/NAME.pt`, or the one given, for
 the default v = 5, whatever the world's vision: this figure sweeps it, and the comm range);
-a vision without one is left out and named in the Markdown. The communication range changes
-no weight shape: every range is evaluated with the same checkpoint, which was trained at the
-default range of 10 cells. Every point plays the same held-out episodes (evaluation seed).
+a vision without one is left out, named in the Markdown and in one warning line on stderr.
+The communication range changes no weight shape: every range is evaluated with the same
+checkpoint, which was trained at the default range of 10 cells. Every point plays the same
+held-out episodes (evaluation seed).
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -70,6 +72,8 @@ def fig9(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
             "at comm range 10; a vision range needs its own checkpoint.")
     if missing:
         note += f" Left out (no checkpoint): {', '.join(missing)}."
+        print(f"swarm: warning: fig9 leaves out {', '.join(missing)}: no checkpoint "
+              f"NAME_vV.pt in {vision_dir}", file=sys.stderr)
     if (world.vision, world.comm_range) != (WorldConfig.vision, WorldConfig.comm_range):
         note += (f" The world's vision {world.vision} and comm range {world.comm_range:g} "
                  "(for the other items of the command) are not used here: this figure sweeps "
