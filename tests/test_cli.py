@@ -499,6 +499,22 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
     assert {row["checkpoint"] for row in big if row["policy"] == "commattn"} == {tuned}
 
 
+def test_repro_comm_without_commattn_needs_no_commattn_checkpoint(tmp_path: Path,
+                                                                   monkeypatch) -> None:
+    """UA pass: `repro comm --comm-policies coordinated-frontier,nearest-frontier` demanded a
+    CommAttn checkpoint it never used; with none shipped it runs."""
+    from swarm.common import policy_spec
+    from swarm.studies.repro import ReproConfig, prepare, run
+    from world.config import WorldConfig
+
+    monkeypatch.setattr(policy_spec, "SHIPPED", tmp_path / "none")  # no checkpoint shipped
+    cfg = ReproConfig(out=str(tmp_path), comm_episodes=1, batch=1,
+                      comm_policies=("coordinated-frontier", "nearest-frontier"))
+    items = prepare(["comm"], WorldConfig(), cfg)
+    res = run(items, WorldConfig(), cfg, "test", prepared=True)
+    assert {row["policy"] for row in res["comm"]["rows"]} == set(cfg.comm_policies)
+
+
 @pytest.mark.procs
 def test_repro_comm_takes_the_policies_and_checkpoints_it_is_given(tmp_path: Path) -> None:
     """`--comm-policies` chooses the study's policies (the first paired against the others) and a

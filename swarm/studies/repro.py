@@ -403,13 +403,13 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
     from swarm.studies import commviz
 
     out = Path(cfg.out or ".")
-    ckpt = cfg.checkpoint("commattn")
     if item == "comm":
         from swarm.studies.comm import comm
 
         # only the checkpoints given here: else comm picks the shipped one per map size
         return comm(world or WorldConfig(), out, command, cfg.seed, cfg.comm_episodes,
                     policies=cfg.comm_policies, checkpoints=cfg.checkpoints, batch=cfg.batch)
+    ckpt = cfg.checkpoint("commattn")
     static = None if world is None else replace(world, dynamic=False)  # (static
     if item == "fig10":  # studies, on the run's map size and team: they ignored --config's)
         res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt,
