@@ -112,16 +112,40 @@ def test_swarm_record_joins_a_local_run_by_its_id_late(tmp_path: Path) -> None:
         f"swarm: error: --from 500 is past the end of {f} (run ticks {first}..60)")
 
 
-def test_swarm_record_refuses_at_once_a_run_it_cannot_join(tmp_path: Path, capsys: Any) -> None:
-    """No local run of that id, or a secure one without --secure: one line, exit 2, at once
-    (not after --wait)."""
+@pytest.mark.procs
+def test_swarm_record_started_before_its_run_waits_for_it(tmp_path: Path) -> None:
+    """UA pass: `swarm record --run-id R` started before the run exited at once ("no running
+    swarm"), though its --wait waits for the world; it now waits for the run to start."""
+    f = tmp_path / "early.mcap"
+    rec = subprocess.Popen([sys.executable, "-m", "swarm.cli", "record", "--run-id", "rec15early",
+                            "--out", str(f), "--wait", "60"], cwd=ROOT, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(2.0)  # the recorder is looking for the run
+        assert rec.poll() is None, rec.communicate()
+        r = swarm("run", "--headless", "--robots", "2", "--episodes", "2", "--horizon", "20",
+                  "--run-id", "rec15early", "--log-dir", str(tmp_path / "logs"), timeout=120)
+        assert r.returncode == 0, r.stderr[-1500:]
+        _, err = rec.communicate(timeout=60)
+        assert rec.returncode == 0, err[-1500:]
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+    r = swarm("replay", str(f), "--speed", "0")
+    assert r.returncode == 0 and "(ticks " in r.stdout, r.stdout[-300:] + r.stderr[-300:]
+
+
+def test_swarm_record_refuses_a_run_it_cannot_join(tmp_path: Path, capsys: Any) -> None:
+    """No local run of that id after --wait, or a secure one without --secure (at once): one
+    line, exit 2."""
     from swarm.common.atomic import write_json
     from swarm.common.spawn import registry
 
     out = str(tmp_path / "x.mcap")
-    code, err = swarm_main("record", "--run-id", "rec15none", "--out", out, "--wait", "3",
+    code, err = swarm_main("record", "--run-id", "rec15none", "--out", out, "--wait", "0.5",
                            capsys=capsys)
     assert code == 2 and "no running swarm 'rec15none' on this machine" in err, err
+    assert "(waited 0.5 s)" in err, err
     entry = write_json(registry("rec15tls"), {"hub": "tls/127.0.0.1:9", "pid": os.getpid()})
     try:
         code, err = swarm_main("record", "--run-id", "rec15tls", "--out", out, "--wait", "3",

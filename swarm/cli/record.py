@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -47,14 +48,16 @@ def _output_json(path: str | None, obj: dict[str, Any]) -> None:
         write_json(path, obj)
 
 
-def run_endpoint(args: argparse.Namespace, zopts: zconfig.ZenohOptions) -> zconfig.ZenohOptions:
+def run_endpoint(args: argparse.Namespace, zopts: zconfig.ZenohOptions,
+                 wait: float = 0.0) -> zconfig.ZenohOptions:
     """Without --connect (or --zenoh-config), the hub of the run of that id started on this
-    machine (its run file, as `swarm fault` finds it); a secure run needs --secure."""
+    machine (its run file, as `swarm fault` finds it; waited for up to `wait` seconds); a
+    secure run needs --secure."""
     if not zopts.connect and not zopts.config_file:
         from swarm.common.spawn import lookup_run
         from swarm.net.keys import Keys
 
-        zopts.connect = [lookup_run(Keys(args.run_id).run)]
+        zopts.connect = [lookup_run(Keys(args.run_id).run, wait)]
         if not args.secure and zopts.connect[0].startswith("tls/"):  # (a --zenoh-config, as
             raise ConfigError(f"run {args.run_id} is secure: give --secure DIR (the "  # a
                               "recorder's certificate)")  # secure run's own recorder has, is TLS)
@@ -74,12 +77,14 @@ def cmd_record(args: argparse.Namespace) -> int:
     if not 0.01 <= args.flush <= 60:
         raise ConfigError(f"--flush must lie in [0.01, 60] seconds, got {args.flush}")
     check_wait(args.wait)
-    zopts = run_endpoint(args, zconfig.from_args(args))
+    deadline = time.monotonic() + args.wait  # for the run to start, then for its world
+    zopts = run_endpoint(args, zconfig.from_args(args), args.wait)
     try:
         from swarm.cli.secure import secure_options
 
         zopts = secure_options(args, zopts, "recorder", args.run_id)
-        stats = record_main(args.run_id, args.out, zopts, args.wait, args.flush)
+        wait = max(deadline - time.monotonic(), 0.1)
+        stats = record_main(args.run_id, args.out, zopts, wait, args.flush)
     except TimeoutError as exc:
         raise ConfigError(str(exc)) from None
     print(json.dumps({"recording": args.out, **stats}), file=sys.stderr)
@@ -225,7 +230,8 @@ def add_parsers(sub: Any) -> None:
                         "this machine)")
     p.add_argument("--out", required=True, metavar="FILE", help="the MCAP file to write")
     p.add_argument("--wait", type=float, default=30.0, metavar="S",
-                   help="seconds to wait for the world (default 30)")
+                   help="seconds to wait for a run of this machine to start (it may start "
+                        "after the recorder) and for the world (default 30)")
     p.add_argument("--flush", type=float, default=0.5, metavar="S",
                    help="seconds between chunk flushes: what a killed recorder leaves (default "
                         "0.5)")

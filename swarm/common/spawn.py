@@ -115,9 +115,23 @@ def registry(run_id: str) -> Path:
     return Path(tempfile.gettempdir()) / "swarm-runs" / f"{run_id}.json"
 
 
-def lookup_run(run_id: str) -> str:
+def lookup_run(run_id: str, wait: float = 0.0) -> str:
     """The hub endpoint of a run started on this machine by `swarm run`; an entry whose
-    supervisor is gone (SIGKILLed: no chance to remove it) is stale, removed and ignored."""
+    supervisor is gone (SIGKILLed: no chance to remove it) is stale, removed and ignored. With
+    `wait` (seconds) a run not registered yet is waited for (`swarm record` started first)."""
+    deadline = time.monotonic() + wait
+    while True:
+        try:
+            return _registered(run_id)
+        except ConfigError as exc:
+            if time.monotonic() >= deadline:
+                waited = f" (waited {wait:g} s)" if wait > 0 else ""
+                raise ConfigError(f"{exc}{waited}") from None
+        time.sleep(0.1)
+
+
+def _registered(run_id: str) -> str:
+    """`lookup_run` once: the hub in the registry entry, or a one-line ConfigError."""
     path = registry(run_id)
     try:
         rec = json.loads(path.read_text())
