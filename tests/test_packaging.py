@@ -101,3 +101,18 @@ def test_a_missing_extra_is_one_line_naming_it(tmp_path: Path, package: str, ext
                        cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert f"pip install 'commattn-swarm[{extra}]'" in r.stderr, r.stderr
+
+
+def test_the_all_extra_is_every_optional_feature() -> None:
+    """`commattn-swarm[all]` installs every extra but the test tools, and those extras are the
+    ones the README and docs/DECISIONS.md list."""
+    import tomllib
+
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"]
+    features = set(extras) - {"all", "test"}
+    [every] = extras["all"]
+    name, _, listed = every.rstrip("]").partition("[")
+    assert name == "commattn-swarm" and set(listed.split(",")) == features, every
+    decisions = " ".join((ROOT / "docs" / "DECISIONS.md").read_text().split())
+    assert all(f"`{name}` (" in decisions for name in [*features, "all", "test"])
