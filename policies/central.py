@@ -187,7 +187,9 @@ class CentralPolicy(Policy):
             dk = k ^ (qf.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15))
             rank[duplicates(dk)] = -np.inf
             keep = min(s.beam, rank.shape[1])
-            sel = np.argpartition(-rank, keep - 1, axis=1)[:, :keep]
+            # a stable sort, not argpartition: which of equal ranks it keeps, and in what order
+            # (the next step's noise goes by slot), depended on numpy's SIMD kernel, so on the CPU
+            sel = np.argsort(-rank, axis=1, kind="stable")[:, :keep]
             alive = np.isfinite(rank[gi, sel])  # (fancy indexing: take_along_axis costs more)
             sel = np.where(alive, sel, rank.argmax(1)[:, None])  # pad dead slots with the best
             par, act = np.divmod(sel, 9)

@@ -331,7 +331,7 @@ class InferencePolicy(Policy):
         (view, tokens, out), self._after = self._after, None
         self._last_probs = np.zeros(view.receivers.shape + (N_ACTIONS,), dtype=np.float32)
         self._last_probs[tokens.group, tokens.robot] = softmax(out.logits)
-        order = np.argsort(tokens.group)
+        order = np.argsort(tokens.group, kind="stable")  # (robots in order within a group)
         att = attention_by_id(view, tokens, out.alpha)[tokens.group, tokens.robot][order]
         self._last_attention = att[0] if view.groups == 1 else att
 
@@ -432,7 +432,7 @@ class InferencePolicy(Policy):
         actions[tokens.group, tokens.robot] = a
         self._after = (view, tokens, out)
         state = self._with_plans(out.state, tokens.group, tokens.robot)
-        state = state if view.groups == 1 else state[np.argsort(tokens.group)]
+        state = state if view.groups == 1 else state[np.argsort(tokens.group, kind="stable")]
         return actions, state.copy()
 
 
