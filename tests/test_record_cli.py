@@ -309,3 +309,19 @@ def test_an_interrupts_traceback_says_no_more_than_interrupted() -> None:
     assert more([*tb[:-2], "    ^^^object address  : 0x1", dump[0], dump[1],
                  "object type name: MemoryError", "lost sys.stderr"])
     assert more([ignored, *tb, "ValueError: x"])
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_child_stopped_before_its_cli_loaded_says_only_interrupted(sig: signal.Signals) -> None:
+    """A supervisor's child stopped at once, while its interpreter still starts, holds the
+    signal (`start_child` blocks it) until its CLI can take it: one line and status 130, no
+    traceback of `site` or a `.pth` file (a CI run kept a run's logs for one)."""
+    from swarm.common.spawn import PARENT_ENV, cli_args, start_child
+
+    for _ in range(3):
+        proc = start_child(cli_args("--version"), cwd=ROOT, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True,
+                           env={**os.environ, PARENT_ENV: str(os.getpid())})
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=60)
+        assert (proc.returncode, out, err) == (130, "", "swarm: interrupted\n")

@@ -22,7 +22,7 @@ from typing import Any
 import zenoh
 
 from swarm.bench.micro import int_list
-from swarm.common.spawn import child_env, cli_args, last_error, wait_port
+from swarm.common.spawn import child_env, cli_args, last_error, start_child, wait_port
 from swarm.learn.config import check_worker
 from swarm.net.keys import Keys
 from swarm.net.messages import K_LSTATUS, BadMessage, unpack_record
@@ -85,7 +85,7 @@ def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
 
     log = open(tmp / f"bench-{k}.log", "ab")  # noqa: SIM115
     try:
-        procs.append(subprocess.Popen(
+        procs.append(start_child(
             cli_args("learner", "--run-id", run_id, "--policy", cfg.policy, "--gather-only",
                      "--out", str(tmp / f"learner{k}"), "--zenoh-mode", "router", "--listen", hub),
             stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, env=child_env()))
@@ -97,7 +97,7 @@ def measure(k: int, cfg: RolloutBenchConfig, tmp: Path) -> dict[str, Any]:
         with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
             sub = session.declare_subscriber(Keys(run_id).learner_status, on_status)
             for w in range(k):
-                procs.append(subprocess.Popen(
+                procs.append(start_child(
                     cli_args("rollout-worker", "--run-id", run_id, "--worker-id", str(w),
                              "--batch", str(cfg.batch), "--threads", str(cfg.threads),
                              "--connect", hub, "--zenoh-mode", "client"),

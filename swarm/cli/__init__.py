@@ -30,7 +30,11 @@ from collections.abc import Sequence  # noqa: E402
 
 from swarm.cli import batch, hosts, learn, record, run, secure  # noqa: E402
 from swarm.cli.common import _Parser  # noqa: E402
-from swarm.common.spawn import die_with_parent, terminate_as_interrupt  # noqa: E402
+from swarm.common.spawn import (  # noqa: E402
+    die_with_parent,
+    terminate_as_interrupt,
+    unblock_stops,
+)
 from world.config import ConfigError  # noqa: E402
 
 
@@ -84,12 +88,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     # removed); SIGINT: see the top
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    supervised = die_with_parent()
+    if not supervised:
+        terminate_as_interrupt()
+    try:  # a child's stops come blocked (`start_child`): one sent while it loaded lands here
+        unblock_stops()
+    except KeyboardInterrupt:
+        _early_interrupt.append(signal.SIGINT)
     if _early_interrupt:  # interrupted while the modules loaded: nothing started yet
         _early_interrupt.clear()
         print("swarm: interrupted", file=sys.stderr)
         return 130
-    if not die_with_parent():
-        terminate_as_interrupt()
+    if not supervised:
         from policies import SKIPPED  # (once a command: not again in each child's log)
 
         for line in SKIPPED:

@@ -347,6 +347,27 @@ def stops_held() -> Iterator[None]:
         raise KeyboardInterrupt
 
 
+def start_child(args: list[str], **popen: Any) -> subprocess.Popen[bytes]:
+    """`subprocess.Popen(args, **popen)` for a `swarm.cli` child, started with the stop signals
+    blocked (a signal mask is inherited across fork and exec); its CLI unblocks them once its
+    handlers are in place (`unblock_stops`), and one sent meanwhile is delivered then. A child
+    stopped while its interpreter still loaded its modules wrote a traceback of wherever the
+    KeyboardInterrupt landed (in `site`, in a `.pth` file, once chained into a RuntimeError),
+    which read as a failure and kept the run's logs."""
+    stops = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP]
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, stops)
+    try:
+        return subprocess.Popen(args, **popen)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+def unblock_stops() -> None:
+    """The stop signals let through (a child of `start_child` starts with them blocked); one
+    that came meanwhile is delivered now."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+
+
 def _reap(p: subprocess.Popen[Any], block: bool) -> bool:
     """Whether child `p` has exited, reaping it with os.waitpid (not Popen's own wait/poll:
     a KeyboardInterrupt landing inside Popen.poll between its lock's acquire and `try` leaves

@@ -37,6 +37,7 @@ from swarm.common.spawn import (
     last_error,
     registry,
     release_run,
+    start_child,
     stop_children,
     stops_held,
     tidy_interrupted,
@@ -131,9 +132,9 @@ class Supervisor:
         if self.zfiles:  # --secure: its own identity's TLS and access control
             args += ["--zenoh-config", str(self.zfiles[identity_of(name)])]
         with stops_held():  # (every child ever spawned is in `children`, so stopped at the end)
-            self.children.append(subprocess.Popen([*prefix, *cli_args(*args)], env=env,
-                                                  stdout=subprocess.DEVNULL, stderr=err,
-                                                  stdin=subprocess.DEVNULL))
+            self.children.append(start_child([*prefix, *cli_args(*args)], env=env,
+                                            stdout=subprocess.DEVNULL, stderr=err,
+                                            stdin=subprocess.DEVNULL))
         return self.children[-1]
 
     def _spawn_robot(self, i: int) -> subprocess.Popen[bytes]:
