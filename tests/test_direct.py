@@ -527,11 +527,17 @@ def test_a_secure_run_on_three_hosts_keeps_a_foreign_robot_out_at_its_hosts_rout
     assert _ours("shosts") == []
 
 
-def _live_change_run(tmp: Path, run_id: str, at: int, *extra: str) -> dict:
-    """A 4-robot CommAttn run (2 episodes, paced) whose link faults change live at run tick
-    `at` (`swarm fault --at-tick`, sent at its first status: at 10 ticks/s the new `swarm
-    fault` process has ~3 s to start and reach the world; at 20 and tick 5 it had 1.25-1.75 s,
-    which a loaded machine missed, and the change landed late)."""
+LIVE_CHANGES = {30: ("--loss", "0.4", "--latency", "150ms", "--jitter", "100ms"),
+                40: ("--loss", "0.1", "--latency", "50ms")}
+"""Two live link changes, at run tick 30 (the last observation of episode 0: 2 episodes of 30
+ticks) and at 40 (mid-episode 1)."""
+
+
+def _live_change_run(tmp: Path, run_id: str, *extra: str) -> dict:
+    """A 4-robot CommAttn run (2 episodes, paced) whose link faults change live at run ticks
+    30 and 40 (`swarm fault --at-tick`, both sent at its first status: at 10 ticks/s the new
+    `swarm fault` processes have ~3 s to start and reach the world; at 20 and tick 5 one had
+    1.25-1.75 s, which a loaded machine missed, and the change landed late)."""
     import sys
 
     out = tmp / f"{run_id}.json"
@@ -547,9 +553,10 @@ def _live_change_run(tmp: Path, run_id: str, at: int, *extra: str) -> dict:
             if line.startswith('{"status"') and not sent:
                 sent = True
                 assert json.loads(line)["status"]["run_tick"] < 5
-                r = swarm("fault", "--run", run_id, "--loss", "0.4", "--latency", "150ms",
-                          "--jitter", "100ms", "--at-tick", str(at), timeout=30)
-                assert r.returncode == 0, r.stderr
+                for at, change in LIVE_CHANGES.items():
+                    r = swarm("fault", "--run", run_id, *change, "--at-tick", str(at),
+                              timeout=30)
+                    assert r.returncode == 0, r.stderr
         assert proc.wait(timeout=120) == 0, proc.stderr.read() if proc.stderr else ""
     finally:
         if proc.poll() is None:
@@ -558,20 +565,21 @@ def _live_change_run(tmp: Path, run_id: str, at: int, *extra: str) -> dict:
 
 
 @pytest.mark.procs
-@pytest.mark.parametrize("at", [30, 40])
-def test_a_live_fault_change_under_direct_delivery_lands_as_with_the_radio(
-        tmp_path: Path, at: int) -> None:
+def test_live_fault_changes_under_direct_delivery_land_as_with_the_radio(
+        tmp_path: Path) -> None:
     """The world hands the changed table to the robots in the observations of the tick it
-    applies from (at 30: the last observation of episode 0); every robot switches its plan
-    there, as the radio does: same actions and counters as the radio run with the same
-    change."""
-    radio = _live_change_run(tmp_path, f"liveradio{at}", at)
-    direct = _live_change_run(tmp_path, f"livedirect{at}", at, "--delivery", "direct")
+    applies from (at 30: the last observation of episode 0; at 40, mid-episode); every robot
+    switches its plan there, as the radio does: same actions and counters as the radio run
+    with the same changes."""
+    radio = _live_change_run(tmp_path, "liveradio")
+    direct = _live_change_run(tmp_path, "livedirect", "--delivery", "direct")
     assert direct["delivery"] == "direct" and direct["actions"] == radio["actions"]
     for key in COPIES:
         assert direct["messages"][key] == radio["messages"][key], key
     assert direct["messages"]["lost"] > 0 and direct["messages"]["bad"] == 0
     assert all(st["bad"] == 0 for st in direct["robot_status"].values())
+    changes = direct["fault_changes"]["changes"]
+    assert [c["tick"] for c in changes] == [30, 40], changes
 
 
 @pytest.mark.procs
