@@ -39,9 +39,9 @@ def _unpack(payload: bytes, kind: int, n_fields: int | tuple[int, ...]) -> list[
         raise BadMessage(f"not msgpack ({type(exc).__name__})") from None
     if not isinstance(obj, list) or len(obj) < 2:
         raise BadMessage("not a schema array")
-    if obj[0] != SCHEMA:
+    if type(obj[0]) is not int or obj[0] != SCHEMA:  # (1.0 and True equal 1)
         raise BadMessage(f"schema version {obj[0]!r}, expected {SCHEMA}")
-    if obj[1] != kind:
+    if type(obj[1]) is not int or obj[1] != kind:
         raise BadMessage(f"message kind {obj[1]!r}, expected {kind}")
     if len(obj) - 2 not in ((n_fields,) if isinstance(n_fields, int) else n_fields):
         raise BadMessage(f"{len(obj) - 2} fields, expected {n_fields}")
@@ -455,14 +455,27 @@ def check_world_status(rec: dict[str, Any], cfg: WorldConfig, first_episode: int
     return rec
 
 
-def check_world_result(rec: dict[str, Any], policy: str, episodes: int) -> dict[str, Any]:
-    """The world's result as the supervisor reports it: this run's policy, at most the episodes
-    asked for, figures in range (BadMessage otherwise: a forged result does not end a run)."""
+def check_world_result(rec: dict[str, Any], policy: str, episodes: int, run_id: str,
+                       horizon: int) -> dict[str, Any]:
+    """The world's result as the supervisor reports it: this run's id and policy, at most the
+    episodes asked for, as many action logs of `horizon` ticks, the ticks they add up to, its
+    message counts, figures in range (BadMessage otherwise: a stray or half-made result does
+    not end a run; one forged whole needs `--secure` to keep out)."""
+    if rec.get("run_id") != run_id:
+        raise BadMessage(f"a result of run {rec.get('run_id')!r}, not {run_id!r}")
     if rec.get("policy") != policy:
         raise BadMessage(f"a result of policy {rec.get('policy')!r}, not {policy!r}")
-    if _int(rec.get("completed"), "result completed", 0, episodes):  # (none: NaN means)
+    done = _int(rec.get("completed"), "result completed", 0, episodes)
+    if done:  # (none: NaN means)
         for k in ("elratio_mean", "success_rate"):
             _float(rec.get(k), f"result {k}", 0.0, 1.0)
+    actions = rec.get("actions")
+    if not isinstance(actions, list) or len(actions) != done or \
+            not all(isinstance(a, list) and len(a) == horizon for a in actions):
+        raise BadMessage(f"result actions are not {done} episode(s) of {horizon} ticks")
+    _int(rec.get("ticks"), "result ticks", done * horizon, episodes * horizon)
+    if not isinstance(rec.get("messages"), dict):
+        raise BadMessage("result without its message counts")
     return rec
 
 

@@ -148,6 +148,10 @@ class Fleet:
             # virtual clock an absence nobody planned is for good)
             said.append(f"robots {left} left the run before its end; the world played on "
                         "without them")
+        unsaid = int(res.get("robots_lost") or 0) - len(left) - len(down | self.stopped_at_end)
+        if unsaid > 0:  # (they said they were done: a run-end record that was not the world's)
+            said.append(f"{unsaid} robot(s) left the run before its end, each saying the run "
+                        "had ended (robots_lost in the result); the world played on without them")
         if res["absent_at_start"]:  # (the world waited `start_timeout` for them, then began)
             said.append(f"robots {res['absent_at_start']} were not up within the start timeout "
                         f"({start_timeout:g} s; --start-timeout S): the run began without them")

@@ -85,17 +85,32 @@ class TickGuard:
     def __init__(self, horizon: int, first_episode: int, episodes: int) -> None:
         self.horizon, self.first, self.episodes = horizon, first_episode, episodes
         self.last: tuple[int, int, int, int] | None = None  # (ep, t, y, x) acted on last
+        # the one acted on before `last` when `last` skipped ticks ahead (a robot that was
+        # stopped, or not sent any while the world counted it gone); None after a step of one
+        self.before_skip: tuple[int, int, int, int] | None = None
+
+    def steps(self, frm: tuple[int, ...], ep: int, t: int) -> int:
+        """World ticks from observation `frm` (ep, t, ...) to (ep, t): an episode's last
+        observation is its tick `horizon` (done), the next episode's first its tick 0."""
+        return (ep - frm[0]) * (self.horizon + 1) + t - frm[1]
 
     def obs(self, ep: int, t: int, y: int, x: int) -> None:
+        """An observation is acted on only after the last one, within reach of its position;
+        or, right after a skip ahead, if it is the world's next after the one before the skip
+        (the skip was a forged observation: without this, one far ahead silenced the robot
+        for the rest of the run, each real one after it refused as old)."""
         self.tick(ep, t, ahead=None)
-        last = self.last
+        last, before = self.last, self.before_skip
         if last is not None and (ep, t) <= last[:2]:
-            raise BadMessage(f"observation of ep {ep} tick {t} after tick {last[1]} of "
-                             f"ep {last[0]}")
+            if before is None or self.steps(before, ep, t) != 1:
+                raise BadMessage(f"observation of ep {ep} tick {t} after tick {last[1]} of "
+                                 f"ep {last[0]}")
+            last = before  # (then checked for reach from it, as any next observation)
         if last is not None and ep == last[0] and max(abs(y - last[2]), abs(x - last[3])) > \
                 t - last[1]:
             raise BadMessage(f"position ({y}, {x}) out of reach of ({last[2]}, {last[3]}) in "
                              f"{t - last[1]} tick(s)")
+        self.before_skip = last if last is not None and self.steps(last, ep, t) > 1 else None
         self.last = (ep, t, y, x)
 
     def tick(self, ep: int, t: int, ahead: int | None = 1) -> None:
@@ -104,8 +119,7 @@ class TickGuard:
         if t > self.horizon:
             raise BadMessage(f"tick {t} past the horizon {self.horizon}")
         last = self.last
-        if ahead is not None and last is not None and \
-                (ep - last[0]) * (self.horizon + 1) + t - last[1] > ahead:
+        if ahead is not None and last is not None and self.steps(last, ep, t) > ahead:
             raise BadMessage(f"ep {ep} tick {t} is ahead of the observed ep {last[0]} tick "
                              f"{last[1]}")
 

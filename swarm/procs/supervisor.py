@@ -56,7 +56,6 @@ from swarm.net.messages import (
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
-    BadMessage,
     check_robot_status,
     check_world_result,
     check_world_status,
@@ -69,6 +68,7 @@ from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.fleet import Fleet, how_it_ended
 from swarm.procs.learning.supervised import drain, learner_result
 from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
+from swarm.procs.status_order import StatusOrder
 from world.config import ConfigError, WorldConfig, to_dict
 
 log = logging.getLogger("swarm.supervisor")
@@ -89,6 +89,7 @@ class Supervisor:
         self.planned = list(self.process_faults)  # (the plan's, kept: the queue is used up)
         self.process_faults_dropped = 0  # live changes the full queue had no room for
         self.run_tick = 0  # the world's run tick, from its last status
+        self.order = StatusOrder()  # statuses in order, one that skips ahead held
         self.console = console or Console()
         self.keys = Keys(run.run_id)
         self.port = free_port()
@@ -215,8 +216,11 @@ class Supervisor:
             if kind == "status":
                 rec = check_world_status(unpack_record(payload or b"", K_STATUS), self.cfg,
                                          self.run_cfg.first_episode, self.run_cfg.episodes)
-                if rec["run_tick"] < self.run_tick:  # (statuses come in order: a replay)
-                    raise BadMessage(f"status of tick {rec['run_tick']} after {self.run_tick}")
+                apply, dropped = self.order.offer(rec)
+                if dropped is not None:
+                    self._bad_record("status", dropped)
+                if not apply:  # (held: applied if the next one goes on from it)
+                    return
                 v.apply_status(rec)
                 self.run_tick = rec["run_tick"]
                 while self.process_faults and self.process_faults[0].tick <= self.run_tick:
@@ -227,8 +231,9 @@ class Supervisor:
                 v.apply_robot(check_robot_status(unpack_record(payload or b"", K_RSTATUS),
                                                  self.cfg.n_robots, self.cfg.horizon))
             elif kind == "result":
-                self.result = check_world_result(unpack_record(payload or b"", K_RESULT),
-                                                 self.run_cfg.policy, self.run_cfg.episodes)
+                self.result = check_world_result(
+                    unpack_record(payload or b"", K_RESULT), self.run_cfg.policy,
+                    self.run_cfg.episodes, self.run_cfg.run_id, self.cfg.horizon)
                 v.apply_result(self.result)
             elif kind == "lstatus":
                 self.learner_status = check_learner_status(unpack_record(payload or b"",
@@ -260,10 +265,14 @@ class Supervisor:
                 elif parts[-1] == "world":
                     v.world_alive = live
         except Exception as exc:  # a record of the right kind with wrong contents: dropped
-            self.bad += 1
-            self.view.bad_records = self.bad
-            if tally(self.bad_by_key, key):  # (the first few of a key, then powers of two)
-                log.warning("supervisor dropped a %s record on %s: %s", kind, key, exc)
+            self._bad_record(kind, str(exc), key)
+
+    def _bad_record(self, kind: str, why: str, key: str | None = None) -> None:
+        key = key or str(getattr(self.keys, kind))
+        self.bad += 1
+        self.view.bad_records = self.bad
+        if tally(self.bad_by_key, key):  # (the first few of a key, then powers of two)
+            log.warning("supervisor dropped a %s record on %s: %s", kind, key, why)
 
     def _process_fault(self, f: ProcessFault) -> None:
         """Do `f` (`Fleet.fault`) and show it among the dashboard's events (not once the run
@@ -333,6 +342,11 @@ class Supervisor:
                     if self.world is not None and self.world.poll() is not None and \
                             inbox.q.empty():
                         break
+                held, dropped = self.order.end((self.result or {}).get("ticks"))
+                if held is not None:  # (the last status, after a skip: `StatusOrder.end`)
+                    self.view.apply_status(held)
+                elif dropped is not None:
+                    self._bad_record("status", dropped)
                 # a training world stays up after its result until the learner is drained and
                 # stopped; robots send their final counts only once the world has ended
                 self._drain_learner()
