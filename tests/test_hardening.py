@@ -285,7 +285,8 @@ def test_foreign_garbage_in_a_recording_is_skipped_by_verify_not_a_divergence(
         tmp_path: Path) -> None:
     """A foreign peer's garbage on the run's keys (UA pass: on world/result it was reported as a
     divergence 'recorded unreadable, recomputed not msgpack'): every live process dropped it, so
-    verification counts it as skipped and the recording verifies."""
+    verification counts it as skipped and the recording verifies. So is a well-formed result the
+    supervisor refused (UA pass 53: an empty one was 'a second world/result message')."""
     run_id, f = "gx", tmp_path / "k.mcap"
     proc = start_run(tmp_path, run_id, "--policy", "nearest-frontier", "--episodes", "2",
                      "--pace", "10", "--record", str(f))
@@ -296,16 +297,17 @@ def test_foreign_garbage_in_a_recording_is_skipped_by_verify_not_a_divergence(
             three_statuses(session, keys)  # mid-run
             for key in (keys.result, keys.status, keys.obs(1)):
                 session.put(key, b"\xff\xfe")
+            session.put(keys.result, msgpack.packb([1, K_RESULT, {}]))
         assert proc.wait(timeout=120) == 0, proc.stderr.read().decode()[-2000:]
     finally:
         if proc.poll() is None:
             proc.kill()
     r = swarm("replay", str(f), "--verify", "--json", str(tmp_path / "v.json"))
     assert r.returncode == 0, r.stderr
-    assert "3 unreadable messages skipped, as the live processes dropped them" in r.stdout, \
+    assert "4 unreadable messages skipped, as the live processes dropped them" in r.stdout, \
         r.stdout
     v = json.loads((tmp_path / "v.json").read_text())
-    assert v["ok"] and v["unreadable"] == 3 and v["checked"]["results"] == 1, v
+    assert v["ok"] and v["unreadable"] == 4 and v["checked"]["results"] == 1, v
 
 
 @pytest.mark.procs

@@ -33,6 +33,7 @@ from swarm.net.messages import (
     K_STATUS,
     BadMessage,
     check_robot_status,
+    check_world_result,
     check_world_status,
     unpack_record,
 )
@@ -103,19 +104,26 @@ def load(path: str | Path, partial: bool = False) -> Recording:
     return Recording(raw.path, raw, record, result, msgs)
 
 
+def check_result(rec: Recording, result: dict[str, Any]) -> dict[str, Any]:
+    """`result` as the run's supervisor checks it (BadMessage: it refused it)."""
+    r = rec.record.run
+    return check_world_result(result, r.policy, r.episodes, r.run_id, rec.record.world.horizon)
+
+
 def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
                                              tuple[str, Any, Any, int] | None, str | None, int]:
     """The world's result as recorded: its `world/result` message on the wire and the
     recorder's copy (`result.json`) must agree, and either stands alone when the other is
-    missing. A `world/result` payload that is not a result record is skipped: the world never
-    sends one (a foreign peer did) and every live process dropped it. (result, the first
-    disagreement as (what, recorded, expected, run tick), a note, the payloads skipped)."""
+    missing. A `world/result` payload that is not a result record, or one the supervisor's
+    check refuses (`check_result`), is skipped: the world never sends one (a foreign peer did)
+    and the supervisor dropped it. (result, the first disagreement as (what, recorded,
+    expected, run tick), a note, the payloads skipped)."""
     norm = lambda x: json.loads(json.dumps(x, default=str))  # noqa: E731 (inf, tuples)
     wire: dict[str, Any] | None = None
     skipped = 0
     for m in rec.of("result"):
         try:
-            got = unpack_record(m.payload, K_RESULT)
+            got = check_result(rec, unpack_record(m.payload, K_RESULT))
         except BadMessage:
             skipped += 1
             continue
@@ -123,7 +131,12 @@ def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
             return None, ("a second world/result message (as recorded) against the first (as "
                           "recomputed)", got, wire, m.tick), None, skipped
         wire = got
-    copy = rec.result
+    copy, note = rec.result, None
+    if copy is not None:
+        try:
+            check_result(rec, copy)
+        except BadMessage as exc:  # the recorder keeps the last record on the key: a stray's
+            copy, note = None, f"{RESULT} is not a result the supervisor takes ({exc}): left out"
     if wire is not None and copy is not None and norm(wire) != norm(copy):
         a, b = norm(copy), norm(wire)
         diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))[:3]
@@ -132,8 +145,9 @@ def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
                       {k: a.get(k) for k in diff}, {k: b.get(k) for k in diff},
                       rec.last_tick), None, skipped
     if copy is None and wire is not None:
-        return wire, None, f"no {RESULT} attachment: the world/result message checked", skipped
-    return copy if copy is not None else wire, None, None, skipped
+        return wire, None, note or f"no {RESULT} attachment: the world/result message checked", \
+            skipped
+    return copy if copy is not None else wire, None, note, skipped
 
 
 @dataclass
@@ -200,7 +214,7 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
         elif m.kind == "lstatus":  # a --train run's learner panel, as live
             v.learner = check_learner_status(unpack_record(m.payload, K_LSTATUS))
         elif m.kind == "result":
-            v.apply_result(unpack_record(m.payload, K_RESULT))
+            v.apply_result(check_result(rec, unpack_record(m.payload, K_RESULT)))
         elif m.kind == "end":
             v.world_alive = False
     except (BadMessage, TypeError, ValueError, KeyError, AttributeError, IndexError,
