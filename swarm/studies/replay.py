@@ -12,6 +12,8 @@ one that does not fit is dropped and counted.
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import json
 import time
 from collections.abc import Callable
@@ -148,6 +150,23 @@ def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
         return wire, None, note or f"no {RESULT} attachment: the world/result message checked", \
             skipped
     return copy if copy is not None else wire, None, note, skipped
+
+
+def action_windows(status: dict[tuple[int, int], tuple[int, Any]]
+                   ) -> Callable[[int, int], tuple[int, int]]:
+    """`status`: each (episode, t) status's position in the recording (status (ep, t) ends tick
+    t - 1). Returns, for a tick (ep, t), the positions strictly between which an action of that
+    tick may have come while the world had the tick in play: the world takes none of another
+    tick (stale). The tick in play follows the last status the recorder heard, but the world may
+    publish a tick's status before that tick's last action reaches the recorder; so the window
+    runs from the status that ends tick t - 1 (or the episode before) to the one that ends t + 1.
+    """
+    order = sorted(status)
+    at = [status[k][0] for k in order]
+    last_before = [-1, *itertools.accumulate(at, max)]
+    first_after = [*itertools.accumulate(at[::-1], min)][::-1] + [2**62]
+    return lambda ep, t: (last_before[bisect.bisect_right(order, (ep, t))],
+                          first_after[bisect.bisect_right(order, (ep, t + 1))])
 
 
 @dataclass
