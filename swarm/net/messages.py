@@ -457,14 +457,12 @@ def check_world_status(rec: dict[str, Any], cfg: WorldConfig, first_episode: int
 
 def check_world_result(rec: dict[str, Any], policy: str, episodes: int, run_id: str,
                        horizon: int) -> dict[str, Any]:
-    """The world's result as the supervisor reports it: this run's id and policy, at most the
-    episodes asked for, as many action logs of `horizon` ticks, the ticks they add up to, its
-    message counts, figures in range (BadMessage otherwise: a stray or half-made result does
-    not end a run; one forged whole needs `--secure` to keep out)."""
-    if rec.get("run_id") != run_id:
-        raise BadMessage(f"a result of run {rec.get('run_id')!r}, not {run_id!r}")
-    if rec.get("policy") != policy:
-        raise BadMessage(f"a result of policy {rec.get('policy')!r}, not {policy!r}")
+    """The world's result: this run's id and policy, at most the episodes asked, as many
+    action logs of `horizon` ticks, its ticks and counts, figures in range (BadMessage: a stray
+    does not end a run; one forged whole needs `--secure`)."""
+    for k, want in (("run_id", run_id), ("policy", policy)):
+        if rec.get(k) != want:
+            raise BadMessage(f"a result of {k} {rec.get(k)!r}, not {want!r}")
     done = _int(rec.get("completed"), "result completed", 0, episodes)
     if done:  # (none: NaN means)
         for k in ("elratio_mean", "success_rate"):
@@ -474,9 +472,9 @@ def check_world_result(rec: dict[str, Any], policy: str, episodes: int, run_id: 
             not all(isinstance(a, list) and len(a) == horizon for a in actions):
         raise BadMessage(f"result actions are not {done} episode(s) of {horizon} ticks")
     _int(rec.get("ticks"), "result ticks", done * horizon, episodes * horizon)
-    if not isinstance(rec.get("messages"), dict):
-        raise BadMessage("result without its message counts")
-    return rec
+    if isinstance(rec.get("messages"), dict):
+        return rec
+    raise BadMessage("result without its message counts")
 
 
 def heard_messages(cfg: WorldConfig, robot: int, bundle: Bundle) -> TrajMessages:
