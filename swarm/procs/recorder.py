@@ -61,7 +61,7 @@ class Recorder:
         self.foreign: dict[str, int] = {}
         self.stop = False
         self.result: dict[str, Any] | None = None
-        self.tick = 0  # the run tick of the last message that named one
+        self.tick = 0  # the run tick of the world's last status
         self.backlog: list[tuple[str, str, bytes, int, int, int]] = []  # JSON still to write
 
     def _on_sample(self, s: zenoh.Sample) -> None:
@@ -163,7 +163,9 @@ class Recorder:
             is_end = kind == "end" and record.get("run_id") == self.keys.run
         elif kind != "rstatus":
             head = peek_ep_t(payload)
-        tick = self.tick = run_tick(head, rec, self.tick)
+        tick = run_tick(head, rec, self.tick)
+        if kind == "status":  # (the clock of messages that name no tick: a stale or stray
+            self.tick = tick  # message's own tick does not move it back or ahead)
         vtime = int(round(tick * rec.run.tick_timeout * 1e9))
         w.message(key, kind, payload, None, wall_ns, tick, vtime)
         self.backlog.append((key, kind, payload, wall_ns, tick, vtime))
