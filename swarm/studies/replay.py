@@ -12,8 +12,6 @@ one that does not fit is dropped and counted.
 
 from __future__ import annotations
 
-import bisect
-import itertools
 import json
 import time
 from collections.abc import Callable
@@ -150,30 +148,6 @@ def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
         return wire, None, note or f"no {RESULT} attachment: the world/result message checked", \
             skipped
     return copy if copy is not None else wire, None, note, skipped
-
-
-SLACK = 3
-"""Statuses of slack on each side of an action's window (`action_windows`)."""
-
-
-def action_windows(status: dict[tuple[int, int], tuple[int, Any]], slack: int = SLACK
-                   ) -> Callable[[int, int], tuple[int, int]]:
-    """`status`: each (episode, t) status's position in the recording (status (ep, t) ends tick
-    t - 1). Returns, for a tick (ep, t), the positions strictly between which an action of that
-    tick may have come while the world had the tick in play: the world takes none of another
-    tick (stale). The tick in play follows the statuses the recorder heard, but the recorder's
-    subscriptions run on threads of their own, so on a loaded machine a tick's action can be
-    written a few statuses after the one that ended the tick (a clean run failed to verify with
-    a window of one status each side); so the window runs from the status that ends tick
-    t - 1 - `slack` to the one that ends t + 1 + `slack`. Within it the first action of a robot
-    is taken, as the world takes it: a stray stale one comes after it."""
-    order = sorted(status)
-    at = [status[k][0] for k in order]
-    last_before = [-1, *itertools.accumulate(at, max)]
-    first_after = [*itertools.accumulate(at[::-1], min)][::-1] + [2**62]
-    return lambda ep, t: (last_before[bisect.bisect_right(order, (ep, t - slack))],
-                          first_after[bisect.bisect_right(order, (ep, t + 1 + slack))])
-
 
 
 @dataclass

@@ -12,14 +12,12 @@ recorded, recomputed).
 
 Which actions the world applied, and which messages its radio saw, cannot be read from the
 order the recorder heard them in: the world, the run's router, may step and publish its status
-before it forwards the last action to the recorder. So: the world applied each robot's first
-action of tick t heard while the tick may have been in play (`replay.action_windows`) unless
-its status lists the robot as timed out (the status is checked to list exactly the live robots
-without one); its radio saw the trajectory message of every robot
+before it forwards the last action to the recorder. So: the world applied every recorded action
+of tick t from a robot that its status does not list as timed out (the status is checked to
+list exactly the live robots without one); its radio saw the trajectory message of every robot
 it sent a bundle to (it always hands a sender its own message back) and the hidden-state
-message of every robot that did not time out. Unreadable payloads (a foreign peer's garbage),
-other actions and results the supervisor refuses are skipped and counted, not divergences: the
-live processes dropped them. A partial recording
+message of every robot that did not time out. Unreadable payloads (a foreign peer's garbage)
+are skipped and counted, not divergences: every live process dropped them. A partial recording
 (`--partial`) is checked up to the tick before its last status: the cut may have lost messages
 of that last tick.
 """
@@ -47,7 +45,7 @@ from swarm.net.messages import (
     unpack_record,
 )
 from swarm.net.radio import Radio
-from swarm.studies.replay import Recording, action_windows, recorded_result
+from swarm.studies.replay import Recording, recorded_result
 from swarm.studies.verify_direct import DirectAudit, hidden_label, senders_of, stamped_of
 from world import core
 from world.config import ConfigError
@@ -83,7 +81,7 @@ class VerifyReport:
     divergence: Divergence | None = None
     notes: list[str] = field(default_factory=list)
     ticks: int = 0
-    unreadable: int = 0  # payloads skipped: the live processes dropped them
+    unreadable: int = 0  # payloads skipped: every live process dropped them
 
     def count(self, what: str, n: int = 1) -> None:
         self.checked[what] = self.checked.get(what, 0) + n
@@ -144,12 +142,6 @@ def _index(rec: Recording, report: VerifyReport) -> tuple[dict[tuple[int, int], 
             bucket.obs.append((idx, msg))
         elif m.kind == "action":
             bucket.action.append((idx, msg))
-    window = action_windows(status)
-    for (ep, t), bucket in ticks.items():  # each robot's first in the tick's window, as the world
-        start, end = window(ep, t)
-        taken = {a.robot: (idx, a) for idx, a in reversed(bucket.action) if start < idx < end}
-        report.unreadable += len(bucket.action) - len(taken)
-        bucket.action = list(taken.values())
     return ticks, status, control
 
 
