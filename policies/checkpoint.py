@@ -11,7 +11,9 @@ A checkpoint is a torch file holding a plain dict:
     train       optional trainer state (optimizer, RNG, counters) for `swarm train --resume`
     learner     optional field learner state (`swarm learner --resume`)
 
-Both readers check the same: the fields' types and that every weight is finite.
+Both readers check the same: the fields' types, that every weight is a floating-point array
+(`WEIGHT_DTYPES`; the networks compute in float32, so the others are converted when loaded) and
+that every weight is finite.
 
 Writes are atomic (temp file in the same directory, fsync, os.replace), so a crash mid-write
 leaves the previous checkpoint intact. `read_checkpoint` reads one without torch (numpy arrays,
@@ -123,12 +125,16 @@ FIELDS = {"policy": str, "model": dict, "world": dict, "state_dict": dict}
 """The fields every checkpoint has, and their type."""
 OPTIONAL = {"meta": dict, "train": dict, "learner": dict}
 """Fields some checkpoints have (trainer or learner state), and their type."""
+WEIGHT_DTYPES = ("float32", "float16", "float64", "bfloat16")
+"""The weight dtypes a checkpoint may hold (torch's and numpy's names agree); the torch-free
+reader widens bfloat16 to float32 (exactly: it is float32's upper half), numpy having none."""
 
 
 def _checked(data: Any, path: Path) -> dict[str, Any]:
-    """`data` if it is a checkpoint dict: the fields of their types, weights arrays (numpy or
-    torch) with names, and every weight finite (a diverged run's NaNs left robots standing
-    still); a one-line CheckpointError naming the file and the field otherwise."""
+    """`data` if it is a checkpoint dict: the fields of their types, weights floating-point
+    arrays (numpy or torch) with names (an integer, bool or complex one was cast and run), and
+    every weight finite (a diverged run's NaNs left robots standing still); a one-line
+    CheckpointError naming the file and the field otherwise."""
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise CheckpointError(f"checkpoint {path} is not a format-{FORMAT} checkpoint")
     missing = [k for k in FIELDS if k not in data]
@@ -147,7 +153,13 @@ def _checked(data: Any, path: Path) -> dict[str, Any]:
         if not isinstance(key, str) or not (hasattr(value, "shape") and hasattr(value, "dtype")):
             raise CheckpointError(f"checkpoint {path}: field 'state_dict' holds {key!r}, which "
                                   "is not a named weight array")
-        if not np.isfinite(np.asarray(value)).all():
+        kind = str(value.dtype).removeprefix("torch.")
+        if kind not in WEIGHT_DTYPES:
+            raise CheckpointError(f"checkpoint {path}: weight {key} is {kind}, expected a "
+                                  f"floating-point tensor ({', '.join(WEIGHT_DTYPES)})")
+        # (torch's own test: numpy has no bfloat16 to convert a torch tensor to)
+        finite = value.isfinite() if hasattr(value, "isfinite") else np.isfinite(value)
+        if not finite.all():
             raise CheckpointError(f"checkpoint {path} has non-finite weights (NaN or inf) in "
                                   f"{key}: the run that wrote it diverged")
     return data

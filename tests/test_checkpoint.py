@@ -1,6 +1,7 @@
 """Checkpoint files as every command reads them (policies.checkpoint): a checkpoint that is cut
-short, holds fields of the wrong type or non-finite weights is refused in one line naming the
-file, by the torch reader and the torch-free one alike (real files, a tiny real network)."""
+short, holds fields of the wrong type, or weights that are not floating-point or not finite is
+refused in one line naming the file, by the torch reader and the torch-free one alike (real
+files, a tiny real network)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 from conftest import swarm
@@ -15,16 +17,20 @@ from conftest import swarm
 from policies import make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, read_checkpoint, save_checkpoint
 from policies.infer.nets import CommAttnConfig
+from policies.infer.policy import inference_class
 from world.config import WorldConfig
 
 TINY_NET = CommAttnConfig(embed=4, hidden=4, state=4, match=4, action_embed=4)
 
 
-def tiny_checkpoint(path: Path, **changes: Any) -> Path:
+def tiny_checkpoint(path: Path, dtype: torch.dtype | None = None, **changes: Any) -> Path:
     """A commattn checkpoint of a tiny network for the default world, with `changes` to its
-    top-level fields (`nan`/`inf`: the first weight's first entry set to that)."""
+    top-level fields (`nan`/`inf`: the first weight's first entry set to that; `dtype`: every
+    weight's dtype)."""
     torch.manual_seed(0)
     payload = make_policy("commattn", WorldConfig(), model=TINY_NET).payload({"command": "test"})
+    if dtype is not None:
+        payload["state_dict"] = {k: v.to(dtype) for k, v in payload["state_dict"].items()}
     for bad in ("nan", "inf"):
         if changes.pop(bad, False):
             key = next(iter(payload["state_dict"]))
@@ -45,6 +51,10 @@ BROKEN = {
     "world-str": ({"world": "x"}, "field 'world' is a str, not a dict"),
     "meta-str": ({"meta": "x"}, "field 'meta' is a str, not a dict"),
     "train-list": ({"train": [1]}, "field 'train' is a list, not a dict"),
+    "int64": ({"dtype": torch.int64}, "weight s0 is int64, expected a floating-point tensor"),
+    "bool": ({"dtype": torch.bool}, "weight s0 is bool, expected a floating-point tensor"),
+    "complex64": ({"dtype": torch.complex64},
+                  "weight s0 is complex64, expected a floating-point tensor"),
 }
 
 
@@ -63,6 +73,22 @@ def test_both_readers_refuse_a_checkpoint_of_wrong_types_or_non_finite_weights(
     good = tiny_checkpoint(tmp_path / "good.pt")
     assert read_checkpoint(good)["meta"] == {"command": "test"}
     assert set(load_checkpoint(good)["state_dict"]) == set(read_checkpoint(good)["state_dict"])
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.float64, torch.bfloat16], ids=str)
+def test_both_readers_read_weights_of_every_float_dtype_alike(tmp_path: Path,
+                                                               dtype: torch.dtype) -> None:
+    """float16, float64 and bfloat16 weights load (the networks compute in float32); the
+    torch-free reader widens bfloat16, which numpy lacks, to the same float32 values."""
+    path = tiny_checkpoint(tmp_path / "w.pt", dtype=dtype)
+    theirs, ours = load_checkpoint(path)["state_dict"], read_checkpoint(path)["state_dict"]
+    for key, tensor in theirs.items():
+        assert tensor.dtype == dtype
+        np.testing.assert_array_equal(ours[key], tensor.float().numpy())
+    a, b = make_policy("commattn", WorldConfig(), checkpoint=str(path)), \
+        inference_class("commattn")(WorldConfig(), checkpoint=path)
+    for key, weight in a.weights.items():
+        np.testing.assert_array_equal(b.weights[key], weight)
 
 
 def test_both_readers_call_a_truncated_checkpoint_not_a_torch_file(tmp_path: Path) -> None:
@@ -107,14 +133,21 @@ def one_line_error(r: Any, words: str) -> None:
 def test_every_command_refuses_a_bad_checkpoint_in_one_line(tmp_path: Path) -> None:
     nan = str(tiny_checkpoint(tmp_path / "nan.pt", nan=True))
     garbage = str(tiny_checkpoint(tmp_path / "garbage.pt", model="garbage"))
-    one_line_error(swarm("eval", "--policy", "commattn", "--checkpoint", nan, "--episodes", "2",
-                         timeout=60), "non-finite weights")
-    one_line_error(swarm("run", "--policy", "commattn", "--checkpoint", nan, "--episodes", "1",
-                         "--log-dir", str(tmp_path / "logs"), timeout=60), "non-finite weights")
-    one_line_error(swarm("bench", "policy", "--policies", "commattn", "--checkpoint",
-                         f"commattn={garbage}", timeout=60), "field 'model' is a str")
-    one_line_error(swarm("train", "--init", garbage, "--out", str(tmp_path / "t"),
-                         "--epochs", "1", timeout=60), "field 'model' is a str")
+    whole = str(tiny_checkpoint(tmp_path / "int.pt", dtype=torch.int64))
+    boolean = str(tiny_checkpoint(tmp_path / "bool.pt", dtype=torch.bool))
+    complex_ = str(tiny_checkpoint(tmp_path / "complex.pt", dtype=torch.complex64))
+    for bad, words in ((nan, "non-finite weights"), (whole, "weight s0 is int64"),
+                       (boolean, "weight s0 is bool"), (complex_, "weight s0 is complex64")):
+        one_line_error(swarm("eval", "--policy", "commattn", "--checkpoint", bad, "--episodes",
+                             "1", "--robots", "2", "--horizon", "5", timeout=60), words)
+        one_line_error(swarm("run", "--headless", "--policy", "commattn", "--checkpoint", bad,
+                             "--robots", "2", "--episodes", "1", "--horizon", "5",
+                             "--log-dir", str(tmp_path / "logs"), timeout=60), words)
+    for bad, words in ((garbage, "field 'model' is a str"), (whole, "weight s0 is int64")):
+        one_line_error(swarm("bench", "policy", "--policies", "commattn", "--checkpoint",
+                             f"commattn={bad}", timeout=60), words)
+        one_line_error(swarm("train", "--init", bad, "--out", str(tmp_path / "t"),
+                             "--epochs", "1", timeout=60), words)
     run = tmp_path / "run"
     run.mkdir()
     raw = tiny_checkpoint(tmp_path / "good.pt").read_bytes()

@@ -22,7 +22,11 @@ DTYPES = {
     "FloatStorage": np.float32, "DoubleStorage": np.float64, "HalfStorage": np.float16,
     "LongStorage": np.int64, "IntStorage": np.int32, "ShortStorage": np.int16,
     "CharStorage": np.int8, "ByteStorage": np.uint8, "BoolStorage": np.bool_,
+    "ComplexFloatStorage": np.complex64, "ComplexDoubleStorage": np.complex128,
+    "BFloat16Storage": np.uint16,  # widened to float32 when read (numpy has no bfloat16)
 }
+"""The numpy dtype of each torch storage this reader reads (what the data holds is the
+caller's to check: policies.checkpoint refuses weights that are not floating-point)."""
 
 
 class PtFileError(ValueError):
@@ -32,6 +36,14 @@ class PtFileError(ValueError):
 class _Storage:
     def __init__(self, name: str) -> None:
         self.dtype = np.dtype(DTYPES[name]).newbyteorder("<")
+        self.bfloat16 = name == "BFloat16Storage"
+
+    def read(self, raw: bytes) -> np.ndarray:
+        """The storage's elements from its raw little-endian bytes."""
+        data = np.frombuffer(raw, dtype=self.dtype)
+        if self.bfloat16:  # a bfloat16 is the upper 16 bits of the float32 it stands for
+            return (data.astype("<u4") << 16).view("<f4")
+        return data
 
 
 def _rebuild_tensor(storage: np.ndarray, offset: int, size: tuple[int, ...],
@@ -79,7 +91,7 @@ class _Unpickler(pickle.Unpickler):
                 raw = self.archive.read(f"{self.prefix}/data/{key}")
             except KeyError:
                 raise PtFileError(f"storage {key} is missing") from None
-            self.storages[key] = np.frombuffer(raw, dtype=kind.dtype)
+            self.storages[key] = kind.read(raw)
         return self.storages[key]
 
 
