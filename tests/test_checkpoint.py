@@ -134,20 +134,20 @@ def test_every_command_refuses_a_bad_checkpoint_in_one_line(tmp_path: Path) -> N
     nan = str(tiny_checkpoint(tmp_path / "nan.pt", nan=True))
     garbage = str(tiny_checkpoint(tmp_path / "garbage.pt", model="garbage"))
     whole = str(tiny_checkpoint(tmp_path / "int.pt", dtype=torch.int64))
-    boolean = str(tiny_checkpoint(tmp_path / "bool.pt", dtype=torch.bool))
     complex_ = str(tiny_checkpoint(tmp_path / "complex.pt", dtype=torch.complex64))
+    # (each reader's refusal of every dtype: the test above; here, that each command reaches
+    # them: complex64 stops the torch-free reader of `run` at its storage, int64 after it)
     for bad, words in ((nan, "non-finite weights"), (whole, "weight s0 is int64"),
-                       (boolean, "weight s0 is bool"), (complex_, "weight s0 is complex64")):
+                       (complex_, "weight s0 is complex64")):
         one_line_error(swarm("eval", "--policy", "commattn", "--checkpoint", bad, "--episodes",
                              "1", "--robots", "2", "--horizon", "5", timeout=60), words)
         one_line_error(swarm("run", "--headless", "--policy", "commattn", "--checkpoint", bad,
                              "--robots", "2", "--episodes", "1", "--horizon", "5",
                              "--log-dir", str(tmp_path / "logs"), timeout=60), words)
-    for bad, words in ((garbage, "field 'model' is a str"), (whole, "weight s0 is int64")):
-        one_line_error(swarm("bench", "policy", "--policies", "commattn", "--checkpoint",
-                             f"commattn={bad}", timeout=60), words)
-        one_line_error(swarm("train", "--init", bad, "--out", str(tmp_path / "t"),
-                             "--epochs", "1", timeout=60), words)
+    one_line_error(swarm("bench", "policy", "--policies", "commattn", "--checkpoint",
+                         f"commattn={whole}", timeout=60), "weight s0 is int64")
+    one_line_error(swarm("train", "--init", garbage, "--out", str(tmp_path / "t"),
+                         "--epochs", "1", timeout=60), "field 'model' is a str")
     run = tmp_path / "run"
     run.mkdir()
     raw = tiny_checkpoint(tmp_path / "good.pt").read_bytes()
