@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -32,3 +33,38 @@ def test_replace_keeps_old_file_when_write_fails(tmp_path: Path) -> None:
     assert [p.name for p in tmp_path.iterdir()] == ["r.txt"]
     atomic.write_bytes(path, b"new")
     assert path.read_bytes() == b"new"
+
+
+def test_a_fifo_and_a_device_are_written_in_place_not_replaced(tmp_path: Path) -> None:
+    """A special file given as the output (a FIFO, /dev/null) is opened and written: replacing
+    it with a regular file would lose it (as root, /dev/null itself)."""
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader, so the writer's open returns
+    try:
+        atomic.write_json(fifo, {"a": 1})
+        assert json.loads(os.read(reader, 1 << 16)) == {"a": 1}
+    finally:
+        os.close(reader)
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+    if os.geteuid() == 0:  # a null device of our own (never the machine's /dev/null)
+        null = tmp_path / "null"
+        os.mknod(null, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        atomic.write_text(null, "gone")
+        assert stat.S_ISCHR(null.stat().st_mode)
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_descriptor_link_appends_to_the_open_file(tmp_path: Path) -> None:
+    """`--json /dev/stdout > FILE`: the output is a link to a descriptor's file; the result is
+    added after what was printed there, and the link stays (a link of our own in tmp_path: as
+    root, replacing /dev/stdout would break the machine)."""
+    out = tmp_path / "out.txt"
+    with open(out, "w") as fh:
+        fh.write("table\n")
+        fh.flush()
+        link = tmp_path / "stdout"
+        link.symlink_to(f"/proc/self/fd/{fh.fileno()}")
+        atomic.write_text(link, "json\n")
+    assert link.is_symlink()
+    assert out.read_text() == "table\njson\n"

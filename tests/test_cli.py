@@ -709,3 +709,18 @@ def test_swarm_runs_summary_line_counts_copies_to_others_of_both_kinds(tmp_path:
     assert found, res[-2000:]
     assert int(found[1]) == m["traj_to_others"] + m["hidden_delivered"] and m["hidden_delivered"]
     assert int(found[2]) == m["lost"] > 0
+
+
+@pytest.mark.procs
+def test_eval_json_to_a_descriptor_link_prints_it(tmp_path: Path) -> None:
+    """`--json /dev/stdout` prints the JSON after the table (a link of our own to the command's
+    stdout: as root, the unfixed writer replaced the link, i.e. /dev/stdout, with a file)."""
+    link = tmp_path / "stdout"
+    link.symlink_to("/proc/self/fd/1")
+    r = swarm("eval", "--policy", "random", "--robots", "4", "--episodes", "2", "--static",
+              "--json", str(link))
+    assert r.returncode == 0, r.stderr
+    assert link.is_symlink()
+    table, _, obj = r.stdout.partition("\n{")
+    assert "elratio" in table
+    assert json.JSONDecoder().raw_decode("{" + obj)[0]["policy"] == "random"

@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, NoReturn, Self
 
+from swarm.common.atomic import in_place
 from world.config import (
     ConfigError,
     WorldConfig,
@@ -260,6 +261,10 @@ def output_file(path: str | None, flag: str = "--json") -> None:
     target = Path(path)
     if target.is_dir():
         raise ConfigError(f"{flag} {path} is a directory, not a file")
+    if in_place(target):  # a device, FIFO or /dev/stdout: opened and written, never replaced
+        if not os.access(target, os.W_OK):
+            raise ConfigError(f"{flag} {path} is not writable")
+        return
     parent = target.parent if str(target.parent) else Path(".")
     if not parent.is_dir():
         raise ConfigError(f"{flag} {path}: directory {parent} does not exist")

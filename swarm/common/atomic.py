@@ -2,7 +2,9 @@
 
 Each write goes to a temporary file in the target's directory (same filesystem, so the rename is
 atomic), is flushed and fsynced, replaces the target with `os.replace`, and the directory is
-fsynced so the rename itself survives a crash.
+fsynced so the rename itself survives a crash. An existing target that is not a regular file
+(a device such as /dev/null, a FIFO, a socket, or /dev/stdout, an open descriptor's link) is
+written in place, as Unix tools do: there is no file to swap and nothing to keep whole.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -18,6 +21,10 @@ from typing import Any
 def write_bytes(path: str | Path, data: bytes) -> Path:
     """Atomically write `data` to `path` (parent directories are created); returns the path."""
     path = Path(path)
+    if in_place(path):  # appended to: `--json /dev/stdout > FILE` keeps what was printed before
+        with open(os.open(path, os.O_WRONLY | os.O_APPEND), "wb") as fh:
+            fh.write(data)
+        return path
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
@@ -35,6 +42,32 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
         raise
     _fsync_dir(path.parent)
     return path
+
+
+def in_place(path: str | Path) -> bool:
+    """Whether `path` is written in place rather than replaced: it exists and is not a regular
+    file or a directory, or it is reached through a process's descriptor links (/dev/stdout,
+    /dev/fd/N, /proc/self/fd/N: replacing the link would not reach the descriptor, and as root
+    it would swap /dev/stdout itself for a file)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:  # missing (or unreadable: the write says why)
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)) or _through_proc(Path(path))
+
+
+def _through_proc(path: Path) -> bool:
+    """Whether resolving `path`'s symbolic links passes through /proc."""
+    current = Path(os.path.abspath(path))
+    for _ in range(40):  # the kernel's own limit on links followed
+        parent = Path(os.path.realpath(current.parent))
+        if parent.parts[:2] == ("/", "proc"):
+            return True
+        current = parent / current.name
+        if not current.is_symlink():
+            return False
+        current = Path(os.path.normpath(parent / os.readlink(current)))
+    return False
 
 
 def remove_stale(directory: str | Path, names: tuple[str, ...]) -> None:
