@@ -491,3 +491,19 @@ def test_a_refused_certs_command_leaves_no_directory(tmp_path: Path) -> None:
     r = swarm("certs", "--out", str(out), "--robots", "2", "--host", "bad host!")
     assert r.returncode == 2 and "--host 'bad host!'" in r.stderr, r.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["", " "], ids=["empty", "blank"])
+@pytest.mark.parametrize("cmd", [
+    ["run", "--robots", "1", "--episodes", "1", "--horizon", "2", "--headless"],
+    ["world", "--robots", "1", "--episodes", "1", "--start-timeout", "5", "--listen", "{hub}"],
+    ["router", "--listen", "{hub}"],
+    ["rollout-worker", "--run-id", "x", "--connect", "{hub}"],
+], ids=lambda c: c[0])
+def test_an_empty_secure_dir_is_refused_not_read_as_no_tls(cmd: list[str], value: str) -> None:
+    """`--secure ''` ran without TLS (an empty name read as "not given"), `--secure ' '` was
+    refused: both are one line, exit 2, before anything starts."""
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    r = swarm(*(a.replace("{hub}", hub) for a in cmd), "--secure", value, timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "--secure: wants the certificate directory, got an empty name" in r.stderr, r.stderr

@@ -13,16 +13,23 @@ from world.config import ConfigError
 
 def add_secure_flag(p: argparse.ArgumentParser) -> None:
     """`--secure DIR` on a command that opens a session into a run."""
-    p.add_argument("--secure", metavar="DIR",
+    p.add_argument("--secure", metavar="DIR", type=_cert_dir,
                    help="TLS with mutual authentication and the run's access control, with the "
                         "certificates of DIR (made by `swarm certs`)")
+
+
+def _cert_dir(text: str) -> str:
+    """`--secure` value: an empty or blank name is refused, never read as "not given" (no TLS)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("wants the certificate directory, got an empty name")
+    return text
 
 
 def secure_options(args: argparse.Namespace, zopts: Any, identity: str, run_id: str,
                    robots: int | None = None) -> Any:
     """`zopts` made secure for `identity` when `--secure DIR` was given (else unchanged); every
     file it needs is checked here, before a session opens: one line, exit status 2."""
-    if not getattr(args, "secure", None):
+    if getattr(args, "secure", None) is None:
         return zopts
     from swarm.net.security.tls import Secure, apply
 
