@@ -550,6 +550,23 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
 
 
 @pytest.mark.procs
+@pytest.mark.parametrize("args", [
+    ["eval", "--robots", "2", "--episodes", "1", "--partition", ""],
+    ["eval", "--robots", "2", "--episodes", "1", "--config", "{tmp}/part.toml"],
+    ["run", "--robots", "1", "--episodes", "1", "--horizon", "5", "--static", "--partition",
+     " "],
+    ["world", "--robots", "1", "--episodes", "1", "--start-timeout", "5", "--spec", ""],
+], ids=lambda a: " ".join(a)[:40])
+def test_an_empty_value_is_refused_not_read_as_not_given(tmp_path: Path, args: list[str]) -> None:
+    """An empty partition ran with none (`0-1/`, an empty group, was refused); an empty --spec
+    started a world by hand: one line, exit 2, before anything starts."""
+    (tmp_path / "part.toml").write_text('[faults]\npartition = ""\n')
+    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "is empty" in r.stderr or "got an empty one" in r.stderr, r.stderr
+
+
+@pytest.mark.procs
 def test_the_checked_flags_still_take_their_other_values() -> None:
     """`--attention off` (no robot id to check against the team) runs: the team-size check of
     `--attention` once compared None with an int."""

@@ -351,6 +351,12 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
     from swarm.net.faults import plan_from_table
 
     table = dict(tables.get("faults", {}))
+    if whole:  # (a live change's empty partition lifts the one in force)
+        for where, value in (("[faults] partition", table.get("partition")),
+                             ("--partition", getattr(args, "partition", None))):
+            if value is not None and not str(value).strip():
+                raise ConfigError(f"{where} is empty: give the groups (e.g. 0-4/5-9), or leave "
+                                  "it out for no partition")
     for key in ("latency", "jitter", "loss", "bandwidth", "overflow", "partition"):
         value = getattr(args, key, None)
         if value is not None:

@@ -226,6 +226,8 @@ def cmd_world(args: argparse.Namespace) -> int:
     from swarm.procs.world import main as world_main
 
     _logging(args.verbose)
+    if args.spec is not None and not args.spec.strip():
+        raise ConfigError("--spec wants a file name, got an empty one")
     if args.spec:
         rec = RunRecord.read(args.spec)
         world, run, faults = rec.world, rec.run, rec.faults
