@@ -566,6 +566,30 @@ def test_an_empty_value_is_refused_not_read_as_not_given(tmp_path: Path, args: l
     assert "is empty" in r.stderr or "got an empty one" in r.stderr, r.stderr
 
 
+LONG = "x" * 300  # one name over the file system's 255 bytes
+
+
+@pytest.mark.procs
+@pytest.mark.parametrize("args", [
+    ["eval", "--robots", "2", "--episodes", "1", "--json", "{tmp}/" + LONG],
+    ["eval", "--robots", "2", "--episodes", "1", "--episodes-csv", "{tmp}/" + LONG],
+    ["run", "--json", LONG], ["run", "--record", LONG], ["run", "--secure", LONG],
+    ["run", "--log-dir", "{tmp}/a/b/" + LONG], ["certs", "--out", LONG, "--robots", "1"],
+    ["certs", "--out", "{tmp}/c", "--robots", "1", "--json", LONG],
+    ["robot", "--id", "0", "--run-id", "x", "--secure", LONG],
+    ["record", "--run-id", "x", "--out", LONG], ["experiment", LONG],
+    ["experiment", "deploy/experiments/latency.toml", "--out", "{tmp}/a/" + LONG],
+    ["train", "--policy", "commattn", "--out", LONG],  # (a traceback: it raised while parsing)
+], ids=lambda a: " ".join(a)[:30])
+def test_a_name_too_long_is_one_line_and_nothing_is_made(tmp_path: Path, args: list[str]) -> None:
+    """A path with a name over 255 bytes was the OS's "File name too long" with exit 1 (or a
+    traceback, or after `--log-dir a/b/LONG` had made a/b): one line, exit 2, nothing made."""
+    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "255 bytes" in r.stderr or "File name too long" in r.stderr, r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.procs
 def test_the_checked_flags_still_take_their_other_values() -> None:
     """`--attention off` (no robot id to check against the team) runs: the team-size check of

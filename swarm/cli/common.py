@@ -252,26 +252,49 @@ def _checkpoint_pairs(pairs: list[str] | None, flag: str = "--checkpoint") -> di
 
 
 
+NAME_MAX = 255  # bytes in one file name (Linux and macOS file systems)
+PATH_MAX = 4096  # bytes in a whole path (Linux)
+
+
+def path_name(path: str | Path, flag: str) -> None:
+    """A path the file system can name: one over NAME_MAX bytes in a part or PATH_MAX in all is
+    refused in one line, before anything is made (the OS's "File name too long" came mid-run,
+    as a traceback during parsing, or once `mkdir -p` had made the parents)."""
+    for part in Path(path).parts:
+        if len(os.fsencode(part)) > NAME_MAX:
+            raise ConfigError(f"{flag} {_short(path)}: the name {_short(part)} is longer than "
+                              f"{NAME_MAX} bytes")
+    if len(os.fsencode(os.path.abspath(path))) >= PATH_MAX:
+        raise ConfigError(f"{flag} {_short(path)}: the path is longer than {PATH_MAX} bytes")
+
+
+def _short(text: str | Path) -> str:
+    """`text` cut to fit an error line."""
+    text = str(text)
+    return text if len(text) <= 40 else f"{text[:37]}..."
+
+
 def output_file(path: str | None, flag: str = "--json") -> None:
     """A result file must be writable before the work that produces it starts."""
     if path is None:
         return
     if not str(path).strip():  # (a Path too: `swarm train --out` is one)
         raise ConfigError(f"{flag} wants a file name, got an empty one")
+    path_name(path, flag)
     target = Path(path)
-    if target.is_dir():
-        raise ConfigError(f"{flag} {path} is a directory, not a file")
-    if in_place(target):  # a device, FIFO or /dev/stdout: opened and written, never replaced
-        if not os.access(target, os.W_OK):
+    try:
+        if target.is_dir():
+            raise ConfigError(f"{flag} {path} is a directory, not a file")
+        if in_place(target):  # a device, FIFO or /dev/stdout: opened and written, never replaced
+            if not os.access(target, os.W_OK):
+                raise ConfigError(f"{flag} {path} is not writable")
+            return
+        parent = target.parent if str(target.parent) else Path(".")
+        if not parent.is_dir():
+            raise ConfigError(f"{flag} {path}: directory {parent} does not exist")
+        if target.exists() and not os.access(target, os.W_OK):
             raise ConfigError(f"{flag} {path} is not writable")
-        return
-    parent = target.parent if str(target.parent) else Path(".")
-    if not parent.is_dir():
-        raise ConfigError(f"{flag} {path}: directory {parent} does not exist")
-    if target.exists() and not os.access(target, os.W_OK):
-        raise ConfigError(f"{flag} {path} is not writable")
-    try:  # it is written as a temporary file beside it, then renamed (swarm.common.atomic)
-        with tempfile.TemporaryFile(dir=parent):
+        with tempfile.TemporaryFile(dir=parent):  # written beside it, then renamed (atomic.py)
             pass
     except OSError as exc:
         raise ConfigError(f"{flag} {path} is not writable ({exc.strerror or exc})") from None
@@ -292,16 +315,17 @@ def output_dir(path: str | None, flag: str, make: bool = True) -> None:
     if path is None:
         return
     named_dir(path, flag)
+    path_name(path, flag)
     target = Path(path)
-    if target.exists() and not target.is_dir():
-        raise ConfigError(f"{flag} {path} exists and is not a directory")
-    probe = target
-    if not make:
-        while not probe.exists() and probe != probe.parent:
-            probe = probe.parent
-        if not probe.is_dir():
-            raise ConfigError(f"{flag} {path} is under {probe}, which is not a directory")
     try:
+        if target.exists() and not target.is_dir():
+            raise ConfigError(f"{flag} {path} exists and is not a directory")
+        probe = target
+        if not make:
+            while not probe.exists() and probe != probe.parent:
+                probe = probe.parent
+            if not probe.is_dir():
+                raise ConfigError(f"{flag} {path} is under {probe}, which is not a directory")
         probe.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=probe):
             pass

@@ -32,6 +32,7 @@ from swarm.cli.common import (
     named_dir,
     output_dir,
     output_file,
+    path_name,
     world_config,
 )
 from swarm.cli.hosts import add_hosts_flag, add_netns_flags, hosts_option, netns_faults
@@ -150,6 +151,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         run = dataclasses.replace(run, start_timeout=min(3600.0, max(
             run.start_timeout, START_S_PER_ROBOT * world.n_robots)))
     output_file(args.json)
+    if args.secure is not None:
+        path_name(args.secure, "--secure")
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")
     if args.record is not None:  # the file and the package, before any spawn
@@ -372,6 +375,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     from swarm.studies.experiment_plan import parse_seeds, plan
 
     named_dir(args.out, "--out")  # (`--out ''` fell back to the file's out: results/)
+    path_name(args.file, "swarm experiment")
     seeds = None if args.seeds is None else parse_seeds(args.seeds)
     if (args.episodes is not None or seeds is not None) and not args.out:
         raise ConfigError("--episodes/--seeds need --out DIR: a shrunk sweep would overwrite "

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from swarm.cli.common import output_file
+from swarm.cli.common import output_file, path_name
 from world.config import ConfigError
 
 
@@ -31,6 +31,7 @@ def secure_options(args: argparse.Namespace, zopts: Any, identity: str, run_id: 
     file it needs is checked here, before a session opens: one line, exit status 2."""
     if getattr(args, "secure", None) is None:
         return zopts
+    path_name(args.secure, "--secure")
     from swarm.net.security.tls import Secure, apply
 
     return apply(zopts, Secure.load(args.secure, identity, run_id, robots))
@@ -42,6 +43,7 @@ def cmd_certs(args: argparse.Namespace) -> int:
     from swarm.cli.common import _consoles
     from swarm.net.security.certs import make_certs
 
+    path_name(args.out, "--out")
     output_file(args.json)
     rep = make_certs(args.out, args.robots, args.workers, args.host, args.days, args.routers)
     out, _ = _consoles()

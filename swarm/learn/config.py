@@ -380,8 +380,12 @@ def _run_dir(text: str) -> Path:
     """`--out`: a directory; an empty string (Path("") is ".") or an existing file is refused."""
     if not text.strip():
         raise argparse.ArgumentTypeError("must name a directory, not an empty string")
-    if Path(text).exists() and not Path(text).is_dir():
-        raise argparse.ArgumentTypeError(f"{text} exists and is not a directory")
+    try:  # (a name the file system cannot hold: ENAMETOOLONG, raised while the flags parse)
+        if Path(text).exists() and not Path(text).is_dir():
+            raise argparse.ArgumentTypeError(f"{text} exists and is not a directory")
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"{text[:40]}{'...' * (len(text) > 40)}: "
+                                         f"{exc.strerror}") from None
     return Path(text)
 
 
