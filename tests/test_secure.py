@@ -507,3 +507,17 @@ def test_an_empty_secure_dir_is_refused_not_read_as_no_tls(cmd: list[str], value
     r = swarm(*(a.replace("{hub}", hub) for a in cmd), "--secure", value, timeout=60)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "--secure: wants the certificate directory, got an empty name" in r.stderr, r.stderr
+
+
+def test_a_refused_secure_run_leaves_no_run_folder(tmp_path: Path) -> None:
+    """`swarm run --secure` of a missing directory, or of one without the CA, was refused after
+    the supervisor had made its temp folder (/tmp/swarm-RUN-*), left empty behind."""
+    import tempfile
+
+    (tmp_path / "empty").mkdir()
+    for i, d in enumerate((tmp_path / "missing", tmp_path / "empty")):
+        run_id = f"secrefused{os.getpid()}x{i}"
+        r = swarm("run", "--robots", "2", "--episodes", "1", "--headless", "--run-id", run_id,
+                  "--secure", str(d), timeout=60)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert list(Path(tempfile.gettempdir()).glob(f"swarm-{run_id}-*")) == []

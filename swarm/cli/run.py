@@ -151,8 +151,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         run = dataclasses.replace(run, start_timeout=min(3600.0, max(
             run.start_timeout, START_S_PER_ROBOT * world.n_robots)))
     output_file(args.json)
-    if args.secure is not None:
+    if args.secure is not None:  # the directory and its CA now: the supervisor makes the run's
+        from swarm.net.security.tls import Secure  # folder before it reads the rest
+
         path_name(args.secure, "--secure")
+        Secure.load(args.secure, "supervisor", run.run_id, world.n_robots)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")
     if args.record is not None:  # the file and the package, before any spawn
