@@ -591,6 +591,21 @@ def test_a_name_too_long_is_one_line_and_nothing_is_made(tmp_path: Path, args: l
 
 
 @pytest.mark.procs
+@pytest.mark.parametrize("policy, says", [
+    (["--policy", "abc"], "unknown policy 'abc'"),
+    (["--policy", "commattn", "--checkpoint", "checkpoints/vain.pt"], "holds policy 'vain'"),
+], ids=["policy", "checkpoint"])
+def test_a_hand_world_checks_its_policy_before_it_starts(policy: list[str], says: str) -> None:
+    """`swarm world` started and waited for robots with a policy `swarm run` refuses: it now
+    refuses it in the same line (swarm.cli.run.check_policy), exit 2, before listening."""
+    from swarm.net.zconfig import free_port
+
+    r = swarm("world", "--robots", "1", "--episodes", "1", "--start-timeout", "10", "--run-id",
+              "w1", *policy, "--listen", f"tcp/127.0.0.1:{free_port()}", timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and says in r.stderr, r.stderr
+
+
+@pytest.mark.procs
 def test_the_checked_flags_still_take_their_other_values() -> None:
     """`--attention off` (no robot id to check against the team) runs: the team-size check of
     `--attention` once compared None with an int."""

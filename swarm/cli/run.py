@@ -37,7 +37,7 @@ from swarm.cli.common import (
 )
 from swarm.cli.hosts import add_hosts_flag, add_netns_flags, hosts_option, netns_faults
 from swarm.cli.record import add_attention_flag
-from swarm.cli.secure import add_secure_flag, secure_options
+from swarm.cli.secure import add_secure_flag, check_run_secure, secure_options
 from swarm.common.flags import check_wait, robot_id
 from swarm.common.policy_spec import build_inference
 from swarm.common.report import json_line, provenance
@@ -46,7 +46,7 @@ from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
-from world.config import ConfigError, from_dict
+from world.config import ConfigError, WorldConfig, from_dict
 
 
 def _add_run_flags(p: argparse.ArgumentParser) -> None:
@@ -151,11 +151,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         run = dataclasses.replace(run, start_timeout=min(3600.0, max(
             run.start_timeout, START_S_PER_ROBOT * world.n_robots)))
     output_file(args.json)
-    if args.secure is not None:  # the directory and its CA now: the supervisor makes the run's
-        from swarm.net.security.tls import Secure  # folder before it reads the rest
-
-        path_name(args.secure, "--secure")
-        Secure.load(args.secure, "supervisor", run.run_id, world.n_robots)
+    check_run_secure(args, run.run_id, world.n_robots)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")
     if args.record is not None:  # the file and the package, before any spawn
@@ -163,8 +159,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         need_mcap()
         output_file(args.record, "--record")
-    if not (run.train and run.checkpoint is None):  # --train alone starts from fresh weights
-        build_inference(run.policy, world, run.checkpoint)  # readable, right policy and shapes
+    check_policy(run, world)
     if args.attention is not None and args.attention >= world.n_robots:  # (None: off)
         raise ConfigError(f"--attention {args.attention}: the team has robots "
                           f"0..{world.n_robots - 1}")
@@ -227,6 +222,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     return EXIT_INCOMPLETE if res.get("completed", 0) < run.episodes else 0
 
 
+def check_policy(run: RunConfig, world: WorldConfig) -> None:
+    """The run's policy and its checkpoint (readable, the right policy and shapes), before
+    anything starts; `--train` alone starts from fresh weights."""
+    if not (run.train and run.checkpoint is None):
+        build_inference(run.policy, world, run.checkpoint)
+
+
 def cmd_world(args: argparse.Namespace) -> int:
     from swarm.common.atomic import write_json
     from swarm.procs.world import main as world_main
@@ -243,6 +245,7 @@ def cmd_world(args: argparse.Namespace) -> int:
         faults = fault_table(args, tables, world.n_robots)
         check_clock(args, tables, run, faults)
         check_by_hand(faults)
+        check_policy(run, world)  # (a spec's: `swarm run` checked it)
     zopts = secure_options(args, zconfig.from_args(args), "world", run.run_id, world.n_robots)
     output_file(args.json)
     if not args.spec:

@@ -37,6 +37,17 @@ def secure_options(args: argparse.Namespace, zopts: Any, identity: str, run_id: 
     return apply(zopts, Secure.load(args.secure, identity, run_id, robots))
 
 
+def check_run_secure(args: argparse.Namespace, run_id: str, robots: int) -> None:
+    """`swarm run --secure DIR`: the directory, its CA and the supervisor's credentials, checked
+    before the supervisor makes the run's temp folder (where it checks and writes the rest)."""
+    if args.secure is None:
+        return
+    from swarm.net.security.tls import Secure
+
+    path_name(args.secure, "--secure")
+    Secure.load(args.secure, "supervisor", run_id, robots)
+
+
 def cmd_certs(args: argparse.Namespace) -> int:
     from rich.table import Table
 
