@@ -556,10 +556,12 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
     ["run", "--robots", "1", "--episodes", "1", "--horizon", "5", "--static", "--partition",
      " "],
     ["world", "--robots", "1", "--episodes", "1", "--start-timeout", "5", "--spec", ""],
+    ["world", "--robots", "1", "--episodes", "1", "--start-timeout", "5", "--zenoh-config", ""],
+    ["router", "--listen", "tcp/127.0.0.1:0", "--zenoh-config", " "],
 ], ids=lambda a: " ".join(a)[:40])
 def test_an_empty_value_is_refused_not_read_as_not_given(tmp_path: Path, args: list[str]) -> None:
     """An empty partition ran with none (`0-1/`, an empty group, was refused); an empty --spec
-    started a world by hand: one line, exit 2, before anything starts."""
+    or --zenoh-config started a world by hand: one line, exit 2, before anything starts."""
     (tmp_path / "part.toml").write_text('[faults]\npartition = ""\n')
     r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=60)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr

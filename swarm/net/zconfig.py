@@ -133,6 +133,8 @@ def from_args(args: argparse.Namespace) -> ZenohOptions:
     for flag, endpoints in (("--connect", args.connect), ("--listen", args.listen)):
         for e in endpoints:
             check_endpoint(e, flag)
+    if args.zenoh_config is not None and not args.zenoh_config.strip():  # (not "not given")
+        raise ConfigError("--zenoh-config wants a file name, got an empty one")
     opts = ZenohOptions(mode=args.zenoh_mode, connect=list(args.connect),
                         listen=list(args.listen), config_file=args.zenoh_config,
                         cfg=list(args.cfg))
