@@ -110,6 +110,7 @@ def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) 
     ["eval", "--policy", "no-such-policy"],
     ["eval", "--episodes", "many"],
     ["eval", "--comm-range", "-1"],
+    ["eval", "--policy", "random", "--comm-range", "1e300"],  # (overflowed in the radio)
     ["eval", "--policy", "random", "--vision", "4"],
     ["eval", "--policy", "random", "--checkpoint", "x.pt"],
     ["eval", "--policy", "random", "--config", "{tmp}/missing.toml"],

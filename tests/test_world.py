@@ -794,12 +794,22 @@ def test_a_world_config_out_of_range_is_one_line(bad: dict[str, float]) -> None:
     {"dynamic": "false"}, {"height": 20.5}, {"n_robots": 2.5}, {"height": "20"},
     {"comm_range": None}, {"r_back": "x"}, {"n_robots": True}, {"success_max_block_collisions": -1},
     {"recent_len": 10**9}, {"height": 10**5, "width": 10**5}, {"horizon": 10**12},
-    {"vision": 2003}, {"height": np.float64(20.5)}])
+    {"vision": 2003}, {"height": np.float64(20.5)}, {"comm_range": 1e300},
+    {"comm_range": 1e6 + 1}, {"comm_range": -np.inf}])
 def test_a_world_config_built_in_code_checks_its_types_and_ranges(changes: dict) -> None:
     """UA pass: only from_dict checked types, so WorldConfig(dynamic="false") ran every dynamic
     block and WorldConfig(height=20.5) failed deep in numpy."""
     with pytest.raises(ConfigError, match="^world config: "):
         WorldConfig(**changes)
+
+
+def test_comm_range_is_a_bounded_number_or_unlimited() -> None:
+    """UA pass: a finite comm range over ~1.3e154 squared to inf and crashed the radio with an
+    OverflowError; finite ranges stop at 1e6 (far past any map's diagonal), inf stays allowed."""
+    assert WorldConfig(comm_range=1e6).comm_range == 1e6
+    assert WorldConfig(comm_range=np.inf).comm_range == np.inf
+    with pytest.raises(ConfigError, match=r"comm_range must lie in \[0, 1000000\] or be inf"):
+        WorldConfig(comm_range=1e300)
 
 
 def test_reset_and_step_refuse_what_is_no_seed_episode_or_move() -> None:

@@ -20,6 +20,7 @@ class ConfigError(ValueError):
 MAX_SIDE = 1000  # the largest grid side (`--size` and every config)
 MAX_HORIZON = 100_000  # the longest mission (the paper's: 30 steps)
 SEED_MAX = 2**31 - 1  # every seed keys numpy's SeedSequence and the msgpack int32 fields
+MAX_COMM_RANGE = 10**6  # the largest finite comm range (squared, floored to an int in the radio)
 
 
 def check_seed(seed: Any, name: str = "seed") -> None:
@@ -109,8 +110,9 @@ class WorldConfig:
             bad(f"horizon must lie in [1, {MAX_HORIZON}], got {self.horizon}")
         if self.add_every < 1:
             bad(f"add_every must be >= 1, got {self.add_every}")
-        if not (self.comm_range >= 0):
-            bad(f"comm_range must be >= 0 (inf allowed), got {self.comm_range}")
+        if not (0 <= self.comm_range <= MAX_COMM_RANGE or self.comm_range == math.inf):
+            bad(f"comm_range must lie in [0, {MAX_COMM_RANGE}] or be inf (unlimited), got "
+                f"{self.comm_range}")  # (1e300 squared overflowed to inf deep in the radio)
         if self.spawn not in ("random", "corner"):
             bad(f"spawn must be 'random' or 'corner', got {self.spawn!r}")
         if self.explore_mode not in ("visit", "sense"):
