@@ -111,6 +111,10 @@ def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) 
     ["eval", "--episodes", "many"],
     ["eval", "--comm-range", "-1"],
     ["eval", "--policy", "random", "--comm-range", "1e300"],  # (overflowed in the radio)
+    ["eval", "--policy", "random", "--add-every", "9" * 400],  # (overflowed a float)
+    ["eval", "--policy", "random", "--episodes", "9" * 400],  # (broke the progress bar)
+    ["eval", "--policy", "random", "--episodes", "9223372036854775808"],  # (ran until killed)
+    ["eval", "--policy", "random", "--config", "{tmp}/float_episodes.toml"],  # (1e300 too)
     ["eval", "--policy", "random", "--vision", "4"],
     ["eval", "--policy", "random", "--checkpoint", "x.pt"],
     ["eval", "--policy", "random", "--config", "{tmp}/missing.toml"],
@@ -136,6 +140,7 @@ def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) 
 @pytest.mark.procs
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str]) -> None:
     (tmp_path / "malformed.toml").write_text("[world\nn_robots = = 3\n")
+    (tmp_path / "float_episodes.toml").write_text("[eval]\nepisodes = 1e300\n")
     r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args))
     assert r.returncode == 2, (r.stdout, r.stderr)
     lines = r.stderr.rstrip("\n").splitlines()  # (a progress display closed by the error

@@ -795,7 +795,8 @@ def test_a_world_config_out_of_range_is_one_line(bad: dict[str, float]) -> None:
     {"comm_range": None}, {"r_back": "x"}, {"n_robots": True}, {"success_max_block_collisions": -1},
     {"recent_len": 10**9}, {"height": 10**5, "width": 10**5}, {"horizon": 10**12},
     {"vision": 2003}, {"height": np.float64(20.5)}, {"comm_range": 1e300},
-    {"comm_range": 1e6 + 1}, {"comm_range": -np.inf}])
+    {"comm_range": 1e6 + 1}, {"comm_range": -np.inf}, {"add_every": 10**400},
+    {"success_max_block_collisions": 10**10}])
 def test_a_world_config_built_in_code_checks_its_types_and_ranges(changes: dict) -> None:
     """UA pass: only from_dict checked types, so WorldConfig(dynamic="false") ran every dynamic
     block and WorldConfig(height=20.5) failed deep in numpy."""
@@ -843,6 +844,27 @@ def test_a_config_file_bool_is_no_number() -> None:
         with pytest.raises(ConfigError, match=f"{key} must be float, got (True|False)"):
             from_dict(cls, table, "[x]")
     assert from_dict(WorldConfig, {"comm_range": 3}).comm_range == 3.0  # (an int is a number)
+
+
+def test_a_config_file_integer_is_no_float_and_every_count_has_a_bound() -> None:
+    """UA pass: `[eval] episodes = 1e300` was taken as a whole number (and ran until killed)
+    while `--episodes 1e30` was an invalid int; a 400-digit `--add-every` overflowed a float
+    and a 400-digit `--episodes` broke the progress bar. Int fields refuse floats as the flags
+    do, and every count names its upper bound."""
+    from swarm.cli.batch import EvalConfig
+    from swarm.studies.repro import ReproConfig
+    from world.config import from_dict
+
+    for cls, table in ((EvalConfig, {"episodes": 1e300}), (WorldConfig, {"horizon": 30.0}),
+                       (WorldConfig, {"add_every": np.float32(3)})):
+        with pytest.raises(ConfigError, match=f"{next(iter(table))} must be int, got"):
+            from_dict(cls, table, "[x]")
+    assert from_dict(WorldConfig, {"horizon": np.int64(12)}).horizon == 12
+    for cls, key in ((EvalConfig, "episodes"), (EvalConfig, "batch"),
+                     (ReproConfig, "table2_episodes")):
+        with pytest.raises(ConfigError, match=rf"{key} must be an integer in \[1, 1000000000\]"):
+            cls(**{key: 10**9 + 1})
+    assert EvalConfig(episodes=10**9).episodes == 10**9
 
 
 def test_a_config_file_with_a_byte_order_mark_reads(tmp_path) -> None:

@@ -20,6 +20,7 @@ class ConfigError(ValueError):
 MAX_SIDE = 1000  # the largest grid side (`--size` and every config)
 MAX_HORIZON = 100_000  # the longest mission (the paper's: 30 steps)
 SEED_MAX = 2**31 - 1  # every seed keys numpy's SeedSequence and the msgpack int32 fields
+MAX_COUNT = 10**9  # the largest count a config takes (episodes, collisions): bounded, not 10^400
 MAX_COMM_RANGE = 10**6  # the largest finite comm range (squared, floored to an int in the radio)
 
 
@@ -32,6 +33,13 @@ def check_seed(seed: Any, name: str = "seed") -> None:
         raise ConfigError(f"{name} must be an integer in [0, {SEED_MAX}], got {seed!r}")
     if not 0 <= seed <= SEED_MAX:
         raise ConfigError(f"{name} must lie in [0, {SEED_MAX}], got {seed!r}")
+
+
+def check_count(value: Any, name: str, hi: int = MAX_COUNT, lo: int = 1) -> None:
+    """A count (episodes, a batch) is an int in [lo, hi]; anything else, 10^400 or 2.5 or
+    True, is a one-line ConfigError that names the bound, caught before anything runs."""
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ConfigError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -108,8 +116,8 @@ class WorldConfig:
             bad(f"n_robots must be >= 1, got {self.n_robots}")
         if not 1 <= self.horizon <= MAX_HORIZON:  # (10^12 tried to allocate 7 TiB)
             bad(f"horizon must lie in [1, {MAX_HORIZON}], got {self.horizon}")
-        if self.add_every < 1:
-            bad(f"add_every must be >= 1, got {self.add_every}")
+        if not 1 <= self.add_every <= MAX_HORIZON:  # (a 400-digit one overflowed a float)
+            bad(f"add_every must lie in [1, {MAX_HORIZON}], got {self.add_every}")
         if not (0 <= self.comm_range <= MAX_COMM_RANGE or self.comm_range == math.inf):
             bad(f"comm_range must lie in [0, {MAX_COMM_RANGE}] or be inf (unlimited), got "
                 f"{self.comm_range}")  # (1e300 squared overflowed to inf deep in the radio)
@@ -128,8 +136,8 @@ class WorldConfig:
             bad(f"add_every={self.add_every} leaves no batch before 90% of horizon={self.horizon}")
         if not 1 <= self.recent_len <= 1000:
             bad(f"recent_len must lie in [1, 1000], got {self.recent_len}")
-        if self.success_max_block_collisions < 0:
-            bad(f"success_max_block_collisions must be >= 0, got "
+        if not 0 <= self.success_max_block_collisions <= MAX_COUNT:
+            bad(f"success_max_block_collisions must lie in [0, {MAX_COUNT}], got "
                 f"{self.success_max_block_collisions}")
 
     @property
@@ -203,8 +211,9 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
         ftype = known[key].type
         ftype = ftype if isinstance(ftype, str) else getattr(ftype, "__name__", str(ftype))
         try:
-            if ftype == "int":
-                if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+            if ftype == "int":  # (a float, even 3.0 or 1e300, is refused as the flags refuse it)
+                if isinstance(value, (bool, float)) or \
+                        getattr(getattr(value, "dtype", None), "kind", "") == "f":
                     raise ValueError
                 kwargs[key] = int(value)
             elif ftype == "float":  # (true is no number: float(True) would be 1.0)

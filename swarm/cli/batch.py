@@ -36,7 +36,7 @@ from swarm.cli.common import (
 from swarm.common import atomic
 from swarm.common.flags import add_flags, given
 from swarm.common.report import csv_text, paired, provenance
-from world.config import ConfigError, WorldConfig, check_seed, from_dict, to_dict
+from world.config import ConfigError, WorldConfig, check_count, check_seed, from_dict, to_dict
 
 
 @dataclass(frozen=True)
@@ -72,10 +72,8 @@ class EvalConfig:
         if self.checkpoint is not None and self.checkpoints:
             raise ConfigError("give --checkpoint FILE (one policy) or --checkpoint NAME=FILE, "
                               "not both")
-        if self.episodes < 1:
-            raise ConfigError(f"episodes must be >= 1, got {self.episodes}")
-        if self.batch < 1:
-            raise ConfigError(f"batch must be >= 1, got {self.batch}")
+        check_count(self.episodes, "episodes")  # (10^400 ran on, its progress bar broke)
+        check_count(self.batch, "batch")  # (evaluate steps min(batch, episodes) at once)
         if not 1e-3 <= self.tick_timeout <= 3600:  # also NaN
             raise ConfigError(f"tick_timeout must lie in [0.001, 3600], got {self.tick_timeout}")
 

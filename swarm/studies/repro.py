@@ -31,7 +31,7 @@ from swarm.common.report import header, md_table, paired, paired_cell, provenanc
 from swarm.learn.curves import moving_mean, read_curve
 from swarm.learn.evaluate import evaluate
 from swarm.studies.comm import POLICIES as COMM_POLICIES
-from world.config import ConfigError, WorldConfig, check_seed, replace, to_dict
+from world.config import ConfigError, WorldConfig, check_count, check_seed, replace, to_dict
 
 ITEMS = ("table1", "table2", "fig4", "fig5", "fig8", "fig9", "fig10", "fig11", "comm")
 ANALYSES = ("fig10", "fig11", "comm")  # CommAttn's communication (swarm.studies.commviz, comm)
@@ -117,8 +117,7 @@ class ReproConfig:
         for key in ("episodes", "decisions", "batch", "table2_episodes", "smooth",
                     "fig9_episodes", "fig10_episodes", "fig11_episodes", "oracle_episodes",
                     "comm_episodes"):
-            if getattr(self, key) < 1:
-                raise ConfigError(f"{key} must be >= 1, got {getattr(self, key)}")
+            check_count(getattr(self, key), key)
         if not isinstance(self.checkpoints, dict) or not all(
                 isinstance(k, str) and isinstance(v, str) for k, v in self.checkpoints.items()):
             raise ConfigError("checkpoints must map policy names to file names")
