@@ -486,10 +486,14 @@ def test_flags_that_do_nothing_or_do_not_parse_are_refused(tmp_path: Path) -> No
         assert r.returncode == 2 and why in r.stderr, (e, r.stderr)
 
 
-def test_a_refused_certs_command_leaves_no_directory(tmp_path: Path) -> None:
+@pytest.mark.parametrize("host", ["bad host!", "ü日本"])
+def test_a_refused_certs_command_leaves_no_directory(tmp_path: Path, host: str) -> None:
+    """UA pass: a non-ASCII name passed the check, x509 refused it with a traceback after
+    ca.key, ca.pem and world.key were written."""
     out = tmp_path / "c5"
-    r = swarm("certs", "--out", str(out), "--robots", "2", "--host", "bad host!")
-    assert r.returncode == 2 and "--host 'bad host!'" in r.stderr, r.stderr
+    r = swarm("certs", "--out", str(out), "--robots", "2", "--host", host)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert f"--host {host!r} is neither an IP address nor a DNS name" in r.stderr, r.stderr
     assert not out.exists()
 
 
@@ -521,3 +525,22 @@ def test_a_refused_secure_run_leaves_no_run_folder(tmp_path: Path) -> None:
                   "--secure", str(d), timeout=60)
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert list(Path(tempfile.gettempdir()).glob(f"swarm-{run_id}-*")) == []
+
+
+def test_certs_failing_while_writing_leave_no_half_made_directory(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A failure after the first key is written (a full disk) takes away the directories this
+    call made; a directory that was there keeps what it held."""
+    from swarm.net.security import certs as certs_mod
+
+    def full(*_: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(certs_mod._Issuer, "identity", full)
+    with pytest.raises(OSError, match="No space"):
+        make_certs(tmp_path / "new" / "certs", robots=2)
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "old").mkdir()
+    with pytest.raises(OSError, match="No space"):
+        make_certs(tmp_path / "old", robots=2)
+    assert (tmp_path / "old").is_dir()

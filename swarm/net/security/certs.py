@@ -20,6 +20,7 @@ import datetime as dt
 import ipaddress
 import json
 import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -84,7 +85,9 @@ def _sans(hosts: list[str]) -> list[str]:
 
 
 def check_hosts(hosts: list[str]) -> list[str]:
-    """Host names or IP addresses for the subjectAltName; a bad one is a ConfigError."""
+    """Host names or IP addresses for the subjectAltName; a bad one is a ConfigError. A name is
+    ASCII letters, digits and hyphens (an internationalized one goes in as its xn-- A-label:
+    'ü日本' passed isalnum and made x509 raise after the CA was written)."""
     for h in hosts:
         try:
             ipaddress.ip_address(h)
@@ -93,7 +96,8 @@ def check_hosts(hosts: list[str]) -> list[str]:
             pass
         labels = h.rstrip(".").split(".")
         if not h or len(h) > 253 or not all(
-                lab and len(lab) <= 63 and lab.replace("-", "").isalnum() and lab[0] != "-"
+                lab and len(lab) <= 63 and lab.isascii() and lab.replace("-", "").isalnum()
+                and lab[0] != "-"
                 for lab in labels):
             raise ConfigError(f"--host {h!r} is neither an IP address nor a DNS name")
     return list(hosts)
@@ -281,7 +285,19 @@ def make_certs(out: str | Path, robots: int, workers: int = 0, hosts: list[str] 
     crypto()  # command leaves no directory behind
     old = read_roster(out) if out.is_dir() else {}
     hosts = check_hosts(list(dict.fromkeys([*old.get("hosts", []), *(hosts or [])])))
+    made_dirs = [p for p in (out, *out.parents) if not p.exists()]
     out.mkdir(parents=True, exist_ok=True, mode=0o700)
+    try:
+        return _fill(out, robots, workers, routers, hosts, days, old)
+    except BaseException:  # (disk full, ^C): a directory this call made is not left half-made
+        if made_dirs:
+            shutil.rmtree(made_dirs[-1], ignore_errors=True)
+        raise
+
+
+def _fill(out: Path, robots: int, workers: int, routers: int, hosts: list[str], days: int,
+          old: dict[str, Any]) -> CertsReport:
+    """`make_certs`'s writing part, into the existing directory `out` (`old`: its roster)."""
     os.chmod(out, 0o700)
     robots = max(robots, int(old.get("robots", 0)))
     workers = max(workers, int(old.get("workers", 0)))
