@@ -54,6 +54,7 @@ BAD = [  # (argv, what the one line must say); {tmp}/o must not exist afterwards
     (["rollout-worker", "--run-id", "x", "--wait", "-1"], "--wait"),
     (["rollout-worker", "--run-id", "x", "--max-batches", "-1"], "--max-batches"),
     (["rollout-worker", "--run-id", "x", "--batch", "100000"], "--batch"),
+    (["rollout-worker", "--run-id", "", "--wait", "0.5"], "bad run id ''"),  # (no banner)
     (["bench", "rollout", "--policy", "nearest-frontier", "--workers", "1"],
      "needs a learned policy"),
 ]

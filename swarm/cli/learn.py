@@ -31,6 +31,7 @@ from swarm.learn.config import (
     learner_resume_point,
 )
 from swarm.net import zconfig
+from swarm.net.keys import check_run_id
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError
 
@@ -87,11 +88,11 @@ def cmd_learner(args: argparse.Namespace) -> int:
 def cmd_rollout_worker(args: argparse.Namespace) -> int:
     _logging(args.verbose)
     check_worker(args.worker_id, args.batch, args.threads, args.max_batches, args.wait)
+    check_run_id(args.run_id)  # every flag before the banner and torch ('' took 2.3 s to refuse)
+    zopts = secure_options(args, zconfig.from_args(args), f"worker-{args.worker_id}", args.run_id)
     from swarm.procs.learning.rollout_worker import main as worker_main  # (torch: after the checks)
 
     try:
-        zopts = secure_options(args, zconfig.from_args(args), f"worker-{args.worker_id}",
-                               args.run_id)
         print(f"swarm rollout-worker: worker {args.worker_id} of run {args.run_id}: batches "
               "of episodes for its learner (Ctrl-C stops it)", file=sys.stderr, flush=True)
         res = worker_main(args.run_id, zopts, args.worker_id, args.batch, args.threads,
