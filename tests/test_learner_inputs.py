@@ -55,6 +55,7 @@ BAD = [  # (argv, what the one line must say); {tmp}/o must not exist afterwards
     (["rollout-worker", "--run-id", "x", "--max-batches", "-1"], "--max-batches"),
     (["rollout-worker", "--run-id", "x", "--batch", "100000"], "--batch"),
     (["rollout-worker", "--run-id", "", "--wait", "0.5"], "bad run id ''"),  # (no banner)
+    (["learner", "--run-id", "x", "--out", " "], "--out wants a directory, got an empty name"),
     (["bench", "rollout", "--policy", "nearest-frontier", "--workers", "1"],
      "needs a learned policy"),
 ]

@@ -13,6 +13,7 @@ from swarm.cli.common import (
     add_common,
     add_world,
     file_tables,
+    named_dir,
     output_file,
     world_config,
     world_given,
@@ -52,6 +53,7 @@ def cmd_learner(args: argparse.Namespace) -> int:
         flags = [k for k in LEARNER_TRAIN_FIELDS if getattr(args, f"train_{k}", None) is not None]
         given = {*tables.get("train", {}), "threads", *flags}
     lc, tc = learner_configs(args, tables)
+    named_dir(lc.out, "--out")  # (' ' made a folder named so)
     if not lc.out:
         raise ConfigError("swarm learner needs --out DIR")
     if lc.resume and not (Path(lc.out) / "checkpoint.pt").is_file():
