@@ -480,7 +480,7 @@ def test_fig9_without_vision_checkpoints_warns_on_stderr(tmp_path: Path, capsys)
 @pytest.mark.procs
 def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path) -> None:
     cfg = tmp_path / "c.toml"
-    cfg.write_text("[repro]\ncomm_episodes = 2\n")
+    cfg.write_text("[repro]\ncomm_episodes = 1\n")  # (one: the columns, not the figures)
     r = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg), "--seed", "2")
     assert r.returncode == 0, r.stderr
     rows = list(csv.DictReader((tmp_path / "comm.csv").open()))
@@ -526,7 +526,7 @@ def test_repro_comm_takes_the_policies_and_checkpoints_it_is_given(tmp_path: Pat
     """`--comm-policies` chooses the study's policies (the first paired against the others) and a
     given checkpoint runs on both map sizes; a bad name is a one-line error."""
     cfg = tmp_path / "c.toml"
-    cfg.write_text("[repro]\ncomm_episodes = 2\n")
+    cfg.write_text("[repro]\ncomm_episodes = 1\n")  # (one: the columns, not the figures)
     bad = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg),
                 "--comm-policies", "nearest-frontier,nope")
     assert bad.returncode != 0 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
