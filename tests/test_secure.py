@@ -514,12 +514,14 @@ def test_an_empty_secure_dir_is_refused_not_read_as_no_tls(cmd: list[str], value
 
 
 def test_a_refused_secure_run_leaves_no_run_folder(tmp_path: Path) -> None:
-    """`swarm run --secure` of a missing directory, or of one without the CA, was refused after
-    the supervisor had made its temp folder (/tmp/swarm-RUN-*), left empty behind."""
+    """`swarm run --secure` of a missing directory, of one without the CA, or of one without a
+    robot's certificate was refused after the supervisor had made its temp folder
+    (/tmp/swarm-RUN-*), left behind."""
     import tempfile
 
     (tmp_path / "empty").mkdir()
-    for i, d in enumerate((tmp_path / "missing", tmp_path / "empty")):
+    make_certs(tmp_path / "one", robots=1)  # (a 2-robot run: robot 1 has no certificate)
+    for i, d in enumerate((tmp_path / "missing", tmp_path / "empty", tmp_path / "one")):
         run_id = f"secrefused{os.getpid()}x{i}"
         r = swarm("run", "--robots", "2", "--episodes", "1", "--headless", "--run-id", run_id,
                   "--secure", str(d), timeout=60)

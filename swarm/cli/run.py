@@ -151,7 +151,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         run = dataclasses.replace(run, start_timeout=min(3600.0, max(
             run.start_timeout, START_S_PER_ROBOT * world.n_robots)))
     output_file(args.json)
-    check_run_secure(args, run.run_id, world.n_robots)
+    check_run_secure(args, run.run_id, world.n_robots, run.train)
     output_dir(args.log_dir, "--log-dir")
     output_dir(getattr(args, "learner_out", None), "--learner-out")
     if args.record is not None:  # the file and the package, before any spawn

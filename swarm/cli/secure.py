@@ -37,15 +37,23 @@ def secure_options(args: argparse.Namespace, zopts: Any, identity: str, run_id: 
     return apply(zopts, Secure.load(args.secure, identity, run_id, robots))
 
 
-def check_run_secure(args: argparse.Namespace, run_id: str, robots: int) -> None:
-    """`swarm run --secure DIR`: the directory, its CA and the supervisor's credentials, checked
-    before the supervisor makes the run's temp folder (where it checks and writes the rest)."""
+def check_run_secure(args: argparse.Namespace, run_id: str, robots: int,
+                     learner: bool) -> None:
+    """`swarm run --secure DIR`: every certificate and key the run reads, checked before the
+    supervisor makes the run's temp folder (it checks them again as it writes the sessions'
+    configs there; a run of more robots than the directory has certificates for was refused
+    only then, its temp folder left behind)."""
     if args.secure is None:
         return
-    from swarm.net.security.tls import Secure
+    from swarm.net.security.tls import Secure, run_identities, topology_secure
 
     path_name(args.secure, "--secure")
-    Secure.load(args.secure, "supervisor", run_id, robots)
+    recorder = getattr(args, "record", None) is not None
+    if getattr(args, "hosts", None) or getattr(args, "netns", False):
+        topology_secure(args.secure, run_id, robots, args.hosts or 0, learner, recorder)
+    else:
+        Secure.load(args.secure, "supervisor", run_id, robots,
+                    need=run_identities(robots, learner, recorder))
 
 
 def cmd_certs(args: argparse.Namespace) -> int:

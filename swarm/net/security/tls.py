@@ -251,13 +251,19 @@ def check_identity(ca: Path, cert: Path, key: Path, who: str) -> None:
         raise bad(cert, f"is not for the key {key.name}")
 
 
+def run_identities(robots: int, learner: bool = False, recorder: bool = False,
+                   routers: int = 0) -> tuple[str, ...]:
+    """Every identity whose certificate a `swarm run --secure` reads (besides its own)."""
+    return ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()),
+            *(("recorder",) if recorder else ()), *(f"router-{h}" for h in range(1, routers + 1)))
+
+
 def run_configs(cert_dir: str | Path, run_id: str, robots: int, port: int, out_dir: Path,
                 learner: bool = False, recorder: bool = False) -> tuple[str, dict[str, Path]]:
     """(hub endpoint, identity -> config file) of a `swarm run --secure` whose world listens on
     127.0.0.1:`port`; every certificate the run's processes read is checked first."""
-    need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()),
-            *(("recorder",) if recorder else ()))
-    sec = Secure.load(cert_dir, "supervisor", run_id, robots, need=need)
+    sec = Secure.load(cert_dir, "supervisor", run_id, robots,
+                      need=run_identities(robots, learner, recorder))
     hub = f"tls/127.0.0.1:{port}"
     return hub, write_run_configs(sec, out_dir, hub)
 
@@ -269,8 +275,7 @@ def topology_secure(cert_dir: str | Path, run_id: str, robots: int, hosts: int =
     certs --routers K-1`) and the CA key, with which `topology_configs` names the run's
     addresses in the world's (and routers') certificates."""
     routers = max(hosts - 1, 0)
-    need = ("world", *(f"robot-{i}" for i in range(robots)), *(("learner",) if learner else ()),
-            *(("recorder",) if recorder else ()), *(f"router-{h}" for h in range(1, routers + 1)))
+    need = run_identities(robots, learner, recorder, routers)
     d = Path(cert_dir).expanduser().resolve()
     if not d.is_dir():
         Secure.load(cert_dir, "supervisor", run_id, robots)  # its one-line "no such directory"
