@@ -44,12 +44,14 @@ def test_a_header_of_float_or_bool_is_not_the_schema() -> None:
 
 
 def test_a_half_made_or_foreign_result_is_refused() -> None:
-    """A forged `{"policy", "completed": 0}` ended a run, its real result lost."""
+    """A forged `{"policy", "completed": 0}` ended a run, its real result lost; a whole one with
+    a figure that is no number would crash the table that prints it."""
     real = {"policy": "commattn", "run_id": "r", "completed": 1, "elratio_mean": 0.5,
             "success_rate": 0.0, "actions": [[[0, 0]] * 3], "ticks": 3, "messages": {}}
     assert check_world_result(dict(real), "commattn", 2, "r", 3) == real
     for bad in ({"run_id": "other"}, {"actions": []}, {"actions": [[[0, 0]] * 2]},
-                {"ticks": 7}, {"messages": None}, {"completed": 3}):
+                {"ticks": 7}, {"messages": None}, {"completed": 3},
+                {"reward_mean": "x"}, {"robots_lost": "x"}, {"elratio_std": float("nan")}):
         with pytest.raises(BadMessage):
             check_world_result({**real, **bad}, "commattn", 2, "r", 3)
     with pytest.raises(BadMessage):

@@ -22,6 +22,10 @@ from world.decentral import TrajMessages
 SCHEMA = 1
 (K_OBS, K_TRAJ, K_BUNDLE, K_HIDDEN, K_ACTION, K_STATUS, K_RSTATUS, K_RESULT, K_CONTROL,
  K_WEIGHTS, K_RROLLOUT, K_EPISODE, K_EROLLOUT, K_LSTATUS) = range(14)
+BIG = 2**31 - 1
+MAX_MS = 3.6e6  # an hour: the longest duration any message may carry
+MAX_TOKENS = 1e15  # bytes a token bucket may hold or owe
+MAX_FAULTS_BYTES = 65536  # a live fault table carried in an observation (direct delivery)
 
 
 class BadMessage(ValueError):
@@ -70,17 +74,10 @@ def _float(v: Any, name: str, lo: float = -1e9, hi: float = 1e9) -> float:
     return float(v)
 
 
-MAX_MS = 3.6e6  # an hour: the longest duration any message may carry
-
-
 def _bytes(v: Any, name: str, size: int) -> bytes:
     if not isinstance(v, bytes) or len(v) != size:
         raise BadMessage(f"{name} must be {size} bytes")
     return v
-
-
-BIG = 2**31 - 1
-MAX_TOKENS = 1e15  # bytes a token bucket may hold or owe
 
 
 def _bucket(v: Any) -> tuple[float, float] | None:
@@ -92,9 +89,6 @@ def _bucket(v: Any) -> tuple[float, float] | None:
         raise BadMessage("bucket must be [tokens, last_ms]")
     return (_float(v[0], "bucket tokens", -MAX_TOKENS, MAX_TOKENS),
             _float(v[1], "bucket last_ms", 0.0, MAX_TOKENS))
-
-
-MAX_FAULTS_BYTES = 65536  # a live fault table carried in an observation (direct delivery)
 
 
 @dataclass
@@ -455,18 +449,23 @@ def check_world_status(rec: dict[str, Any], cfg: WorldConfig, first_episode: int
     return rec
 
 
+RESULT_COUNTS = ("elratio_std", "reward_std", "collisions_mean", "block_collisions_mean",
+                 "planning_ms_per_decision", "ticks_per_s", "timeouts", "robots_lost")
+
+
 def check_world_result(rec: dict[str, Any], policy: str, episodes: int, run_id: str,
                        horizon: int) -> dict[str, Any]:
     """The world's result: this run's id and policy, at most the episodes asked, as many
-    action logs of `horizon` ticks, its ticks and counts, figures in range (BadMessage: a stray
-    does not end a run; one forged whole needs `--secure`)."""
+    action logs of `horizon` ticks, its ticks and counts, every figure its readers format a
+    number (BadMessage: a stray neither ends a run nor crashes its table; `--secure` for more)."""
     for k, want in (("run_id", run_id), ("policy", policy)):
         if rec.get(k) != want:
             raise BadMessage(f"a result of {k} {rec.get(k)!r}, not {want!r}")
     done = _int(rec.get("completed"), "result completed", 0, episodes)
-    if done:  # (none: NaN means)
-        for k in ("elratio_mean", "success_rate"):
-            _float(rec.get(k), f"result {k}", 0.0, 1.0)
+    for k, lo, hi in (("elratio_mean", 0, 1), ("success_rate", 0, 1), ("reward_mean", -1e9, 1e9),
+                      *((k, 0, 1e9) for k in RESULT_COUNTS)):
+        if done or (v := rec.get(k, 0)) == v:  # (NaN: no episode done, `EvalResult.none`)
+            _float(rec.get(k, 0), f"result {k}", lo, hi)
     actions = rec.get("actions")
     if not isinstance(actions, list) or len(actions) != done or \
             not all(isinstance(a, list) and len(a) == horizon for a in actions):
