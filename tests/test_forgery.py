@@ -49,6 +49,9 @@ def test_a_half_made_or_foreign_result_is_refused() -> None:
     real = {"policy": "commattn", "run_id": "r", "completed": 1, "elratio_mean": 0.5,
             "success_rate": 0.0, "actions": [[[0, 0]] * 3], "ticks": 3, "messages": {}}
     assert check_world_result(dict(real), "commattn", 2, "r", 3) == real
+    none = {**real, "completed": 0, "actions": [], "elratio_mean": None,
+            "reward_mean": float("nan")}
+    assert check_world_result(dict(none), "commattn", 2, "r", 3) == none  # (a stop before one)
     for bad in ({"run_id": "other"}, {"actions": []}, {"actions": [[[0, 0]] * 2]},
                 {"ticks": 7}, {"messages": None}, {"completed": 3},
                 {"reward_mean": "x"}, {"robots_lost": "x"}, {"elratio_std": float("nan")}):

@@ -464,7 +464,7 @@ def check_world_result(rec: dict[str, Any], policy: str, episodes: int, run_id: 
     done = _int(rec.get("completed"), "result completed", 0, episodes)
     for k, lo, hi in (("elratio_mean", 0, 1), ("success_rate", 0, 1), ("reward_mean", -1e9, 1e9),
                       *((k, 0, 1e9) for k in RESULT_COUNTS)):
-        if done or (v := rec.get(k, 0)) == v:  # (NaN: no episode done, `EvalResult.none`)
+        if done or (v := rec.get(k, 0)) is not None and v == v:  # (none done: NaN, None means)
             _float(rec.get(k, 0), f"result {k}", lo, hi)
     actions = rec.get("actions")
     if not isinstance(actions, list) or len(actions) != done or \
