@@ -7,6 +7,7 @@ import logging
 import socket
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 import zenoh
@@ -84,3 +85,40 @@ def test_only_garbage_is_a_one_line_timeout_that_counts_what_was_dropped(
     msg = str(exc.value)
     assert "\n" not in msg and msg.startswith(f"no world answered on {keys.config} within 1.5 s (")
     assert "unreadable replies dropped; the last: run record from" in msg, msg
+
+
+@pytest.mark.parametrize("settle", [0.0, 2.0])
+def test_an_id_taken_while_a_robot_joins_is_refused_only_with_a_settle_window(
+        hub: tuple[str, zenoh.Session], settle: float) -> None:
+    """A peer reaches the robot holding its id only once gossip linked them, maybe after its
+    first liveliness query (CI: a duplicate robot 1 joined a run): `check_free` asks again until
+    its settle window since the session opened has passed. A token that comes 0.5 s after the
+    newcomer's session opened is seen with the robot's window and missed with none."""
+    import threading
+
+    from swarm.net.inbox import check_free
+    from world.config import ConfigError
+
+    ep, _ = hub
+    key = Keys("claim").alive_robot(1)
+    holder: list[Any] = []  # the holder's session and token (a dropped token is undeclared)
+
+    def take_later() -> None:
+        time.sleep(0.5)
+        s = zenoh.open(ZenohOptions(connect=[ep]).to_config())
+        holder.extend([s, s.liveliness().declare_token(key)])
+
+    with zenoh.open(ZenohOptions(connect=[ep]).to_config()) as newcomer:
+        opened = time.monotonic()
+        later = threading.Thread(target=take_later)
+        later.start()
+        try:
+            if settle:
+                with pytest.raises(ConfigError, match="running already"):
+                    check_free(newcomer, key, "robot 1 of run claim", since=opened, settle=settle)
+            else:
+                check_free(newcomer, key, "robot 1 of run claim", since=opened, settle=settle)
+        finally:
+            later.join()
+            if holder:
+                holder[0].close()

@@ -266,16 +266,18 @@ def cmd_world(args: argparse.Namespace) -> int:
 
 
 def cmd_robot(args: argparse.Namespace) -> int:
+    from swarm.common.spawn import supervised
     from swarm.net.keys import check_run_id
     from swarm.procs.robot import main as robot_main
-    from swarm.procs.robot_status import WorldLeft
+    from swarm.procs.robot_status import CLAIM_SETTLE_S, WorldLeft
 
     check_run_id(args.run_id)
     check_wait(args.wait)
     _logging(args.verbose)
     try:
         zopts = secure_options(args, zconfig.from_args(args), f"robot-{args.id}", args.run_id)
-        robot_main(args.id, args.run_id, zopts, wait_world=args.wait)
+        robot_main(args.id, args.run_id, zopts, wait_world=args.wait,  # (a supervisor starts
+                   settle=0.0 if supervised() else CLAIM_SETTLE_S)  # each id once)
     except KeyboardInterrupt:
         return 130
     except WorldLeft as exc:

@@ -93,6 +93,11 @@ def terminate_as_interrupt(grace: bool = False) -> None:
         pass
 
 
+def supervised() -> bool:
+    """Whether a supervisor (`swarm run`) started this process."""
+    return os.environ.get(PARENT_ENV, "").isdigit()
+
+
 def die_with_parent() -> bool:
     """In a child started by a supervisor: SIGTERM when the supervisor dies, however it dies,
     and SHUTDOWN_GRACE_S to unwind. False (nothing done) in a process no supervisor started."""

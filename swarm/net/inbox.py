@@ -222,10 +222,27 @@ class Outbox:
         self._due.clear()
 
 
-def check_free(session: zenoh.Session, key: str, what: str, timeout: float = 2.0) -> None:
+def check_free(session: zenoh.Session, key: str, what: str, timeout: float = 2.0,
+               since: float | None = None, settle: float = 0.0) -> None:
     """A process taking an id: ConfigError (one line) if a liveliness token on `key` is up
-    anywhere this session reaches (`what`, say "robot 3 of run R", is running already)."""
+    anywhere this session reaches (`what`, say "robot 3 of run R", is running already).
+
+    A peer reaches another peer only once gossip has linked them, which under load may come
+    after the first query: the query is asked again until `settle` s have passed since `since`
+    (the session's opening, monotonic clock) and the session's peers stayed the same meanwhile."""
     from world.config import ConfigError
 
-    if any(r.ok is not None for r in session.liveliness().get(key, timeout=timeout)):
-        raise ConfigError(f"{what} is running already (its liveliness token is up)")
+    def peers() -> set[str]:
+        return {str(z) for z in (*session.info.peers_zid(), *session.info.routers_zid())}
+
+    start = time.monotonic() if since is None else since
+    seen, changed = peers(), time.monotonic()
+    while True:
+        if any(r.ok is not None for r in session.liveliness().get(key, timeout=timeout)):
+            raise ConfigError(f"{what} is running already (its liveliness token is up)")
+        now, linked = time.monotonic(), peers()
+        if linked != seen:
+            seen, changed = linked, now
+        if now - start >= settle and now - changed >= settle / 4:
+            return
+        time.sleep(0.1)

@@ -21,7 +21,7 @@ import zenoh
 
 from policies.base import Policy
 from swarm.common.policy_spec import build_inference
-from swarm.net.inbox import Inbox, check_free, publisher, replies, tally
+from swarm.net.inbox import Inbox, publisher, replies, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import RobotRollout, RolloutTick, Weights
 from swarm.net.messages import (
@@ -45,8 +45,8 @@ from swarm.procs.robot_status import (
     WorldLeft,
     attention_of,
     count_after_end,
-    fetch_config,
     hop_deadline,
+    join_run,
 )
 from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig
@@ -480,15 +480,13 @@ class RobotProcess:
             self.inbox.close()
 
 
-def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0) -> RobotCounters:
+def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0,
+         settle: float = 0.0) -> RobotCounters:
     """Join run `run_id` as robot `robot`: act until the run ends (WorldLeft: its world left)."""
     keys = Keys(run_id)
     with open_session(zopts) as session:
-        rec = fetch_config(session, keys, wait_world)
+        rec = join_run(session, keys, robot, wait_world, settle)
         cfg, run = rec.world, rec.run
-        if not 0 <= robot < cfg.n_robots:
-            raise ConfigError(f"robot id {robot} outside 0..{cfg.n_robots - 1} of run {run_id}")
-        check_free(session, keys.alive_robot(robot), f"robot {robot} of run {run_id}")
         # learned policies act in numpy (policies.infer): no robot process imports torch
         policy = build_inference(run.policy, cfg, run.checkpoint)
         policy.reset(1)

@@ -12,10 +12,11 @@ import numpy as np
 import zenoh
 
 from policies.base import Policy
-from swarm.net.inbox import Inbox, query
+from swarm.net.inbox import Inbox, check_free, query
 from swarm.net.keys import Keys
 from swarm.net.messages import BadMessage
 from swarm.procs.runconfig import RunRecord
+from world.config import ConfigError
 
 
 class WorldLeft(RuntimeError):
@@ -153,3 +154,23 @@ def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecor
     return query(session, keys.config, timeout,
                  lambda b: RunRecord.unpack(b, f"run record from {keys.config}"),
                  f"world answered on {keys.config}")
+
+
+CLAIM_SETTLE_S = 1.0
+"""How long after its session opened a robot started by hand still asks whether its id is taken:
+a peer reaches the robot holding the id only once gossip has linked them (`check_free`)."""
+
+
+def join_run(session: zenoh.Session, keys: Keys, robot: int, wait_world: float,
+             settle: float) -> RunRecord:
+    """The run's record, once robot id `robot` is known to be in its range and free (one-line
+    ConfigError otherwise), asking until `settle` s after the call (`check_free`): call it right
+    after the session opened."""
+    opened = time.monotonic()
+    rec = fetch_config(session, keys, wait_world)
+    if not 0 <= robot < rec.world.n_robots:
+        raise ConfigError(f"robot id {robot} outside 0..{rec.world.n_robots - 1} of run "
+                          f"{keys.run}")
+    check_free(session, keys.alive_robot(robot), f"robot {robot} of run {keys.run}",
+               since=opened, settle=settle)
+    return rec
