@@ -410,7 +410,7 @@ def test_widen_refuses_other_changes_and_leaves_the_network_alone() -> None:
 
 
 @pytest.mark.procs
-@pytest.mark.parametrize("changes", [{"belief": True}, {"belief": True, "hint": True},
+@pytest.mark.parametrize("changes", [{"belief": True, "hint": True},  # (belief alone: in both)
                                      {"belief": True, "hint": True, "planner": "chain-plan"}])
 def test_a_belief_network_in_the_swarm_equals_the_batched_eval(tmp_path: Path,
                                                                changes: dict) -> None:

@@ -137,10 +137,11 @@ def test_every_command_refuses_a_bad_checkpoint_in_one_line(tmp_path: Path) -> N
     complex_ = str(tiny_checkpoint(tmp_path / "complex.pt", dtype=torch.complex64))
     # (each reader's refusal of every dtype: the test above; here, that each command reaches
     # them: complex64 stops the torch-free reader of `run` at its storage, int64 after it)
+    # (`eval` reads with torch, as `train --init` and `bench policy` do: one of each suffices)
+    one_line_error(swarm("eval", "--policy", "commattn", "--checkpoint", nan, "--episodes",
+                         "1", "--robots", "2", "--horizon", "5", timeout=60), "non-finite weights")
     for bad, words in ((nan, "non-finite weights"), (whole, "weight s0 is int64"),
                        (complex_, "weight s0 is complex64")):
-        one_line_error(swarm("eval", "--policy", "commattn", "--checkpoint", bad, "--episodes",
-                             "1", "--robots", "2", "--horizon", "5", timeout=60), words)
         one_line_error(swarm("run", "--headless", "--policy", "commattn", "--checkpoint", bad,
                              "--robots", "2", "--episodes", "1", "--horizon", "5",
                              "--log-dir", str(tmp_path / "logs"), timeout=60), words)

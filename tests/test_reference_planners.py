@@ -78,7 +78,7 @@ def test_oracle_plan_does_not_depend_on_numpys_simd_kernels() -> None:
 NO_SIMD = "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
 
 
-@pytest.mark.parametrize("name,episodes", [("central", 4), ("chain-plan", 2)])
+@pytest.mark.parametrize("name,episodes", [("central", 4), ("chain-plan", 1)])
 def test_planners_act_alike_without_numpys_simd_kernels(name: str, episodes: int) -> None:
     """`central` (and `team-beam`, which runs its search) kept its beam with np.argpartition:
     with AVX2 on, 20 held-out episodes gave 0.93625, without it 0.9325. Per-episode elratios

@@ -42,18 +42,20 @@ def run_procs(run_id: str) -> list[int]:
 
 
 @pytest.mark.procs
-@pytest.mark.parametrize("policy", ["nearest-frontier", "team-beam", "chain-plan"])
-def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str) -> None:
+@pytest.mark.parametrize("policy,episodes", [("nearest-frontier", 2), ("team-beam", 2),
+                                             ("chain-plan", 1)])  # (chain-plan's are slow)
+def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str,
+                                                     episodes: int) -> None:
     out = tmp_path / "run.json"
     temp = Path(tempfile.gettempdir())
     before = set(temp.glob(f"swarm-eq{policy[:4]}-*"))
-    r = swarm("run", "--headless", "--robots", "4", "--policy", policy,
-              "--episodes", "2", "--seed", "11", "--run-id", "eq" + policy[:4], "--json", str(out))
+    r = swarm("run", "--headless", "--robots", "4", "--policy", policy, "--episodes",
+              str(episodes), "--seed", "11", "--run-id", "eq" + policy[:4], "--json", str(out))
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
     assert "logs" not in res and set(temp.glob(f"swarm-eq{policy[:4]}-*")) == before  # tidied
     cfg = WorldConfig(n_robots=4)
-    ev = evaluate(cfg, make_policy(policy, cfg), 11, 2, record_actions=True)
+    ev = evaluate(cfg, make_policy(policy, cfg), 11, episodes, record_actions=True)
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
     summ = ev.summary(cfg)
     for key in ("elratio_mean", "reward_mean", "collisions_mean", "success_rate"):
@@ -63,7 +65,7 @@ def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str
     assert res["command"].startswith("swarm run --headless") and res["checkpoint"] is None
     assert res["world"]["n_robots"] == 4 and res["provenance"]["python"]  # what made it
     lines = [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
-    assert sum("status" in rec for rec in lines) == 2 * cfg.horizon
+    assert sum("status" in rec for rec in lines) == episodes * cfg.horizon
     assert "result" in lines[-1]
 
 
