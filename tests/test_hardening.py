@@ -286,7 +286,10 @@ def test_foreign_garbage_in_a_recording_is_skipped_by_verify_not_a_divergence(
     """A foreign peer's garbage on the run's keys (UA pass: on world/result it was reported as a
     divergence 'recorded unreadable, recomputed not msgpack'): every live process dropped it, so
     verification counts it as skipped and the recording verifies. So is a well-formed result the
-    supervisor refused (UA pass 53: an empty one was 'a second world/result message')."""
+    supervisor refused (UA pass 53: an empty one was 'a second world/result message'), and
+    well-formed actions of a past tick (the replay took the last action of a tick, a stray put
+    later over the real one) or of a future one (before the real one): the world takes only an
+    action of the tick in play, the replay only the first after the robot's previous one."""
     run_id, f = "gx", tmp_path / "k.mcap"
     proc = start_run(tmp_path, run_id, "--policy", "nearest-frontier", "--episodes", "2",
                      "--pace", "10", "--record", str(f))
@@ -298,6 +301,8 @@ def test_foreign_garbage_in_a_recording_is_skipped_by_verify_not_a_divergence(
             for key in (keys.result, keys.status, keys.obs(1)):
                 session.put(key, b"\xff\xfe")
             session.put(keys.result, msgpack.packb([1, K_RESULT, {}]))
+            for ep, t, a in ((0, 0, 0), (0, 0, 8), (1, 6, 0), (1, 6, 8)):  # (one is not robot 1's)
+                session.put(keys.action(1), Action(ep, t, 1, a, 1.0).pack())
         assert proc.wait(timeout=120) == 0, proc.stderr.read().decode()[-2000:]
     finally:
         if proc.poll() is None:

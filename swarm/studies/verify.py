@@ -224,6 +224,7 @@ class Auditor:
         self.curves: list[np.ndarray] = []
         self.actions: list[list[list[int]]] = []
         self.timeouts = 0
+        self.acted: dict[int, int] = {}  # robot -> recording index of the last action taken
         run_tick = 0
         for ep in range(r.first_episode, r.first_episode + r.episodes):
             if (ep, 1) not in self.status:
@@ -307,10 +308,11 @@ class Auditor:
         alive[:] = [bool(a) for a in rec_alive]
         acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
         got = set()
-        for _, a in bucket.action:  # a timed-out robot's action came after the deadline
-            if a.robot not in late:
+        for idx, a in bucket.action:  # a timed-out robot's action came after the deadline
+            if a.robot not in late and a.robot not in got and idx > self.acted.get(a.robot, -1):
                 acts[0, a.robot] = a.action
                 got.add(a.robot)
+                self.acted[a.robot] = idx
         # the world waits for the robots it sent this tick's observation to (one that came
         # alive mid-tick joins at the next); those still alive without an action timed out
         sent = {o.robot for _, o in bucket.obs}
