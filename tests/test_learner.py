@@ -491,6 +491,22 @@ def test_a_learner_by_hand_ends_with_its_run(tmp_path: Path) -> None:
 
 
 @pytest.mark.procs
+def test_a_second_learner_of_a_run_is_refused_in_one_line(tmp_path: Path) -> None:
+    """Two learners of one run would each publish weights, robots adopting whichever came last:
+    one whose run's learner token is up stops before it writes anything (exit 2)."""
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    with zenoh.open(ZenohOptions(listen=[hub]).to_config()) as session:
+        token = session.liveliness().declare_token(Keys("twolearn").alive_learner)
+        r = swarm("learner", "--run-id", "twolearn", "--config", str(world_toml(tmp_path, SMALL)),
+                  "--out", str(tmp_path / "l"), "--connect", hub, timeout=60)
+        token.undeclare()
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().splitlines()[-1] == ("swarm: error: a learner of run twolearn is "
+                                                 "running already (its liveliness token is up)")
+    assert not (tmp_path / "l").exists()
+
+
+@pytest.mark.procs
 def test_a_learner_by_hand_of_another_world_is_one_error(tmp_path: Path) -> None:
     """A hand learner whose world differs from its run's (here: no team size given, so 3
     robots, while the run has 2) learns the run's record from the world and stops with one

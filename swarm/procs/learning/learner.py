@@ -53,7 +53,7 @@ from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
 from swarm.learn.weights import weights_of
-from swarm.net.inbox import Inbox, publisher, tally
+from swarm.net.inbox import Inbox, check_free, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
@@ -411,7 +411,8 @@ def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptio
     directory and learn until the run ends, it is interrupted or `stop()`; returns the last
     status. `given`: see `Learner`."""
     learner = Learner(cfg, lc, tc, given)
-    with open_session(zopts) as session:
+    with open_session(zopts) as session:  # (two learners would publish two lines of weights)
+        check_free(session, Keys(lc.run_id).alive_learner, f"a learner of run {lc.run_id}", 1.0)
         learner.open_out()
         print(f"swarm learner: run {lc.run_id}, {lc.policy}, writing {lc.out}; it trains on "
               "the run's episodes until the run ends (Ctrl-C stops it)", file=sys.stderr,
