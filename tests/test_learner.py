@@ -329,7 +329,8 @@ def test_weights_hot_swap_only_at_episode_boundaries(tmp_path: Path) -> None:
 def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> None:
     """A learner fed by a rollout worker is SIGKILLed mid-training: every version it had
     published is in its checkpoint; `--resume` continues from it (curve and versions carry on),
-    the worker keeps going meanwhile and the resumed learner keeps learning."""
+    the worker keeps going meanwhile and the resumed learner keeps learning. A second worker of
+    the first one's id is refused."""
     port = free_port()
     hub = f"tcp/127.0.0.1:{port}"
     out = tmp_path / "l"
@@ -355,6 +356,12 @@ def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> Non
             deadline = time.monotonic() + 90
             while time.monotonic() < deadline and max(seen, default=0) < 3:
                 time.sleep(0.05)
+            # a second worker of its id would play the same episodes: refused in one line
+            dup = swarm("rollout-worker", "--run-id", "dur", "--connect", hub, "--zenoh-mode",
+                        "client", timeout=60)
+            assert dup.returncode == 2 and dup.stderr.strip().splitlines()[-1] == (
+                "swarm: error: rollout worker 0 of run dur is running already (its liveliness "
+                "token is up)"), dup.stderr
             os.kill(learner.pid, signal.SIGKILL)
             learner.wait(timeout=10)
             with lock:

@@ -121,6 +121,10 @@ class Keys:
     def alive_robot(self, robot: int | str) -> str:
         return f"{self.base}/alive/robot/{robot}"
 
+    def alive_worker(self, worker: int | str) -> str:
+        """A rollout worker's token: two workers of one id would play the same episodes."""
+        return f"{self.base}/alive/worker/{worker}"
+
     @property
     def alive_world(self) -> str:
         return f"{self.base}/alive/world"

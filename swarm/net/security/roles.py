@@ -127,7 +127,8 @@ def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[s
                        k.direct("*", hidden=True), k.end, k.weights))
     for w in range(workers):
         out[f"worker-{w}"] = Role(put=(k.worker_episodes,), query=(k.learner_config, k.weights),
-                                  subscribe=(k.weights,), watch=(k.alive_learner,))
+                                  subscribe=(k.weights,), watch=(k.alive_learner,),
+                                  token=(k.alive_worker(w),))
     for h in range(1, routers + 1):  # what it originates itself: its liveliness token
         out[f"router-{h}"] = Role(token=(k.alive_router("*"),))
     return out

@@ -20,11 +20,12 @@ import numpy as np
 import torch
 
 from policies import policy_class
+from swarm.common.spawn import supervised
 from swarm.learn.config import TrainConfig, check_worker
 from swarm.learn.join import episodes_of
 from swarm.learn.rollout import collect
 from swarm.learn.weights import adopt
-from swarm.net.inbox import Event, Inbox, publisher, query, replies
+from swarm.net.inbox import Event, Inbox, check_free, publisher, query, replies
 from swarm.net.keys import Keys
 from swarm.net.learning import Weights
 from swarm.net.messages import BadMessage
@@ -41,6 +42,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
     keys = Keys(run_id)
     torch.set_num_threads(threads)
     with open_session(zopts) as session:
+        opened = time.monotonic()
         rec = query(session, keys.learner_config, wait,
                     lambda b: RunRecord.unpack(b, "the learner's run record"),
                     f"learner answered on {keys.learner_config}")
@@ -50,8 +52,12 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         tc = from_dict(TrainConfig, rec.train, "learner train")
         cls = policy_class(rec.run.policy)
         policy = cls(cfg, model=from_dict(cls.config_cls, rec.model, "learner model"))
-        inbox = Inbox(session).subscribe(keys.weights, "w").liveliness(keys.alive_learner,
-                                                                         "learner")
+        # two workers of one id would play the same episodes (their seeds follow the id)
+        check_free(session, keys.alive_worker(worker_id),
+                   f"rollout worker {worker_id} of run {run_id}", since=opened,
+                   settle=0.0 if supervised() else 1.0)
+        inbox = Inbox(session).subscribe(keys.weights, "w").liveliness(
+            keys.alive_learner, "learner").token(keys.alive_worker(worker_id))
         pub = publisher(session, keys.worker_episodes)
         for payload in replies(session, keys.weights, 2.0):
             inbox.q.put(Event("w", keys.weights, payload))
