@@ -298,6 +298,9 @@ def test_only_a_checked_stop_ends_a_run_and_the_run_says_so(tmp_path: Path) -> N
         MAX_PENDING
     assert res["process_faults_dropped"] == 3 and len(res["process_faults_pending"]) == \
         MAX_PENDING
+    # said by the run too (UA pass: only the world's log, which a clean run removes, said it)
+    assert f"swarm: warning: 3 live link-fault change(s) dropped (more than {MAX_PENDING} were " \
+        "waiting)" in err, err
 
 
 def test_run_help_names_the_exit_status_of_a_stopped_run() -> None:

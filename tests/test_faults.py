@@ -307,7 +307,8 @@ def test_a_live_fault_must_fit_the_run_and_a_crash_waits_for_its_tick(tmp_path: 
         assert "ROBOT@TICK 0: run livec is at tick" in errs[4], errs[4]
         r = swarm("fault", "--run", run_id, "--crash", "0", timeout=30)  # ROBOT alone: at once
         assert r.returncode == 0, r.stderr  # (refused for a day: "use ROBOT@TICK")
-        proc.communicate(timeout=120)
+        err = proc.communicate(timeout=120)[1]
+        assert "left the run" not in err, err  # (UA pass: a live crash was said unplanned)
     finally:
         if proc.poll() is None:
             proc.kill()

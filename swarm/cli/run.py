@@ -1,6 +1,5 @@
 """Command-line front ends of the distributed swarm: `swarm run`, `world`, `robot`, `fault`,
-`experiment`; each a thin wrapper around an importable `main(...)` in `swarm.procs`.
-"""
+`experiment`; each a thin wrapper around an importable `main(...)` in `swarm.procs`."""
 
 from __future__ import annotations
 
@@ -210,7 +209,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                   f"startup {res.get('startup_s') or 0:.1f} s"
                   f"   copies delivered {sent} lost {m.get('lost')} "
                   f"late {m.get('late')} bad {m.get('bad')}   timeouts {res.get('timeouts')}   "
-                  f"robots lost {res.get('robots_lost')}")
+                  f"robots lost {res.get('robots_lost')}"
+                  + (f"   logs kept in {res['logs']}" if res.get("logs") else ""))
         if args.json:
             out.print(f"wrote {args.json}")
     if learning is not None and "learner" in res:  # where the trained weights went

@@ -14,7 +14,7 @@ from typing import Any
 
 from swarm.common.procstat import stopped
 from swarm.common.spawn import EXIT_INCOMPLETE, last_error
-from swarm.net.faults import ProcessFault
+from swarm.net.faults import MAX_PENDING, ProcessFault
 from swarm.procs.dashboard import SwarmView
 
 Proc = subprocess.Popen[bytes]
@@ -40,6 +40,7 @@ class Fleet:
         self.hung: set[int] = set()
         self.hangs: set[int] = set()  # robots hung on purpose at some point
         self.killed: set[Proc] = set()  # processes a planned crash killed (counted there)
+        self.crashed: set[int] = set()  # robots a crash fault killed (planned, or a live one's)
         self.seen: set[Proc] = set()  # processes whose end was accounted for (not pids: reused)
         self.log_from: dict[int, int] = {}  # robot -> where its current process's log begins
         self.errors: dict[str, str] = {}  # "robot i" -> why it died (not planned)
@@ -66,6 +67,7 @@ class Fleet:
             self.hung.discard(f.robot)
             self.crashes += 1  # (here: a restart of the same tick replaces it before a check)
             self.killed.add(p)
+            self.crashed.add(f.robot)
         elif f.kind == "hang" and p is not None and up and f.robot not in self.hung:
             p.send_signal(signal.SIGSTOP)
             self.hung.add(f.robot)
@@ -140,7 +142,7 @@ class Fleet:
         res["robots_stopped_at_end"] = sorted(self.stopped_at_end)
         absent = {f.robot for f in planned if f.kind in ("crash", "hang") and f.tick == 0}
         res["absent_at_start"] = [i for i in view.absent_at_start if i not in absent]
-        down = {f.robot for f in planned if f.kind == "crash"} | {
+        down = {f.robot for f in planned if f.kind == "crash"} | self.crashed | {
             int(w.split()[1]) for w in errors}  # (said above)
         left = [i for i, r in sorted(view.robots.items()) if r.state == "lost" and i not in down
                 and i not in self.stopped_at_end]  # (said above)
@@ -155,5 +157,17 @@ class Fleet:
         if res["absent_at_start"]:  # (the world waited `start_timeout` for them, then began)
             said.append(f"robots {res['absent_at_start']} were not up within the start timeout "
                         f"({start_timeout:g} s; --start-timeout S): the run began without them")
+        said += changes_said(res)
         for line in said:
             print(f"swarm: warning: {line}", file=sys.stderr, flush=True)
+
+
+def changes_said(res: dict[str, Any]) -> list[str]:
+    """Live link-fault changes (`swarm fault`) the run did not apply as asked: the world logged
+    each, in a log a clean run removes, so the run says them once more (the supervisor says the
+    process-fault changes it drops itself)."""
+    fc = res.get("fault_changes") if isinstance(res.get("fault_changes"), dict) else {}
+    why = {"dropped": f"dropped (more than {MAX_PENDING} were waiting)",
+           "late": "applied late (their tick had been played)",
+           "unfit": "dropped (they did not fit the faults then in force)"}
+    return [f"{fc[k]} live link-fault change(s) {w}" for k, w in why.items() if fc.get(k)]
