@@ -158,6 +158,21 @@ def test_swarm_record_refuses_a_run_it_cannot_join(tmp_path: Path, capsys: Any) 
     code, err = swarm_main("record", "--run-id", "r", "--out", out, "--wait", "nan",
                            capsys=capsys)
     assert code == 2 and "--wait must lie in [0.1, 3600] seconds, got nan" in err, err
+    # UA pass: a world that never answers is named with --wait as given, not "1.99932 s"
+    code, err = swarm_main("record", "--run-id", "rec15nosuch", "--out", out, "--connect",
+                           "tcp/127.0.0.1:1", "--wait", "0.5", capsys=capsys)
+    assert code == 2 and err == ("swarm: error: no world answered on swarm/rec15nosuch/world/"
+                                 "config within 0.5 s"), err
+
+
+def test_a_query_timeout_names_its_budget_as_a_person_would() -> None:
+    """A caller's remaining budget (a measured 0.29996 s) is said as 0.3 s."""
+    from swarm.net.inbox import query
+    from swarm.net.zconfig import ZenohOptions, open_session
+
+    with open_session(ZenohOptions()) as session, pytest.raises(TimeoutError) as exc:
+        query(session, "swarm/rec15q/world/config", 0.29996, bytes)
+    assert str(exc.value) == "no answer on swarm/rec15q/world/config within 0.3 s"
 
 
 # ---------------------------------------------------------------------------- bad files

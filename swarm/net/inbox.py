@@ -160,7 +160,8 @@ def query(session: zenoh.Session, key: str, timeout: float, parse: Callable[[byt
                                 dropped, last)
         if time.monotonic() >= deadline:
             why = f" ({dropped} unreadable replies dropped; the last: {last})" if dropped else ""
-            raise TimeoutError(f"no {what or 'answer on ' + key} within {timeout:g} s{why}")
+            raise TimeoutError(f"no {what or 'answer on ' + key} within {round(timeout, 2):g} "
+                               f"s{why}")  # (a budget's remainder: 1.99932 s is 2 s to a person)
         time.sleep(0.1)
 
 
