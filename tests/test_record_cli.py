@@ -213,6 +213,33 @@ def test_bad_files_are_one_line_errors_with_status_2(tmp_path: Path, capsys: Any
     assert r.returncode == 2 and "Traceback" not in r.stderr
 
 
+def test_replay_counts_only_the_ticks_it_replays(tmp_path: Path, capsys: Any) -> None:
+    """UA pass: `--from` fast-forwards through the ticks before it, and the summary counted
+    them as replayed; a file with no tick in it said "replayed 0 messages (ticks 0..0)"."""
+    good = tmp_path / "good.mcap"
+    synthetic(good)  # 2 robots' observations at ticks 0..2
+    js = tmp_path / "replayed.json"  # what the summary line says
+    for flags, said in (([], (6, 0, 2)), (["--from", "2"], (2, 2, 2)),
+                        (["--from", "1", "--until", "1"], (2, 1, 1))):
+        code, _ = swarm_main("replay", str(good), "--speed", "0", "--json", str(js), *flags,
+                             capsys=capsys)
+        got = json.loads(js.read_text())
+        assert code == 0 and (got["messages"], got["first_tick"], got["last_tick"]) == said
+    from swarm.net.record.recording import RecordingWriter
+    from swarm.procs.runconfig import RunConfig, RunRecord
+    from world.config import WorldConfig
+
+    cfg, empty = WorldConfig(n_robots=2, horizon=4), tmp_path / "empty.mcap"
+    w = RecordingWriter(tmp_path / "started.mcap", "syn",  # a recorder killed at its start:
+                        RunRecord(cfg, RunConfig(run_id="syn")).to_record(), cfg, "virtual", 2.0)
+    w.fh.flush()
+    empty.write_bytes((tmp_path / "started.mcap").read_bytes())  # its run record, no message
+    w.finish(None, {})
+    code, err = swarm_main("replay", str(empty), "--partial", capsys=capsys)
+    assert code == 1 and err == (f"swarm: replay: {empty}: nothing to replay (no tick in it; "
+                                 "it is cut before its first)"), err
+
+
 # ----------------------------------------------------------------------- units, no processes
 
 

@@ -117,7 +117,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.attention is not None and args.attention >= n:  # as `swarm run` refuses it
         raise ConfigError(f"--attention {args.attention}: run {rec.record.run.run_id} has "
                           f"robots 0..{n - 1}")
-    first, last = rec.raw.span() or (0, rec.last_tick)
+    span = rec.raw.span()
+    if span is None and not args.verify:  # (--verify may still check a result: it says below)
+        print(f"swarm: replay: {args.file}: nothing to replay (no tick in it"
+              + ("" if rec.raw.complete else "; it is cut before its first") + ")",
+              file=sys.stderr)
+        return 1
+    first, last = span or (0, rec.last_tick)
     if args.verify and first > 0:
         ep, t = divmod(first, rec.record.world.horizon)
         raise ConfigError(f"{args.file} starts mid-run, at run tick {first} (episode "

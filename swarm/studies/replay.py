@@ -152,7 +152,7 @@ def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
 
 @dataclass
 class ReplayStats:
-    messages: int = 0
+    messages: int = 0  # replayed: those of ticks from `first_tick` on
     statuses: int = 0
     bad: int = 0  # records that did not fit their schema, dropped
     first_tick: int = 0
@@ -251,8 +251,9 @@ def replay(rec: Recording, console: Console | None = None, speed: float = 1.0,
             apply(v, m, stats, rec)
             v.elapsed_s = m.wall_ns / 1e9 - (v.first_status if v.first_status is not None
                                              else rec.messages[0].wall_ns / 1e9)
-            stats.messages += 1
-            stats.last_tick = max(stats.last_tick, m.tick)
+            if m.tick >= from_tick:  # (those before are fast-forwarded through, not replayed)
+                stats.messages += 1
+                stats.last_tick = max(stats.last_tick, m.tick)
             pace = "as fast as it goes" if speed <= 0 else f"x{speed:g}"
             v.replay = f"{name}  {pace}  tick {m.tick}/{total}" + (
                 "" if rec.raw.complete else "  (partial)")
