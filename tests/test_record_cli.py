@@ -240,6 +240,27 @@ def test_replay_counts_only_the_ticks_it_replays(tmp_path: Path, capsys: Any) ->
                                  "it is cut before its first)"), err
 
 
+def test_a_file_damaged_in_the_middle_is_not_called_cut_by_the_recorder(
+        tmp_path: Path, capsys: Any) -> None:
+    """UA pass: 200 bytes flipped mid-file were reported as "the recorder stopped at run tick
+    N": the recorder finished that file (it ends in the closing magic); say where it is
+    damaged instead."""
+    good, mid = tmp_path / "good.mcap", tmp_path / "mid.mcap"
+    synthetic(good)
+    data = bytearray(good.read_bytes())
+    at = data.index(b"swarm/syn/world/obs/1") + 40  # inside the messages' chunk
+    data[at:at + 200] = bytes(b ^ 0xFF for b in data[at:at + 200])
+    mid.write_bytes(bytes(data))
+    code, err = swarm_main("replay", str(mid), "--speed", "0", capsys=capsys)
+    assert code == 2 and "is damaged or cut: unreadable at byte" in err, err
+    code, err = swarm_main("replay", str(mid), "--speed", "0", "--partial", capsys=capsys)
+    assert "damaged recording: unreadable at byte" in err and "recorder stopped" not in err, err
+    cut = tmp_path / "cut.mcap"  # a file cut short is still the recorder stopping
+    cut.write_bytes(good.read_bytes()[:-100])
+    code, err = swarm_main("replay", str(cut), "--speed", "0", "--partial", capsys=capsys)
+    assert code == 0 and "partial recording: the recorder stopped at run tick" in err, err
+
+
 # ----------------------------------------------------------------------- units, no processes
 
 

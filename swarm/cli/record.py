@@ -137,7 +137,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise ConfigError(f"--until {args.until} is before the start of {args.file} (run ticks "
                           f"{first}..{last})")
     out, err = _consoles()
-    if not rec.raw.complete:
+    if rec.raw.damaged:  # (the recorder may well have finished it: say only what is known)
+        err.print(f"[yellow]damaged recording[/]: unreadable at byte {rec.raw.end_offset} of "
+                  f"{rec.raw.size}; using the {len(rec.messages)} messages before it (up to run "
+                  f"tick {rec.last_tick})")
+    elif not rec.raw.complete:
         err.print(f"[yellow]partial recording[/]: the recorder stopped at run tick "
                   f"{rec.last_tick}; using the {len(rec.messages)} messages before the cut")
     if first > 0:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -190,6 +191,8 @@ class RawRecording:
     messages: list[RawMessage]
     complete: bool  # the footer was read: the recorder finished
     end_offset: int  # bytes read before the end (or the cut)
+    damaged: bool = False  # not complete, and not for want of the rest: see `read`
+    size: int = 0  # of the file, in bytes
 
     def attachment(self, name: str) -> Any:
         """A JSON attachment, or None when absent; RecordingError when it does not parse."""
@@ -212,8 +215,12 @@ class RawRecording:
 
 def read(path: str | Path, partial: bool = False) -> RawRecording:
     """Every raw message of a recording, in file (= arrival) order. A file that ends before its
-    footer is a RecordingError unless `partial` (then: every complete chunk before the cut)."""
+    footer is a RecordingError unless `partial` (then: every complete chunk before the cut).
+    Such a file is `damaged` rather than cut short when the recorder finished it (it ends in
+    the closing magic), or a record in it is wrong (a bad CRC, length or encoding, not one
+    that runs past the end), or it fails more than 4 KiB before its end."""
     need_mcap()
+    from mcap.exceptions import EndOfFile
     from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata
     from mcap.stream_reader import StreamReader, breakup_chunk
 
@@ -227,7 +234,7 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
     attachments: dict[str, bytes] = {}
     channels: dict[int, Any] = {}
     messages: list[RawMessage] = []
-    complete, error = False, ""
+    complete, error, short = False, "", False
     with fh:
         if fh.read(len(MAGIC)) != MAGIC:
             raise RecordingError(f"{path} is not an MCAP file")
@@ -267,11 +274,12 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
             raise
         except Exception as exc:  # anything a cut or corrupt file raises inside the reader
             error = f"{type(exc).__name__}: {exc}"[:200]
+            short = isinstance(exc, EndOfFile | struct.error)  # the file ran out mid-record
         end = fh.tell()
-        if complete:  # a footer, and the closing magic after it (a file cut in it is not whole)
-            fh.seek(-len(MAGIC), 2)
-            if fh.read(len(MAGIC)) != MAGIC:
-                complete, error = False, "no closing magic"
+        fh.seek(-len(MAGIC), 2)  # (the opening magic was read: the file is that long)
+        closed = fh.read(len(MAGIC)) == MAGIC  # the recorder finished the file
+        if complete and not closed:  # a footer, and no closing magic: a file cut in it
+            complete, error, short = False, "no closing magic", True
     if not meta:
         raise RecordingError(f"{path} is not a swarm recording (no {META} metadata"
                              + (f"; unreadable at byte {end}: {error})" if error else ")"))
@@ -281,10 +289,11 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
     if meta.get("schema") != str(SCHEMA):
         raise RecordingError(f"{path} holds messages of schema version {meta.get('schema')!r}; "
                              f"this build reads version {SCHEMA}")
+    size = Path(path).stat().st_size
+    damaged = bool(error) and (closed or not short or end < size - 4096)
     if not complete and not partial:
         last = max((m.tick for m in messages), default=0)
-        size = Path(path).stat().st_size
-        if error and end < size - 4096:  # (a cut file fails near its end, a damaged one anywhere)
+        if damaged:
             raise RecordingError(f"{path} is damaged or cut: unreadable at byte {end} of {size} "
                                  f"({len(messages)} messages readable up to run tick {last}); "
                                  "--partial uses what is there")
@@ -295,4 +304,5 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
     topics = [c.topic for c in channels.values()]
     return RawRecording(path, meta, attachments, stats,
                         [c.topic for c in channels.values() if c.message_encoding == "msgpack"],
-                        [t for t in topics if t.endswith(JSON_SUFFIX)], messages, complete, end)
+                        [t for t in topics if t.endswith(JSON_SUFFIX)], messages, complete, end,
+                        damaged, size)
