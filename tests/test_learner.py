@@ -354,14 +354,19 @@ def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> Non
         with zenoh.open(opts.to_config()) as session:
             sub = session.declare_subscriber(Keys("dur").weights, on_weights)
             deadline = time.monotonic() + 90
+            dup = None  # a second worker of its id would play the same episodes: refused
             while time.monotonic() < deadline and max(seen, default=0) < 3:
+                if max(seen, default=0) >= 1 and dup is None:  # (an update: the worker is up)
+                    dup = subprocess.Popen(
+                        [sys.executable, "-m", "swarm.cli", "rollout-worker", "--run-id", "dur",
+                         "--connect", hub, "--zenoh-mode", "client"], cwd=ROOT,
+                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
                 time.sleep(0.05)
-            # a second worker of its id would play the same episodes: refused in one line
-            dup = swarm("rollout-worker", "--run-id", "dur", "--connect", hub, "--zenoh-mode",
-                        "client", timeout=60)
-            assert dup.returncode == 2 and dup.stderr.strip().splitlines()[-1] == (
+            assert dup is not None
+            err = dup.communicate(timeout=60)[1]
+            assert dup.returncode == 2 and err.strip().splitlines()[-1] == (
                 "swarm: error: rollout worker 0 of run dur is running already (its liveliness "
-                "token is up)"), dup.stderr
+                "token is up)"), err
             os.kill(learner.pid, signal.SIGKILL)
             learner.wait(timeout=10)
             with lock:
