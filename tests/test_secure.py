@@ -402,6 +402,25 @@ def test_foreign_peers_get_nothing_into_a_secure_run(certs: Path, tmp_path: Path
 
 
 @pytest.mark.procs
+def test_the_router_lets_every_process_ask_whether_its_own_id_is_up() -> None:
+    """`check_free` through the world's router: a second rollout worker or learner of a secure
+    run was not refused (its liveliness query on its own token was not in its role; a robot's
+    was, through its watch on every robot)."""
+    keys, n = Keys("acl2"), 2
+    asks: dict[str, set[str]] = {}  # identity -> keys the router lets it query liveliness on
+    told: dict[str, set[str]] = {}  # identity -> tokens the router may tell it of
+    for rule in acl("world", keys, n, 1)["rules"]:
+        who, flow, msgs = rule["id"].split("/")
+        into = asks if flow == "ingress" and "liveliness_query" in msgs.split("+") else \
+            told if flow == "egress" and "liveliness_token" in msgs.split("+") else None
+        if into is not None:
+            into.setdefault(who, set()).update(rule["key_exprs"])
+    for who, role in roles(keys, n, workers=1).items():
+        for token in role.token:
+            if who != "world":  # (the router itself: `test_a_second_secure_world...`)
+                assert token in asks.get(who, set()) and token in told.get(who, set()), who
+
+
 def test_a_second_secure_world_of_a_run_stops_at_once(certs: Path) -> None:
     """Two processes of one identity may ask each other whether they are up (and nothing else):
     a second world of a secure run is refused in one line. Before, the first world's access

@@ -85,13 +85,13 @@ class Role:
         """Message kinds -> keys this process may originate."""
         return {("put",): self.put, ("query",): self.query,
                 ("reply", "declare_queryable"): self.serve, ("declare_subscriber",): self.subscribe,
-                ("liveliness_token",): self.token,
-                ("declare_liveliness_subscriber", "liveliness_query"): self.watch}
+                ("liveliness_token",): self.token,  # (and whether its own id is up: `check_free`)
+                ("declare_liveliness_subscriber", "liveliness_query"): self.watch + self.token}
 
     def receives(self, base: str) -> dict[tuple[str, ...], tuple[str, ...]]:
         """Message kinds -> keys this process may be sent."""
         return {("put",): self.subscribe, ("reply",): self.query, ("query",): self.serve,
-                ("liveliness_token",): self.watch, DECLARATIONS: (f"{base}/**",)}
+                ("liveliness_token",): self.watch + self.token, DECLARATIONS: (f"{base}/**",)}
 
 
 def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[str, Role]:
