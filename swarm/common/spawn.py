@@ -101,9 +101,9 @@ def supervised() -> bool:
 def die_with_parent() -> bool:
     """In a child started by a supervisor: SIGTERM when the supervisor dies, however it dies,
     and SHUTDOWN_GRACE_S to unwind. False (nothing done) in a process no supervisor started."""
-    parent = os.environ.get(PARENT_ENV)
-    if not parent or not parent.isdigit():
+    if not supervised():
         return False
+    parent = os.environ[PARENT_ENV]
     terminate_as_interrupt(grace=True)
     try:
         libc = ctypes.CDLL(None, use_errno=True)

@@ -166,7 +166,8 @@ def changes_said(res: dict[str, Any]) -> list[str]:
     """Live link-fault changes (`swarm fault`) the run did not apply as asked: the world logged
     each, in a log a clean run removes, so the run says them once more (the supervisor says the
     process-fault changes it drops itself)."""
-    fc = res.get("fault_changes") if isinstance(res.get("fault_changes"), dict) else {}
+    fc = res.get("fault_changes")
+    fc = fc if isinstance(fc, dict) else {}
     why = {"dropped": f"dropped (more than {MAX_PENDING} were waiting)",
            "late": "applied late (their tick had been played)",
            "unfit": "dropped (they did not fit the faults then in force)"}
