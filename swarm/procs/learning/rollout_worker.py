@@ -30,6 +30,7 @@ from swarm.net.keys import Keys
 from swarm.net.learning import Weights
 from swarm.net.messages import BadMessage
 from swarm.net.zconfig import ZenohOptions, open_session
+from swarm.procs.robot_status import CLAIM_SETTLE_S
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError, from_dict
 
@@ -55,7 +56,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         # two workers of one id would play the same episodes (their seeds follow the id)
         check_free(session, keys.alive_worker(worker_id),
                    f"rollout worker {worker_id} of run {run_id}", since=opened,
-                   settle=0.0 if supervised() else 1.0)
+                   settle=0.0 if supervised() else CLAIM_SETTLE_S)
         inbox = Inbox(session).subscribe(keys.weights, "w").liveliness(
             keys.alive_learner, "learner").token(keys.alive_worker(worker_id))
         pub = publisher(session, keys.worker_episodes)
