@@ -118,8 +118,10 @@ def rewrite(src: Path, dst: Path, edit_msg: Any = None, edit_meta: Any = None,
         w.finish()
 
 
-def synthetic(path: Path, run_id: str = "syn", robots: int = 2) -> None:
-    """A small well-formed recording written in-process (no swarm run)."""
+def synthetic(path: Path, run_id: str = "syn", robots: int = 2,
+              bad_status_at: tuple[int, ...] = ()) -> None:
+    """A small well-formed recording written in-process (no swarm run); with `bad_status_at`,
+    an unreadable robot status (a foreign peer's) after the observations of those ticks."""
     cfg = WorldConfig(n_robots=robots, horizon=4)
     rec = RunRecord(cfg, RunConfig(run_id=run_id, episodes=1)).to_record()
     w = RecordingWriter(path, run_id, rec, cfg, "virtual", 2.0)
@@ -128,6 +130,8 @@ def synthetic(path: Path, run_id: str = "syn", robots: int = 2) -> None:
         for i in range(robots):
             p = Obs(0, t, i, 1, i, bytes(cfg.vision ** 2), 0.0, False, 100.0).pack()
             w.message(keys.obs(i), "obs", p, w.decode(keys.obs(i), "obs", p)[1], 10**18 + t, t, 0)
+        if t in bad_status_at:
+            w.message(keys.robot_status(0), "rstatus", b"\xff", None, 10**18 + t, t, 0)
     w.finish(None, {})
 
 

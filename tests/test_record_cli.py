@@ -215,16 +215,18 @@ def test_bad_files_are_one_line_errors_with_status_2(tmp_path: Path, capsys: Any
 
 def test_replay_counts_only_the_ticks_it_replays(tmp_path: Path, capsys: Any) -> None:
     """UA pass: `--from` fast-forwards through the ticks before it, and the summary counted
-    them as replayed; a file with no tick in it said "replayed 0 messages (ticks 0..0)"."""
+    them (and their bad records) as replayed; a file with no tick in it said "replayed 0
+    messages (ticks 0..0)"."""
     good = tmp_path / "good.mcap"
-    synthetic(good)  # 2 robots' observations at ticks 0..2
+    synthetic(good, bad_status_at=(0, 2))  # 2 robots' observations at ticks 0..2
     js = tmp_path / "replayed.json"  # what the summary line says
-    for flags, said in (([], (6, 0, 2)), (["--from", "2"], (2, 2, 2)),
-                        (["--from", "1", "--until", "1"], (2, 1, 1))):
+    for flags, said in (([], (8, 0, 2, 2)), (["--from", "2"], (3, 2, 2, 1)),
+                        (["--from", "1", "--until", "1"], (2, 1, 1, 0))):
         code, _ = swarm_main("replay", str(good), "--speed", "0", "--json", str(js), *flags,
                              capsys=capsys)
         got = json.loads(js.read_text())
-        assert code == 0 and (got["messages"], got["first_tick"], got["last_tick"]) == said
+        assert code == 0 and (got["messages"], got["first_tick"], got["last_tick"],
+                              got["bad"]) == said, (flags, got)
     from swarm.net.record.recording import RecordingWriter
     from swarm.procs.runconfig import RunConfig, RunRecord
     from world.config import WorldConfig

@@ -154,7 +154,7 @@ def recorded_result(rec: Recording) -> tuple[dict[str, Any] | None,
 class ReplayStats:
     messages: int = 0  # replayed: those of ticks from `first_tick` on
     statuses: int = 0
-    bad: int = 0  # records that did not fit their schema, dropped
+    bad: int = 0  # records of the replayed ticks that did not fit their schema, dropped
     first_tick: int = 0
     last_tick: int = 0
     process_shown: int = 0  # the run's own process faults (its flags) put on the view so far
@@ -219,8 +219,9 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
             v.world_alive = False
     except (BadMessage, TypeError, ValueError, KeyError, AttributeError, IndexError,
             OverflowError):
-        stats.bad += 1
-        v.bad_records = stats.bad
+        if m.tick >= stats.first_tick:  # (those fast-forwarded through are not replayed)
+            stats.bad += 1
+            v.bad_records = stats.bad
 
 
 def replay(rec: Recording, console: Console | None = None, speed: float = 1.0,
