@@ -349,6 +349,32 @@ def test_a_secure_run_records_and_its_recording_verifies(certs: Path, tmp_path: 
     assert v.returncode == 0 and "every one as recorded" in v.stdout, v.stdout + v.stderr
 
 
+@pytest.mark.procs
+def test_an_audit_of_a_plain_run_gets_through_and_its_stop_stops_it(tmp_path: Path) -> None:
+    """UA pass 60: `swarm audit --stop` forged a control record with a field of its own, which
+    the world and the supervisor dropped as malformed: "accepted" while the run went on to its
+    end. The forged records are now what an operator sends, so on a plain run the stop stops it,
+    and the witness knows the audit's messages by their attachment."""
+    proc = swarm_started("run", "--robots", "3", "--episodes", "50", "--policy", "random",
+                         "--headless", "--pace", "8", "--run-id", "plainaudit", "--json",
+                         str(tmp_path / "r.json"))
+    try:
+        audit = swarm("audit", "--run", "plainaudit", "--stop", "--duration", "1", "--json",
+                      str(tmp_path / "audit.json"), timeout=60)
+        assert proc.stdout is not None
+        proc.stdout.read()
+        assert proc.wait(timeout=60) == 3, proc.stderr.read() if proc.stderr else ""
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    rep = json.loads((tmp_path / "audit.json").read_text())
+    assert audit.returncode == 1 and rep["verdict"] == "fail", audit.stdout
+    assert rep["sessions"]["plain_tcp"]["delivered"]["control"] == 1, rep
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["stopped"] == "control" and res["completed"] < 50, res
+    assert "swarm/plainaudit/control" not in res["messages"]["bad_by_key"], res["messages"]
+
+
 def _metrics(res: dict) -> dict:
     keys = ("elratio_mean", "reward_mean", "collisions_mean", "block_collisions_mean",
             "success_rate", "ticks", "timeouts", "robots_lost", "actions")

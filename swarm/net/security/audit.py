@@ -14,7 +14,9 @@ message of a far-future version, and a control record (a no-op, or `stop` with `
 and puts one message on a key the attacker's identity owns (`own_key`), which must get through
 on a valid session: proof that the session was connected and the witness sees what passes. A
 witness session (identity `recorder` with `--secure`, plain otherwise) subscribes to those keys
-and counts, byte for byte, the forged payloads it receives. Zenoh's ACL drops a refused message
+and counts the forged messages it receives, each known by its attachment (the audit's nonce,
+the session's name and the kind: the payloads themselves are what a real process would send, so a
+forged control record is one the run acts on). Zenoh's ACL drops a refused message
 inside the router, so "never reached anyone" is what the witness can show; the run's own
 counters (and its metrics against the same run without `--secure`) show the rest.
 """
@@ -55,7 +57,6 @@ class Attempt:
     ticks_seen: int = 0
     sent: dict[str, int] = field(default_factory=dict)
     delivered: dict[str, int] = field(default_factory=dict)
-    payloads: dict[bytes, str] = field(default_factory=dict)  # forged payload -> its kind
 
 
 def _conf(endpoint: str, tls: dict[str, Any] | None) -> zenoh.Config:
@@ -91,12 +92,20 @@ class Audit:
     def _witness(self) -> zenoh.Session:
         return witness_session(self.endpoint, self.secure)
 
+    def _mark(self, a: Attempt, kind: str) -> bytes:
+        """The attachment of attempt `a`'s forged message of `kind` (the run ignores it)."""
+        return f"swarm-audit {self.nonce} {a.name} {kind}".encode()
+
     def _seen(self, sample: zenoh.Sample) -> None:
-        payload = sample.payload.to_bytes()
+        att = sample.attachment
+        if att is None:
+            return
+        tag, nonce, name, kind = (att.to_bytes().decode(errors="replace").split(" ") + [""] * 4)[:4]
+        if tag != "swarm-audit" or nonce != self.nonce:
+            return  # the run's own traffic, or another audit's
         with self._lock:
             for a in self.attempts:
-                kind = a.payloads.get(payload)
-                if kind is not None:
+                if a.name == name:
                     a.delivered[kind] = a.delivered.get(kind, 0) + 1
 
     # --- the attackers ----------------------------------------------------------------------
@@ -139,15 +148,14 @@ class Audit:
                                    lambda s: ticks.append(_obs_tick(s.payload.to_bytes())))
 
         def put(kind: str, key: str, payload: bytes) -> None:
-            with self._lock:
-                a.payloads[payload] = kind
-            session.put(key, payload)
+            session.put(key, payload, attachment=self._mark(a, kind))
             a.sent[kind] = a.sent.get(kind, 0) + 1
 
         weights = Weights("audit", 2**31 - 2, {"audit": self.nonce},
                           {"forged": np.zeros(1, dtype=np.float32)}).pack()
-        control = pack_record(K_CONTROL, {"stop": True, "audit": self.nonce} if self.stop
-                              else {"process": [], "audit": self.nonce})
+        # (a field of its own would make the run drop it as malformed: `--stop` would stop
+        # nothing)
+        control = pack_record(K_CONTROL, {"stop": True} if self.stop else {"process": []})
         put("own_key", self.own_key, f"swarm audit {self.nonce} {a.name}".encode())
         put("weights", k.weights, weights)
         put("control", k.control, control)
