@@ -213,7 +213,7 @@ def test_the_help_states_defaults_and_what_it_names(monkeypatch: pytest.MonkeyPa
     """UA pass: help without the defaults of --seed, --fault-seed, record --wait/--flush and the
     learner's loss flags; eval's `all` unexplained; a module that does not exist; a hint planner
     left out; `swarm fault` saying "at once" of flags that take ROBOT@TICK; experiment --resume
-    and the learner's description not saying what they do."""
+    and the learner's description not saying what they do; the router's Zenoh mode."""
     import argparse
 
     from swarm.cli import build_parser
@@ -244,6 +244,9 @@ def test_the_help_states_defaults_and_what_it_names(monkeypatch: pytest.MonkeyPa
     assert "--crash ROBOT[@TICK]" in fault and "or at once with ROBOT alone" in fault
     resume = text("experiment")
     assert "same episodes and seeds" not in resume and "holds this sweep's world, [run]" in resume
+    # UA pass 60: the router's help said the shared "(default peer)" of its mode
+    assert "Zenoh mode (default router)" in text("router")
+    assert "Zenoh mode (default peer)" in text("robot")
 
 
 def test_merge_precedence_in_process(tmp_path: Path) -> None:

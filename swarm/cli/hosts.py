@@ -104,6 +104,6 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--router-id", type=int, default=None, metavar="H",
                    help="with --secure: this router's identity router-H (default 1; "
                         "`swarm certs --routers R` makes router-1..R)")
-    zconfig.add_arguments(p)
+    zconfig.add_arguments(p, mode="router")
     add_secure_flag(p)
-    p.set_defaults(func=cmd_router, zenoh_mode="router")
+    p.set_defaults(func=cmd_router)

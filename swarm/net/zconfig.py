@@ -84,10 +84,11 @@ class ZenohOptions:
         return out
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser, mode: str = "peer") -> None:
+    """The Zenoh flags of a command whose session is in `mode` unless told otherwise."""
     g = parser.add_argument_group("zenoh")
-    g.add_argument("--zenoh-mode", default="peer", choices=["peer", "client", "router"],
-                   help="this process's Zenoh mode (default peer)")
+    g.add_argument("--zenoh-mode", default=mode, choices=["peer", "client", "router"],
+                   help=f"this process's Zenoh mode (default {mode})")
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
