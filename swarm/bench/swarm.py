@@ -57,6 +57,10 @@ class SwarmBenchConfig:
         check_seed(self.seed)
         if self.episodes < 1 or not self.robots or min(self.robots) < 1:
             raise ConfigError("bench swarm needs episodes >= 1 and robot counts >= 1")
+        if len(set(self.robots)) != len(self.robots) or \
+                len(set(self.policies)) != len(self.policies):
+            raise ConfigError("bench swarm robots and policies must be distinct (a repeat is a "
+                              "typo, not a row to run twice: --repeats runs rounds)")
         if not 1 <= self.repeats <= 100:
             raise ConfigError(f"bench swarm repeats must be in 1..100, got {self.repeats}")
         if self.delivery not in ("radio", "direct"):
@@ -68,8 +72,9 @@ class SwarmBenchConfig:
     def check(self) -> None:
         """Hosts and certificates usable for every team size, before any run (one line)."""
         if self.hosts:
-            from swarm.net.kernel.hosts import MAX_HOSTS, hosts_reason
+            from swarm.net.kernel.hosts import MAX_HOSTS, check_host_count, hosts_reason
 
+            check_host_count(self.hosts, min(self.robots), "bench swarm hosts")
             reason = hosts_reason() if self.hosts <= MAX_HOSTS else f"at most {MAX_HOSTS} hosts"
             if reason:
                 raise ConfigError(reason)

@@ -225,16 +225,27 @@ def _command() -> str:
 
 
 def _ints(text: str | None) -> tuple[int, ...] | None:
+    """'10,25' -> (10, 25); an empty entry or a repeat is a typo (one line), not a row to drop
+    or run twice."""
     if text is None:
         return None
     try:
-        return tuple(int(x) for x in text.split(",") if x.strip())
+        out = tuple(int(x) for x in text.split(","))
     except ValueError:
         raise ConfigError(f"expected comma-separated integers, got {text!r}") from None
+    if len(set(out)) != len(out):
+        raise ConfigError(f"expected distinct integers, got {text!r}")
+    return out
 
 
 def _names(text: str | None) -> tuple[str, ...] | None:
-    return None if text is None else tuple(x.strip() for x in text.split(",") if x.strip())
+    """'a,b' -> ('a', 'b'); an empty entry or a repeat is refused, as `_ints` does."""
+    if text is None:
+        return None
+    out = tuple(x.strip() for x in text.split(","))
+    if not all(out) or len(set(out)) != len(out):
+        raise ConfigError(f"expected distinct comma-separated names, got {text!r}")
+    return out
 
 
 

@@ -45,6 +45,14 @@ HOST_NET = ipaddress.ip_network("10.215.0.0/16")
 MAX_HOSTS = 250
 
 
+def check_host_count(hosts: int, n_robots: int, flag: str = "--hosts") -> None:
+    """K emulated hosts for a team of `n_robots`: robots are dealt round robin, so more hosts
+    than robots would leave one empty (and start its namespace and router for nothing)."""
+    if hosts > n_robots:
+        raise ConfigError(f"{flag} {hosts} is more hosts than the {n_robots} robots (robots are "
+                          "dealt round robin: a host without one would be empty)")
+
+
 def hosts_reason() -> str | None:
     """Why emulated hosts cannot run here (None: they can): root, `ip`, `ip netns`, bridges."""
     try:
