@@ -421,6 +421,10 @@ def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
               f"vain={run / 'curve.csv'}", "--table2-episodes", "6", "--episodes", "2",
               "--robots", "3", "--add-every", "3", "--decisions", "3", "--seed", "5")
     assert r.returncode == 0, r.stderr
+    # UA pass 61: the items its --policies cannot serve were left out without a word
+    assert ("swarm: warning: repro leaves out fig9 (neither commnet nor commattn among "
+            "--policies); fig10 (not commattn among --policies); fig11 (not commattn among "
+            "--policies); comm (not commattn among --policies)") in r.stderr, r.stderr
     rows = json.loads((out / "table2.json").read_text())["rows"]
     assert [row["policy"] for row in rows] == ["vain", "random"]
     assert all(row["episodes"] == 6 and 0 < row["elratio_mean"] <= 1 for row in rows)
@@ -463,6 +467,26 @@ def test_repro_fig9_writes_a_row_per_policy_vision_and_range(tmp_path: Path) -> 
     assert "world's vision 7 and comm range 3 (for the other items of the command) are not " \
         "used here" in md
     assert (out / "fig9.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_repro_fig9_refuses_a_wrong_checkpoint_before_any_point(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """UA pass 61: CommAttn's checkpoint was loaded only after CommNet's whole sweep (minutes at
+    the default 1000 episodes a point, then thrown away); now before the first evaluation."""
+    from swarm.cli import main
+    from swarm.studies import fig9
+
+    evaluated: list[str] = []
+    real = fig9.evaluate
+    monkeypatch.setattr(fig9, "evaluate", lambda *a, **k: evaluated.append("x") or real(*a, **k))
+    cfg = tmp_path / "f9.toml"
+    cfg.write_text("[repro]\nfig9_episodes = 1\n")
+    code = main(["repro", "fig9", "--out", str(tmp_path / "o"), "--config", str(cfg),
+                 "--checkpoint", f"commattn={ROOT / 'checkpoints' / 'commnet.pt'}"])
+    err = capsys.readouterr().err
+    assert code == 2 and "holds policy 'commnet', not 'commattn'" in err, err
+    assert evaluated == [] and not (tmp_path / "o" / "fig9.csv").exists()
 
 
 def test_fig9_without_vision_checkpoints_warns_on_stderr(tmp_path: Path, capsys) -> None:
@@ -733,3 +757,24 @@ def test_eval_json_to_a_descriptor_link_prints_it(tmp_path: Path) -> None:
     table, _, obj = r.stdout.partition("\n{")
     assert "elratio" in table
     assert json.JSONDecoder().raw_decode("{" + obj)[0]["policy"] == "random"
+
+
+def test_bench_swarm_refuses_typos_in_its_lists_and_empty_hosts(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """UA pass 61: `--robots 10,,25` ran as 10,25, `--robots 2,2 --policy random,random` four
+    identical runs, and `--hosts 5 --robots 2` three empty hosts (`--hosts 100`: a hundred
+    namespaces, no output for minutes) where `swarm run` refuses. Each is now one line, exit 2,
+    before anything starts."""
+    from swarm.cli import main
+
+    for flags, why in ((["--robots", "10,,25"], "expected comma-separated integers, got "
+                                                "'10,,25'"),
+                       (["--robots", "2,2"], "expected distinct integers, got '2,2'"),
+                       (["--robots", "2", "--policy", "random,random"],
+                        "expected distinct comma-separated names, got 'random,random'"),
+                       (["--robots", "2", "--policy", "random,"], "names, got 'random,'"),
+                       (["--robots", "2,3", "--hosts", "3"], "bench swarm hosts 3 is more hosts "
+                                                             "than the 2 robots")):
+        assert main(["bench", "swarm", "--episodes", "1", *flags]) == 2, flags
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and why in err, (flags, err)

@@ -93,6 +93,8 @@ def test_a_zero_kernel_bandwidth_or_lease_is_refused_not_read_as_the_default() -
     _refused(*run, "--netns-lease", "0ms", why="bad --netns-lease '0ms'")
     _refused(*run, "--netns-lease", "0", why="a lease must be at least 1 ms")
     _refused(*run, "--netns-lease", "0.4", why="a lease must be at least 1 ms")  # (Zenoh: 0)
+    _refused(*run, "--netns-lease", "-1s", why="bad --netns-lease '-1s': a lease must be at "
+             "least 1 ms")  # (UA pass 61: "must be >= 0", and then 0 was refused)
 
 
 @pytest.mark.parametrize("table,why", [
@@ -307,3 +309,19 @@ def test_run_help_names_the_exit_status_of_a_stopped_run() -> None:
     r = swarm("run", "--help")
     assert r.returncode == 0 and "3 stopped before every episode" in " ".join(r.stdout.split())
 
+
+
+def test_a_failed_namespace_command_names_its_cause_not_ip_batchs_last_line() -> None:
+    """UA pass 61: as root without CAP_NET_ADMIN, `ip -batch` says why ("mount --make-shared
+    /run/netns failed: Operation not permitted") and then "Command failed -:1"; the error kept
+    only that last line."""
+    from swarm.net.kernel.netns import _run
+
+    script = ("echo 'mount --make-shared /run/netns failed: Operation not permitted' >&2; "
+              "echo 'Command failed -:1' >&2; exit 2")
+    with pytest.raises(ConfigError) as exc:
+        _run(["sh", "-c", script])
+    assert str(exc.value) == (
+        f"netns: `sh -c {script}` failed: mount --make-shared /run/netns failed: Operation not "
+        "permitted (root without CAP_NET_ADMIN and CAP_SYS_ADMIN, e.g. an unprivileged "
+        "container)")

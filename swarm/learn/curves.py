@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from swarm.common.atomic import remove_stale, write_text
-from swarm.common.report import save_png
+from swarm.common.policy_spec import shown
+from swarm.common.report import header, md_table, save_png, write_item
 from world.config import ConfigError
 
 CURVE_FIELDS = ["update", "epoch", "episodes", "n_dynamic", "elratio", "success", "reward",
@@ -127,3 +128,48 @@ def plot_curve(csv_path: Path, png_path: Path, title: str, smooth: int = 25) -> 
                                 ha="left")
 
     save_png(Path(png_path), draw, ncols=2)
+
+
+def fig8(paths: dict[str, Path], smooth_over: int, out: Path, command: str,
+         seed: int) -> dict[str, Any]:
+    """Fig. 8 (`swarm repro fig8`): training curves (score = mean reward per robot, and
+    elratio) of the policies whose `curve.csv` files `paths` names, against training
+    episodes, smoothed over `smooth_over` updates; written into `out`."""
+    names = list(paths)
+    curves = {n: read_curve(paths[n]) for n in names}
+    rows: list[dict[str, Any]] = []
+    smooth = {}
+    for n, c in curves.items():
+        el, rw = moving_mean(c["elratio"], smooth_over), moving_mean(c["reward"], smooth_over)
+        smooth[n] = (el, rw)
+        for k in range(len(el)):
+            if (k + 1) % 10 == 0 or k == len(el) - 1:
+                rows.append({"policy": n, "update": int(c["update"][k]),
+                             "episodes": int(c["episodes"][k]), "elratio": round(el[k], 5),
+                             "reward": round(rw[k], 3)})
+    last = {n: (smooth[n][0][-1], smooth[n][1][-1], int(curves[n]["episodes"][-1]))
+            for n in names}
+    md = header("Fig. 8: training curves of the learned policies", command, seed,
+                f"Training elratio and reward per robot (sampled actions, curriculum on), "
+                f"moving mean over {smooth_over} updates. Paper: CommAttn's score ~150% of the "
+                "others'.")
+    md += md_table(["policy", "training episodes", "final elratio", "final reward / robot"],
+                   [[n, f"{e:,}", f"{el:.3f}", f"{rw:.1f}"] for n, (el, rw, e) in last.items()])
+
+    def draw(axes: Any) -> None:
+        for n in names:
+            ep = [e / 1000 for e in curves[n]["episodes"]]
+            axes[0].plot(ep, smooth[n][0], label=n)
+            axes[1].plot(ep, smooth[n][1], label=n)
+        axes[0].set_ylabel("training elratio (sampled)")
+        axes[1].set_ylabel("training reward per robot (score)")
+        for ax in axes:
+            ax.set_xlabel("training episodes (thousands)")
+            ax.grid(alpha=0.3)
+            ax.legend()
+        axes[0].set_title("Fig. 8: training curves")
+
+    meta = {"item": "fig8", "command": command, "seed": seed, "smooth": smooth_over,
+            "curves": {n: shown(str(paths[n])) for n in names}}
+    return {"item": "fig8", "rows": rows,
+            "files": write_item(out, "fig8", rows, md, draw, meta, ncols=2)}

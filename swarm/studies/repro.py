@@ -9,6 +9,7 @@ every file atomically. Policies are registry names, so a learned policy joins by
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,9 +27,9 @@ from swarm.bench.micro import (
     timing_stats,
 )
 from swarm.common import atomic
-from swarm.common.policy_spec import SHIPPED, build_policy, shown
+from swarm.common.policy_spec import SHIPPED, build_policy
 from swarm.common.report import header, md_table, paired, paired_cell, provenance, write_item
-from swarm.learn.curves import moving_mean, read_curve
+from swarm.learn.curves import fig8 as curves_figure
 from swarm.learn.evaluate import evaluate
 from swarm.studies.comm import POLICIES as COMM_POLICIES
 from world.config import ConfigError, WorldConfig, check_count, check_seed, replace, to_dict
@@ -351,48 +352,12 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
 
 
 def fig8(cfg: ReproConfig, command: str) -> dict[str, Any]:
-    """Fig. 8: training curves (score = mean reward per robot, and elratio) of the learned
-    policies against training episodes, smoothed over `smooth` updates."""
+    """Fig. 8: the learned policies' training curves (`swarm.learn.curves.fig8`)."""
     names = learned_of(cfg)
     if not names:
         raise ConfigError("fig8 needs at least one learned policy in --policies")
-    curves = {n: read_curve(cfg.curve(n)) for n in names}
-    rows: list[dict[str, Any]] = []
-    smooth = {}
-    for n, c in curves.items():
-        el, rw = moving_mean(c["elratio"], cfg.smooth), moving_mean(c["reward"], cfg.smooth)
-        smooth[n] = (el, rw)
-        for k in range(len(el)):
-            if (k + 1) % 10 == 0 or k == len(el) - 1:
-                rows.append({"policy": n, "update": int(c["update"][k]),
-                             "episodes": int(c["episodes"][k]), "elratio": round(el[k], 5),
-                             "reward": round(rw[k], 3)})
-    last = {n: (smooth[n][0][-1], smooth[n][1][-1], int(curves[n]["episodes"][-1]))
-            for n in names}
-    md = header("Fig. 8: training curves of the learned policies", command, cfg.seed,
-                f"Training elratio and reward per robot (sampled actions, curriculum on), "
-                f"moving mean over {cfg.smooth} updates. Paper: CommAttn's score ~150% of the "
-                "others'.")
-    md += md_table(["policy", "training episodes", "final elratio", "final reward / robot"],
-                   [[n, f"{e:,}", f"{el:.3f}", f"{rw:.1f}"] for n, (el, rw, e) in last.items()])
-
-    def draw(axes: Any) -> None:
-        for n in names:
-            ep = [e / 1000 for e in curves[n]["episodes"]]
-            axes[0].plot(ep, smooth[n][0], label=n)
-            axes[1].plot(ep, smooth[n][1], label=n)
-        axes[0].set_ylabel("training elratio (sampled)")
-        axes[1].set_ylabel("training reward per robot (score)")
-        for ax in axes:
-            ax.set_xlabel("training episodes (thousands)")
-            ax.grid(alpha=0.3)
-            ax.legend()
-        axes[0].set_title("Fig. 8: training curves")
-
-    meta = {"item": "fig8", "command": command, "seed": cfg.seed, "smooth": cfg.smooth,
-            "curves": {n: shown(str(cfg.curve(n))) for n in names}}
-    return {"item": "fig8", "rows": rows,
-            "files": write_item(Path(cfg.out or "."), "fig8", rows, md, draw, meta, ncols=2)}
+    return curves_figure({n: cfg.curve(n) for n in names}, cfg.smooth, Path(cfg.out or "."),
+                         command, cfg.seed)
 
 
 def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
@@ -442,12 +407,22 @@ def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[
     """The items `run` will make, every configuration of them validated (ConfigError)."""
     if not cfg.out:
         raise ConfigError("repro needs an output directory (--out DIR)")
+    asked = list(items)
     if len(items) > 1 and "fig8" in items and not learned_of(cfg):
         items = [i for i in items if i != "fig8"]  # `all` without learned policies: no curves
     if len(items) > 1 and "commattn" not in cfg.policies:  # `all` without CommAttn
         items = [i for i in items if i not in ANALYSES]
-    from swarm.studies.fig9 import fig9_items  # (fig9 alone: --policies it cannot draw refused)
+    from swarm.studies.fig9 import check_fig9_checkpoints, fig9_items
+
+    # (fig9 alone: --policies it cannot draw refused)
     items = fig9_items(items, cfg.policies, tuple(cfg.policies) == ALL_POLICIES)
+    if left := [i for i in asked if i not in items]:
+        why = {"fig8": "no learned policy", "fig9": "neither commnet nor commattn"}
+        said = "; ".join(f"{i} ({why.get(i, 'not commattn')} among --policies)" for i in left)
+        print(f"swarm: warning: repro leaves out {said}: make it alone, or add the policy",
+              file=sys.stderr, flush=True)
+    if "fig9" in items:
+        check_fig9_checkpoints(world, cfg)
     for item in items:
         if item not in ("table1", "fig9", *ANALYSES):
             sweep_worlds(world, item, cfg)  # raises ConfigError on an impossible point

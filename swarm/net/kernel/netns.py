@@ -78,7 +78,8 @@ class NetnsConfig:
             # (0 is the field's "unlimited": a user asking for no bandwidth got all of it)
             raise ConfigError(f"bad --kernel-bandwidth {bandwidth!r}: a cap must be above 0 B/s "
                               "(no cap: leave it out, or write none)")
-        lease_ms = parse_duration_ms(lease) if lease is not None else 0.0
+        negative = lease is not None and str(lease).strip().startswith("-")
+        lease_ms = parse_duration_ms(lease) if lease is not None and not negative else 0.0
         if lease is not None and lease_ms < 1:  # (0 is the field's "the usual 1 s"; Zenoh
             # takes whole ms: 0.4 would be a lease of 0)
             raise ConfigError(f"bad --netns-lease {lease!r}: a lease must be at least 1 ms "
@@ -108,9 +109,19 @@ def _run(cmd: list[str], stdin: str | None = None, check: bool = True) -> str:
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise ConfigError(f"netns: `{' '.join(cmd)}` failed: {exc}") from None
     if check and p.returncode != 0:
-        err = (p.stderr or p.stdout).strip().splitlines()
-        raise ConfigError(f"netns: `{' '.join(cmd)}` failed: {err[-1] if err else p.returncode}")
+        raise ConfigError(f"netns: `{' '.join(cmd)}` failed: {_cause(p)}")
     return p.stdout
+
+
+def _cause(p: subprocess.CompletedProcess[str]) -> str:
+    """What a failed `ip`/`tc`/`iptables` said, in one line: `ip -batch` ends with "Command
+    failed -:N" after the line that names the cause, so that line is kept."""
+    lines = [ln.strip() for ln in (p.stderr or p.stdout or "").splitlines() if ln.strip()]
+    causes = [ln for ln in lines if not ln.startswith("Command failed")] or lines
+    why = "; ".join(causes[:2]) if causes else f"exit status {p.returncode}"
+    if "Operation not permitted" in why:
+        why += " (root without CAP_NET_ADMIN and CAP_SYS_ADMIN, e.g. an unprivileged container)"
+    return why
 
 
 def check_tools(faults: NetnsConfig = NetnsConfig()) -> None:
