@@ -201,6 +201,40 @@ def test_a_sweep_with_process_faults_leaves_nothing_in_the_temp_dir(tmp_path: Pa
 
 
 @pytest.mark.procs
+def test_two_sweeps_of_one_file_at_once_do_not_take_each_others_run_ids(tmp_path: Path) -> None:
+    """Run ids were `exp-NAME-K`, the same in every sweep of a file: a second sweep started
+    while the first held `exp-t-0` aborted at that run ("give another --run-id", exit 2). Here
+    a stand-in for that other sweep holds the id, as its supervisor does (swarm/common/spawn.py
+    claim_run); this sweep's own ids carry its pid and are free."""
+    import fcntl
+    import os
+    import subprocess
+    import sys
+
+    from swarm.studies.experiment_plan import point_run_id
+
+    tmp = tmp_path / "tmp"
+    (tmp / "swarm-runs").mkdir(parents=True)
+    fd = os.open(tmp / "swarm-runs" / "exp-t-0.lock", os.O_RDWR | os.O_CREAT)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    try:
+        out = tmp_path / "out"
+        r = swarm("experiment", sweep_file(tmp_path, BASE + 'policies = ["nearest-frontier"]\n',
+                                           "[world]\nn_robots = 2\n\n[run]\nepisodes = 1\n"),
+                  "--out", str(out), env={"TMPDIR": str(tmp)})
+    finally:
+        os.close(fd)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert [row["twin"] for row in _rows(out / "t.csv")] == ["identical"]
+    other = subprocess.run([sys.executable, "-c", "from swarm.studies.experiment_plan import "
+                            "point_run_id; print(point_run_id('t', 0))"], check=True, text=True,
+                           capture_output=True, cwd=ROOT).stdout.strip()
+    assert other != point_run_id("t", 0) and other.startswith("exp-t-")
+    long = point_run_id("n" * 64, 12345)  # a name of the most characters still fits the id
+    assert len(long) <= 64 and long.endswith(f"-{os.getpid()}-12345")
+
+
+@pytest.mark.procs
 def test_resume_refuses_a_csv_of_another_world_faults_or_run_and_extends_values(
         tmp_path: Path) -> None:
     """`--resume` kept a sweep's rows after its world, base faults or tick changed, and the

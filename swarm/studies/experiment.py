@@ -43,6 +43,7 @@ from swarm.studies.experiment_plan import (
     checkpoints_of,
     load,
     plan,
+    point_run_id,
     sweep_record,
 )
 from world.config import WorldConfig
@@ -90,7 +91,7 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
         policy, value, seed, faults = pt.policy, pt.value, pt.seed, pt.faults
         if (policy, str(value), str(seed)) in done:
             continue
-        rc = dataclasses.replace(pt.run, run_id=f"exp-{exp.name}-{len(rows)}"[:60])
+        rc = dataclasses.replace(pt.run, run_id=point_run_id(exp.name, len(rows)))
         recording = str(out_dir / f"{exp.name}-{len(rows)}.mcap") if exp.record else None
         if recording:
             out_dir.mkdir(parents=True, exist_ok=True)

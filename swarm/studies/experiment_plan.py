@@ -6,6 +6,7 @@ checkpoint loaded as a robot loads it), so a bad file is one line and exit 2, no
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -235,7 +236,7 @@ def plan(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
         need_mcap()
     points = []
     for policy in exp.policies:
-        rc = dataclasses.replace(run, run_id=f"exp-{exp.name}-0"[:60],
+        rc = dataclasses.replace(run, run_id=point_run_id(exp.name, 0),
                                  policy=policy.split(":")[0],
                                  checkpoint=exp.checkpoint(policy),
                                  clock="real" if exp.kernel else run.clock)
@@ -246,6 +247,15 @@ def plan(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
     overrides = (*(("--episodes", str(episodes)) if episodes is not None else ()),
                  *(("--seeds", ",".join(map(str, seeds))) if seeds is not None else ()))
     return Sweep(path, world, run, exp, tuple(points), overrides)
+
+
+def point_run_id(name: str, k: int) -> str:
+    """The run id of a sweep's k-th run, `exp-NAME-PID-K`: the sweep's pid keeps it apart from
+    every other sweep running on this machine (two sweeps of one file at once took each other's
+    ids and one aborted part-way); NAME is cut to keep PID and K within a run id's 64 characters.
+    The CSV rows, the kept log folders and the recordings are named by K, not by it."""
+    tail = f"-{os.getpid()}-{k}"
+    return f"exp-{name[:64 - len('exp-') - len(tail)]}{tail}"
 
 
 def checkpoints_of(sweep: Sweep) -> dict[str, str | None]:
