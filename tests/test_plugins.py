@@ -166,6 +166,28 @@ def test_a_plugin_that_does_not_import_breaks_no_command_that_does_not_ask_for_i
     assert r.returncode == 2 and "could not be built" in r.stderr, r.stderr
 
 
+@pytest.mark.parametrize(("name", "why"), [
+    ("outofrange", "policy OutOfRange: actions must be integers in 0..8, got int64 [42, 42, 42]"),
+    ("raiser", "policy Raiser: act raised RuntimeError: boom from my plugin")])
+def test_bench_policy_names_a_plugin_that_answers_no_move_or_raises(
+        tmp_path: Path, name: str, why: str) -> None:
+    """Before: a traceback from the world's step (42) or a line without the policy's name
+    (raised), and with every policy (the default) the whole bench stopped at the plugin. Now
+    asked for, it is one line naming it, as in `swarm eval`; by default it is skipped, as one
+    that does not import."""
+    env = install(tmp_path, name)
+    small = ["--decisions", "1", "--warmup", "0", "--robots", "3", "--horizon", "4"]
+    for one_robot in ([], ["--one-robot"]):
+        r = swarm("bench", "policy", "--policies", name, *small, *one_robot, env=env)
+        said = [line for line in r.stderr.splitlines() if line.startswith("swarm:")]
+        assert r.returncode == 2 and said == [f"swarm: error: {why}"], r.stderr
+        assert "Traceback" not in r.stderr
+    r = swarm("bench", "policy", *small, "--json", str(tmp_path / "bench.json"), env=env)
+    assert r.returncode == 0 and f"swarm: warning: {why}; skipped" in r.stderr, r.stderr
+    timed = [row["policy"] for row in json.loads((tmp_path / "bench.json").read_text())["rows"]]
+    assert name not in timed and "nearest-frontier" in timed
+
+
 def test_the_project_s_own_registry_checks_pass_with_a_chained_plugin_installed(
         tmp_path: Path) -> None:
     """tests/test_layout.py compared CHAINED with every registered class, a plugin's too."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,8 +18,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from policies import loadable
+from policies import PLUGINS, loadable
 from swarm.common.policy_spec import build_inference, build_policy, resolve_policies
+from swarm.learn.evaluate import acted
 from world import core
 from world.config import ConfigError, WorldConfig, check_seed
 from world.decentral import View, batch_view, heard_by, robot_view
@@ -220,12 +222,14 @@ Decider = tuple[Callable[[], None], Callable[[View], tuple[np.ndarray, list[floa
 
 
 def team_decider(world: WorldConfig, name: str, checkpoint: str | None) -> Decider:
-    """(reset, decide) timing one team decision (every robot a receiver) per tick."""
+    """(reset, decide) timing one team decision (every robot a receiver) per tick, its answer
+    checked as `swarm eval` checks it (`acted`: a few microseconds), so a plugin that raises or
+    answers no move is one line naming it."""
     policy = build_policy(name, world, checkpoint)
 
     def decide(view: View) -> tuple[np.ndarray, list[float]]:
         t0 = time.perf_counter()
-        actions = policy.act(view)
+        actions = acted(policy, view)
         return actions, [time.perf_counter() - t0]
 
     return lambda: policy.reset(1), decide
@@ -235,8 +239,8 @@ def robot_decider(world: WorldConfig, name: str, checkpoint: str | None) -> Deci
     """(reset, decide) timing single-robot decisions as robot processes make them: every robot
     keeps its own policy (its memory), decides on `robot_view` of what it heard, and a chained
     policy runs `prepare_chain` then `act_with_chain` with its predecessor's state and action
-    from the team's decision (what its message would carry). The team's decision, untimed,
-    drives the episode."""
+    from the team's decision (what its message would carry). The team's decision, untimed and
+    checked as `swarm eval` checks it (`acted`), drives the episode."""
     team = build_inference(name, world, checkpoint)
     robots = [build_inference(name, world, checkpoint) for _ in range(world.n_robots)]
 
@@ -246,7 +250,7 @@ def robot_decider(world: WorldConfig, name: str, checkpoint: str | None) -> Deci
 
     def decide(view: View) -> tuple[np.ndarray, list[float]]:
         d = team.decide(view) if team.chained else None  # type: ignore[attr-defined]
-        actions = d.actions if d is not None else team.act(view)
+        actions = d.actions if d is not None else acted(team, view)
         seconds = []
         for i in np.flatnonzero(view.receivers[0]).tolist():
             rv = robot_view(world, view.seed, int(view.episodes[0]), view.tick, i,
@@ -276,15 +280,25 @@ def timing_stats(ms: np.ndarray) -> dict[str, float]:
 
 
 def bench_policy(world: WorldConfig, cfg: PolicyBenchConfig, progress: ProgressSink | None = None,
-                 checkpoints: dict[str, str] | None = None) -> dict[str, Any]:
-    """Planning ms per team decision for each policy of `cfg.policies`."""
+                 checkpoints: dict[str, str] | None = None,
+                 skip_failing_plugins: bool = False) -> dict[str, Any]:
+    """Planning ms per team decision for each policy of `cfg.policies`. A policy that raises or
+    answers no move is a one-line ConfigError naming it; with `skip_failing_plugins` (the
+    command times every policy, none asked for) such a plugin is skipped with a warning line,
+    as one that does not import or cannot be built (`policies.loadable`)."""
     progress = progress or NullProgress()
     checkpoints = checkpoints or {}
     rows: list[dict[str, Any]] = []
     for name in cfg.policies:
         progress.start(f"plan {name}", cfg.decisions)
-        ms = time_decisions(world, name, cfg.decisions, cfg.seed, cfg.warmup,
-                            checkpoints.get(name), progress, cfg.one_robot)
+        try:
+            ms = time_decisions(world, name, cfg.decisions, cfg.seed, cfg.warmup,
+                                checkpoints.get(name), progress, cfg.one_robot)
+        except ConfigError as exc:
+            if not skip_failing_plugins or name not in PLUGINS:
+                raise
+            print(f"swarm: warning: {exc}; skipped", file=sys.stderr)
+            continue
         row: dict[str, Any] = {"policy": name, **timing_stats(ms)}
         bar = None if cfg.one_robot else POLICY_BARS_MS.get(name)
         row["bar_ms"] = bar

@@ -282,7 +282,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         asked_for = args.policies is not None or "policies" in table
         cfg = dataclasses.replace(cfg, policies=buildable(cfg.policies, world, ckpts, asked_for))
         with RichProgress(err) as progress:
-            result = bench.bench_policy(world, cfg, progress, ckpts)
+            result = bench.bench_policy(world, cfg, progress, ckpts,
+                                        skip_failing_plugins=not asked_for)
         result["checkpoints"] = {n: shown(c) for n, c in ckpts.items()}
         out.print(policy_bench_table(result))
     if cfg.json:
