@@ -388,7 +388,8 @@ def test_foreign_peers_get_nothing_into_a_secure_run(certs: Path, tmp_path: Path
     same run without --secure, and no process counted a forged message."""
     run = ["run", "--robots", "5", "--episodes", "4", "--seed", "5", "--headless"]
     proc = swarm_started(*run, "--secure", str(certs), "--pace", "12", "--run-id", "secaudit",
-                         "--json", str(tmp_path / "secure.json"))
+                         "--json", str(tmp_path / "secure.json"), "--log-dir",
+                         str(tmp_path / "logs"))
     try:
         assert proc.stdout is not None
         for flags, why in ((["--as", "9"], "--as 9 is not a robot of the run: its team has "
@@ -423,8 +424,26 @@ def test_foreign_peers_get_nothing_into_a_secure_run(certs: Path, tmp_path: Path
     assert all(st["bad"] == 0 and st["weights_bad"] == 0
                for st in secure["robot_status"].values())
     assert secure["secure"]["hub"].startswith("tls/127.0.0.1:")
-    configs = Path(secure["secure"]["configs"])
+    configs = Path(secure["secure"]["configs"])  # (--log-dir: kept, and named)
+    assert configs == tmp_path / "logs" / "zenoh"
     assert {p.stem for p in configs.glob("*.json5")} >= {"world", "supervisor", "robot-4"}
+
+
+@pytest.mark.procs
+def test_a_clean_secure_run_leaves_no_temp_folder(certs: Path, tmp_path: Path) -> None:
+    """A clean `--secure` run kept its temp folder (robot logs and the session configs, which
+    nothing reads once the run's processes are gone), though `--log-dir` says a clean run's
+    is removed; now it goes as a plain run's does, and the result names no folder."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    r = swarm("run", "--secure", str(certs), "--robots", "2", "--episodes", "1", "--horizon",
+              "4", "--policy", "random", "--headless", "--json", str(tmp_path / "res.json"),
+              env={"TMPDIR": str(tmp)}, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert [p.name for p in tmp.iterdir() if p.name != "swarm-runs"] == []
+    res = json.loads((tmp_path / "res.json").read_text())
+    assert "logs" not in res and res["secure"]["hub"].startswith("tls/127.0.0.1:")
+    assert "configs" not in res["secure"]
 
 
 @pytest.mark.procs

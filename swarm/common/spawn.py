@@ -268,9 +268,10 @@ TROUBLE = ("child_errors", "robot_crashes", "robots_lost", "timeouts", "robot_re
 
 
 def tidy_logs(folder: Path, res: dict[str, Any], keep: bool = False) -> None:
-    """Remove a run's temp folder (its children's logs, its spec) after a clean run; it stays,
-    named in the result (`logs`), when anything went wrong (`TROUBLE`) or with `keep` (a
-    learner writes into it, it holds a secure run's session configs)."""
+    """Remove a run's temp folder (its children's logs, its spec, a secure run's session configs:
+    nothing reads them once its processes are gone) after a clean run; it stays, named in the
+    result (`logs`), when anything went wrong (`TROUBLE`) or with `keep` (a learner writes into
+    it, the recorder failed: its log says why)."""
     if keep or any(res.get(k) for k in TROUBLE):
         res["logs"] = str(folder)
         return

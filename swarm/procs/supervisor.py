@@ -301,7 +301,7 @@ class Supervisor:
                 if self.topo is not None:
                     self.topo.down()
                 if stopped and self.opts.log_dir is None:  # no result names the temp folder
-                    tidy_interrupted(self.tmp, bool(self.zfiles) or self.learner_out is not None)
+                    tidy_interrupted(self.tmp, self.learner_out is not None)
                 release_run(self.run_cfg.run_id)
 
     def _supervise(self) -> dict[str, Any]:
@@ -391,9 +391,6 @@ class Supervisor:
         res["process_faults_pending"] = [f"{f.kind} {f.robot}@{f.tick}"
                                          for f in self.process_faults]
         res["process_faults_dropped"] = self.process_faults_dropped
-        if self.zfiles:
-            res["secure"] = {"certs": self.opts.secure, "hub": self.hub,
-                             "configs": str(self.log_dir / "zenoh")}
         res.update(self.procstat.summary())
         if self.learning is not None:
             res["learner"] = learner_result(self.learner_status, int(res.get("completed", 0)),
@@ -406,9 +403,12 @@ class Supervisor:
             res["netns"] = {**self.topo.describe(), "never_joined": sum(
                 r.state == "starting" for r in self.view.robots.values())}
         if self.opts.log_dir is None:  # a temp folder: removed after a clean run
-            tidy_logs(self.tmp, res, keep=bool(self.zfiles) or self.learner_out is not None and
+            tidy_logs(self.tmp, res, keep=self.learner_out is not None and
                       Path(self.learner_out).resolve().is_relative_to(self.tmp.resolve())
                       or res.get("recording", {}).get("partial", False))
+        if self.zfiles:  # its session configs are named while the run's folder stands
+            res["secure"] = {"certs": self.opts.secure, "hub": self.hub, **(
+                {"configs": str(self.log_dir / "zenoh")} if self.log_dir.is_dir() else {})}
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res
