@@ -337,6 +337,38 @@ def test_a_certificate_tls_would_refuse_is_one_line_before_any_process(
     assert apply(ZenohOptions(mode="router"), sec).may_acl and not ZenohOptions().may_acl
 
 
+def test_the_advice_for_a_certificate_tls_would_refuse_works_as_given(
+        certs: Path, tmp_path: Path) -> None:
+    """UA: for a robot-1 pair copied from robot-0 the advice was "run swarm certs again", which
+    refused the copied key; each broken directory here is mended by doing what its one line
+    says (delete the files it names, rerun `swarm certs`), and then loads."""
+    import re
+
+    garbage = b"-----BEGIN CERTIFICATE-----\nnot one\n-----END CERTIFICATE-----\n"
+    breaks = {  # name -> (file, the file whose bytes it gets, or bytes)
+        "pair": (("robot-1.pem", "robot-0.pem"), ("robot-1.key", "robot-0.key")),
+        "certonly": (("robot-1.pem", "robot-0.pem"),),
+        "swapped": (("robot-0.key", "robot-1.key"),),
+        "badcert": (("robot-1.pem", garbage),),
+        "badkey": (("robot-1.key", garbage.replace(b"CERTIFICATE", b"PRIVATE KEY")),),
+        "badca": (("ca.pem", garbage),)}
+    need = ("world", "robot-0", "robot-1")
+    for name, files in breaks.items():
+        d = _copy(certs, tmp_path / name)
+        for f, src in files:
+            (d / f).write_bytes(src if isinstance(src, bytes) else (certs / src).read_bytes())
+        with pytest.raises(ConfigError) as err:
+            Secure.load(d, "supervisor", "x", 2, need=need)
+        advice = re.search(r"\((?:delete (.+), then )?run `swarm certs --out (\S+) --robots N` "
+                           r"again\)$", str(err.value))
+        assert advice and advice[2] == str(d), (name, str(err.value))
+        for f in advice[1].split(" and ") if advice[1] else ():
+            (d / f).unlink()
+        r = swarm("certs", "--out", str(d), "--robots", "2")
+        assert r.returncode == 0, (name, str(err.value), r.stderr)
+        Secure.load(d, "supervisor", "x", 2, need=need)
+
+
 @pytest.mark.procs
 def test_a_secure_run_records_and_its_recording_verifies(certs: Path, tmp_path: Path) -> None:
     """`--secure` with `--record`: the recorder joins on TLS under its own identity (its

@@ -219,22 +219,26 @@ def check_identity(ca: Path, cert: Path, key: Path, who: str) -> None:
         return
     import datetime as dt
 
-    def bad(path: Path, why: str) -> ConfigError:
-        return ConfigError(f"--secure: {path} {why} (run `swarm certs --out {path.parent} "
-                           "--robots N` again)")
+    def bad(path: Path, why: str, delete: tuple[Path, ...] = ()) -> ConfigError:
+        """The advice works as given: `swarm certs` certifies an existing key again, but
+        refuses a file it cannot read and a key copied from another identity (`delete` them;
+        it makes what is missing)."""
+        first = f"delete {' and '.join(p.name for p in delete)}, then " if delete else ""
+        return ConfigError(f"--secure: {path} {why} ({first}run `swarm certs --out "
+                           f"{path.parent} --robots N` again)")
 
     try:
         ca_cert = x509.load_pem_x509_certificate(ca.read_bytes())
     except ValueError:
-        raise bad(ca, "is not a certificate") from None
+        raise bad(ca, "is not a certificate", (ca,)) from None
     try:
         c = x509.load_pem_x509_certificate(cert.read_bytes())
     except ValueError:
-        raise bad(cert, "is not a certificate") from None
+        raise bad(cert, "is not a certificate", (cert,)) from None
     try:
         k = load_pem_private_key(key.read_bytes(), None)
     except (ValueError, TypeError):
-        raise bad(key, "is not an unencrypted private key") from None
+        raise bad(key, "is not an unencrypted private key", (key,)) from None
     try:
         c.verify_directly_issued_by(ca_cert)
     except Exception:  # (InvalidSignature: another CA's; TypeError: a key type it cannot check)
@@ -245,10 +249,11 @@ def check_identity(ca: Path, cert: Path, key: Path, who: str) -> None:
                         f"{c.not_valid_after_utc:%Y-%m-%d}, not now")
     names = [a.value for a in c.subject.get_attributes_for_oid(x509.NameOID.COMMON_NAME)]
     if names != [who]:
-        raise bad(cert, f"is for {', '.join(map(str, names)) or 'no name'}, not {who}")
+        raise bad(cert, f"is for {', '.join(map(str, names)) or 'no name'}, not {who}",
+                  (cert, key))  # (a pair copied from another identity: its key too)
     spki = lambda pub: pub.public_bytes(Encoding.DER, PublicFormat.SubjectPublicKeyInfo)  # noqa: E731
     if spki(c.public_key()) != spki(k.public_key()):  # (any key type: EC, RSA, Ed25519)
-        raise bad(cert, f"is not for the key {key.name}")
+        raise bad(cert, f"is not for the key {key.name}", (cert, key))
 
 
 def run_identities(robots: int, learner: bool = False, recorder: bool = False,
