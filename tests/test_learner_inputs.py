@@ -311,3 +311,24 @@ def test_a_robot_follows_a_fresh_learner_too() -> None:
             robot.adopt_weights()
             assert (robot.version, robot.origin) == then
         assert robot.c.weights_bad == 0
+
+
+def test_training_from_a_config_file_samples_as_the_flag_does(tmp_path: Path) -> None:
+    """`[run] train = true` in a --config file trained on greedy actions (robots never
+    explored: 327 of 360 decisions were 'stay'); only the --train flag made them sample. An
+    explicit greedy = true beside it is one line, exit 2."""
+    from swarm.cli import build_parser
+    from swarm.cli.common import file_tables
+    from swarm.cli.run import run_config
+
+    conf = tmp_path / "t.toml"
+    conf.write_text("[run]\ntrain = true\n")
+    args = build_parser().parse_args(["run", "--config", str(conf)])
+    assert run_config(args, file_tables(args.config)).greedy is False
+    args = build_parser().parse_args(["run", "--train"])
+    assert run_config(args, {}).greedy is False
+    conf.write_text("[run]\ntrain = true\ngreedy = true\n")
+    r = swarm("run", "--headless", "--config", str(conf), timeout=60)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "swarm: error: [run] greedy = true with train: a field learner needs sampled actions "
+        "(drop greedy)"], r.stderr

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.cli.common import _checkpoint_pairs
+from swarm.common.policy_spec import build_inference
 from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from here)
 from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig
@@ -109,6 +110,12 @@ def check_training(args: argparse.Namespace, tables: dict[str, Any], run: RunCon
                           "a new --learner-out (swarm run starts a fresh learner; `swarm learner "
                           "--resume` continues one in a run started by hand)")
 
+
+def check_policy(run: RunConfig, world: WorldConfig) -> None:
+    """The run's policy and its checkpoint (readable, the right policy and shapes), before
+    anything starts; `--train` alone starts from fresh weights."""
+    if not (run.train and run.checkpoint is None):
+        build_inference(run.policy, world, run.checkpoint)
 
 
 def status_tick(payload: bytes) -> int:

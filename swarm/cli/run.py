@@ -17,6 +17,7 @@ from swarm.cli.checks import (
     check_clock,
     check_fault_ticks,
     check_not_played,
+    check_policy,
     check_training,
     status_tick,
 )
@@ -38,14 +39,13 @@ from swarm.cli.hosts import add_hosts_flag, add_netns_flags, hosts_option, netns
 from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, check_run_secure, secure_options
 from swarm.common.flags import check_wait, robot_id
-from swarm.common.policy_spec import build_inference
 from swarm.common.report import json_line, provenance
 from swarm.learn.config import learner_configs
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
-from world.config import ConfigError, WorldConfig, from_dict
+from world.config import ConfigError, from_dict
 
 
 def _add_run_flags(p: argparse.ArgumentParser) -> None:
@@ -106,7 +106,7 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
              "tick_timeout": args.tick_timeout, "seed": args.seed, "pace": args.pace,
              "clock": getattr(args, "clock", None), "watchdog": getattr(args, "watchdog", None),
              "delivery": getattr(args, "delivery", None),
-             "greedy": False if args.sample or getattr(args, "train", None) else None,
+             "greedy": False if args.sample else None,
              "train": getattr(args, "train", None),
              "rollout_loss": getattr(args, "rollout_loss", None),
              "train_sync": getattr(args, "train_sync", None),
@@ -115,6 +115,11 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
     table = dict(tables.get("run", {}))
     given = {k: v for k, v in flags.items() if v is not None}
     data = {**table, **given}
+    if data.get("train"):  # a learner learns from sampled decisions: greedy ones never explore
+        if table.get("greedy") is True:
+            raise ConfigError("[run] greedy = true with train: a field learner needs sampled "
+                              "actions (drop greedy)")
+        data["greedy"] = False
     data.setdefault("run_id", f"r{secrets.token_hex(4)}")
     try:
         return from_dict(RunConfig, data, "[run]")
@@ -220,13 +225,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     if res.get("recording", {}).get("partial"):  # the recording asked for is lost in part
         return 1
     return EXIT_INCOMPLETE if res.get("completed", 0) < run.episodes else 0
-
-
-def check_policy(run: RunConfig, world: WorldConfig) -> None:
-    """The run's policy and its checkpoint (readable, the right policy and shapes), before
-    anything starts; `--train` alone starts from fresh weights."""
-    if not (run.train and run.checkpoint is None):
-        build_inference(run.policy, world, run.checkpoint)
 
 
 def cmd_world(args: argparse.Namespace) -> int:
