@@ -571,3 +571,45 @@ def test_no_update_says_what_became_of_the_episodes_that_came() -> None:
         "swarm: the learner made no update (a batch is 3 usable episodes; it received 8: 1 "
         "pending, 7 incomplete): no checkpoint in /nonexistent/learner")
     assert "it received 0)" in trained_line({"out": "/nonexistent"}, 3)
+
+
+@pytest.mark.procs
+def test_a_rollout_worker_follows_a_fresh_learner_that_replaced_its_own(tmp_path: Path) -> None:
+    """A learner fed by a rollout worker is stopped and a fresh one (new --out) takes its
+    place: the worker kept the old one's weights, the new one rejected every episode played
+    with them ("newer than its own v0") and never trained (UA pass). The worker now asks a
+    learner that comes up for its weights, so the new learner trains."""
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    cfg = world_toml(tmp_path, SMALL)
+
+    def learner(name: str) -> subprocess.Popen[bytes]:
+        return spawn("learner", "--run-id", "swap", "--config", str(cfg), "--out",
+                     str(tmp_path / name), "--batch", "4", "--zenoh-mode", "router", "--listen",
+                     hub, "--policy", "vain", log=tmp_path / f"{name}.log")
+
+    procs = [learner("a")]
+    try:
+        _listening(hub)
+        procs.append(spawn("rollout-worker", "--run-id", "swap", "--connect", hub,
+                           "--zenoh-mode", "client", "--batch", "2", log=tmp_path / "w.log"))
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (tmp_path / "a" / "checkpoint.pt").exists():
+            time.sleep(0.05)
+        assert (tmp_path / "a" / "checkpoint.pt").exists(), (tmp_path / "a.log").read_text()
+        procs[0].send_signal(signal.SIGINT)  # the old learner goes, at v1 or later
+        procs[0].wait(timeout=30)
+        procs.append(learner("b"))
+        while time.monotonic() < deadline and not (tmp_path / "b" / "checkpoint.pt").exists():
+            time.sleep(0.05)
+        # (without the fix: no checkpoint, every worker episode rejected)
+        assert (tmp_path / "b" / "checkpoint.pt").exists(), (tmp_path / "b.log").read_text()
+        assert load_checkpoint(tmp_path / "b" / "checkpoint.pt")["learner"]["version"] >= 1
+        assert procs[1].poll() is None  # the worker never stopped
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                try:
+                    p.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    p.kill()

@@ -7,7 +7,8 @@ actions (the batched trainer's `collect`, one process, `threads` torch threads),
 episodes of its own seed (the train offset + run seed + K + 1, never an evaluation seed), so
 workers on several hosts never repeat each other's episodes. It exits after `max_batches` (0:
 never) or on Ctrl-C; while the learner is gone it goes on with its last weights (what it sends
-meanwhile is lost, as on any pub/sub link without a subscriber).
+meanwhile is lost, as on any pub/sub link without a subscriber), and whenever a learner's token
+comes up (the first, the same one back, or a fresh one replacing it) it asks for its weights.
 """
 
 from __future__ import annotations
@@ -60,8 +61,6 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         inbox = Inbox(session).subscribe(keys.weights, "w").liveliness(
             keys.alive_learner, "learner").token(keys.alive_worker(worker_id))
         pub = publisher(session, keys.worker_episodes)
-        for payload in replies(session, keys.weights, 2.0):
-            inbox.q.put(Event("w", keys.weights, payload))
         version, origin, sent, bad, batches, sent_bytes = -1, -1, 0, 0, 0, 0
         seed = tc.train_seed_offset + tc.seed + worker_id + 1
         t0 = time.monotonic()
@@ -71,6 +70,10 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
                     kind, payload = ev.kind, ev.payload
                     if kind == "learner:dead":  # keep going on the last weights; it may come back
                         log.warning("worker %d: learner gone", worker_id)
+                    elif kind == "learner:live":  # the first, or one that replaced it: its
+                        # weights went out before this worker could hear them, so ask
+                        for reply in replies(session, keys.weights, 2.0):
+                            inbox.q.put(Event("w", keys.weights, reply))
                     elif kind == "w":
                         try:
                             w = Weights.unpack(payload or b"")
