@@ -332,3 +332,20 @@ def test_training_from_a_config_file_samples_as_the_flag_does(tmp_path: Path) ->
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "swarm: error: [run] greedy = true with train: a field learner needs sampled actions "
         "(drop greedy)"], r.stderr
+
+
+@pytest.mark.parametrize("table, says", [
+    ("out = 5", "[learner]: out must be str | None, got 5"),  # (a TypeError traceback)
+    ('resume = true\nout = "{tmp}/nothere"', "[learner] resume: swarm run starts a fresh "
+                                             "learner"),  # (the learner failed after a spawn)
+])
+def test_a_bad_learner_table_of_swarm_run_is_one_line_before_any_spawn(
+        tmp_path: Path, table: str, says: str) -> None:
+    conf = tmp_path / "t.toml"
+    conf.write_text("[run]\ntrain = true\n[learner]\n" + table.replace("{tmp}", str(tmp_path))
+                    + "\n")
+    r = swarm("run", "--headless", "--config", str(conf), "--log-dir", str(tmp_path / "logs"),
+              timeout=60)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and says in lines[0], r.stderr[-1500:]
+    assert not (tmp_path / "logs").exists() and not (tmp_path / "nothere").exists()

@@ -5,6 +5,7 @@ one line and exit 2 before anything is spawned or sent."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import sys
 from collections.abc import Iterable
@@ -92,23 +93,36 @@ def check_not_played(at_tick: int | None, timed: list[int], now: int, run_id: st
                               "later tick (or none: the next); nothing was sent")
 
 
-def check_training(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig) -> None:
-    """Training flags need --train (checked before any folder is made); a learner folder that
-    holds a learner already is refused before any spawn (the learner would refuse it)."""
+def check_training(args: argparse.Namespace, tables: dict[str, Any],
+                   run: RunConfig) -> dict[str, Any] | None:
+    """`swarm run`'s learner: its `[learner]` and `[train]` tables, every value checked, for a
+    run that trains (None for one that does not). Training flags need --train (checked before
+    any folder is made); a learner folder that holds a learner already, or `resume`, is refused
+    before any spawn (the learner would refuse it: swarm run starts a fresh one)."""
+    from policies import check_learned
+    from swarm.learn.config import learner_configs
+
     given = [f"--{k.replace('_', '-')}" for k in TRAIN_FLAGS if getattr(args, k, None)
              is not None]
     if not run.train:
         if given or run.rollout_loss:
             raise ConfigError(f"{(given or ['[run] rollout_loss'])[0]} is a training setting: "
                               "it needs --train")
-        return
-    lt = tables.get("learner", {})
-    out = args.learner_out or lt.get("out") or (args.log_dir and str(Path(args.log_dir,
-                                                                           "learner")))
-    if out and (Path(out) / "checkpoint.pt").exists() and not lt.get("gather_only"):
+        return None
+    check_learned(run.policy, "--train")
+    tables = {**tables, "train": {"batch": 10, **tables.get("train", {})}}
+    lc, tc = learner_configs(argparse.Namespace(
+        train_batch=args.train_batch, train_algo=args.train_algo,
+        train_ppo_epochs=args.train_ppo_epochs), tables)
+    hint = "`swarm learner --resume` continues one in a run started by hand"
+    if lc.resume:
+        raise ConfigError(f"[learner] resume: swarm run starts a fresh learner ({hint})")
+    out = args.learner_out or lc.out or (args.log_dir and str(Path(args.log_dir, "learner")))
+    if out and (Path(out) / "checkpoint.pt").exists() and not lc.gather_only:
         raise ConfigError(f"learner folder {out} already holds a learner (checkpoint.pt): give "
-                          "a new --learner-out (swarm run starts a fresh learner; `swarm learner "
-                          "--resume` continues one in a run started by hand)")
+                          f"a new --learner-out (swarm run starts a fresh learner; {hint})")
+    return {"learner": {**dataclasses.asdict(lc), "out": args.learner_out or lc.out},
+            "train": dataclasses.asdict(tc)}
 
 
 def check_policy(run: RunConfig, world: WorldConfig) -> None:

@@ -40,7 +40,6 @@ from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, check_run_secure, secure_options
 from swarm.common.flags import check_wait, robot_id
 from swarm.common.report import json_line, provenance
-from swarm.learn.config import learner_configs
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
@@ -145,7 +144,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     run = run_config(args, tables)
     faults = fault_table(args, tables, world.n_robots)
     # everything the run needs, checked before a process is spawned: one line, exit 2
-    check_training(args, tables, run)
+    learning = check_training(args, tables, run)  # (None: the run does not train)
     check_clock(args, tables, run, faults)
     check_fault_ticks(faults, run, world, flags=[k for k in ("crash", "hang", "restart")
                                                  if getattr(args, k, None)])
@@ -184,17 +183,6 @@ def cmd_run(args: argparse.Namespace) -> int:
                             netns=netns, secure=args.secure, record=args.record,
                             attention=args.attention, hosts=hosts_option(args),
                             command=_command())
-    learning = None
-    if run.train:
-        from policies import check_learned
-
-        check_learned(run.policy, "--train")
-        tables = {**tables, "train": {"batch": 10, **tables.get("train", {})}}
-        lc, tc = learner_configs(argparse.Namespace(
-            train_batch=args.train_batch, train_algo=args.train_algo,
-            train_ppo_epochs=args.train_ppo_epochs), tables)
-        learning = {"learner": {**dataclasses.asdict(lc), "out": args.learner_out or lc.out},
-                    "train": dataclasses.asdict(tc)}
     try:
         res = supervise(world, run, opts, console=out, faults=faults, learning=learning)
     except KeyboardInterrupt:
