@@ -349,3 +349,18 @@ def test_a_bad_learner_table_of_swarm_run_is_one_line_before_any_spawn(
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and says in lines[0], r.stderr[-1500:]
     assert not (tmp_path / "logs").exists() and not (tmp_path / "nothere").exists()
+
+
+@pytest.mark.parametrize("table, says", [
+    ("[run]\ntrain = 1", "[run] train must be true or false, got 1"),  # (was read as true)
+    ('[run]\ntrain = true\n[learner]\ngather_only = 0', "[learner] gather_only must be true or "
+                                                         "false, got 0"),
+    ('[run]\ntrain = true\n[train]\nadv_norm = "yes"', "[train] adv_norm must be true or false"),
+])
+def test_a_switch_in_a_config_file_must_be_a_boolean(tmp_path: Path, table: str,
+                                                    says: str) -> None:
+    conf = tmp_path / "t.toml"
+    conf.write_text(table + "\n")
+    r = swarm("run", "--headless", "--config", str(conf), timeout=60)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and says in lines[0], r.stderr[-1500:]

@@ -40,6 +40,7 @@ from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, check_run_secure, secure_options
 from swarm.common.flags import check_wait, robot_id
 from swarm.common.report import json_line, provenance
+from swarm.learn.config import toml_bools
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
@@ -112,6 +113,7 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
              "restart_crashed": getattr(args, "restart_crashed", None) or None,
              "start_timeout": getattr(args, "start_timeout", None)}
     table = dict(tables.get("run", {}))
+    toml_bools(RunConfig, table, "[run]")
     given = {k: v for k, v in flags.items() if v is not None}
     data = {**table, **given}
     if data.get("train"):  # a learner learns from sampled decisions: greedy ones never explore

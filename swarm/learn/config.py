@@ -451,6 +451,14 @@ BATCH_TRAIN_FIELDS = ("init", "team_memory", "belief", "hint", "hint_planner", "
                       "model", "imitate", "imitate_samples")
 
 
+def toml_bools(cls: type, table: dict[str, Any], where: str) -> None:
+    """A switch of dataclass `cls` in a TOML `table` must be a TOML boolean: `train = 1` or
+    `"yes"` is one line, not read as true (from_dict also takes "true"/1 for flag text)."""
+    for f in dataclasses.fields(cls):
+        if f.type == "bool" and f.name in table and not isinstance(table[f.name], bool):
+            raise ConfigError(f"{where} {f.name} must be true or false, got {table[f.name]!r}")
+
+
 def learner_configs(args: argparse.Namespace,
                     tables: dict[str, Any]) -> tuple[LearnerConfig, TrainConfig]:
     """LearnerConfig and TrainConfig from `[learner]` / `[train]` of the file and the flags."""
@@ -461,6 +469,8 @@ def learner_configs(args: argparse.Namespace,
               "join_timeout": getattr(args, "join_timeout", None),
               "gather_only": True if getattr(args, "gather_only", False) else None,
               "seed": getattr(args, "seed", None)}
+    toml_bools(LearnerConfig, tables.get("learner", {}), "[learner]")
+    toml_bools(TrainConfig, tables.get("train", {}), "[train]")
     ldata = {**tables.get("learner", {}), **{k: v for k, v in lflags.items() if v is not None}}
     tflags = {k: getattr(args, f"train_{k}", None) for k in LEARNER_TRAIN_FIELDS}
     tdata = {**tables.get("train", {}), **{k: v for k, v in tflags.items() if v is not None}}
