@@ -7,6 +7,7 @@ import csv
 import dataclasses
 import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -494,7 +495,10 @@ def test_a_learner_by_hand_ends_with_its_run(tmp_path: Path) -> None:
         # the world's token going, still queued at the end, is no rollout (it was read as one:
         # "dropped bad payload on swarm/handend/alive/world", bad 1, in most runs)
         assert "dropped bad payload" not in err, err
-        assert load_checkpoint(out / "checkpoint.pt")["learner"]["version"] == 2
+        ck = load_checkpoint(out / "checkpoint.pt")
+        assert ck["learner"]["version"] == 2
+        # the command that made it, whole (it said 'swarm learner' and no argument)
+        assert ck["meta"]["command"] == shlex.join(["swarm", *learner.args[3:]]), ck["meta"]
         assert json.loads((tmp_path / "world.json").read_text())["completed"] == 4
     finally:
         for p in (*procs, learner):

@@ -10,6 +10,7 @@ from typing import Any
 
 from policies import check_learned
 from swarm.cli.common import (
+    _command,
     add_common,
     add_world,
     file_tables,
@@ -77,7 +78,7 @@ def cmd_learner(args: argparse.Namespace) -> int:
     try:
         zopts = secure_options(args, zconfig.from_args(args), "learner", lc.run_id)
         # checks everything first; creates --out only once they passed (and the session opened)
-        status = learner_main(world, lc, tc, zopts, seed, given=given)
+        status = learner_main(world, lc, tc, zopts, seed, given=given, command=_command())
     except KeyboardInterrupt:
         return 130
     if args.json:

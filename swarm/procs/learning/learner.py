@@ -92,12 +92,13 @@ class Learner:
     `stop()` is true or it is interrupted."""
 
     def __init__(self, cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig,
-                 given: Collection[str] | None = None) -> None:
+                 given: Collection[str] | None = None, command: str = "swarm learner") -> None:
         """`given`: the TrainConfig fields the user set (None: every field of `tc` is meant),
-        which `--resume` holds against the checkpoint's (see `resumed_train`)."""
+        which `--resume` holds against the checkpoint's (see `resumed_train`); `command`: the
+        command line that started it, which every checkpoint records."""
         if not lc.out:
             raise ConfigError("the learner needs an output directory (--out DIR)")
-        self.cfg, self.lc = cfg, lc
+        self.cfg, self.lc, self.command = cfg, lc, command
         self.keys = Keys(lc.run_id)
         self.out = Path(lc.out)
         if self.out.exists() and not self.out.is_dir():
@@ -326,7 +327,7 @@ class Learner:
         return True
 
     def save(self) -> None:
-        payload = self.policy.payload({"command": "swarm learner", "version": self.version,
+        payload = self.policy.payload({"command": self.command, "version": self.version,
                                        "episodes": self.c.episodes, "run_id": self.lc.run_id,
                                        "provenance": provenance()})
         payload["learner"] = {"version": self.version, "optimizer": self.opt.state_dict(),
@@ -405,12 +406,12 @@ class Learner:
 
 
 def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptions,
-         seed: int, stop: Any = lambda: False, given: Collection[str] | None = None
-         ) -> dict[str, Any]:
+         seed: int, stop: Any = lambda: False, given: Collection[str] | None = None,
+         command: str = "swarm learner") -> dict[str, Any]:
     """Check and load (before anything is opened or written), open a session, make the output
     directory and learn until the run ends, it is interrupted or `stop()`; returns the last
-    status. `given`: see `Learner`."""
-    learner = Learner(cfg, lc, tc, given)
+    status. `given`, `command`: see `Learner`."""
+    learner = Learner(cfg, lc, tc, given, command)
     with open_session(zopts) as session:  # (two learners would publish two lines of weights)
         check_free(session, Keys(lc.run_id).alive_learner, f"a learner of run {lc.run_id}", 1.0)
         learner.open_out()
