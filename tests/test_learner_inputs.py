@@ -364,3 +364,19 @@ def test_a_switch_in_a_config_file_must_be_a_boolean(tmp_path: Path, table: str,
     r = swarm("run", "--headless", "--config", str(conf), timeout=60)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and says in lines[0], r.stderr[-1500:]
+
+
+def test_a_resumed_learner_may_change_how_it_gathers(trained: Path) -> None:
+    """`--resume --max-staleness 5 --join-timeout 1` was taken silently while the help and
+    README said only --threads may change: they are how the learner gathers, not the run's
+    math; they take effect, and the help says so."""
+    from swarm.learn.config import LearnerConfig
+    from swarm.procs.learning.learner import Learner
+
+    lc = LearnerConfig(run_id="resumed", policy="vain", out=str(trained / "l"), resume=True,
+                       max_staleness=5, join_timeout=1.0)
+    kept = Learner(SMALL, lc, TrainConfig(threads=1), {"threads"})
+    assert (kept.lc.max_staleness, kept.lc.join_timeout, kept.version) == (5, 1.0, 3)
+    r = swarm("learner", "--help", timeout=60)
+    assert "--max-staleness and --join-timeout, how this learner gathers, are not held and may " \
+        "change" in " ".join(r.stdout.split()), r.stdout

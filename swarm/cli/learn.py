@@ -124,8 +124,10 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--checkpoint", metavar="FILE", help="initial weights")
     p.add_argument("--out", metavar="DIR", help="checkpoint.pt, curve.csv, log.jsonl go here")
     p.add_argument("--resume", action="store_true",
-                   help="continue from OUT/checkpoint.pt with its train settings (a loss flag "
-                        "that differs from them is refused; only --threads may change)")
+                   help="continue from OUT/checkpoint.pt with its train settings, world and "
+                        "seed (a loss flag that differs from them is refused; of those only "
+                        "--threads may change; --max-staleness and --join-timeout, how this "
+                        "learner gathers, are not held and may change)")
     p.add_argument("--max-staleness", type=int, metavar="K",
                    help="drop episodes more than K >= 0 versions old (default 1)")
     p.add_argument("--join-timeout", type=float, metavar="S",
