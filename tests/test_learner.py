@@ -617,3 +617,40 @@ def test_a_rollout_worker_follows_a_fresh_learner_that_replaced_its_own(tmp_path
                     p.wait(timeout=10)
                 except subprocess.TimeoutExpired:
                     p.kill()
+
+
+@pytest.mark.procs
+def test_a_learner_and_a_worker_stopped_by_ctrl_c_say_what_they_did(tmp_path: Path) -> None:
+    """A learner fed by rollout workers alone ends only by Ctrl-C: it exited 0 without saying
+    where its checkpoint was; a worker stopped by Ctrl-C printed no summary (it did when
+    --max-batches ended it). Both now say it, as at their other ends."""
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    out = tmp_path / "l"
+    learner = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "learner", "--run-id", "ctrlc", "--config",
+         str(world_toml(tmp_path, SMALL)), "--out", str(out), "--batch", "2", "--policy", "vain",
+         "--zenoh-mode", "router", "--listen", hub], cwd=ROOT, stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE, text=True)
+    worker = None
+    try:
+        _listening(hub)
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "swarm.cli", "rollout-worker", "--run-id", "ctrlc",
+             "--connect", hub, "--zenoh-mode", "client", "--batch", "2"], cwd=ROOT,
+            stdout=subprocess.PIPE, stderr=open(tmp_path / "w.log", "w"), text=True)  # noqa: SIM115
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (out / "checkpoint.pt").exists():
+            time.sleep(0.05)
+        assert (out / "checkpoint.pt").exists()
+        worker.send_signal(signal.SIGINT)
+        summary = json.loads(worker.communicate(timeout=60)[0].strip().splitlines()[-1])
+        assert worker.returncode == 0 and summary["interrupted"] and summary["episodes"] > 0
+        learner.send_signal(signal.SIGINT)
+        err = learner.communicate(timeout=60)[1]
+        version = load_checkpoint(out / "checkpoint.pt")["learner"]["version"]
+        assert learner.returncode == 0 and err.strip().splitlines()[-1] == (
+            f"swarm learner: stopped; version {version} in {out / 'checkpoint.pt'}"), err[-1500:]
+    finally:
+        for p in (learner, worker):
+            if p is not None and p.poll() is None:
+                p.kill()

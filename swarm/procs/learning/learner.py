@@ -419,9 +419,10 @@ def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptio
               "the run's episodes until the run ends (Ctrl-C stops it)", file=sys.stderr,
               flush=True)
         status = learner.run(session, seed, stop)
-    if learner.ended:  # (its checkpoint is written, atomically, at every update)
-        kept = f"version {learner.version} in {learner.ckpt}" if learner.ckpt.is_file() else \
-            f"no update (fewer than {learner.tc.batch} episodes): no checkpoint written"
-        print(f"swarm learner: run {lc.run_id} ended ({learner.ended}); {kept}",
-              file=sys.stderr, flush=True)
+    # where its weights are, however it ended (its checkpoint is written, atomically, at
+    # every update); a learner fed by rollout workers alone ends only by Ctrl-C
+    kept = f"version {learner.version} in {learner.ckpt}" if learner.ckpt.is_file() else \
+        f"no update (fewer than {learner.tc.batch} episodes): no checkpoint written"
+    why = f"run {lc.run_id} ended ({learner.ended})" if learner.ended else "stopped"
+    print(f"swarm learner: {why}; {kept}", file=sys.stderr, flush=True)
     return status

@@ -6,9 +6,10 @@ actions (the batched trainer's `collect`, one process, `threads` torch threads),
 `EpisodeRollout` on `rollout/episode`, adopt any newer weights between batches. Worker K plays
 episodes of its own seed (the train offset + run seed + K + 1, never an evaluation seed), so
 workers on several hosts never repeat each other's episodes. It exits after `max_batches` (0:
-never) or on Ctrl-C; while the learner is gone it goes on with its last weights (what it sends
-meanwhile is lost, as on any pub/sub link without a subscriber), and whenever a learner's token
-comes up (the first, the same one back, or a fresh one replacing it) it asks for its weights.
+never) or on Ctrl-C, with the same summary either way; while the learner is gone it goes on with
+its last weights (what it sends meanwhile is lost, as on any pub/sub link without a subscriber),
+and whenever a learner's token comes up (the first, the same one back, or a fresh one replacing
+it) it asks for its weights.
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         pub = publisher(session, keys.worker_episodes)
         version, origin, sent, bad, batches, sent_bytes = -1, -1, 0, 0, 0, 0
         seed = tc.train_seed_offset + tc.seed + worker_id + 1
-        t0 = time.monotonic()
+        t0, interrupted = time.monotonic(), False
         try:
             while max_batches <= 0 or batches < max_batches:
                 while (ev := inbox.next(0)) is not None:  # adopt the newest weights between batches
@@ -96,8 +97,13 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
                     sent += 1
                     sent_bytes += len(payload)
                 batches += 1
+        except KeyboardInterrupt:  # Ctrl-C: its usual end without --max-batches
+            if version < 0:  # (nothing done yet: an interrupted start)
+                raise
+            interrupted = True
         finally:
             inbox.close()
         wall = time.monotonic() - t0
         return {"worker": worker_id, "episodes": sent, "batches": batches, "bytes": sent_bytes,
-                "weights_bad": bad, "version": version, "episodes_per_s": sent / max(wall, 1e-9)}
+                "weights_bad": bad, "version": version, "episodes_per_s": sent / max(wall, 1e-9),
+                "interrupted": interrupted}
