@@ -310,7 +310,6 @@ def test_run_help_names_the_exit_status_of_a_stopped_run() -> None:
     assert r.returncode == 0 and "3 stopped before every episode" in " ".join(r.stdout.split())
 
 
-
 def test_a_failed_namespace_command_names_its_cause_not_ip_batchs_last_line() -> None:
     """UA pass 61: as root without CAP_NET_ADMIN, `ip -batch` says why ("mount --make-shared
     /run/netns failed: Operation not permitted") and then "Command failed -:1"; the error kept
@@ -325,3 +324,10 @@ def test_a_failed_namespace_command_names_its_cause_not_ip_batchs_last_line() ->
         f"netns: `sh -c {script}` failed: mount --make-shared /run/netns failed: Operation not "
         "permitted (root without CAP_NET_ADMIN and CAP_SYS_ADMIN, e.g. an unprivileged "
         "container)")
+
+
+def test_world_help_names_the_exit_status_of_a_world_no_robot_joined() -> None:
+    """`swarm world --start-timeout 2` with no robot says "no robot came alive within 2 s" and
+    exits 1, which its help did not list (UA pass)."""
+    r = swarm("world", "--help")
+    assert r.returncode == 0 and "1 the run could not go on (no robot" in " ".join(r.stdout.split())

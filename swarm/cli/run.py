@@ -435,7 +435,9 @@ def add_parsers(sub: Any) -> None:
 
     p = sub.add_parser("world", help="the world process (grid, clock, radio), by hand",
                        description="Run the world process; robots join with `swarm robot`. Exit "
-                                   f"status: 0 every episode played, 2 bad input, "
+                                   "status: 0 every episode played, 1 the run could not go on "
+                                   "(no robot, or with [run] train no learner, came alive "
+                                   "within --start-timeout), 2 bad input, "
                                    f"{EXIT_INCOMPLETE} stopped by a control record, 130 "
                                    "interrupted.")
     add_common(p)
