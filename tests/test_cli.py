@@ -105,6 +105,16 @@ def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) 
         assert res[k]["elratio_paired"]["se"] == pytest.approx(diff.std(ddof=1) / 5 ** 0.5)
 
 
+def test_a_paired_difference_of_one_episode_says_it_has_no_standard_error() -> None:
+    """UA pass 61: `swarm eval --episodes 1` with two policies printed "-0.0081 ± nan"."""
+    import numpy as np
+
+    from swarm.common.report import paired, paired_cell
+
+    assert paired_cell(*paired(np.array([0.5]), np.array([0.6]))) == "-0.1000 (1 episode: no se)"
+    assert paired_cell(*paired(np.array([0.5, 0.7]), np.array([0.6, 0.6]))) == "+0.0000 ± 0.1000"
+
+
 @pytest.mark.parametrize("args", [
     ["eval", "--episodes", "-3", "--policy", "random"],
     ["eval", "--policy", "no-such-policy"],
@@ -778,3 +788,7 @@ def test_bench_swarm_refuses_typos_in_its_lists_and_empty_hosts(
         assert main(["bench", "swarm", "--episodes", "1", *flags]) == 2, flags
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and why in err, (flags, err)
+    assert main(["run", "--headless", "--episodes", "1", "--robots", "2", "--hosts", "5"]) == 2
+    assert capsys.readouterr().err == ("swarm: error: --hosts 5 is more hosts than the 2 robots "
+                                       "(robots are dealt round robin: a host without one would "
+                                       "be empty)\n")

@@ -604,7 +604,7 @@ def test_a_name_too_long_is_one_line_and_nothing_is_made(tmp_path: Path, args: l
 ], ids=["policy", "checkpoint"])
 def test_a_hand_world_checks_its_policy_before_it_starts(policy: list[str], says: str) -> None:
     """`swarm world` started and waited for robots with a policy `swarm run` refuses: it now
-    refuses it in the same line (swarm.cli.run.check_policy), exit 2, before listening."""
+    refuses it in the same line (swarm.cli.checks.check_policy), exit 2, before listening."""
     from swarm.net.zconfig import free_port
 
     r = swarm("world", "--robots", "1", "--episodes", "1", "--start-timeout", "10", "--run-id",

@@ -168,9 +168,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.attention is not None and args.attention >= world.n_robots:  # (None: off)
         raise ConfigError(f"--attention {args.attention}: the team has robots "
                           f"0..{world.n_robots - 1}")
-    if (args.hosts or 0) > world.n_robots:
-        raise ConfigError(f"--hosts {args.hosts} is more hosts than the {world.n_robots} robots "
-                          "(robots are dealt round robin: a host without one would be empty)")
+    if args.hosts:
+        from swarm.net.kernel.hosts import check_host_count
+
+        check_host_count(args.hosts, world.n_robots)
     out, _ = _consoles()
     if args.pace is None and "pace" not in tables.get("run", {}) and not args.headless \
             and out.is_terminal:
@@ -392,7 +393,7 @@ def add_parsers(sub: Any) -> None:
                                    "Markdown and PNG.")
     p.add_argument("file", metavar="FILE", help="TOML experiment file")
     p.add_argument("--out", metavar="DIR",
-                   help="output directory, not empty (default: [experiment] out, for the "
+                   help="output directory, made if missing (default: [experiment] out, for the "
                         "shipped files the committed results/experiments)")
     p.add_argument("--episodes", type=int, metavar="K",
                    help="episodes per run (default: [run] episodes of FILE)")

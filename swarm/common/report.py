@@ -7,6 +7,7 @@ import csv
 import datetime as dt
 import functools
 import io
+import math
 import platform
 import subprocess
 import sys
@@ -64,7 +65,10 @@ def paired(first: np.ndarray, other: np.ndarray) -> tuple[float, float]:
 
 
 def paired_cell(mean: float, se: float) -> str:
-    """A paired difference as a table cell: `+0.0043 ± 0.0018`."""
+    """A paired difference as a table cell: `+0.0043 ± 0.0018` (`+0.0043 (1 episode: no se)`
+    from a single episode, whose standard error is nan)."""
+    if math.isnan(se):
+        return f"{mean:+.4f} (1 episode: no se)"
     return f"{mean:+.4f} ± {se:.4f}"
 
 
