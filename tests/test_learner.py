@@ -305,7 +305,9 @@ def test_weights_hot_swap_only_at_episode_boundaries(tmp_path: Path) -> None:
         if proc.poll() is None:
             proc.kill()
     res = json.loads((tmp_path / "r.json").read_text())
-    assert res["completed"] == 30
+    # fresh weights (no --checkpoint): none named (UA pass 59: the temp folder's initial.pt,
+    # removed with the folder)
+    assert res["completed"] == 30 and res["checkpoint"] is None
     rollouts = [RobotRollout.unpack(b, SMALL) for b in raw]
     by_ep: dict[int, set[int]] = {}
     for rr in rollouts:

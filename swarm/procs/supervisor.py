@@ -395,8 +395,9 @@ class Supervisor:
         if self.learning is not None:
             res["learner"] = learner_result(self.learner_status, int(res.get("completed", 0)),
                                             self.learner_out)
-        rc = self.run_cfg  # what made the result (with --train and no checkpoint: fresh weights)
-        ckpt = rc.checkpoint if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)
+        rc = self.run_cfg  # what made the result (--train without a checkpoint: None, fresh
+        ckpt = None if rc.checkpoint == str(self.tmp / "initial.pt") else rc.checkpoint \
+            if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)  # weights of --seed)
         res.update(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
                    provenance=provenance())
         if self.topo is not None:  # a robot whose session never opened is in no other count
