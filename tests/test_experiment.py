@@ -64,6 +64,15 @@ def test_a_bad_sweep_is_one_line_and_exit_2_before_any_run(tmp_path: Path, case:
     assert "logs in" not in r.stderr and not out.exists()  # nothing ran, nothing was written
 
 
+def test_a_sweep_that_would_train_is_refused_before_any_run(tmp_path: Path) -> None:
+    """`[run] train = true` in a sweep: its world waited a minute for a learner no sweep starts,
+    then the sweep failed ("no learner came alive within 60 s")."""
+    path = sweep_file(tmp_path, BASE + 'policies = ["commattn"]\n',
+                      head="[run]\ntrain = true\nepisodes = 1\n")
+    with pytest.raises(ConfigError, match=r"\[run\] train: a sweep evaluates, it does not train"):
+        plan(path)
+
+
 @pytest.mark.procs
 def test_an_empty_file_a_directory_or_no_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
     empty = tmp_path / "empty.toml"

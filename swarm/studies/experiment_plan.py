@@ -191,6 +191,9 @@ def load(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
         run = from_dict(RunConfig, run_t, "[run]")
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
+    if run.train:  # (its world waited a minute for a learner no sweep starts, then failed)
+        raise ConfigError(f"{path}: [run] train: a sweep evaluates, it does not train (train "
+                          "with `swarm run --train` or `swarm train`, then sweep the checkpoint)")
     exp_t = dict(data["experiment"])
     if seeds is not None:
         exp_t["seeds"] = seeds
