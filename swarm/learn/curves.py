@@ -76,13 +76,30 @@ class CurveLog:
 
 
 def read_curve(path: Path) -> dict[str, list[float]]:
-    """Columns of a trainer curve CSV (CURVE_FIELDS) as floats."""
-    with path.open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        cols: dict[str, list[float]] = {k: [] for k in reader.fieldnames or []}
-        for row in reader:
-            for k, v in row.items():
-                cols[k].append(float(v))
+    """Columns of a trainer curve CSV (CURVE_FIELDS) as floats; a file that is not one (another
+    CSV, text, a binary or a folder) is a one-line ConfigError."""
+    not_curve = f"{path} is not a training curve"
+    try:
+        with path.open(newline="") as fh:
+            reader = csv.DictReader(fh)
+            cols: dict[str, list[float]] = {k: [] for k in reader.fieldnames or []}
+            for row in reader:
+                if None in row or None in row.values():  # (more or fewer cells than the header)
+                    raise ConfigError(f"{not_curve} (line {reader.line_num}: not one cell per "
+                                      "column)")
+                for k, v in row.items():
+                    cols[k].append(float(v))
+    except ConfigError:
+        raise
+    except ValueError as exc:  # (float() of a word; UnicodeDecodeError: a binary file)
+        if isinstance(exc, UnicodeDecodeError):
+            raise ConfigError(f"{not_curve} (not a text file)") from None
+        raise ConfigError(f"{not_curve} (line {reader.line_num}: a cell that is not a "
+                          "number)") from None
+    except csv.Error as exc:
+        raise ConfigError(f"{not_curve} ({exc})") from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read training curve {path}: {exc.strerror or exc}") from None
     for key in ("update", "episodes", "elratio", "reward"):
         if not cols.get(key):
             raise ConfigError(f"{path} is not a training curve (no {key!r} column or no rows)")

@@ -30,6 +30,7 @@ from swarm.common import atomic
 from swarm.common.policy_spec import SHIPPED, build_policy
 from swarm.common.report import header, md_table, paired, paired_cell, provenance, write_item
 from swarm.learn.curves import fig8 as curves_figure
+from swarm.learn.curves import read_curve
 from swarm.learn.evaluate import evaluate
 from swarm.studies.comm import POLICIES as COMM_POLICIES
 from world.config import ConfigError, WorldConfig, check_count, check_seed, replace, to_dict
@@ -128,8 +129,13 @@ class ReproConfig:
         if stray:
             raise ConfigError(f"--checkpoint {', '.join(stray)}: not a learned policy; "
                               f"checkpoints are for {', '.join(sorted(LEARNED))}")
-        if not isinstance(self.curves, dict):
+        if not isinstance(self.curves, dict) or not all(
+                isinstance(k, str) and isinstance(v, str) for k, v in self.curves.items()):
             raise ConfigError("curves must map policy names to CSV file names")
+        stray = sorted(set(self.curves) - LEARNED)  # (the figure was drawn without it)
+        if stray:
+            raise ConfigError(f"--curve {stray[0]}=...: not a learned policy; curves are for "
+                              f"{', '.join(sorted(LEARNED))}")
 
     def checkpoint(self, name: str) -> str | None:
         """The checkpoint of policy `name`: given, else shipped (learned policies), else None."""
@@ -434,9 +440,13 @@ def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[
         for name in cfg.comm_policies:
             build_policy(name, world, cfg.checkpoint(name))
     if "fig8" in items:
+        if stray := sorted(set(cfg.curves) - set(learned_of(cfg))):
+            raise ConfigError(f"--curve {stray[0]}=...: {stray[0]} is not among --policies "
+                              f"{','.join(cfg.policies)}")
         for name in learned_of(cfg):
-            if not cfg.curve(name).is_file():
+            if not cfg.curve(name).exists():
                 raise ConfigError(f"no training curve for {name}: {cfg.curve(name)} not found")
+            read_curve(cfg.curve(name))  # (one that is not a curve: before any other item)
     for name in (n for item in items for n in item_files(item)) if cfg.json else ():
         if Path(cfg.json).resolve() == (Path(cfg.out) / name).resolve():
             raise ConfigError(f"--json {cfg.json} is a file repro writes ({name}); give "
