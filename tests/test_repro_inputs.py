@@ -45,3 +45,13 @@ def test_repro_fig8_refuses_a_curve_of_no_policy_or_one_not_drawn(
     line = refused(["repro", "fig8", "--out", out, "--policies", "commattn", "--curve",
                     f"vain={shipped}"], capsys)
     assert "vain is not among --policies commattn" in line, line
+
+
+@pytest.mark.parametrize("flag", ["--curve", "--checkpoint"])
+def test_repro_refuses_a_name_given_twice(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                          flag: str) -> None:
+    """UA 64: `--curve commattn=A --curve commattn=B` kept B without a word."""
+    given = ROOT / "checkpoints" / ("commattn_curve.csv" if flag == "--curve" else "commattn.pt")
+    line = refused(["repro", "fig8", "--policies", "commattn", "--out", str(tmp_path / "o"),
+                    flag, f"commattn={given}", flag, f"commattn={given}"], capsys)
+    assert f"{flag} commattn=... given 2 times" in line, line
