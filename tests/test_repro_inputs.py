@@ -55,3 +55,29 @@ def test_repro_refuses_a_name_given_twice(tmp_path: Path, capsys: pytest.Capture
     line = refused(["repro", "fig8", "--policies", "commattn", "--out", str(tmp_path / "o"),
                     flag, f"commattn={given}", flag, f"commattn={given}"], capsys)
     assert f"{flag} commattn=... given 2 times" in line, line
+
+
+def test_repro_comm_refuses_world_flags_its_conditions_set(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """UA 64: `repro comm --comm-range 3` ran the row labelled "range 10 (default)" at range 3;
+    `--horizon 10` shortened the 20 x 20 rows only."""
+    for flag in (["--comm-range", "3"], ["--horizon", "10"], ["--size", "30x30"],
+                 ["--static-blocks", "5"]):
+        line = refused(["repro", "comm", "--out", str(tmp_path / "o"), *flag], capsys)
+        assert f"{flag[0]} is not used by comm (comm: its conditions set" in line, line
+
+
+def test_repro_comm_labels_say_the_world_each_row_ran(tmp_path: Path) -> None:
+    """A world with another comm range or horizon (`repro all --comm-range 3`, a config's
+    [world]) serves the other items; comm's rows run what their labels say, named unused."""
+    from swarm.studies.comm import comm
+    from world.config import WorldConfig, replace
+
+    res = comm(replace(WorldConfig(), comm_range=3.0, horizon=10), tmp_path, "test", 0, 1,
+               policies=("random",), batch=1)
+    row = {r["condition"]: r for r in res["rows"]}
+    assert row["range 10 (default)"]["comm_range"] == 10.0, row["range 10 (default)"]
+    assert row["loss 50%"]["comm_range"] == 10.0 and row["loss 50%"]["horizon"] == 30
+    assert row["40 x 40, 20 robots"]["horizon"] == 60
+    md = (tmp_path / "comm.md").read_text()
+    assert "The world's horizon 10, comm_range 3 are not used" in md, md

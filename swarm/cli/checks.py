@@ -176,11 +176,14 @@ REPRO_FLAGS = {  # `swarm repro` flag (its dest) -> the items that use it
     "add_every": ("fig5",), "decisions": ("table1",), "curve": ("fig8",),
     "comm_episodes": ("comm",), "comm_policies": ("comm",),
     "policies": ("table1", "table2", "fig4", "fig5", "fig8", "fig9"),
-    **dict.fromkeys(("size", "static_blocks", "horizon", "sense"), _WORLD_ITEMS),
-    **dict.fromkeys(("vision", "comm_range"), tuple(i for i in _WORLD_ITEMS if i != "fig9"))}
+    "sense": _WORLD_ITEMS, "vision": tuple(i for i in _WORLD_ITEMS if i != "fig9"),
+    **dict.fromkeys(("size", "static_blocks", "horizon"), tuple(i for i in _WORLD_ITEMS
+                                                                 if i != "comm")),
+    "comm_range": tuple(i for i in _WORLD_ITEMS if i not in ("fig9", "comm"))}
 _WHY = {"fig8": "it draws training curves", "fig9": "it sweeps vision and comm range itself",
         "fig10": "it studies commattn", "fig11": "it studies commattn",
-        "comm": "it takes --comm-policies"}
+        "comm": "its conditions set the map size, blocks, horizon and comm range; it takes "
+                "--comm-policies"}
 
 
 def check_repro_flags(items: list[str], args: argparse.Namespace) -> None:

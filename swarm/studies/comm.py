@@ -46,6 +46,9 @@ CONDITIONS: tuple[tuple[str, dict[str, Any], dict[str, Any]], ...] = (
     # added later, so the indices the results scripts were run with stay; shown after the cap
     ("cap 60 B/s, expire", {}, {"bandwidth": "60B/s", "burst": 240, "overflow": "expire"}),
 )
+SET = ("height", "width", "n_static", "n_dynamic", "n_robots", "horizon", "comm_range")
+"""The world settings the conditions' labels name (the default's, or their own): a world's own
+values of them are not used (`repro comm --comm-range 3` ran "range 10 (default)" at 3)."""
 POLICIES = ("commattn", "coordinated-frontier", "central")
 # checkpoints fine-tuned on a map size (the shipped ones were trained on 20 x 20)
 MAP_CHECKPOINTS = {("commattn", 40, 40): SHIPPED / "scale" / "commattn_40x40_n20.pt"}
@@ -162,7 +165,9 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
     """Rows per (policy, condition): elratio, success, the gap to `central`, and the first
     policy's paired lead over each (mean and standard error over the same episodes)."""
     checkpoints = checkpoints or {}
-    base = replace(world, dynamic=True)
+    unused = [f"{k} {getattr(world, k):g}" for k in SET
+              if getattr(world, k) != getattr(WorldConfig, k)]
+    base = replace(world, dynamic=True, **{k: getattr(WorldConfig, k) for k in SET})
     rows: list[dict[str, Any]] = []
     for label, changes, faults in CONDITIONS:
         wc = replace(base, **changes)
@@ -201,7 +206,9 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                 "by area and keep the robot-steps per cell (20 robots x 60 steps, 50 x 24); "
                 f"{ran} (column `checkpoint` of the CSV). The last columns: {policies[0]}'s "
                 "elratio minus the other's, "
-                "episode by episode, with the standard error of that paired mean.")
+                "episode by episode, with the standard error of that paired mean."
+                + (f" The world's {', '.join(unused)} are not used: each condition sets its "
+                   "own." if unused else ""))
     conds = shown_order()
     cell = {(r["policy"], r["condition"]): r for r in rows}
     def fmt(r: dict[str, Any]) -> str:
