@@ -81,3 +81,25 @@ def test_repro_comm_labels_say_the_world_each_row_ran(tmp_path: Path) -> None:
     assert row["40 x 40, 20 robots"]["horizon"] == 60
     md = (tmp_path / "comm.md").read_text()
     assert "The world's horizon 10, comm_range 3 are not used" in md, md
+
+
+def test_repro_comm_refuses_a_policy_named_twice(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """UA 64: `--comm-policies commattn,commattn` was one column without a word."""
+    line = refused(["repro", "comm", "--out", str(tmp_path / "o"), "--comm-policies",
+                    "commattn,random,commattn"], capsys)
+    assert "--comm-policies names commattn twice" in line, line
+
+
+def test_repro_table2_rows_name_their_checkpoint(tmp_path: Path) -> None:
+    """UA 64: table2.json's rows had no `checkpoint` (comm.csv's have one per row)."""
+    import json
+
+    from swarm.cli import main
+
+    given = tmp_path / "mine.pt"
+    given.write_bytes((ROOT / "checkpoints" / "vain.pt").read_bytes())
+    assert main(["repro", "table2", "--out", str(tmp_path), "--policies", "vain,random",
+                 "--table2-episodes", "2", "--checkpoint", f"vain={given}"]) == 0
+    rows = json.loads((tmp_path / "table2.json").read_text())["rows"]
+    assert [r["checkpoint"] for r in rows] == [str(given), ""], rows

@@ -27,7 +27,7 @@ from swarm.bench.micro import (
     timing_stats,
 )
 from swarm.common import atomic
-from swarm.common.policy_spec import SHIPPED, build_policy
+from swarm.common.policy_spec import SHIPPED, build_policy, shown
 from swarm.common.report import header, md_table, paired, paired_cell, provenance, write_item
 from swarm.learn.curves import fig8 as curves_figure
 from swarm.learn.curves import read_curve
@@ -112,6 +112,12 @@ class ReproConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "policies", name_list(self.policies))
+        given = self.comm_policies.split(",") if isinstance(self.comm_policies, str) else \
+            self.comm_policies if isinstance(self.comm_policies, (list, tuple)) else ()
+        names = [n.strip() for n in given if isinstance(n, str)]
+        if twice := next((n for n in names if n and names.count(n) > 1), None):
+            raise ConfigError(f"--comm-policies names {twice} twice: comm compares each policy "
+                              "once")
         object.__setattr__(self, "comm_policies", name_list(self.comm_policies))
         check_seed(self.seed)
         object.__setattr__(self, "robots", int_list(self.robots, "robots"))
@@ -278,7 +284,8 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
     rows: list[dict[str, Any]] = []
     first: np.ndarray | None = None  # the first policy's per-episode elratio (paired reference)
     for name in names:
-        policy = build_policy(name, wc, cfg.checkpoint(name))
+        ckpt = cfg.checkpoint(name)
+        policy = build_policy(name, wc, ckpt)
         episodes = min(cfg.table2_episodes, cfg.oracle_episodes) if name == "oracle" \
             else cfg.table2_episodes
         res = evaluate(wc, policy, cfg.seed, episodes, batch=cfg.batch,
@@ -290,6 +297,7 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
             first = res.elratio
         lead, se = paired(first[:episodes], res.elratio)  # same episodes
         rows.append({"policy": name, "robots": wc.n_robots, "episodes": episodes,
+                     "checkpoint": shown(ckpt) if ckpt else "",
                      "decentralized": bool(policy.decentralized),
                      **{k: s[k] for k in SWEEP_KEYS}, "robot_collisions_mean":
                      float(res.robot_collisions.mean()),
