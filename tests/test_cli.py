@@ -670,9 +670,9 @@ def test_table2_describes_only_the_planners_in_it() -> None:
     from swarm.studies.repro import ReproConfig, table2_notes
 
     def row(p: str, dec: bool = True, gap: float | None = None) -> dict:
-        return {"policy": p, "decentralized": dec, "gap_closed": gap}
+        return {"policy": p, "decentralized": dec, "gap_closed": gap, "episodes": 7}
 
-    cfg = ReproConfig(oracle_episodes=7)
+    cfg = ReproConfig(oracle_episodes=7)  # (the oracle's row: 7 episodes)
     text = table2_notes([row("commattn"), row("chain-plan"), row("central", False)], cfg)
     assert "`chain-plan` is a hand-written" in text and "team-beam" not in text
     assert "Rows marked * are not decentralized: `central` pools" in text

@@ -91,7 +91,8 @@ def test_repro_comm_refuses_a_policy_named_twice(tmp_path: Path,
     assert "--comm-policies names commattn twice" in line, line
 
 
-def test_repro_table2_rows_name_their_checkpoint(tmp_path: Path) -> None:
+def test_repro_table2_rows_name_their_checkpoint(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """UA 64: table2.json's rows had no `checkpoint` (comm.csv's have one per row)."""
     import json
 
@@ -103,3 +104,35 @@ def test_repro_table2_rows_name_their_checkpoint(tmp_path: Path) -> None:
                  "--table2-episodes", "2", "--checkpoint", f"vain={given}"]) == 0
     rows = json.loads((tmp_path / "table2.json").read_text())["rows"]
     assert [r["checkpoint"] for r in rows] == [str(given), ""], rows
+    md = (tmp_path / "table2.md").read_text()  # (UA 64: "the last column", with a gap after)
+    assert "Column `vain - this (paired)` is vain's elratio minus the row's" in md, md
+    assert "vain - this (paired)" in capsys.readouterr().out  # (the terminal had no such column)
+
+
+def test_table2_says_what_its_rows_and_columns_are() -> None:
+    """UA 64: with --table2-episodes 10 the oracle's note said "first 60 episodes only"; the
+    terminal table had no paired column, no gap column and no `*` marks."""
+    from io import StringIO
+
+    from rich.console import Console
+
+    from swarm.cli.console import table2_table
+    from swarm.studies.repro import ReproConfig, table2_notes
+
+    base = {"robots": 10, "reward_mean": -1.0, "collisions_mean": 0.5,
+            "block_collisions_mean": 0.25, "elratio_std": 0.01, "success_rate": 0.5,
+            "paper_reward": None, "first_minus_elratio_se": 0.01}
+    rows = [{**base, "policy": "commattn", "episodes": 10, "decentralized": True,
+             "elratio_mean": 0.9, "first_minus_elratio": 0.0, "gap_closed": 0.8},
+            {**base, "policy": "random", "episodes": 10, "decentralized": True,
+             "elratio_mean": 0.7, "first_minus_elratio": 0.2, "gap_closed": 0.0},
+            {**base, "policy": "oracle", "episodes": 10, "decentralized": False,
+             "elratio_mean": 0.95, "first_minus_elratio": -0.05, "gap_closed": 1.0}]
+    notes = table2_notes(rows, ReproConfig(table2_episodes=10))
+    assert "(first 10 episodes only)" in notes, notes
+    buf = StringIO()
+    Console(file=buf, width=200).print(table2_table(rows))
+    shown = buf.getvalue()
+    for words in ("commattn - this (paired)", "gap", "oracle *", "80.0%", "-0.0500",
+                  "* not decentralized"):
+        assert words in shown, shown

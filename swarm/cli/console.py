@@ -179,20 +179,31 @@ def table1_table(rows: Sequence[Mapping[str, Any]]) -> Table:
 
 def table2_table(rows: Sequence[Mapping[str, Any]]) -> Table:
     """Table 2: every policy on the same held-out episodes, next to the paper's figures."""
-    n = rows[0]["episodes"] if rows else 0
+    n, first = (rows[0]["episodes"], rows[0]["policy"]) if rows else (0, "")
+    gap = any(r.get("gap_closed") is not None for r in rows)  # (random and oracle both played)
+    starred = not all(r.get("decentralized", True) for r in rows)
+    said = ["* not decentralized"] if starred else []
+    said += ["gap: share of the oracle-to-random elratio gap closed"] if gap else []
     table = Table(title=f"Table 2: dynamic map, {n} held-out episodes per policy",
-                  title_justify="left")
+                  title_justify="left", caption_justify="left",
+                  caption="; ".join(said) + ("; " if said else "") + "table2.md says more")
     table.add_column("policy", style="bold")
-    for col in ("reward / robot", "collisions (block)", "elratio", "success", "paper"):
+    for col in ("reward / robot", "collisions (block)", "elratio", "success", "paper",
+                f"{first} - this (paired)", *(["gap"] if gap else [])):
         table.add_column(col, justify="right")
     for r in rows:
         paper = ("-" if r["paper_reward"] is None else
                  f"{r['paper_reward']:g} / {r['paper_collisions']:g} / "
                  f"{r['paper_elratio_pct']:g}%")
-        table.add_row(r["policy"], f"{r['reward_mean']:.1f}",
+        lead = "-" if r is rows[0] else paired_cell(r["first_minus_elratio"],
+                                                    r["first_minus_elratio_se"])
+        table.add_row(r["policy"] + ("" if r.get("decentralized", True) else " *"),
+                      f"{r['reward_mean']:.1f}",
                       f"{r['collisions_mean']:.2f} ({r['block_collisions_mean']:.2f})",
                       _pm(r["elratio_mean"], r["elratio_std"]),
-                      f"{100 * r['success_rate']:.1f}%", paper)
+                      f"{100 * r['success_rate']:.1f}%", paper, lead,
+                      *(["-" if r["gap_closed"] is None else f"{100 * r['gap_closed']:.1f}%"]
+                        if gap else []))
     return table
 
 

@@ -262,7 +262,7 @@ def learned_of(cfg: ReproConfig) -> list[str]:
 
 def table2_notes(rows: list[dict[str, Any]], cfg: ReproConfig) -> str:
     """Table 2's words on the planners and the gap column: only those in the table."""
-    says = [SAYS.get(r["policy"], f"`{r['policy']}`").format(cfg.oracle_episodes) for r in rows]
+    says = [SAYS.get(r["policy"], f"`{r['policy']}`").format(r["episodes"]) for r in rows]
     text = "".join(f" {s[0].upper()}{s[1:]}." for r, s in zip(rows, says, strict=True)
                    if r["decentralized"] and r["policy"] in SAYS)
     starred = [s for r, s in zip(rows, says, strict=True) if not r["decentralized"]]
@@ -317,9 +317,9 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
                 f"{cfg.table2_episodes} held-out episodes per policy (evaluation seed {cfg.seed}; "
                 "training used seeds from 1,000,000 up), greedy actions. Our rewards are the "
                 "SPEC's (negative for good policies); the paper's are from its own reward "
-                "scale. Collisions = block + robot collisions per episode. The last column is "
-                f"{cfg.policies[0]}'s elratio minus the row's, episode by episode, with the "
-                "standard error of that paired mean." + table2_notes(rows, cfg))
+                f"scale. Collisions = block + robot collisions per episode. Column `{names[0]} - "
+                f"this (paired)` is {names[0]}'s elratio minus the row's, episode by episode, "
+                "with the standard error of that paired mean." + table2_notes(rows, cfg))
 
     def paper_cell(r: dict[str, Any]) -> str:
         if r["paper_reward"] is None:
