@@ -136,3 +136,13 @@ def test_table2_says_what_its_rows_and_columns_are() -> None:
     for words in ("commattn - this (paired)", "gap", "oracle *", "80.0%", "-0.0500",
                   "* not decentralized"):
         assert words in shown, shown
+
+
+def test_repro_help_says_the_default_policies_of_each_item(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """UA 64: the help said "the four learned, three frontier and random", but Table 2's default
+    run adds the planners."""
+    with pytest.raises(SystemExit):
+        main(["repro", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "Table 2 then adds team-beam, chain-plan, central and oracle" in text, text

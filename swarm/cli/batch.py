@@ -469,7 +469,9 @@ def add_parsers(sub: Any) -> None:
                         "have their own: --table2-episodes, --comm-episodes, and [repro] "
                         "fig9_episodes, fig10_episodes, fig11_episodes in --config)")
     p.add_argument("--policies", metavar="A,B,..",
-                   help="policies (default: the four learned, three frontier and random)")
+                   help="policies (default: the four learned, three frontier and random; "
+                        "Table 2 then adds team-beam, chain-plan, central and oracle; fig9 draws "
+                        "commnet and commattn; comm takes --comm-policies)")
     p.add_argument("--table2-episodes", type=int, metavar="K",
                    help="Table 2 held-out episodes per policy (default 1000)")
     p.add_argument("--comm-episodes", type=int, metavar="K",
