@@ -168,7 +168,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def cmd_train(args: argparse.Namespace) -> int:
     from swarm.learn import config as train_config
 
@@ -292,8 +291,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-
-
 def _row_line(row: dict[str, Any]) -> str:
     """One finished row of a long benchmark as a progress line: its scalar figures."""
     parts = [f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
@@ -302,8 +299,7 @@ def _row_line(row: dict[str, Any]) -> str:
 
 
 def _once_each(pairs: list[str] | None, flag: str) -> dict[str, str] | None:
-    """`FLAG NAME=FILE` pairs as a dict; a NAME given twice is refused (the last one was kept
-    without a word)."""
+    """`FLAG NAME=FILE` pairs as a dict; a NAME given twice is refused (the last was kept)."""
     names = [p.partition("=")[0] for p in pairs or ()]
     if twice := next((n for n in names if names.count(n) > 1), None):
         raise ConfigError(f"{flag} {twice}=... given {names.count(twice)} times: give one file "
@@ -348,8 +344,6 @@ def cmd_repro(args: argparse.Namespace) -> int:
             out.print(sweep_table(f"{title}: elratio mean ± std", x, res["rows"]))
     out.print(files_table({k: v["files"] for k, v in results.items()}))
     return 0
-
-
 
 
 def add_parsers(sub: Any) -> None:
