@@ -55,6 +55,10 @@ def test_repro_refuses_a_name_given_twice(tmp_path: Path, capsys: pytest.Capture
     line = refused(["repro", "fig8", "--policies", "commattn", "--out", str(tmp_path / "o"),
                     flag, f"commattn={given}", flag, f"commattn={given}"], capsys)
     assert f"{flag} commattn=... given 2 times" in line, line
+    if flag == "--checkpoint":  # the parser eval and bench policy share, too
+        line = refused(["eval", "--policy", "commattn", "--episodes", "1", flag,
+                        f"commattn={given}", flag, f"commattn={given}"], capsys)
+        assert f"{flag} commattn=... given 2 times" in line, line
 
 
 def test_repro_comm_refuses_world_flags_its_conditions_set(

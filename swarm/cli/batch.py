@@ -298,15 +298,6 @@ def _row_line(row: dict[str, Any]) -> str:
     return "  " + ", ".join(parts)
 
 
-def _once_each(pairs: list[str] | None, flag: str) -> dict[str, str] | None:
-    """`FLAG NAME=FILE` pairs as a dict; a NAME given twice is refused (the last was kept)."""
-    names = [p.partition("=")[0] for p in pairs or ()]
-    if twice := next((n for n in names if names.count(n) > 1), None):
-        raise ConfigError(f"{flag} {twice}=... given {names.count(twice)} times: give one file "
-                          "per policy")
-    return _checkpoint_pairs(pairs, flag)
-
-
 def cmd_repro(args: argparse.Namespace) -> int:
     from swarm.cli.console import curves_table, files_table, sweep_table, table1_table, table2_table
     from swarm.studies import repro
@@ -314,12 +305,12 @@ def cmd_repro(args: argparse.Namespace) -> int:
     tables = file_tables(args.config)
     world = world_config(args, tables)
     flags = {"out": args.out, "episodes": args.episodes, "seed": args.seed,
-             "policies": args.policies, "checkpoints": _once_each(args.checkpoint, "--checkpoint"),
+             "policies": args.policies, "checkpoints": _checkpoint_pairs(args.checkpoint),
              "robots": args.robots, "add_every": args.add_every,
              "decisions": args.decisions, "batch": args.batch, "json": args.json,
              "table2_episodes": args.table2_episodes, "comm_episodes": args.comm_episodes,
              "comm_policies": args.comm_policies,
-             "curves": _once_each(args.curve, "--curve")}
+             "curves": _checkpoint_pairs(args.curve, "--curve")}
     cfg = merged(repro.ReproConfig, tables.get("repro", {}), flags, "[repro]")
     # every check before the progress display (whose closing would print a blank line)
     items = repro.prepare(repro.expand(args.item), world, cfg)

@@ -257,6 +257,9 @@ def _checkpoint_pairs(pairs: list[str] | None, flag: str = "--checkpoint") -> di
         name, sep, path = pair.partition("=")
         if not sep or not name or not path:
             raise ConfigError(f"{flag} wants NAME=FILE, got {pair!r}")
+        if name in out:  # (the last was kept without a word)
+            times = sum(p.partition("=")[0] == name for p in pairs)
+            raise ConfigError(f"{flag} {name}=... given {times} times: give one file per policy")
         out[name] = path
     return out
 
