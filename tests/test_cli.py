@@ -434,7 +434,8 @@ def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
     # UA pass 61: the items its --policies cannot serve were left out without a word
     assert ("swarm: warning: repro leaves out fig9 (neither commnet nor commattn among "
             "--policies); fig10 (not commattn among --policies); fig11 (not commattn among "
-            "--policies); comm (not commattn among --policies)") in r.stderr, r.stderr
+            "--policies); comm (not commattn among --policies): run `swarm repro ITEM` on its own, "
+            "or add the policy to --policies") in r.stderr, r.stderr
     rows = json.loads((out / "table2.json").read_text())["rows"]
     assert [row["policy"] for row in rows] == ["vain", "random"]
     assert all(row["episodes"] == 6 and 0 < row["elratio_mean"] <= 1 for row in rows)
@@ -777,11 +778,11 @@ def test_bench_swarm_refuses_typos_in_its_lists_and_empty_hosts(
     before anything starts."""
     from swarm.cli import main
 
-    for flags, why in ((["--robots", "10,,25"], "expected comma-separated integers, got "
-                                                "'10,,25'"),
-                       (["--robots", "2,2"], "expected distinct integers, got '2,2'"),
+    for flags, why in ((["--robots", "10,,25"], "--robots expects comma-separated integers, "
+                                                "got '10,,25'"),
+                       (["--robots", "2,2"], "--robots expects distinct integers, got '2,2'"),
                        (["--robots", "2", "--policy", "random,random"],
-                        "expected distinct comma-separated names, got 'random,random'"),
+                        "--policy expects distinct comma-separated names, got 'random,random'"),
                        (["--robots", "2", "--policy", "random,"], "names, got 'random,'"),
                        (["--robots", "2,3", "--hosts", "3"], "bench swarm hosts 3 is more hosts "
                                                              "than the 2 robots")):

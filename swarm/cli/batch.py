@@ -240,7 +240,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from swarm.bench.rollout import RolloutBenchConfig, bench_rollout
 
         cfg = merged(RolloutBenchConfig, table,
-                     {"workers": _ints(args.workers_list), "policy": args.policy,
+                     {"workers": _ints(args.workers_list, "--workers"), "policy": args.policy,
                       "batch": args.batch, "seconds": args.seconds, "repeats": args.repeats,
                       "json": args.json}, where)
         result = bench_rollout(cfg, lambda row: err.print(_row_line(row)))
@@ -262,7 +262,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from swarm.cli.console import swarm_bench_table
 
         cfg = merged(SwarmBenchConfig, table,
-                     {"robots": _ints(args.robots_list), "policies": _names(args.policy),
+                     {"robots": _ints(args.robots_list, "--robots"),
+                      "policies": _names(args.policy, "--policy"),
                       "episodes": args.episodes, "seed": args.seed,
                       "checkpoint": args.checkpoint, "json": args.json,
                       "repeats": args.repeats, "delivery": args.delivery,

@@ -224,27 +224,27 @@ def _command() -> str:
 
 
 
-def _ints(text: str | None) -> tuple[int, ...] | None:
-    """'10,25' -> (10, 25); an empty entry or a repeat is a typo (one line), not a row to drop
-    or run twice."""
+def _ints(text: str | None, flag: str) -> tuple[int, ...] | None:
+    """'10,25' -> (10, 25); an empty entry or a repeat is a typo (one line naming `flag`), not
+    a row to drop or run twice."""
     if text is None:
         return None
     try:
         out = tuple(int(x) for x in text.split(","))
     except ValueError:
-        raise ConfigError(f"expected comma-separated integers, got {text!r}") from None
+        raise ConfigError(f"{flag} expects comma-separated integers, got {text!r}") from None
     if len(set(out)) != len(out):
-        raise ConfigError(f"expected distinct integers, got {text!r}")
+        raise ConfigError(f"{flag} expects distinct integers, got {text!r}")
     return out
 
 
-def _names(text: str | None) -> tuple[str, ...] | None:
+def _names(text: str | None, flag: str) -> tuple[str, ...] | None:
     """'a,b' -> ('a', 'b'); an empty entry or a repeat is refused, as `_ints` does."""
     if text is None:
         return None
     out = tuple(x.strip() for x in text.split(","))
     if not all(out) or len(set(out)) != len(out):
-        raise ConfigError(f"expected distinct comma-separated names, got {text!r}")
+        raise ConfigError(f"{flag} expects distinct comma-separated names, got {text!r}")
     return out
 
 

@@ -254,7 +254,8 @@ def held_to_checkpoint(saved: TrainConfig, asked: TrainConfig, given: Collection
               and not (n == "faults" and _same_faults(saved.faults, asked.faults))]
     if differ:
         raise ConfigError(f"--resume continues {where} as it was trained: {', '.join(differ)} "
-                          f"(only {', '.join(may_change)} may change; {restart})")
+                          f"(of the training settings only {', '.join(may_change)} may change; "
+                          f"{restart})")
     return {n: getattr(asked, n) for n in names if n in may_change}
 
 

@@ -433,8 +433,8 @@ def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[
     if left := [i for i in asked if i not in items]:
         why = {"fig8": "no learned policy", "fig9": "neither commnet nor commattn"}
         said = "; ".join(f"{i} ({why.get(i, 'not commattn')} among --policies)" for i in left)
-        print(f"swarm: warning: repro leaves out {said}: make it alone, or add the policy",
-              file=sys.stderr, flush=True)
+        print(f"swarm: warning: repro leaves out {said}: run `swarm repro ITEM` on its own, or "
+              "add the policy to --policies", file=sys.stderr, flush=True)
     if "fig9" in items:
         check_fig9_checkpoints(world, cfg)
     for item in items:
