@@ -113,6 +113,10 @@ def test_a_paired_difference_of_one_episode_says_it_has_no_standard_error() -> N
 
     assert paired_cell(*paired(np.array([0.5]), np.array([0.6]))) == "-0.1000 (1 episode: no se)"
     assert paired_cell(*paired(np.array([0.5, 0.7]), np.array([0.6, 0.6]))) == "+0.0000 ± 0.1000"
+    from swarm.common.report import counted  # (UA pass 66: "1 episodes", "1 bad records")
+
+    assert [counted(n, "bad record") for n in (0, 1, 2)] == ["0 bad records", "1 bad record",
+                                                             "2 bad records"]
 
 
 @pytest.mark.parametrize("args", [

@@ -35,7 +35,7 @@ from swarm.cli.common import (
 )
 from swarm.common import atomic
 from swarm.common.flags import add_flags, given
-from swarm.common.report import csv_text, paired, provenance
+from swarm.common.report import counted, csv_text, paired, provenance
 from world.config import ConfigError, WorldConfig, check_count, check_seed, from_dict, to_dict
 
 
@@ -152,7 +152,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     map_kind = f"dynamic (m={world.add_every})" if world.dynamic else "static"
     shown_faults = "; ".join(faults.describe()) if faults is not None else ""
     out.print(eval_table(summaries, f"eval: {world.n_robots} robots, {map_kind} map, "
-                                    f"{cfg.episodes} episodes, seed {cfg.seed}"
+                                    f"{counted(cfg.episodes, 'episode')}, seed {cfg.seed}"
                                     + (f"; faults: {shown_faults}" if shown_faults else ""),
                          out.width))
     if cfg.json:

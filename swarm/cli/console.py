@@ -14,7 +14,7 @@ from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 
-from swarm.common.report import paired_cell
+from swarm.common.report import counted, paired_cell
 
 
 def _ok(flag: bool | None) -> Text:
@@ -184,7 +184,7 @@ def table2_table(rows: Sequence[Mapping[str, Any]]) -> Table:
     starred = not all(r.get("decentralized", True) for r in rows)
     said = ["* not decentralized"] if starred else []
     said += ["gap: share of the oracle-to-random elratio gap closed"] if gap else []
-    table = Table(title=f"Table 2: dynamic map, {n} held-out episodes per policy",
+    table = Table(title=f"Table 2: dynamic map, {counted(n, 'held-out episode')} per policy",
                   title_justify="left", caption_justify="left",
                   caption="; ".join(said) + ("; " if said else "") + "table2.md says more")
     table.add_column("policy", style="bold")

@@ -16,6 +16,7 @@ from typing import Any
 
 from swarm.cli.common import _consoles, named_dir, output_dir, output_file
 from swarm.common.flags import check_wait
+from swarm.common.report import counted
 from swarm.net import zconfig
 from world.config import ConfigError
 
@@ -186,7 +187,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                                                                 "completed")}})
     out.print()
     out.print(f"replayed {stats.messages} messages of run {rec.record.run.run_id} (ticks "
-              f"{stats.first_tick}..{stats.last_tick}; {stats.bad} bad records dropped)")
+              f"{stats.first_tick}..{stats.last_tick}; {counted(stats.bad, 'bad record')} dropped)")
     return 0
 
 

@@ -64,6 +64,11 @@ def paired(first: np.ndarray, other: np.ndarray) -> tuple[float, float]:
     return float(diff.mean()), se
 
 
+def counted(n: int, noun: str) -> str:
+    """`1 episode`, `2 episodes`: a count with its noun in the right number."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 def paired_cell(mean: float, se: float) -> str:
     """A paired difference as a table cell: `+0.0043 ± 0.0018` (`+0.0043 (1 episode: no se)`
     from a single episode, whose standard error is nan)."""

@@ -28,7 +28,15 @@ from swarm.bench.micro import (
 )
 from swarm.common import atomic
 from swarm.common.policy_spec import SHIPPED, build_policy, shown
-from swarm.common.report import header, md_table, paired, paired_cell, provenance, write_item
+from swarm.common.report import (
+    counted,
+    header,
+    md_table,
+    paired,
+    paired_cell,
+    provenance,
+    write_item,
+)
 from swarm.learn.curves import fig8 as curves_figure
 from swarm.learn.curves import read_curve
 from swarm.learn.evaluate import evaluate
@@ -312,14 +320,14 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
         r["gap_closed"] = (r["elratio_mean"] - lo) / (hi - lo) if lo is not None and hi and \
             hi > lo else None
     md = header(f"Table 2: {wc.n_robots} robots, {wc.horizon} steps, dynamic map", command,
-
                 cfg.seed,
-                f"{cfg.table2_episodes} held-out episodes per policy (evaluation seed {cfg.seed}; "
-                "training used seeds from 1,000,000 up), greedy actions. Our rewards are the "
-                "SPEC's (negative for good policies); the paper's are from its own reward "
-                f"scale. Collisions = block + robot collisions per episode. Column `{names[0]} - "
-                f"this (paired)` is {names[0]}'s elratio minus the row's, episode by episode, "
-                "with the standard error of that paired mean." + table2_notes(rows, cfg))
+                f"{counted(cfg.table2_episodes, 'held-out episode')} per policy (evaluation "
+                f"seed {cfg.seed}; training used seeds from 1,000,000 up), greedy actions. Our "
+                "rewards are the SPEC's (negative for good policies); the paper's are from its "
+                "own reward scale. Collisions = block + robot collisions per episode. Column "
+                f"`{names[0]} - this (paired)` is {names[0]}'s elratio minus the row's, episode "
+                "by episode, with the standard error of that paired mean."
+                + table2_notes(rows, cfg))
 
     def paper_cell(r: dict[str, Any]) -> str:
         if r["paper_reward"] is None:
