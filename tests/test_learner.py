@@ -309,6 +309,8 @@ def test_weights_hot_swap_only_at_episode_boundaries(tmp_path: Path) -> None:
     # fresh weights (no --checkpoint): none named (UA pass 59: the temp folder's initial.pt,
     # removed with the folder)
     assert res["completed"] == 30 and res["checkpoint"] is None
+    # its learner's checkpoints record the user's command, not the spawned one naming temp files
+    assert load_checkpoint(tmp_path / "l" / "checkpoint.pt")["meta"]["command"] == res["command"]
     rollouts = [RobotRollout.unpack(b, SMALL) for b in raw]
     by_ep: dict[int, set[int]] = {}
     for rr in rollouts:

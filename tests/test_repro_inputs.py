@@ -150,3 +150,18 @@ def test_repro_help_says_the_default_policies_of_each_item(
         main(["repro", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "Table 2 then adds team-beam, chain-plan, central and oracle" in text, text
+
+
+def test_a_policy_written_twice_is_refused_as_a_typo(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """UA pass 66: `eval --policy random,random` and `repro table2 --policies random,random` ran
+    one row without a word where `bench swarm` and `--comm-policies` refused the repeat; `all`
+    with a baseline it also brings still runs that baseline once."""
+    for args in (["eval", "--policy", "random,random", "--episodes", "1"],
+                 ["repro", "table2", "--out", str(tmp_path / "o"), "--policies",
+                  "random,nearest-frontier,random", "--table2-episodes", "1"]):
+        line = refused(args, capsys)
+        assert "policy 'random' is named 2 times: each policy runs once" in line, line
+    from swarm.common.policy_spec import resolve_policies
+
+    assert resolve_policies("all,random").count("random") == 1

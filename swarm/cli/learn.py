@@ -78,7 +78,8 @@ def cmd_learner(args: argparse.Namespace) -> int:
     try:
         zopts = secure_options(args, zconfig.from_args(args), "learner", lc.run_id)
         # checks everything first; creates --out only once they passed (and the session opened)
-        status = learner_main(world, lc, tc, zopts, seed, given=given, command=_command())
+        status = learner_main(world, lc, tc, zopts, seed, given=given,
+                              command=args.made_by or _command())
     except KeyboardInterrupt:
         return 130
     if args.json:
@@ -153,6 +154,8 @@ def add_parsers(sub: Any) -> None:
     g.add_argument("--ppo-epochs", dest="train_ppo_epochs", type=int, metavar="K",
                    help=f"with --algo ppo: passes over each batch (default {t.ppo_epochs})")
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
+    p.add_argument("--made-by", metavar="COMMAND", help=argparse.SUPPRESS)  # (`swarm run`'s:
+    # what its checkpoints record, not the spawned command naming temp files)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
     add_secure_flag(p)

@@ -15,12 +15,15 @@ from world.config import ConfigError, WorldConfig
 
 
 def resolve_policies(spec: str | list[str] | tuple[str, ...]) -> list[str]:
-    """`all`, one name or a comma-separated list -> registry names (order kept, no repeats)."""
+    """`all`, one name or a comma-separated list -> registry names (order kept, no repeats: a
+    name `all` also brings is taken once; one written twice is a typo, refused)."""
     items = spec.split(",") if isinstance(spec, str) else list(spec)
     names: list[str] = []
-    for item in (s.strip() for s in items):
-        if not item:
-            continue
+    written = [s.strip() for s in items if s.strip()]
+    if twice := next((n for n in written if written.count(n) > 1), None):
+        raise ConfigError(f"policy {twice!r} is named {written.count(twice)} times: each policy "
+                          "runs once")
+    for item in written:
         expanded = list(BASELINES) if item == "all" else [item]
         for name in expanded:
             if name not in REGISTRY:

@@ -193,9 +193,9 @@ class Supervisor:
             self.learner_out = out
             self.learner = self._spawn(["learner", "--spec", str(spec), "--run-id",
                                         self.run_cfg.run_id, "--policy", self.run_cfg.policy,
-                                        "--checkpoint", str(self.run_cfg.checkpoint),
-                                        "--out", out, "--connect", self.hub,
-                                        "--zenoh-mode", "client"], "learner")
+                                        "--checkpoint", str(self.run_cfg.checkpoint), "--out",
+                                        out, "--connect", self.hub, "--zenoh-mode", "client",
+                                        "--made-by", self.opts.command or "swarm run"], "learner")
         return t0
 
     def stop_all(self, grace: float = 2.0) -> None:
