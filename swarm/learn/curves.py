@@ -89,11 +89,11 @@ def read_curve(path: Path) -> dict[str, list[float]]:
                                       "column)")
                 for k, v in row.items():
                     cols[k].append(float(v))
-    except ConfigError:
+    except ConfigError:  # (a ValueError too: said as raised above)
         raise
-    except ValueError as exc:  # (float() of a word; UnicodeDecodeError: a binary file)
-        if isinstance(exc, UnicodeDecodeError):
-            raise ConfigError(f"{not_curve} (not a text file)") from None
+    except UnicodeDecodeError:  # (before ValueError, of which it is one)
+        raise ConfigError(f"{not_curve} (not a text file)") from None
+    except ValueError:  # float() of a word
         raise ConfigError(f"{not_curve} (line {reader.line_num}: a cell that is not a "
                           "number)") from None
     except csv.Error as exc:
