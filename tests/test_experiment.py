@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import ROOT, swarm
@@ -49,6 +50,30 @@ BAD_FILES = {  # file's [experiment] lines (None: the file is empty) -> words of
     "a relative checkpoint path": (BASE + 'policies = ["commattn"]\ncheckpoints = {commattn = '
                                    '"mine.pt"}\n', ["mine.pt (relative to /"]),
 }
+
+
+@pytest.mark.parametrize("head, says", [
+    ('[world]\ndynamic = "true"\n', '[world] dynamic must be true or false, got \'true\''),
+    ("[world]\ndynamic = 0\n", "[world] dynamic must be true or false, got 0"),
+])
+def test_a_switch_in_a_sweep_or_config_file_must_be_a_boolean(tmp_path: Path, head: str,
+                                                            says: str, capsys: Any) -> None:
+    """`[world] dynamic = "true"` or `0` was read as a setting in a sweep and in every command's
+    `--config` (and `[experiment] record = 1` in a sweep) while `[run]`, `[learner]` and
+    `[train]` refused it."""
+    from swarm.cli import main
+
+    path = sweep_file(tmp_path, BASE + 'policies = ["random"]\n', head=head)
+    with pytest.raises(ConfigError) as err:
+        plan(path)
+    assert says in str(err.value)
+    conf = tmp_path / "c.toml"
+    conf.write_text(head)
+    assert main(["eval", "--policy", "random", "--episodes", "1", "--config", str(conf)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and says in lines[0], lines
+    with pytest.raises(ConfigError, match=r"\[experiment\] record must be true or false, got 1"):
+        plan(sweep_file(tmp_path, BASE + 'policies = ["random"]\nrecord = 1\n'))
 
 
 @pytest.mark.procs

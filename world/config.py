@@ -199,6 +199,15 @@ def parse_size(text: str) -> tuple[int, int]:
     return size
 
 
+def toml_bools(cls: type, table: dict[str, Any], where: str) -> None:
+    """A switch of dataclass `cls` in a TOML `table` must be a TOML boolean: `dynamic = 1` or
+    `"yes"` is one line, not read as a setting (from_dict also takes "true"/1 for flag text)."""
+    for f in fields(cls):
+        name = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        if name == "bool" and f.name in table and not isinstance(table[f.name], bool):
+            raise ConfigError(f"{where} {f.name} must be true or false, got {table[f.name]!r}")
+
+
 def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
     """Build dataclass `cls` from `data`, rejecting unknown keys and coercing simple types."""
     known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]

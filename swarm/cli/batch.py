@@ -36,7 +36,15 @@ from swarm.cli.common import (
 from swarm.common import atomic
 from swarm.common.flags import add_flags, given
 from swarm.common.report import counted, csv_text, paired, provenance
-from world.config import ConfigError, WorldConfig, check_count, check_seed, from_dict, to_dict
+from world.config import (
+    ConfigError,
+    WorldConfig,
+    check_count,
+    check_seed,
+    from_dict,
+    to_dict,
+    toml_bools,
+)
 
 
 @dataclass(frozen=True)
@@ -173,6 +181,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     tables = file_tables(args.config)
     world = world_config(args, tables)
+    toml_bools(train_config.TrainConfig, tables.get("train", {}), "[train]")
     base = from_dict(train_config.TrainConfig, tables.get("train", {}), "[train]")
     cfg = train_config.from_args(args, base)
     faults = batched_faults(fault_table(args, tables, world.n_robots), "training")  # as eval

@@ -25,6 +25,7 @@ from world.config import (
     from_dict,
     load_toml,
     parse_size,
+    toml_bools,
     with_scaled_blocks,
 )
 
@@ -83,6 +84,7 @@ def file_tables(path: str | None) -> dict[str, Any]:
 
 def merged(cls: type, table: dict[str, Any], flags: dict[str, Any], where: str) -> Any:
     """Dataclass `cls` from the file's `table` overridden by the flags that were given."""
+    toml_bools(cls, table, where)  # (the flags' text may say "true"; the file must say true)
     given = {k: v for k, v in flags.items() if v is not None}
     return from_dict(cls, {**table, **given}, where=where)
 

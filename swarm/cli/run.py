@@ -40,12 +40,11 @@ from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, check_run_secure, secure_options
 from swarm.common.flags import check_wait, robot_id
 from swarm.common.report import json_line, provenance
-from swarm.learn.config import toml_bools
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
-from world.config import ConfigError, from_dict
+from world.config import ConfigError, from_dict, toml_bools
 
 
 def _add_run_flags(p: argparse.ArgumentParser) -> None:

@@ -15,7 +15,7 @@ from typing import Any
 
 from swarm.common.flags import add_flags, check_wait, from_flags
 from swarm.net.keys import check_run_id
-from world.config import ConfigError, WorldConfig, from_dict
+from world.config import ConfigError, WorldConfig, from_dict, toml_bools
 
 PPO_FIELDS = ("gae_lambda", "ppo_epochs", "ppo_clip")
 """TrainConfig fields only `algo = "ppo"` reads: set to anything but their default for another
@@ -450,14 +450,6 @@ LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_no
 # TrainConfig fields that only the batched trainer implements
 BATCH_TRAIN_FIELDS = ("init", "team_memory", "belief", "hint", "hint_planner", "hint_prior",
                       "model", "imitate", "imitate_samples")
-
-
-def toml_bools(cls: type, table: dict[str, Any], where: str) -> None:
-    """A switch of dataclass `cls` in a TOML `table` must be a TOML boolean: `train = 1` or
-    `"yes"` is one line, not read as true (from_dict also takes "true"/1 for flag text)."""
-    for f in dataclasses.fields(cls):
-        if f.type == "bool" and f.name in table and not isinstance(table[f.name], bool):
-            raise ConfigError(f"{where} {f.name} must be true or false, got {table[f.name]!r}")
 
 
 def learner_configs(args: argparse.Namespace,

@@ -16,7 +16,14 @@ from swarm.common.policy_spec import build_inference
 from swarm.net.faults import LINK_KEYS, parse_rate, plan_from_table
 from swarm.net.kernel.netns import NetnsConfig, check_tools
 from swarm.procs.runconfig import RunConfig
-from world.config import ConfigError, WorldConfig, from_dict, load_toml, with_scaled_blocks
+from world.config import (
+    ConfigError,
+    WorldConfig,
+    from_dict,
+    load_toml,
+    toml_bools,
+    with_scaled_blocks,
+)
 
 TABLES = ("world", "run", "faults", "experiment")
 REQUIRED = ("parameter", "values", "policies")  # what a sweep is; the rest has defaults
@@ -180,6 +187,8 @@ def load(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
     """The file's tables as configs, `--episodes` and `--seeds` applied over `[run] episodes`
     and `[experiment] seeds` (and checked as the file's values are)."""
     data = read_file(path)
+    for cls, name in ((WorldConfig, "world"), (RunConfig, "run"), (ExperimentConfig, "experiment")):
+        toml_bools(cls, data.get(name, {}), f"{path}: [{name}]")
     world = from_dict(WorldConfig, with_scaled_blocks(data.get("world", {})), "[world]")
     run_t = dict(data.get("run", {}))
     run_t.setdefault("run_id", "exp")
