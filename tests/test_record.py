@@ -303,6 +303,16 @@ def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[st
     cut.write_bytes(recorded["file"].read_bytes()[:-20])
     r = swarm("replay", str(cut), "--partial", "--verify")
     assert r.returncode == 0 and "every one as recorded" in r.stdout, r.stdout + r.stderr
+    # a file with a hole in it is no pass, even with --partial (it passed on the ticks before)
+    data = bytearray(recorded["file"].read_bytes())
+    at = len(data) * 2 // 3
+    data[at:at + 200] = bytes(b ^ 0xFF for b in data[at:at + 200])
+    holed = tmp_path / "holed.mcap"
+    holed.write_bytes(bytes(data))
+    r = swarm("replay", str(holed), "--partial", "--verify")
+    line = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 1 and line.startswith(f"swarm: verify: {holed}: damaged at byte ") \
+        and "ticks before it are as recorded" in line, r.stdout + r.stderr
 
 
 @pytest.mark.procs

@@ -169,6 +169,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
             print(f"swarm: verify: {args.file}: nothing to verify (no complete tick and no "
                   "result in it)", file=sys.stderr)
             return 1
+        if rec.raw.damaged:  # (an audit passes no file with a hole in it: cut is one thing)
+            print(f"swarm: verify: {args.file}: damaged at byte {rec.raw.end_offset} of "
+                  f"{rec.raw.size}: the {report.ticks} ticks before it are as recorded, what "
+                  "follows is unreadable and not verified", file=sys.stderr)
+            return 1
         out.print(f"verified {args.file}: run {rec.record.run.run_id} "
                   f"({rec.record.run.policy}, {rec.record.run.clock} clock), {report.ticks} "
                   f"ticks recomputed; {checked}: every one as recorded" + (
