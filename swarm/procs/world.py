@@ -1,12 +1,14 @@
 """The world process: owns the grid and the clock, hosts the radio, steps once per tick.
 
 Per tick t: send every live robot its observation; hand each robot its bundle of trajectory
-messages through the radio once every live robot has sent (or half the tick deadline passed);
-forward hidden-state messages to the successors (on a tick with no link fault the robots send
-them themselves: the fast lane); collect actions until every live robot has acted or the
-deadline passed (a robot that missed it stays in place: a timeout); step with the batched
-evaluator's `world.core.step`. All input goes through one queue and is checked there: a bad
-payload is dropped and counted with its key, never raised.
+messages through the radio once every live robot has sent; forward hidden-state messages to
+the successors (on a tick with no link fault the robots send them themselves: the fast lane);
+collect actions until every live robot has acted; step with the batched evaluator's
+`world.core.step`. On the real clock the tick deadline also ends the waits (the bundles at half
+of it; a robot that missed it stays in place: a timeout); in virtual time lateness is decided
+in virtual time, so the world waits for every live robot up to the wall-clock watchdog. All
+input goes through one queue and is checked there: a bad payload is dropped and counted with
+its key, never raised.
 """
 
 from __future__ import annotations
