@@ -297,8 +297,10 @@ class WorldProcess:
             if self.run_cfg.pace > 0:
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
             obs_faults = b""
-            self.presence.wait_up(self.presence.due(self.run_tick), self._pump,  # process faults
-                                  time.monotonic() + self.run_cfg.start_timeout)
+            if not state.done:  # (the last observation's run tick is the next episode's first:
+                # a process fault of that tick lands there, not on this episode's score)
+                self.presence.wait_up(self.presence.due(self.run_tick), self._pump,
+                                      time.monotonic() + self.run_cfg.start_timeout)
             plan = self.faults.due(self.run_tick)  # each live change at its own tick
             if plan is not None:
                 self.radio.set_plan(plan)
