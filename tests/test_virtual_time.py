@@ -194,6 +194,17 @@ def test_process_faults_land_on_their_tick_and_a_run_repeats_itself(tmp_path: Pa
 
 
 @pytest.mark.procs
+def test_a_planned_hang_is_no_robot_that_left_the_run(tmp_path: Path) -> None:
+    """A hang of the plan held to the run's end was said as "robots [1] left the run before
+    its end" (a crash was not): the robot's lease ran out because the run stopped it."""
+    out = tmp_path / "h.json"
+    r = swarm("run", "--headless", "--robots", "3", "--policy", "nearest-frontier", "--episodes",
+              "1", "--horizon", "8", "--hang", "1@4", "--json", str(out), timeout=120)
+    assert r.returncode == 0 and "left the run" not in r.stderr, r.stderr[-1500:]
+    assert json.loads(out.read_text())["process_faults"] == ["hang 1@4"]
+
+
+@pytest.mark.procs
 def test_restart_crashed_brings_a_planned_crash_back_at_the_next_tick(tmp_path: Path) -> None:
     """With `--restart-crashed` a crash of the plan at tick t is followed by a restart at t + 1
     (the supervisor respawns the process; the world waits for it there): the robot was

@@ -38,6 +38,7 @@ class Fleet:
         self.procs: dict[int, Proc] = {}
         self.crashes, self.restarts = 0, 0
         self.hung: set[int] = set()
+        self.held: set[int] = set()  # hung by a fault and not resumed by a restart (to the end)
         self.hangs: set[int] = set()  # robots hung on purpose at some point
         self.killed: set[Proc] = set()  # processes a planned crash killed (counted there)
         self.crashed: set[int] = set()  # robots a crash fault killed (planned, or a live one's)
@@ -65,6 +66,7 @@ class Fleet:
             p.kill()
             p.wait()  # (a SIGKILL is quick; a hang or restart of the same tick sees it down)
             self.hung.discard(f.robot)
+            self.held.discard(f.robot)  # (down now as a crash's)
             self.crashes += 1  # (here: a restart of the same tick replaces it before a check)
             self.killed.add(p)
             self.crashed.add(f.robot)
@@ -72,9 +74,11 @@ class Fleet:
             p.send_signal(signal.SIGSTOP)
             self.hung.add(f.robot)
             self.hangs.add(f.robot)
+            self.held.add(f.robot)
         elif f.kind == "restart" and p is not None and up and f.robot in self.hung:
             p.send_signal(signal.SIGCONT)
             self.hung.discard(f.robot)
+            self.held.discard(f.robot)
             self.restarts += 1  # resumed: it rejoins the run (counted by the robot too)
         elif f.kind == "restart" and not up:
             self.restarts += 1
@@ -142,8 +146,8 @@ class Fleet:
         res["robots_stopped_at_end"] = sorted(self.stopped_at_end)
         absent = {f.robot for f in planned if f.kind in ("crash", "hang") and f.tick == 0}
         res["absent_at_start"] = [i for i in view.absent_at_start if i not in absent]
-        down = {f.robot for f in planned if f.kind == "crash"} | self.crashed | {
-            int(w.split()[1]) for w in errors}  # (said above)
+        down = {f.robot for f in planned if f.kind == "crash"} | self.crashed | self.held | {
+            int(w.split()[1]) for w in errors}  # (said above; a hang's robot did not leave)
         left = [i for i, r in sorted(view.robots.items()) if r.state == "lost" and i not in down
                 and i not in self.stopped_at_end]  # (said above)
         if left:  # (a world stalled past its lease: the robots' sessions dropped, and on the
