@@ -159,13 +159,16 @@ def test_a_control_record_is_checked_whole_before_any_field_acts() -> None:
                 {"stop": True, "process": ["crash:9"]},
                 {"stop": True, "at_tick": True, "faults_table": {}},
                 {"stop": True, "replace": "yes", "faults_table": {}},
-                {"stop": True, "bogus": 1}, {"process": ["bogus:1"]}):
+                {"stop": True, "bogus": 1}, {"process": ["bogus:1"]},
+                {"stop": True, "why": "control"}, {"why": "interrupt"}):  # (why: only Ctrl-C's)
         with pytest.raises(ConfigError):
             check_control(rec, 0, 3)
     c = check_control({"stop": True, "faults_table": {"loss": "0.5", "crash": ["1@3"]},
                        "at_tick": 50, "process": ["restart:1@5"]}, 0, 3)
     assert c.stop and c.table == {"loss": "0.5"} and c.at_tick == 50
     assert [(p.kind, p.robot, p.tick) for p in c.process] == [("restart", 1, 5)]
+    assert c.why == "control" and check_control({"stop": True, "why": "interrupt"}, 0, 3).why \
+        == "interrupt"
 
 
 def test_queued_changes_apply_each_at_its_own_tick_onto_the_table_in_force() -> None:

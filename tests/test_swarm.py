@@ -271,7 +271,8 @@ def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
 
 def test_a_world_by_hand_stopped_by_a_control_record_exits_3(tmp_path: Path) -> None:
     """As `swarm run` does: a stop on the control key ends the world before its last episode,
-    `stopped: control` in its result and exit status 3 (it exited 0)."""
+    `stopped` in its result and exit status 3 (it exited 0). The stop says why: a supervisor's
+    on Ctrl-C is "interrupt" (its result said "control", an operator's stop, in a recording)."""
     from swarm.net.messages import K_CONTROL, pack_record
     from swarm.net.zconfig import free_port
 
@@ -286,11 +287,12 @@ def test_a_world_by_hand_stopped_by_a_control_record_exits_3(tmp_path: Path) -> 
             playing = threading.Event()
             sub = s.declare_subscriber(Keys("wstop").status, lambda _: playing.set())
             assert playing.wait(60)  # a tick was played: both are up
-            s.put(Keys("wstop").control, pack_record(K_CONTROL, {"stop": True}))
+            s.put(Keys("wstop").control, pack_record(K_CONTROL, {"stop": True,
+                                                                 "why": "interrupt"}))
             sub.undeclare()
             assert procs[0].wait(timeout=30) == 3
         res = json.loads(out.read_text())
-        assert res["stopped"] == "control" and res["completed"] < 1000
+        assert res["stopped"] == "interrupt" and res["completed"] < 1000
         n = res["completed"]  # the keys of every result, None where no episode completed
         assert res["robots"] == 1 and res["episodes"] == n and res["seed"] == 0
         assert (res["elratio_mean"] is None) == (n == 0) and "success_rate" in res
@@ -451,8 +453,9 @@ def test_every_learned_policy_swarm_matches_batched_eval(tmp_path: Path, name: s
 def test_headless_output_into_a_closed_pipe_stops_the_run_quietly_and_tidily() -> None:
     """`swarm run --headless | head -1`: the reader goes away. It printed a warning per status
     record ("dropped a status record ... Broken pipe"), ran to the end and failed with exit 1;
-    now it stops as on Ctrl-C (every process, exit 130, one line), and an interrupted run's
-    temp folder goes when its logs say nothing (it was left behind, named nowhere)."""
+    now it stops as on Ctrl-C (every process; exit 141, as a shell reports a SIGPIPE; one line
+    saying why, not "interrupted"), and an interrupted run's temp folder goes when its logs say
+    nothing (it was left behind, named nowhere)."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "2", "--episodes",
          "50", "--policy", "random", "--pace", "20", "--run-id", "pipeclosed"],
@@ -461,9 +464,10 @@ def test_headless_output_into_a_closed_pipe_stops_the_run_quietly_and_tidily() -
         assert proc.stdout is not None and proc.stderr is not None
         assert "status" in proc.stdout.readline()
         proc.stdout.close()
-        assert proc.wait(timeout=60) == 130
+        assert proc.wait(timeout=60) == 141
         err = proc.stderr.read()
         assert "Broken pipe" not in err and len(err.strip().splitlines()) == 1, err
+        assert err.startswith("swarm: stdout was closed (its reader went away)"), err
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -39,7 +39,7 @@ from swarm.cli.hosts import add_hosts_flag, add_netns_flags, hosts_option, netns
 from swarm.cli.record import add_attention_flag
 from swarm.cli.secure import add_secure_flag, check_run_secure, secure_options
 from swarm.common.flags import check_wait, robot_id
-from swarm.common.report import json_line, provenance
+from swarm.common.report import OutputClosed, json_line, provenance
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
@@ -187,6 +187,10 @@ def cmd_run(args: argparse.Namespace) -> int:
                             command=_command())
     try:
         res = supervise(world, run, opts, console=out, faults=faults, learning=learning)
+    except OutputClosed:
+        print("swarm: stdout was closed (its reader went away); every process of the run was "
+              "stopped", file=sys.stderr)
+        return 141
     except KeyboardInterrupt:
         print("swarm: interrupted; every process of the run was stopped", file=sys.stderr)
         return 130

@@ -122,10 +122,15 @@ def write_item(out: Path, item: str, rows: list[dict[str, Any]], md: str,
     return [str(p) for p in paths]
 
 
+class OutputClosed(KeyboardInterrupt):
+    """The reader of stdout went away (`swarm run --headless | head`): the command stops as on
+    Ctrl-C, and says why (exit status 141, as a shell reports a SIGPIPE)."""
+
+
 def json_line(obj: Any) -> None:
     """One JSON object on a line of stdout (`--headless`). A reader that went away (`| head`)
-    ends the command as Ctrl-C does (KeyboardInterrupt), with stdout sent to /dev/null so the
-    exit's own flush is quiet, instead of a warning per record."""
+    ends the command as Ctrl-C does (OutputClosed, a KeyboardInterrupt), with stdout sent to
+    /dev/null so the exit's own flush is quiet, instead of a warning per record."""
     import json
     import os
     import sys
@@ -134,4 +139,4 @@ def json_line(obj: Any) -> None:
         print(json.dumps(obj), flush=True)
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        raise KeyboardInterrupt from None
+        raise OutputClosed from None

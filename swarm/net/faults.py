@@ -1,14 +1,13 @@
 """Fault models of the radio layer (SPEC section 5), seeded and per run, per robot or per link.
 
-A `FaultPlan` holds a default `LinkFault` (latency + jitter, loss rate, bandwidth cap with queue
-or drop), overrides per sender robot and per (sender -> receiver) link, partitions (groups that
-cannot hear each other) and process faults (crash, hang, restart of a robot at a run tick).
-
-Per-message decisions that do not depend on wall-clock time (loss, partition, latency draw) are
-pure functions of the counter-based noise keyed by (fault seed, episode, tick, sender,
-receiver, kind), so the batched trainer can apply exactly the drops the swarm's radio makes
-(`delivery_mask`). With every fault at zero, nothing is dropped or delayed: the run is identical
-to one without the fault layer.
+A `FaultPlan` holds a default `LinkFault` (latency + jitter, loss, a bandwidth cap that queues,
+drops or expires), overrides per sender and per (sender -> receiver) link, partitions and
+process faults (crash, hang, restart of a robot at a run tick). Per-message decisions that do
+not depend on wall-clock time (loss, partition, latency draw) are pure functions of the noise
+keyed by (fault seed, episode, tick, sender, receiver, kind), so the batched trainer applies
+exactly the drops the swarm's radio makes (`delivery_mask`). With every fault at zero nothing
+is dropped or delayed. Live changes: `check_control` checks a control record whole (`swarm
+fault`'s changes, a stop and why), `FaultSchedule` applies each at its tick.
 """
 
 from __future__ import annotations
@@ -153,8 +152,7 @@ class FaultPlan:
             "per_robot": {str(r): lf(f) for r, f in self.per_robot.items()},
             "per_link": {f"{a}-{b}": lf(f) for (a, b), f in self.per_link.items()},
             "partition": [list(g) for g in self.partition],
-            "process": [[p.kind, p.robot, p.tick] for p in self.process],
-            "seed": self.seed,
+            "process": [[p.kind, p.robot, p.tick] for p in self.process], "seed": self.seed,
         }
 
     @classmethod
@@ -168,8 +166,7 @@ class FaultPlan:
                           for k, d in rec.get("per_link", {}).items()},
                 partition=tuple(tuple(int(r) for r in g) for g in rec.get("partition", [])),
                 process=tuple(ProcessFault(str(k), int(r), int(t))
-                              for k, r, t in rec.get("process", [])),
-                seed=int(rec.get("seed", 0)),
+                              for k, r, t in rec.get("process", [])), seed=int(rec.get("seed", 0)),
             )
         except (TypeError, ValueError, AttributeError) as exc:
             raise ConfigError(f"bad fault record: {exc}") from None
@@ -391,7 +388,7 @@ def delay_ms(plan: FaultPlan, episodes: np.ndarray, tick: int, n: int, kind: int
 PROCESS_KINDS = ("crash", "hang", "restart")
 MAX_PENDING = 64  # live changes a run holds waiting for their tick; more are dropped and counted
 MAX_LOGGED = 256  # applied link-fault changes a result lists (the rest are counted)
-CONTROL_KEYS = ("stop", "faults_table", "replace", "at_tick", "process")
+CONTROL_KEYS = ("stop", "why", "faults_table", "replace", "at_tick", "process")
 
 
 @dataclass(frozen=True)
@@ -405,6 +402,7 @@ class Control:
     at_tick: int = -1
     """Run tick the change applies from (-1: the next tick)."""
     process: tuple[ProcessFault, ...] = ()
+    why: str = "control"  # a stop's: an operator's "control", or Ctrl-C's "interrupt"
 
 
 def link_table(t: dict[str, Any]) -> dict[str, Any]:
@@ -420,6 +418,8 @@ def check_control(rec: dict[str, Any], seed: int, n_robots: int) -> Control:
         raise ConfigError(f"unknown control field(s) {', '.join(unknown)[:80]}")
     if "stop" in rec and rec["stop"] is not True:
         raise ConfigError(f"stop must be true, got {rec['stop']!r:.40}")
+    if "why" in rec and (rec.get("stop") is not True or rec["why"] != "interrupt"):
+        raise ConfigError(f"why must be 'interrupt' beside stop, got {rec['why']!r:.40}")
     if not isinstance(rec.get("replace", False), bool):
         raise ConfigError("replace must be a boolean")
     at = rec.get("at_tick", -1)
@@ -441,7 +441,8 @@ def check_control(rec: dict[str, Any], seed: int, n_robots: int) -> Control:
             raise ConfigError(f"bad process fault {str(text)[:40]!r}: use KIND:ROBOT[@TICK]")
         process.append(parse_process(kind, spec))
     FaultPlan(process=tuple(process)).check(n_robots)
-    return Control(rec.get("stop") is True, table, rec.get("replace", False), at, tuple(process))
+    return Control(rec.get("stop") is True, table, rec.get("replace", False), at, tuple(process),
+                   rec.get("why", "control"))
 
 
 class FaultSchedule:
@@ -489,8 +490,7 @@ class FaultSchedule:
                 log.warning("fault change for run tick %d came late: applied from tick %d",
                             c.at_tick, run_tick)
             if len(self.log) < MAX_LOGGED:
-                self.log.append({"tick": run_tick, "at_tick": c.at_tick,
-                                 "faults": plan.describe()})
+                self.log.append({"tick": run_tick, "at_tick": c.at_tick, "faults": plan.describe()})
         return plan
 
     def summary(self) -> dict[str, Any]:

@@ -236,8 +236,7 @@ class Supervisor:
                     self.run_cfg.episodes, self.run_cfg.run_id, self.cfg.horizon)
                 v.apply_result(self.result)
             elif kind == "lstatus":
-                self.learner_status = check_learner_status(unpack_record(payload or b"",
-                                                                         K_LSTATUS))
+                self.learner_status = check_learner_status(unpack_record(payload or b"", K_LSTATUS))
                 v.learner = self.learner_status
             elif kind == "control":
                 faults = check_control(unpack_record(payload or b"", K_CONTROL),
@@ -355,7 +354,8 @@ class Supervisor:
                 self._late_status()
                 self._finish_recorder()
             except KeyboardInterrupt:
-                put_once(session, k.control, pack_record(K_CONTROL, {"stop": True}))
+                put_once(session, k.control, pack_record(K_CONTROL, {"stop": True,
+                                                                     "why": "interrupt"}))
                 raise
             finally:
                 if live:

@@ -1,14 +1,13 @@
 """The world process: owns the grid and the clock, hosts the radio, steps once per tick.
 
 Per tick t: send every live robot its observation; hand each robot its bundle of trajectory
-messages through the radio once every live robot has sent; forward hidden-state messages to
-the successors (on a tick with no link fault the robots send them themselves: the fast lane);
-collect actions until every live robot has acted; step with the batched evaluator's
-`world.core.step`. On the real clock the tick deadline also ends the waits (the bundles at half
-of it; a robot that missed it stays in place: a timeout); in virtual time lateness is decided
-in virtual time, so the world waits for every live robot up to the wall-clock watchdog. All
-input goes through one queue and is checked there: a bad payload is dropped and counted with
-its key, never raised.
+messages through the radio once every live robot has sent; forward hidden-state messages to the
+successors (on a tick with no link fault the robots send them themselves: the fast lane);
+collect actions until every live robot has acted; step with `world.core.step`. The real clock's
+tick deadline also ends the waits (the bundles at half of it; a robot that missed it stays in
+place: a timeout); virtual time waits for every live robot, up to the wall-clock watchdog. All
+input goes through one queue and is checked there: a bad payload is dropped and counted with its
+key, never raised.
 """
 
 from __future__ import annotations
@@ -106,7 +105,7 @@ class WorldProcess:
         self.fast_lane_ticks = 0  # ticks whose hidden-state messages went robot to robot
         self.late = 0
         self._held: deque[Event] = deque()  # events read between ticks, for the tick's loop
-        self.stop = False
+        self.stop, self.stopped = False, ""
         self.on_status = on_status
         self._pubs: dict[str, zenoh.Publisher] = {}
 
@@ -207,7 +206,8 @@ class WorldProcess:
             except (BadMessage, ConfigError) as exc:
                 self._count_bad(key, str(exc))
                 return True
-            self.stop |= ctl.stop
+            if ctl.stop and not self.stop:
+                self.stop, self.stopped = True, ctl.why
             self.presence.add(ctl.process, self.run_tick)
             if ctl.table is not None and not self.faults.add(ctl, self.run_tick) and \
                     (n := self.faults.counts["dropped"]) & (n - 1) == 0:  # (in fault_changes)
@@ -297,8 +297,7 @@ class WorldProcess:
             if self.run_cfg.pace > 0:
                 next_tick = max(next_tick, time.monotonic() - 1.0) + 1.0 / self.run_cfg.pace
             obs_faults = b""
-            if not state.done:  # (the last observation's run tick is the next episode's first:
-                # a process fault of that tick lands there, not on this episode's score)
+            if not state.done:  # (a last observation's run tick is the next episode's first)
                 self.presence.wait_up(self.presence.due(self.run_tick), self._pump,
                                       time.monotonic() + self.run_cfg.start_timeout)
             plan = self.faults.due(self.run_tick)  # each live change at its own tick
@@ -313,8 +312,7 @@ class WorldProcess:
             t, done, yx = state.t, state.done, lay.to_yx(state.pos[0])
             patch = core.patches(cfg, state)[0]
             start = time.monotonic()
-            # virtual clock: lateness is decided in virtual time, so the world waits for every
-            # live robot, up to the watchdog; real clock: the tick deadline is on the wall
+            # virtual: lateness is decided in virtual time (up to the watchdog); real: the wall
             timeout = self.run_cfg.watchdog if self.virtual else self.run_cfg.tick_timeout
             deadline = start + timeout
             budget_ms = 1e3 * timeout
@@ -457,23 +455,21 @@ class WorldProcess:
         rc = self.run_cfg
         out: dict[str, Any] = {"policy": rc.policy, "run_id": rc.run_id, "completed": len(parts)}
         if self.stop:  # only a control record stops a world before its last episode
-            out["stopped"] = "control"
+            out["stopped"] = self.stopped  # (an operator's "control", or an "interrupt")
         out.update(EvalResult.none(rc.policy, rc.seed, self.cfg).summary(self.cfg))
         if parts:
             res = EvalResult.of(rc.policy, rc.seed,
                                 np.arange(rc.first_episode, rc.first_episode + len(parts)),
                                 parts, curves, wall_s=wall)
             out.update(res.summary(self.cfg))
-            # per team decision: the robots' planning times of a tick, summed (they run in
-            # parallel processes, so this is CPU work, not latency)
+            # per team decision: the robots' planning times of a tick, summed (CPU, not latency)
             out["planning_ms_per_decision"] = self.planning_ms / max(self.run_tick, 1)
             out["tick_ms"] = {k: v / max(self.run_tick, 1) for k, v in self.phase_ms.items()}
             if self.chain_ms:  # mean ms from the bundles going out to each depth's message
                 out["chain_ms_by_depth"] = [s / max(n, 1) for s, n in self.chain_ms]
         c = self.radio.counters
         messages = c.totals() if self.direct is None else self.direct.totals()
-        # messages that reached the world after their tick (whole messages, not copies): apart
-        # from `late`, which counts copies and is the sum of `by_kind[*].late`
+        # whole messages that reached the world after their tick (`late` counts copies)
         messages["stale"] = self.late
         out.update({
             "ticks": ticks, "ticks_per_s": ticks / wall if wall > 0 else 0.0,
