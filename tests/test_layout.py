@@ -87,3 +87,14 @@ def test_the_registry_knows_which_policies_are_chained_or_learned_without_import
     own = [n for n in REGISTRY if n not in PLUGINS]
     assert {n for n in own if policy_class(n).chained} == CHAINED
     assert {n for n in own if policy_class(n).learned} == LEARNED
+
+
+def test_only_the_keys_module_formats_a_key() -> None:
+    """Every key expression of a run comes from `swarm.net.keys.Keys` (its module docstring's
+    promise): no other module builds one from a run's base (`swarm/<run>`) by hand."""
+    import re
+
+    by_hand = re.compile(r"\{[\w.]*base\}/|\.alive_\w+\.rsplit")
+    bad = [str(p.relative_to(ROOT)) for n, p in modules().items()
+           if n != "swarm.net.keys" and by_hand.search(p.read_text())]
+    assert not bad, bad

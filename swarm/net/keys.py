@@ -139,6 +139,16 @@ class Keys:
         return f"{self.base}/alive/recorder"
 
     @property
+    def alive_all(self) -> str:
+        """Every liveliness token of the run (the supervisor and the recorder watch them all)."""
+        return f"{self.base}/alive/**"
+
+    @property
+    def everything(self) -> str:
+        """Every key of the run (the recorder's subscription; the bound of every ACL rule)."""
+        return f"{self.base}/**"
+
+    @property
     def control(self) -> str:
         """Supervisor -> world: stop requests (and, later, live fault changes)."""
         return f"{self.base}/control"

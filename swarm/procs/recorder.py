@@ -83,7 +83,7 @@ class Recorder:
                 signal.signal(sig, self._signal)
             except ValueError:  # not the main thread (a test calling main())
                 pass
-        sub = self.session.declare_subscriber(f"{self.keys.base}/**", self._on_sample)
+        sub = self.session.declare_subscriber(self.keys.everything, self._on_sample)
         inbox = Inbox(self.session)
         try:
             rec = query(self.session, self.keys.config, self.wait_world,

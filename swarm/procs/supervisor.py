@@ -315,7 +315,7 @@ class Supervisor:
                 Inbox(session).subscribe(k.status, "status")
                 .subscribe(k.robot_status("*"), "rstatus").subscribe(k.result, "result")
                 .subscribe(k.control, "control").subscribe(k.learner_status, "lstatus")
-                .liveliness(f"{k.base}/alive/**", "alive"))
+                .liveliness(k.alive_all, "alive"))
             # (the learner starts beside the robots: the world's first tick waits for it)
             if self.recorder is not None:  # its subscription first: every tick is recorded
                 self._wait_recorder(inbox)

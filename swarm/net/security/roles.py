@@ -88,24 +88,23 @@ class Role:
                 ("liveliness_token",): self.token,  # (and whether its own id is up: `check_free`)
                 ("declare_liveliness_subscriber", "liveliness_query"): self.watch + self.token}
 
-    def receives(self, base: str) -> dict[tuple[str, ...], tuple[str, ...]]:
-        """Message kinds -> keys this process may be sent."""
+    def receives(self, everything: str) -> dict[tuple[str, ...], tuple[str, ...]]:
+        """Message kinds -> keys this process may be sent (`everything`: `Keys.everything`)."""
         return {("put",): self.subscribe, ("reply",): self.query, ("query",): self.serve,
-                ("liveliness_token",): self.watch + self.token, DECLARATIONS: (f"{base}/**",)}
+                ("liveliness_token",): self.watch + self.token, DECLARATIONS: (everything,)}
 
 
 def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[str, Role]:
     """The role of every identity of a run with `robots` robots, `workers` rollout workers and
     `routers` host routers."""
     k = keys
-    alive_all = k.alive_world.rsplit("/", 1)[0] + "/**"
     out = {
         "world": Role(put=(k.obs("*"), k.inbox("*"), k.inbox_hidden("*"), k.status,  # type: ignore[arg-type]
                            k.result, k.end, k.episode),
                       serve=(k.config,), token=(k.alive_world,), watch=(k.alive_robot("*"),),
                       subscribe=(k.traj("*"), k.hidden("*"), k.action("*"), k.control,
                                  k.robot_status("*"), k.learner_status)),  # (train_sync)
-        "supervisor": Role(put=(k.control,), watch=(alive_all,),
+        "supervisor": Role(put=(k.control,), watch=(k.alive_all,),
                            subscribe=(k.status, k.robot_status("*"), k.result, k.control,
                                       k.learner_status)),
         "learner": Role(put=(k.weights, k.learner_status), serve=(k.weights, k.learner_config),
@@ -113,7 +112,7 @@ def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[s
                         subscribe=(k.rollout("*"), k.episode, k.worker_episodes)),
         # (checks a fault fits the run, and that its --at-tick is still ahead)
         "operator": Role(put=(k.control,), query=(k.config,), subscribe=(k.status,)),
-        "recorder": Role(subscribe=(f"{k.base}/**",), watch=(alive_all,),
+        "recorder": Role(subscribe=(k.everything,), watch=(k.alive_all,),
                          query=(k.config, k.learner_config),
                          token=(k.alive_recorder,)),
     }
@@ -148,7 +147,7 @@ def acl(identity: str, keys: Keys, robots: int, workers: int = 0,
     if identity not in table:
         raise ConfigError(f"identity {identity!r} is not in the run's roster "
                           f"({robots} robots, {workers} workers, {routers} routers)")
-    everything = {ALL_KINDS: (f"{keys.base}/**",)}
+    everything = {ALL_KINDS: (keys.everything,)}
     me = table[identity]
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
@@ -168,9 +167,9 @@ def acl(identity: str, keys: Keys, robots: int, workers: int = 0,
         else:
             # a relay delivers what I may receive (from anyone it admitted); anyone else sends
             # only what it originates itself
-            ingress = me.receives(keys.base) if is_relay(other) else role.sends()
+            ingress = me.receives(keys.everything) if is_relay(other) else role.sends()
             # a relay may send anyone what that one may receive; anyone else sends only its own
-            egress = role.receives(keys.base) if is_relay(identity) else me.sends()
+            egress = role.receives(keys.everything) if is_relay(identity) else me.sends()
         mine = _rules(other, "ingress", ingress) + _rules(other, "egress", egress)
         rules += mine
         subjects.append({"id": other, "cert_common_names": [other]})
