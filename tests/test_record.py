@@ -540,13 +540,39 @@ def test_the_map_draws_whom_each_robot_attends_to_most() -> None:
     assert "∙∙" not in console.export_text() and "attention" not in console.export_text()
 
 
-def test_the_recorder_reads_the_tick_of_every_message_kind() -> None:
-    """The recording's run tick comes from each message's (episode, tick): a direct-delivery
-    `Stamped` carries its inner kind first (it used to be read as (kind, episode))."""
-    from swarm.net.messages import K_TRAJ, Stamped, Traj
-    from swarm.procs.recorder import peek_ep_t
+def test_the_tick_of_every_message_kind_is_read_in_one_place() -> None:
+    """`messages.peek_tick` reads (episode, tick) from a payload's head as the schemas pack it (a
+    direct-delivery `Stamped`: its inner message's, not (kind, episode)); whatever is not a
+    message of one tick is None, so the recorder keeps its last tick for it (a robot's episode
+    record used to be filed at tick <its robot id>). A bundle's senders in its JSON form are
+    its trajectory messages' own, checked as a robot checks them."""
+    import msgpack
 
-    traj = Traj(3, 17, 1, 2, 2, b"\0" * 50, [], b"").pack()
-    assert peek_ep_t(traj) == (3, 17)
-    assert peek_ep_t(Stamped(K_TRAJ, 3, 17, 1, 0.0, traj).pack()) == (3, 17)
-    assert peek_ep_t(b"not msgpack") is None
+    from swarm.net.learning import RobotRollout
+    from swarm.net.messages import K_OBS, K_STATUS, K_TRAJ, SCHEMA, Stamped, peek_tick
+    from swarm.procs.recorder import run_tick
+
+    cfg = WorldConfig(n_robots=3)
+    patch, visited = b"\0" * cfg.vision ** 2, b"\0" * ((cfg.cells + 7) // 8)
+    obs = Obs(3, 17, 1, 2, 2, patch, 0.0, False, 5.0).pack()
+    trajs = [Traj(3, 17, i, 2, i, visited, [], patch).pack() for i in (2, 0)]
+    for payload, cls in ((obs, Obs), (trajs[0], Traj), (Action(3, 17, 1, 4, 1.0).pack(), Action),
+                         (Bundle(3, 17, 1, trajs).pack(), Bundle),
+                         (Hidden(3, 17, 1, 2, b"\0" * 8).pack(), Hidden)):
+        m = cls.unpack(payload, cfg)
+        assert peek_tick(payload) == (m.ep, m.t) == (3, 17)
+    assert peek_tick(Stamped(K_TRAJ, 3, 17, 1, 0.0, trajs[0]).pack()) == (3, 17)
+    assert peek_tick(obs, K_OBS) == (3, 17) and peek_tick(trajs[0], K_OBS) is None
+    bad = [b"not msgpack", b"", msgpack.packb([SCHEMA, K_OBS, -1, 2]),
+           msgpack.packb([SCHEMA, K_OBS, 1.0, 2]), msgpack.packb([SCHEMA, K_OBS, True, 2]),
+           msgpack.packb([SCHEMA + 1, K_OBS, 1, 2]), msgpack.packb([SCHEMA, K_OBS, 1]),
+           msgpack.packb({"ep": 1}), pack_record(K_STATUS, {"ep": 3, "t": 17}),
+           RobotRollout(3, 2, []).pack()]
+    assert [peek_tick(p) for p in bad] == [None] * len(bad)
+    rec = RunRecord(cfg, RunConfig(run_id="r1", episodes=5))
+    assert run_tick(peek_tick(RobotRollout(3, 2, []).pack()), rec, 40) == 40  # (the last one)
+    bundle = Bundle(3, 17, 1, trajs).pack()
+    assert msgjson.to_json("bundle", bundle, cfg)["senders"] == [2, 0]
+    stray = Traj(3, 16, 1, 2, 2, visited, [], patch).pack()  # another tick's message
+    with pytest.raises(BadMessage):
+        msgjson.to_json("bundle", Bundle(3, 17, 1, [trajs[0], stray]).pack(), cfg)

@@ -1,5 +1,6 @@
 """The msgpack schemas of every message of a run (the learning ones in swarm.net.learning);
-nothing else packs or unpacks a payload.
+nothing else knows a payload's fields: readers that need only a message's tick ask `peek_tick`,
+and a control record's contents are checked by `swarm.net.faults.check_control`.
 
 Each payload is a msgpack array `[SCHEMA, kind, ...fields]`. `unpack` validates types, ranges
 and sizes against the run's world config and raises `BadMessage` (a one-line reason); the
@@ -17,7 +18,6 @@ import msgpack
 import numpy as np
 
 from world.config import WorldConfig
-from world.decentral import TrajMessages
 
 SCHEMA = 1
 (K_OBS, K_TRAJ, K_BUNDLE, K_HIDDEN, K_ACTION, K_STATUS, K_RSTATUS, K_RESULT, K_CONTROL,
@@ -349,6 +349,28 @@ class Action:
                    _bucket(rest[0] if rest else None), heard)
 
 
+TICKED = (K_OBS, K_TRAJ, K_BUNDLE, K_HIDDEN, K_ACTION)
+"""The kinds of message of one tick: `[SCHEMA, kind, ep, t, ...]`."""
+
+
+def peek_tick(payload: bytes, kind: int | None = None) -> tuple[int, int] | None:
+    """(ep, t) of a message of one tick (`TICKED`; a `Stamped`: its inner message's), of `kind`
+    if given, read from its head without decoding the rest (for readers that only file or
+    answer a message by its tick); None if it is not one (its tick unchecked against a run)."""
+    try:
+        u = msgpack.Unpacker(raw=False, max_buffer_size=len(payload) + 1)
+        u.feed(payload)
+        head = [u.unpack() for _ in range(min(u.read_array_header(), 5))]
+    except Exception:  # msgpack raises several types; all mean "not msgpack"
+        return None
+    if len(head) == 5 and type(head[1]) is int and head[1] == K_STAMPED:
+        del head[1]  # [SCHEMA, inner kind, ep, t]
+    ok = len(head) >= 4 and all(type(v) is int for v in head[:4]) and head[0] == SCHEMA and \
+        head[1] in TICKED and kind in (None, head[1]) and 0 <= min(head[2:4]) <= max(head[2:4]) \
+        <= BIG
+    return (head[2], head[3]) if ok else None
+
+
 def pack_record(kind: int, record: dict[str, Any]) -> bytes:
     """Status, result and control records: a msgpack map (read by dashboards and other clients)."""
     return _pack(kind, record)
@@ -474,26 +496,3 @@ def check_world_result(rec: dict[str, Any], policy: str, episodes: int, run_id: 
     if isinstance(rec.get("messages"), dict):
         return rec
     raise BadMessage("result without its message counts")
-
-
-def heard_messages(cfg: WorldConfig, robot: int, bundle: Bundle) -> TrajMessages:
-    """Robot `robot`'s bundle as its policy's input, [1, N, ...]; BadMessage unless every one is
-    a valid trajectory message of the bundle's tick, from distinct senders, its own among them
-    (the radio always hands a robot its own message back)."""
-    m = TrajMessages.empty(cfg)
-    trajs = Traj.unpack_many(bundle.trajs, cfg, bundle.ep, bundle.t)
-    ids = [tr.robot for tr in trajs]
-    if robot not in ids:  # (first: an empty bundle failed numpy's broadcast below)
-        raise BadMessage("bundle without the robot's own message")
-    m.present[0, ids] = True
-    m.pos[0, ids] = [(tr.y, tr.x) for tr in trajs]
-    for tr in trajs:
-        if tr.recent:
-            m.recent[0, tr.robot, cfg.recent_len - len(tr.recent):] = tr.recent
-    # every bitmap and patch in one call each (a bundle holds tens of messages)
-    packed = np.frombuffer(b"".join(tr.visited for tr in trajs), dtype=np.uint8)
-    m.visited[0, ids] = np.unpackbits(packed.reshape(len(ids), -1), axis=1,
-                                      count=cfg.cells).astype(bool)
-    m.patch[0, ids] = np.frombuffer(b"".join(tr.patch for tr in trajs), dtype=np.uint8).reshape(
-        len(ids), cfg.vision, cfg.vision)
-    return m

@@ -23,13 +23,12 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-import msgpack
 import zenoh
 
 from swarm.net.inbox import DEFAULT_MAX_BYTES, DEFAULT_MAX_EVENTS, Inbox, query, tally
 from swarm.net.keys import WORLD_GONE_S as GONE_S
 from swarm.net.keys import Keys
-from swarm.net.messages import K_RESULT, K_STAMPED, K_STATUS, BadMessage, unpack_record
+from swarm.net.messages import K_RESULT, K_STATUS, BadMessage, peek_tick, unpack_record
 from swarm.net.record.recording import RecordingWriter
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.runconfig import RunRecord
@@ -162,7 +161,7 @@ class Recorder:
                 self.result = record
             is_end = kind == "end" and record.get("run_id") == self.keys.run
         elif kind != "rstatus":
-            head = peek_ep_t(payload)
+            head = peek_tick(payload)
         tick = run_tick(head, rec, self.tick)
         if kind == "status":  # (the clock of messages that name no tick: a stale or stray
             self.tick = tick  # message's own tick does not move it back or ahead)
@@ -188,23 +187,6 @@ class Recorder:
         skipped = len(self.backlog) - done
         self.backlog.clear()
         return skipped
-
-
-def peek_ep_t(payload: bytes) -> tuple[Any, Any] | None:
-    """(episode, tick) of a `[schema, kind, ep, t, ...]` payload (a direct-delivery `Stamped`:
-    `[schema, K_STAMPED, inner kind, ep, t, ...]`) without decoding the rest (unchecked: only
-    the recording's sequence numbers come from it)."""
-    try:
-        u = msgpack.Unpacker(raw=False, max_buffer_size=len(payload) + 1)
-        u.feed(payload)
-        if u.read_array_header() < 4:
-            return None
-        u.skip()
-        if u.unpack() == K_STAMPED:
-            u.skip()
-        return u.unpack(), u.unpack()
-    except Exception:  # not msgpack, or not that shape: the last tick stands
-        return None
 
 
 def run_tick(head: tuple[Any, Any] | None, rec: RunRecord, last: int) -> int:

@@ -33,7 +33,6 @@ from swarm.net.messages import (
     Hidden,
     Obs,
     Traj,
-    heard_messages,
     pack_record,
     unpack_record,
 )
@@ -170,7 +169,7 @@ class RobotProcess:
                     if b.robot != self.robot:
                         raise BadMessage(f"addressed to robot {b.robot}")
                     self.ticks.tick(b.ep, b.t)  # (before its messages are unpacked)
-                    msg = Heard(b.ep, b.t, b.robot, self.heard(b), b.succ)
+                    msg = Heard.of(self.cfg, b)
                 else:
                     msg = Hidden.unpack(payload or b"", self.cfg)
                 if kind != "hidden" and msg.robot != self.robot:
@@ -270,10 +269,6 @@ class RobotProcess:
         """A late joiner asks the learner for the current weights (none: keep its own)."""
         for payload in replies(self.session, self.keys.weights, timeout):
             self.offer_weights(payload, self.keys.weights)
-
-    def heard(self, bundle: Bundle) -> TrajMessages:
-        """The bundle's messages as the policy's input (`swarm.net.messages.heard_messages`)."""
-        return heard_messages(self.cfg, self.robot, bundle)
 
     def on_obs(self, obs: Obs) -> None:
         cfg, r = self.cfg, self.robot

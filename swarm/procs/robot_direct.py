@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from swarm.net.direct import WAIT_FRAC, DirectLink, live_plan
@@ -27,10 +28,11 @@ from swarm.net.messages import (
     BadMessage,
     Bundle,
     Obs,
+    Traj,
     pack_record,
     unpack_record,
 )
-from world.config import ConfigError
+from world.config import ConfigError, WorldConfig
 from world.decentral import TrajMessages
 
 
@@ -44,6 +46,29 @@ class Heard:
     robot: int
     msgs: TrajMessages
     succ: list[int] | None = None  # the bundle's successors: send them the hidden state directly
+
+    @classmethod
+    def of(cls, cfg: WorldConfig, bundle: Bundle) -> Heard:
+        """Bundle `bundle` as its robot's policy input, [1, N, ...]; BadMessage unless every one
+        is a valid trajectory message of the bundle's tick, from distinct senders, its own among
+        them (the radio always hands a robot its own message back)."""
+        m = TrajMessages.empty(cfg)
+        trajs = Traj.unpack_many(bundle.trajs, cfg, bundle.ep, bundle.t)
+        ids = [tr.robot for tr in trajs]
+        if bundle.robot not in ids:  # (first: an empty bundle failed numpy's broadcast below)
+            raise BadMessage("bundle without the robot's own message")
+        m.present[0, ids] = True
+        m.pos[0, ids] = [(tr.y, tr.x) for tr in trajs]
+        for tr in trajs:
+            if tr.recent:
+                m.recent[0, tr.robot, cfg.recent_len - len(tr.recent):] = tr.recent
+        # every bitmap and patch in one call each (a bundle holds tens of messages)
+        packed = np.frombuffer(b"".join(tr.visited for tr in trajs), dtype=np.uint8)
+        m.visited[0, ids] = np.unpackbits(packed.reshape(len(ids), -1), axis=1,
+                                          count=cfg.cells).astype(bool)
+        m.patch[0, ids] = np.frombuffer(b"".join(tr.patch for tr in trajs),
+                                        dtype=np.uint8).reshape(len(ids), cfg.vision, cfg.vision)
+        return cls(bundle.ep, bundle.t, bundle.robot, m, bundle.succ)
 
 
 class _StampingPublisher:
@@ -187,7 +212,7 @@ class DirectDelivery:
                 if self._pump(min(link.due, deadline)) is None:  # are its once they arrive
                     return None
             try:
-                return Heard(ep, t, proc.robot, proc.heard(Bundle(ep, t, proc.robot, payloads)))
+                return Heard.of(proc.cfg, Bundle(ep, t, proc.robot, payloads))
             except BadMessage as exc:
                 proc._bad(proc.keys.direct("*"), str(exc))
                 return None

@@ -16,7 +16,6 @@ import base64
 import math
 from typing import Any
 
-import msgpack
 import numpy as np
 
 from swarm.net import learning
@@ -121,20 +120,6 @@ def _hidden(h: m.Hidden) -> dict[str, Any]:
             "state": h.vector().tolist()}
 
 
-def _sender(payload: bytes, b: m.Bundle, cfg: WorldConfig) -> int:
-    """The sender of a trajectory message inside bundle `b`, read from its head (schema, kind,
-    the bundle's episode and tick, a robot id of the team); BadMessage otherwise."""
-    try:
-        u = msgpack.Unpacker(raw=False, max_buffer_size=len(payload) + 1)
-        u.feed(payload)
-        head = [u.unpack() for _ in range(min(u.read_array_header(), 5))]
-    except Exception:
-        raise m.BadMessage("a bundled payload is not msgpack") from None
-    if head[:4] != [m.SCHEMA, m.K_TRAJ, b.ep, b.t] or len(head) < 5:
-        raise m.BadMessage("a bundled payload is not a trajectory message of its tick")
-    return m._int(head[4], "sender", 0, cfg.n_robots - 1)
-
-
 def safe(obj: Any, depth: int = 0) -> Any:
     """Any decoded msgpack value as JSON: bytes -> base64, map keys -> str, NaN/inf -> None."""
     if depth > 32:
@@ -162,7 +147,7 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
     if kind == "bundle":
         b = m.Bundle.unpack(payload, cfg)
         return {"ep": b.ep, "t": b.t, "robot": b.robot,
-                "senders": [_sender(p, b, cfg) for p in b.trajs],
+                "senders": [tr.robot for tr in m.Traj.unpack_many(b.trajs, cfg, b.ep, b.t)],
                 "sizes": [len(p) for p in b.trajs], "succ": b.succ}
     if kind == "direct":
         from swarm.net.direct import carried

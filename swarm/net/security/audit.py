@@ -38,7 +38,7 @@ import zenoh
 
 from swarm.net.keys import Keys
 from swarm.net.learning import Weights
-from swarm.net.messages import K_CONTROL, Action, pack_record
+from swarm.net.messages import K_CONTROL, K_OBS, Action, pack_record, peek_tick
 from swarm.net.security.tls import Secure
 from swarm.net.zconfig import zenoh_reason
 from world.config import ConfigError
@@ -143,9 +143,9 @@ class Audit:
 
     def _forge(self, a: Attempt, session: zenoh.Session) -> None:
         k = self.keys
-        ticks: list[tuple[int, int]] = []
+        ticks: list[tuple[int, int] | None] = []  # (None: not an observation)
         session.declare_subscriber(k.obs(self.attacker),
-                                   lambda s: ticks.append(_obs_tick(s.payload.to_bytes())))
+                                   lambda s: ticks.append(peek_tick(s.payload.to_bytes(), K_OBS)))
 
         def put(kind: str, key: str, payload: bytes) -> None:
             session.put(key, payload, attachment=self._mark(a, kind))
@@ -163,7 +163,7 @@ class Audit:
         deadline = time.monotonic() + self.duration
         while time.monotonic() < deadline:
             for tick in list(ticks):
-                if tick not in done and tick[0] >= 0:
+                if tick is not None and tick not in done:
                     done.add(tick)
                     ep, t = tick
                     put("action", k.action(self.victim),
@@ -261,17 +261,6 @@ def team_ids(n: int, attacker: int | None, victim: int | None) -> tuple[int, int
     if attacker == victim:
         raise ConfigError("--as and --victim must be two different robot ids")
     return attacker, victim
-
-
-def _obs_tick(payload: bytes) -> tuple[int, int]:
-    """(ep, t) of an observation payload, (-1, -1) if it is not one (no world config needed)."""
-    import msgpack
-
-    try:
-        obj = msgpack.unpackb(payload, raw=False)
-        return int(obj[2]), int(obj[3])
-    except Exception:  # noqa: BLE001 (anything that is not an observation)
-        return -1, -1
 
 
 def main(run_id: str, endpoint: str, secure: Secure | None = None, attacker: int = 3,
