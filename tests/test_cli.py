@@ -263,6 +263,26 @@ def test_the_help_states_defaults_and_what_it_names(monkeypatch: pytest.MonkeyPa
     assert "Zenoh mode (default peer)" in text("robot")
 
 
+def test_each_command_s_pace_help_states_its_own_default(monkeypatch: pytest.MonkeyPatch) -> None:
+    """UA pass: `swarm run` and `swarm world` shared a --pace help naming a dashboard, a
+    --headless and a --json-only `swarm world` does not have (and no command has)."""
+    import argparse
+
+    from swarm.cli import build_parser
+
+    monkeypatch.setenv("COLUMNS", "2000")
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+
+    def pace(command: str) -> str:
+        help_text = " ".join(sub.choices[command].format_help().split())
+        return help_text.split("--pace HZ cap ticks/s so the run can be watched (default: ",
+                               1)[1].split(")", 1)[0]
+
+    assert pace("world") == "unlimited"
+    assert pace("run") == ("8 when the live dashboard is on a terminal; unlimited with "
+                           "--headless or when stdout is not a terminal")
+
+
 def test_merge_precedence_in_process(tmp_path: Path) -> None:
     cfg = tmp_path / "exp.toml"
     cfg.write_text('[world]\nvision = 7\ncomm_range = 3.5\n[eval]\nbatch = 17\n')

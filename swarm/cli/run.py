@@ -47,7 +47,8 @@ from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, from_dict, toml_bools
 
 
-def _add_run_flags(p: argparse.ArgumentParser) -> None:
+def _add_run_flags(p: argparse.ArgumentParser, pace: str) -> None:
+    """The [run] flags `swarm run` and `swarm world` share; `pace`: the command's --pace default."""
     g = p.add_argument_group("run (override [run] of --config)")
     g.add_argument("--policy", help="policy every robot runs (default commattn, from the shipped "
                                     "checkpoint)")
@@ -58,8 +59,7 @@ def _add_run_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--tick-timeout", type=float, metavar="S",
                    help="seconds the world waits for a tick's actions (default 2)")
     g.add_argument("--pace", type=float, metavar="HZ",
-                   help="cap ticks/s so the run can be watched (default: 8 with the live "
-                        "dashboard, unlimited with --headless or --json-only use)")
+                   help=f"cap ticks/s so the run can be watched (default: {pace})")
     g.add_argument("--sample", action="store_true", default=None,
                    help="sample actions (counter-based noise) instead of greedy")
     g.add_argument("--clock", choices=["virtual", "real"],
@@ -420,7 +420,8 @@ def add_parsers(sub: Any) -> None:
                                    "stopped: control), 130 interrupted.")
     add_common(p)
     add_world(p)
-    _add_run_flags(p)
+    _add_run_flags(p, "8 when the live dashboard is on a terminal; unlimited with --headless "
+                      "or when stdout is not a terminal")
     add_fault_flags(p)
     add_netns_flags(p)
     add_hosts_flag(p)
@@ -446,7 +447,7 @@ def add_parsers(sub: Any) -> None:
                                    "interrupted.")
     add_common(p)
     add_world(p)
-    _add_run_flags(p)
+    _add_run_flags(p, "unlimited")
     add_fault_flags(p, process=False)  # (crash, hang, restart: the supervisor's, swarm run)
     p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
