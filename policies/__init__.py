@@ -1,4 +1,5 @@
-"""Policy registry: the CLI name maps to `module:Class`; the module's file name is its key.
+"""Policy registry: the CLI name (its key) maps to `module:Class` (`random` ->
+`policies.random_policy:RandomPolicy`).
 
 Imports are lazy so that running a frontier policy never imports torch. Policies of other
 packages join the registry through the `commattn_swarm.policies` entry-point group (README,

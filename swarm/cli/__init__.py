@@ -1,7 +1,8 @@
 """The `swarm` console script: one parser, one module per command family (all thin).
 
-`swarm.cli.batch`: eval, bench, repro, train (in-process); `swarm.cli.run`: run, world, robot,
-fault, experiment (the distributed swarm); `swarm.cli.learn`: learner, rollout-worker;
+`swarm.cli.batch`: eval, bench, repro, train (in-process, but for `bench swarm|rollout|record`,
+which time real processes); `swarm.cli.run`: run, world, robot, fault, experiment (the
+distributed swarm); `swarm.cli.learn`: learner, rollout-worker;
 `swarm.cli.secure`: certs, audit; `swarm.cli.record`: record, replay, trace; `swarm.cli.hosts`:
 router.
 """

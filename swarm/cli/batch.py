@@ -1,4 +1,5 @@
-"""The batched, in-process commands: `swarm eval`, `swarm train`, `swarm bench`, `swarm repro`."""
+"""The batched commands: `swarm eval`, `swarm train`, `swarm bench`, `swarm repro`, in-process
+but for `swarm bench swarm|rollout|record`, which time real swarm processes."""
 
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
-"""Command-line front ends of the distributed swarm: `swarm run`, `world`, `robot`, `fault`,
-`experiment`; each a thin wrapper around an importable `main(...)` in `swarm.procs`."""
+"""Command-line front ends of the distributed swarm: `swarm run`, `world`, `robot` and
+`experiment`, each a thin wrapper around an importable `main(...)` (in `swarm.procs`; the sweep's
+in `swarm.studies.experiment`), and `fault`, the operator's client: it checks the change against
+the running world's config and tick and puts one control record, on a session of its own."""
 
 from __future__ import annotations
 

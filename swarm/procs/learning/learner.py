@@ -4,7 +4,7 @@ Reads top to bottom: config, counters, the learner loop, its entry point. Joinin
 episodes is swarm.learn.join; weights (de)serialisation swarm.learn.weights; the update
 swarm.learn.update.
 
-Data flow of one episode (keys in swarm.keys):
+Data flow of one episode (keys in swarm.net.keys):
 
 - each robot, at the episode's end, puts a `RobotRollout` on `robot/<i>/rollout`: per tick its
   own trajectory payload, the ids it heard, whether its predecessor's hidden-state message
