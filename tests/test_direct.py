@@ -437,7 +437,7 @@ def test_hosts_come_up_on_a_bridge_and_leave_nothing_behind() -> None:
             f"{hosts.addr[1]}:7000")
         routers = hosts.routers(7000)
         assert [r[0] for r in routers] == ["router1", "router2"]
-        assert routers[1][1].count("--connect") == 2  # to the world and to host 1's router
+        assert len(routers[1][2].connect) == 2  # to the world and to host 1's router
         addr = subprocess.run(["ip", "-n", hosts.host_ns[2], "-4", "addr"], capture_output=True,
                               text=True).stdout
         assert hosts.addr[2] in addr

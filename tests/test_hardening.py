@@ -430,6 +430,24 @@ def test_a_bundles_successor_list_is_checked() -> None:
             Bundle.unpack(Bundle(0, 1, 1, [], succ).pack(), cfg)  # type: ignore[arg-type]
 
 
+
+def test_a_childs_zenoh_flags_rebuild_the_supervisors_options(tmp_path: Path) -> None:
+    """The supervisor hands each child its session as `ZenohOptions.to_args()` (one spelling of
+    the flags, the one `add_arguments` parses): they come back as the same options."""
+    import argparse
+
+    from swarm.net import zconfig
+
+    conf = tmp_path / "z.json5"
+    conf.write_text("{}")
+    for opts in (ZenohOptions("client", ["tcp/127.0.0.1:7447"]),
+                 ZenohOptions("router", listen=["tcp/127.0.0.1:0", "tcp/127.0.0.1:7448"]),
+                 ZenohOptions("router", ["tcp/10.0.0.1:7447"], ["tcp/10.0.0.2:7447"], str(conf),
+                              ['transport/link/tx/lease:2000'])):
+        parser = argparse.ArgumentParser()
+        zconfig.add_arguments(parser, mode="router" if opts.mode == "peer" else "peer")
+        assert zconfig.from_args(parser.parse_args(opts.to_args())) == opts
+
 OTHER_THREAD = """
 import signal, threading, time, zenoh
 from swarm.common.spawn import terminate_as_interrupt

@@ -125,15 +125,15 @@ class Supervisor:
         self.first_tick_age: float | None = None
         self._last_rss = 0.0
 
-    def _spawn(self, args: list[str], name: str, ns: str | None = None) -> subprocess.Popen[bytes]:
+    def _spawn(self, args: list[str], name: str, zopts: ZenohOptions,
+               ns: str | None = None) -> subprocess.Popen[bytes]:
         err = open(self.log_dir / f"{name}.log", "ab")
         env = child_env()
         prefix = self.topo.exec_prefix(ns) if self.topo is not None and ns else []
-        args = [*args, *(x for c in self.zcfg for x in ("--cfg", c))]
-        if self.zfiles:  # --secure: its own identity's TLS and access control
-            args += ["--zenoh-config", str(self.zfiles[identity_of(name)])]
+        zfile = str(self.zfiles[identity_of(name)]) if self.zfiles else None  # --secure's TLS
+        zopts = dataclasses.replace(zopts, cfg=[*zopts.cfg, *self.zcfg], config_file=zfile)
         with stops_held():  # (every child ever spawned is in `children`, so stopped at the end)
-            self.children.append(start_child([*prefix, *cli_args(*args)], env=env,
+            self.children.append(start_child([*prefix, *cli_args(*args, *zopts.to_args())], env=env,
                                             stdout=subprocess.DEVNULL, stderr=err,
                                             stdin=subprocess.DEVNULL))
         return self.children[-1]
@@ -145,8 +145,8 @@ class Supervisor:
         # a robot waits for the world's record as long as the world waits for the robots
         wait = max(30.0, self.run_cfg.start_timeout)
         return self._spawn(["robot", "--id", str(i), "--run-id", self.run_cfg.run_id,
-                            "--connect", hub, "--zenoh-mode", "client",
-                            "--wait", f"{wait:g}"], f"robot{i}", ns)
+                            "--wait", f"{wait:g}"], f"robot{i}", ZenohOptions("client", [hub]),
+                           ns)
 
     def start(self) -> float:
         """Write the spec and start the world; robots follow once the supervisor listens."""
@@ -170,9 +170,8 @@ class Supervisor:
         write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
         self.world = self._spawn(["world", "--spec", str(spec), "--run-id", self.run_cfg.run_id,
-                                  "--json", str(self.tmp / "world_result.json"),
-                                  *(x for e in listen for x in ("--listen", e)),
-                                  "--zenoh-mode", "router"], "world", ns)
+                                  "--json", str(self.tmp / "world_result.json")], "world",
+                                 ZenohOptions("router", listen=listen), ns)
         if fresh:
             try:
                 fresh_checkpoint(self.run_cfg.policy, self.cfg, self.run_cfg.seed,
@@ -181,21 +180,21 @@ class Supervisor:
                 self.stop_all()
                 raise
         wait_port(host, self.port, self.world, 30.0)
-        for name, args, rns, addr in self.topo.routers(self.port) if self.topo else []:
-            self.routers.append(self._spawn(args, name, rns))
+        for name, args, zopts, rns, addr in self.topo.routers(self.port) if self.topo else []:
+            self.routers.append(self._spawn(args, name, zopts, rns))
             wait_port(addr, self.port, self.routers[-1], 30.0, name)
         if self.opts.record:  # in the root namespace, like the supervisor's own session
             self.recorder = self._spawn(["record", "--run-id", self.run_cfg.run_id, "--out",
-                                         self.opts.record, "--connect", self.hub,
-                                         "--zenoh-mode", "client"], "recorder")
+                                         self.opts.record], "recorder",
+                                        ZenohOptions("client", [self.hub]))
         if self.learning is not None:
             out = self.learning["learner"].get("out") or str(self.log_dir / "learner")
             self.learner_out = out
             self.learner = self._spawn(["learner", "--spec", str(spec), "--run-id",
                                         self.run_cfg.run_id, "--policy", self.run_cfg.policy,
                                         "--checkpoint", str(self.run_cfg.checkpoint), "--out",
-                                        out, "--connect", self.hub, "--zenoh-mode", "client",
-                                        "--made-by", self.opts.command or "swarm run"], "learner")
+                                        out, "--made-by", self.opts.command or "swarm run"],
+                                       "learner", ZenohOptions("client", [self.hub]))
         return t0
 
     def stop_all(self, grace: float = 2.0) -> None:

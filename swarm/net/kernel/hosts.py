@@ -108,16 +108,15 @@ class Hosts(Namespaced):
         """(listen, connect) of host h's router: its address; the world and hosts 1..h-1."""
         return [self.endpoint(h, port)], [self.endpoint(g, port) for g in range(h)]
 
-    def routers(self, port: int) -> list[tuple[str, list[str], str, str]]:
-        """(name, `swarm` arguments, namespace, address) of each router process to start once
-        the world listens: host h's listens on its address and connects to the world and to
-        hosts 1..h-1's routers."""
+    def routers(self, port: int) -> list[tuple[str, list[str], ZenohOptions, str, str]]:
+        """(name, `swarm` arguments, its session, namespace, address) of each router process to
+        start once the world listens: host h's listens on its address and connects to the world
+        and to hosts 1..h-1's routers."""
         out = []
         for h in range(1, self.k):
             listen, connect = self.router_endpoints(h, port)
-            out.append((f"router{h}", ["router", "--run-id", self.run_id, "--listen", *listen,
-                                       *(x for e in connect for x in ("--connect", e))],
-                        self.host_ns[h], self.addr[h]))
+            out.append((f"router{h}", ["router", "--run-id", self.run_id],
+                        ZenohOptions("router", connect, listen), self.host_ns[h], self.addr[h]))
         return out
 
     def describe(self) -> dict[str, Any]:
