@@ -38,8 +38,6 @@ from world import core
 from world.config import WorldConfig
 from world.decentral import View
 
-_BIG = 1 << 40
-
 
 @dataclass(frozen=True)
 class OracleConfig:

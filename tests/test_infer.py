@@ -94,6 +94,9 @@ def test_every_layer_equals_torch() -> None:
     w = {f"c.{k}": v.detach().numpy() for k, v in cell.state_dict().items()}
     close(layers.gru_cell(w, "c", x.numpy(), h.numpy()), cell(x, h))
     close(layers.sigmoid(x.numpy() * 30), torch.sigmoid(x * 30))
+    buf = x.numpy() * 30  # in place, as the GRU's gates call it
+    assert layers.sigmoid(buf, out=buf) is buf
+    close(buf, torch.sigmoid(x * 30))
     close(layers.softmax(x.numpy()), torch.softmax(x, -1))
     close(layers.log_softmax(x.numpy()), torch.log_softmax(x, -1))
     # token embedding and BiGRU over real tokens of a mid-game view (ragged neighbourhoods)

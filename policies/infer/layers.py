@@ -25,9 +25,14 @@ def relu(x: np.ndarray) -> np.ndarray:
     return np.maximum(x, np.float32(0))
 
 
-def sigmoid(x: np.ndarray) -> np.ndarray:
-    """Logistic function without overflow (tanh form)."""
-    return np.float32(0.5) * np.tanh(np.float32(0.5) * x) + np.float32(0.5)
+def sigmoid(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Logistic function without overflow (tanh form: tanh(x / 2) / 2 + 1 / 2); with `out`, in
+    place there (the GRU's gates: no allocation on a robot's [1, K] rows)."""
+    out = np.multiply(x, np.float32(0.5), out=out)
+    np.tanh(out, out=out)
+    out *= np.float32(0.5)
+    out += np.float32(0.5)
+    return out
 
 
 def softmax(x: np.ndarray, axis: int = -1, finite: bool = False) -> np.ndarray:
@@ -61,10 +66,7 @@ def gates(gi: np.ndarray, gh: np.ndarray, h: np.ndarray) -> np.ndarray:
     numpy call and allocation costs more than its arithmetic."""
     k = h.shape[1]
     rz = gi[:, :2 * k] + gh[:, :2 * k]
-    rz *= np.float32(0.5)  # sigmoid(x) = tanh(x / 2) / 2 + 1 / 2, as `sigmoid`
-    np.tanh(rz, out=rz)
-    rz *= np.float32(0.5)
-    rz += np.float32(0.5)
+    sigmoid(rz, out=rz)
     n = rz[:, :k] * gh[:, 2 * k:]
     n += gi[:, 2 * k:]
     np.tanh(n, out=n)

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing as mp
-from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -31,14 +30,6 @@ from policies.learned import LearnedPolicy
 from swarm.learn.config import TrainConfig
 from world import core
 from world.config import ConfigError, WorldConfig
-
-
-@dataclass
-class Part:
-    """What one process did for one update."""
-
-    metrics: dict[str, np.ndarray]
-    totals: dict[str, float]
 
 
 def split(episodes: np.ndarray, parts: int) -> list[np.ndarray]:
