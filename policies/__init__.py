@@ -154,14 +154,17 @@ def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
     """Policy `name` for `cfg` as its class builds it: a learned one without `checkpoint=`
     has fresh random weights (for training and tests). The shipped networks, as every command
     runs them: `swarm.common.policy_spec.build_policy(name, cfg)`. A plugin whose constructor
-    raises is a one-line PluginError naming it."""
+    raises is a one-line PluginError naming it; a plugin's policy answers to its registered
+    name (`.name`: the one the user typed, whatever its class calls itself)."""
     cls = policy_class(name)
     if "checkpoint" in kwargs and not cls.learned:  # (a bare TypeError from its __init__)
         raise ValueError(f"a checkpoint applies to learned policies only, not {name!r}")
     if name not in PLUGINS:
         return cls(cfg, **kwargs)  # type: ignore[call-arg]
     try:
-        return cls(cfg, **kwargs)  # type: ignore[call-arg]
+        policy = cls(cfg, **kwargs)  # type: ignore[call-arg]
     except Exception as exc:  # (another package's bug: whatever it raises)
         raise PluginError(f"policy plugin {name!r} ({REGISTRY[name]}) could not be built: "
                           f"{type(exc).__name__}: {exc}") from None
+    policy.name = name  # type: ignore[misc]
+    return policy

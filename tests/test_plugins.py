@@ -109,7 +109,8 @@ def test_a_plugin_answering_no_move_stays_in_place_in_the_swarm_as_eval_refuses_
 @pytest.mark.procs
 def test_a_plugin_answering_a_list_acts_the_same_in_eval_and_in_the_swarm(
         tmp_path: Path) -> None:
-    """Before, eval took the list and every robot failed on it (an error each tick)."""
+    """Before, eval took the list and every robot failed on it (an error each tick). Both name
+    it as the user did (its class calls itself `cyclic`, inherited)."""
     env, ev, run = install(tmp_path, "listy"), tmp_path / "eval.json", tmp_path / "run.json"
     common = ["--policy", "listy", "--robots", "3", "--episodes", "1", "--horizon", "6"]
     r = swarm("eval", *common, "--json", str(ev), env=env)
@@ -118,11 +119,12 @@ def test_a_plugin_answering_a_list_acts_the_same_in_eval_and_in_the_swarm(
     assert r.returncode == 0 and "could not decide" not in r.stderr, r.stderr
     res = json.loads(run.read_text())
     assert res["elratio_mean"] == pytest.approx(json.loads(ev.read_text())["elratio_mean"])
+    assert res["policy"] == json.loads(ev.read_text())["policy"] == "listy"
     assert np.array_equal(np.array(res["actions"])[0, 0], [0, 1, 2])
 
 
 @pytest.mark.parametrize(("name", "why"), [
-    ("raiser", "policy Raiser: act raised RuntimeError: boom from my plugin"),
+    ("raiser", "policy raiser: act raised RuntimeError: boom from my plugin"),
     ("noact", "policy plugin 'noact' (ua_plugin:NoAct) does not implement act"),
     ("badinit", "policy plugin 'badinit' (ua_plugin:BadInit) could not be built: "
                 "ValueError: init failed"),
@@ -130,7 +132,8 @@ def test_a_plugin_answering_a_list_acts_the_same_in_eval_and_in_the_swarm(
 def test_a_plugin_that_cannot_act_or_be_built_is_one_line_naming_it(
         tmp_path: Path, name: str, why: str) -> None:
     """Before: a 20-line traceback (abstract class, raising constructor), a line without the
-    policy's name (act raised) or one calling a missing class no Policy subclass."""
+    policy's name (act raised; then one with its class's name, not the one the user typed) or
+    one calling a missing class no Policy subclass."""
     env = install(tmp_path, name)
     commands = [["eval", "--policy", name, "--robots", "3", "--episodes", "1"]]
     if name != "raiser":  # (refused before any process is spawned)
@@ -167,8 +170,8 @@ def test_a_plugin_that_does_not_import_breaks_no_command_that_does_not_ask_for_i
 
 
 @pytest.mark.parametrize(("name", "why"), [
-    ("outofrange", "policy OutOfRange: actions must be integers in 0..8, got int64 [42, 42, 42]"),
-    ("raiser", "policy Raiser: act raised RuntimeError: boom from my plugin")])
+    ("outofrange", "policy outofrange: actions must be integers in 0..8, got int64 [42, 42, 42]"),
+    ("raiser", "policy raiser: act raised RuntimeError: boom from my plugin")])
 def test_bench_policy_names_a_plugin_that_answers_no_move_or_raises(
         tmp_path: Path, name: str, why: str) -> None:
     """Before: a traceback from the world's step (42) or a line without the policy's name

@@ -161,12 +161,12 @@ def acted(policy: Policy, view: View, greedy: bool = True) -> np.ndarray:
     except ConfigError:
         raise
     except Exception as exc:  # (a plugin's bug: whatever it raises)
-        raise ConfigError(f"policy {type(policy).__name__}: act raised {type(exc).__name__}: "
-                          f"{exc}") from None
+        raise ConfigError(f"policy {policy.name or type(policy).__name__}: act raised "
+                          f"{type(exc).__name__}: {exc}") from None
     try:
         return core.check_actions(out, view.receivers.shape)
     except ValueError as exc:
-        raise ConfigError(f"policy {type(policy).__name__}: {exc}") from None
+        raise ConfigError(f"policy {policy.name or type(policy).__name__}: {exc}") from None
 
 
 def evaluate(cfg: WorldConfig, policy: Policy, seed: int, n_episodes: int, *, batch: int = 250,
