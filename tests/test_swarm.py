@@ -536,7 +536,7 @@ def test_a_policy_of_another_package_runs_in_eval_and_in_a_swarm(tmp_path: Path)
     for key in ("elratio_mean", "reward_mean", "collisions_mean"):
         assert swarmed[key] == pytest.approx(batched[key])
     assert np.array_equal(np.array(swarmed["actions"])[0, 0], [0, 1, 2])  # tick 0: robot i -> i
-    for name, why in (("nan", "policy Nan: actions must be integers in 0..8, got float64"),
+    for name, why in (("nan", "policy nan: actions must be integers in 0..8, got float64"),
                       ("syntax", "policy plugin 'syntax' (bad_plugin:X) does not import: "
                                  "SyntaxError")):  # a plugin's bug: one line, not a traceback
         r = swarm("eval", "--policy", name, "--robots", "3", "--episodes", "1", env=env)
