@@ -817,3 +817,38 @@ def test_bench_swarm_refuses_typos_in_its_lists_and_empty_hosts(
     assert capsys.readouterr().err == ("swarm: error: --hosts 5 is more hosts than the 2 robots "
                                        "(robots are dealt round robin: a host without one would "
                                        "be empty)\n")
+
+
+def test_an_output_over_an_input_or_another_output_is_refused_before_anything_runs(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """UA pass: `--json` naming the command's own checkpoint, recording or other output replaced
+    it (`swarm run --record same.mcap --json same.mcap` exited 0 with the result JSON in the
+    recording). Refused in one line, exit 2, before any process or folder is made; the input
+    is left as it was."""
+    from swarm.cli import main
+
+    ckpt, logs = tmp_path / "ck.pt", tmp_path / "logs"
+    ckpt.write_bytes((ROOT / "checkpoints" / "commattn.pt").read_bytes())
+    before = ckpt.read_bytes()
+    run = ["run", "--headless", "--robots", "3", "--episodes", "1", "--log-dir", str(logs)]
+    cases = (
+        ([*run, "--record", str(tmp_path / "same.mcap"), "--json", str(tmp_path / "same.mcap")],
+         f"--json and --record are the same file ({tmp_path / 'same.mcap'})"),
+        ([*run, "--policy", "commattn", "--checkpoint", str(ckpt), "--json",
+          f"{tmp_path}/../{tmp_path.name}/ck.pt"], "is also --checkpoint, which this command "
+                                                   "reads: it would be overwritten"),
+        (["eval", "--episodes", "2", "--json", str(tmp_path / "e.csv"), "--episodes-csv",
+          str(tmp_path / "e.csv")], "--json and --episodes-csv are the same file"),
+        (["eval", "--episodes", "2", "--policy", "commattn", "--checkpoint", f"commattn={ckpt}",
+          "--episodes-csv", str(ckpt)], f"--episodes-csv {ckpt} is also --checkpoint"),
+        (["learner", "--run-id", "r1", "--out", str(logs), "--json", str(logs / "curve.csv")],
+         "--json and --out's curve.csv are the same file"))
+    for argv, why in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and why in err, (argv, err)
+    assert ckpt.read_bytes() == before and not logs.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck.pt"]
+    # a device is written in place, never replaced: two outputs may share /dev/null
+    assert main(["eval", "--episodes", "1", "--batch", "1", "--policy", "random", "--json",
+                 "/dev/null", "--episodes-csv", "/dev/null"]) == 0

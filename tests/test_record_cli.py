@@ -390,3 +390,24 @@ def test_a_child_stopped_before_its_cli_loaded_says_only_interrupted(sig: signal
         proc.send_signal(sig)
         out, err = proc.communicate(timeout=60)
         assert (proc.returncode, out, err) == (130, "", "swarm: interrupted\n")
+
+
+def test_replay_and_trace_refuse_to_write_over_their_recording(tmp_path: Path,
+                                                               capsys: Any) -> None:
+    """UA pass: `swarm replay run.mcap --verify --json run.mcap` said "verified ... every one as
+    recorded", exit 0, and left 331 bytes of JSON where the recording was."""
+    good = tmp_path / "good.mcap"
+    synthetic(good)
+    before = good.read_bytes()
+    for argv, why in (
+            (["replay", str(good), "--verify", "--json", str(good)],
+             f"--json {good} is also FILE, which this command reads"),
+            (["replay", str(good), "--speed", "0", "--json", f"{tmp_path}/./good.mcap"],
+             "is also FILE, which this command reads"),
+            (["trace", str(good), "--out", str(tmp_path / "t"), "--json", str(good)],
+             "is also FILE"),
+            (["trace", str(good), "--out", str(tmp_path / "t"), "--json", str(tmp_path / "t")],
+             "--json and --out are the same file")):
+        code, err = swarm_main(*argv, capsys=capsys)
+        assert code == 2 and len(err.splitlines()) == 1 and why in err, (argv, err)
+    assert good.read_bytes() == before and not (tmp_path / "t").exists()

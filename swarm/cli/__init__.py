@@ -30,6 +30,7 @@ import sys  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
 from swarm.cli import batch, hosts, learn, record, run, secure  # noqa: E402
+from swarm.cli.checks import check_paths  # noqa: E402
 from swarm.cli.common import _Parser  # noqa: E402
 from swarm.common.spawn import (  # noqa: E402
     die_with_parent,
@@ -115,6 +116,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return 2
     try:
+        check_paths(args)  # (no output over an input or another output: before anything runs)
         return args.func(args)
     except ConfigError as exc:
         print(f"swarm: error: {' '.join(str(exc).split())}", file=sys.stderr)

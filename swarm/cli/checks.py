@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import re
 import sys
 from collections.abc import Iterable
@@ -13,13 +14,63 @@ from pathlib import Path
 from typing import Any
 
 from swarm.cli.common import _checkpoint_pairs
+from swarm.common.atomic import in_place
 from swarm.common.policy_spec import build_inference
 from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from here)
 from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig
 
+INPUT_FLAGS = {"file": "FILE", "config": "--config", "spec": "--spec", "checkpoint": "--checkpoint",
+               "curve": "--curve", "init": "--init", "zenoh_config": "--zenoh-config"}
+"""Flags (by argparse dest) of every command that name a file it reads."""
+OUTPUT_FLAGS = {"json": "--json", "episodes_csv": "--episodes-csv", "record": "--record",
+                "out": "--out", "log_dir": "--log-dir", "learner_out": "--learner-out"}
+"""Flags (by argparse dest) of every command that name a file or folder it writes."""
 TRAIN_FLAGS = ("train_batch", "train_algo", "train_ppo_epochs", "learner_out", "rollout_loss",
                "train_sync")
+
+
+def distinct_paths(inputs: dict[str, Any], outputs: dict[str, Any]) -> None:
+    """An output path that is one of the command's inputs, or another of its outputs, is refused
+    in one line before anything runs (`swarm replay run.mcap --json run.mcap` replaced the
+    recording with its own summary). Each dict maps a flag to a path, None (not given) or a list
+    of paths. Paths compare resolved, and as one file where both exist (a hard link); a device
+    or FIFO (/dev/null, /dev/stdout) is written in place, never replaced, so outputs may share
+    it."""
+    def given(named: dict[str, Any]) -> list[tuple[str, str]]:
+        return [(flag, str(p)) for flag, v in named.items()
+                for p in (v if isinstance(v, list) else [v]) if p is not None and str(p).strip()]
+
+    def same(a: str, b: str) -> bool:
+        try:
+            return os.path.samefile(a, b)
+        except OSError:  # (one is missing: its name decides)
+            return os.path.realpath(a) == os.path.realpath(b)
+
+    seen: list[tuple[str, str]] = []
+    for flag, path in given(outputs):
+        if in_place(path):
+            continue
+        for other, was in seen:
+            if same(path, was):
+                raise ConfigError(f"{other} and {flag} are the same file ({path}): one would "
+                                  "overwrite the other; give each its own")
+        for other, was in given(inputs):
+            if same(path, was):
+                raise ConfigError(f"{flag} {path} is also {other}, which this command reads: "
+                                  "it would be overwritten; give another file")
+        seen.append((flag, path))
+
+
+def check_paths(args: argparse.Namespace) -> None:
+    """Every command's file flags (INPUT_FLAGS, OUTPUT_FLAGS) through `distinct_paths`, before
+    the command runs; of a repeatable `NAME=FILE` flag, the FILE."""
+    def paths(flags: dict[str, str]) -> dict[str, Any]:
+        return {flag: [p if Path(p).exists() or "=" not in p else p.partition("=")[2]
+                       for p in v] if isinstance(v, list) else v
+                for dest, flag in flags.items() if (v := getattr(args, dest, None)) is not None}
+
+    distinct_paths(paths(INPUT_FLAGS), paths(OUTPUT_FLAGS))
 
 
 def check_clock(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig,

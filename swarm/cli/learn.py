@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from policies import check_learned
+from swarm.cli.checks import distinct_paths
 from swarm.cli.common import (
     _command,
     add_common,
@@ -32,6 +33,7 @@ from swarm.learn.config import (
     learner_configs,
     learner_resume_point,
 )
+from swarm.learn.curves import RUN_FILES
 from swarm.net import zconfig
 from swarm.net.keys import check_run_id
 from swarm.procs.runconfig import RunRecord
@@ -72,6 +74,8 @@ def cmd_learner(args: argparse.Namespace) -> int:
         if not args.spec:  # (a run's spec is its own world, checked by `swarm run`)
             world = held_world(data, world, world_given(args, tables), f"the learner in {out}")
             seed = held_seed(data.get("learner"), args.seed, out)
+    distinct_paths({}, {"--json": args.json, **{f"--out's {f}": str(Path(lc.out) / f)
+                                                for f in RUN_FILES}})  # (it writes them)
     output_file(args.json)
     from swarm.procs.learning.learner import main as learner_main  # (torch: after the checks)
 
