@@ -316,6 +316,44 @@ def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[st
 
 
 @pytest.mark.procs
+def test_verify_checks_every_json_form_against_the_raw_payload_beside_it(
+        recorded: dict[str, Any], tmp_path: Path) -> None:
+    """UA pass: --verify never read the `/json` channels (what MCAP tools and Foxglove show), so
+    a file whose JSON forms were edited verified as "every one as recorded"."""
+    r = swarm("replay", str(recorded["file"]), "--verify", "--json", str(tmp_path / "v.json"))
+    assert r.returncode == 0 and json.loads((tmp_path / "v.json").read_text())["checked"][
+        "JSON forms"] > ROBOTS * HORIZON * 3, r.stderr  # (obs, action, status, ... of each tick)
+
+    def action(topic: str, data: bytes) -> bytes:  # one action + 4, in its JSON form only
+        obj = json.loads(data) if topic == "swarm/rec15/robot/2/action/json" else {}
+        if obj.get("t") == 3:
+            return json.dumps({**obj, "action": (obj["action"] + 4) % 9}).encode()
+        return data
+
+    def elratio(topic: str, data: bytes) -> bytes:  # every status's, in its JSON form only
+        if topic == "swarm/rec15/world/status/json":
+            return json.dumps({**json.loads(data), "elratio": 0.999}).encode()
+        return data
+
+    def stray(topic: str, data: bytes) -> bytes:  # a form put on another key's channel
+        return data.replace(b'"robot":1', b'"robot":0') if topic.endswith("robot/1/action/json") \
+            else data
+
+    bad = tmp_path / "edited.mcap"
+    for edit, said in ((action, "episode 0 tick 3 (run tick 3): swarm/rec15/robot/2/action/json "
+                                "action (the JSON form of the raw payload beside it): recorded"),
+                       (elratio, "episode 0 tick 1 (run tick 1): swarm/rec15/world/status/json "
+                                 "elratio (the JSON form of the raw payload beside it): recorded "
+                                 "0.999, recomputed"),
+                       (stray, "swarm/rec15/robot/1/action/json robot (the JSON form of the raw "
+                               "payload beside it): recorded 0, recomputed 1")):
+        rewrite(recorded["file"], bad, edit_msg=edit)
+        r = swarm("replay", str(bad), "--verify")
+        line = r.stderr.strip().splitlines()[-1]
+        assert r.returncode == 1 and said in line, line
+
+
+@pytest.mark.procs
 def test_verify_reruns_direct_delivery_and_names_a_false_stamp(tmp_path: Path) -> None:
     """A direct-delivery run under loss, latency, a bandwidth cap and a partition: every robot's
     decisions re-run from the recorded stamped messages give the counters it reported; a stamp

@@ -411,3 +411,38 @@ def test_replay_and_trace_refuse_to_write_over_their_recording(tmp_path: Path,
         code, err = swarm_main(*argv, capsys=capsys)
         assert code == 2 and len(err.splitlines()) == 1 and why in err, (argv, err)
     assert good.read_bytes() == before and not (tmp_path / "t").exists()
+
+
+def test_json_forms_may_be_missing_only_where_the_recorder_never_wrote_them(
+        tmp_path: Path) -> None:
+    """JSON forms are written after the run: a finished file holds one per raw payload (but
+    the ones its interrupted recorder skipped, `json_skipped`), a cut one may lack any."""
+    from swarm.net.keys import Keys
+    from swarm.net.messages import Obs
+    from swarm.net.record.recording import RecordingWriter, check_json_forms, read
+    from swarm.procs.runconfig import RunConfig, RunRecord
+    from world.config import WorldConfig
+
+    good = tmp_path / "good.mcap"
+    synthetic(good)  # 2 robots' observations at ticks 0..2, each with its JSON form
+    cfg = WorldConfig(n_robots=2, horizon=4)
+    assert check_json_forms(read(good), cfg) == (6, None)
+
+    def raw_only(path: Path, skipped: int | None, finish: bool = True) -> None:
+        w = RecordingWriter(path, "syn", RunRecord(cfg, RunConfig(run_id="syn")).to_record(),
+                            cfg, "virtual", 2.0)
+        for t in range(2):
+            p = Obs(0, t, 1, 1, 1, bytes(cfg.vision ** 2), 0.0, False, 100.0).pack()
+            w.message(Keys("syn").obs(1), "obs", p, None, 10**18 + t, t, 0)
+        w.w.flush()
+        if finish:
+            w.finish(None, {} if skipped is None else {"json_skipped": skipped})
+
+    for skipped, said in ((None, (0, 0)), (1, (0, 0)), (2, None)):
+        raw_only(tmp_path / "raw.mcap", skipped)
+        n, bad = check_json_forms(read(tmp_path / "raw.mcap"), cfg)
+        assert n == 0 and (bad is None if said is None else bad[0].startswith(
+            "swarm/syn/world/obs/1/json (no JSON form") and bad[2] == said), (skipped, bad)
+    raw_only(tmp_path / "cut.mcap", None, finish=False)
+    assert check_json_forms(read(tmp_path / "cut.mcap", partial=True), cfg) == (0, None)
+

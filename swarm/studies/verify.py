@@ -7,8 +7,9 @@ made in virtual time also re-runs the radio (`swarm.net.radio.Radio` with its `V
 live fault changes included) on the recorded trajectory and hidden-state messages: every
 bundle, every forwarded hidden-state message (or miss marker) and the radio's counters must
 match; under direct delivery the robots' own deliveries are re-run instead
-(`swarm.studies.verify_direct`). The first divergence is reported as (episode, tick, field,
-recorded, recomputed).
+(`swarm.studies.verify_direct`). Every JSON form (a `/json` channel) must be the one of the raw
+payload beside it (`check_json_forms`). The first divergence is reported as (episode, tick,
+field, recorded, recomputed).
 
 Which actions the world applied, and which messages its radio saw, cannot be read from the
 order the recorder heard them in: the world, the run's router, may step and publish its status
@@ -45,6 +46,7 @@ from swarm.net.messages import (
     unpack_record,
 )
 from swarm.net.radio import Radio
+from swarm.net.record.recording import check_json_forms
 from swarm.studies.replay import Recording, recorded_result
 from swarm.studies.verify_direct import DirectAudit, hidden_label, senders_of, stamped_of
 from world import core
@@ -214,6 +216,7 @@ class Auditor:
         try:
             self._episodes()
             self._result()
+            self._json_forms()
         except _Diverged:
             pass
         return self.report
@@ -476,6 +479,18 @@ class Auditor:
         for k, v in mine.items():
             self.same(f"result.messages.{k}", msgs.get(k), v)
         self.report.count("results")
+
+    def _json_forms(self) -> None:
+        """Every `/json` channel's message is the JSON form of the raw payload it stands beside
+        (what MCAP tools and Foxglove show must be what was on the wire)."""
+        checked, bad = check_json_forms(self.rec.raw, self.cfg)
+        if bad is not None:
+            what, tick, (ep, t), recorded, expected = bad
+            if not (type(ep) is int and type(t) is int):  # (a kind that names no tick)
+                ep, t = self.run.first_episode + tick // self.cfg.horizon, tick % self.cfg.horizon
+            self.where = (ep, t, tick)
+            self.fail(what, recorded, expected)
+        self.report.count("JSON forms", checked)
 
 
 def verify(rec: Recording) -> VerifyReport:

@@ -68,6 +68,16 @@ class WriterStats:
     bytes: int = 0
 
 
+def json_form(kind: str, payload: bytes, cfg: WorldConfig) -> tuple[dict[str, Any], bytes] | None:
+    """The payload's validated JSON form (`msgjson.to_json`) and its encoding as a recording
+    holds it, or None when it has none (a payload every process would drop)."""
+    try:
+        obj = msgjson.to_json(kind, payload, cfg)
+        return obj, json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+    except (BadMessage, ValueError, TypeError, KeyError, OverflowError, RecursionError):
+        return None
+
+
 class RecordingWriter:
     """Writes one run's recording; `message` per payload, `finish` at the end."""
 
@@ -111,14 +121,11 @@ class RecordingWriter:
         return ids
 
     def decode(self, key: str, kind: str, payload: bytes) -> tuple[dict[str, Any], bytes] | None:
-        """The payload's validated JSON form and its encoding, or None (counted in `stats.bad`
-        under its key)."""
-        try:
-            obj = msgjson.to_json(kind, payload, self.cfg)
-            return obj, json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
-        except (BadMessage, ValueError, TypeError, KeyError, OverflowError, RecursionError):
+        """The payload's `json_form`, or None (counted in `stats.bad` under its key)."""
+        form = json_form(kind, payload, self.cfg)
+        if form is None:
             self.stats.bad[key] = self.stats.bad.get(key, 0) + 1
-            return None
+        return form
 
     def message(self, key: str, kind: str, payload: bytes, data: bytes | None,
                 wall_ns: int, tick: int, vtime_ns: int) -> None:
@@ -193,6 +200,7 @@ class RawRecording:
     end_offset: int  # bytes read before the end (or the cut)
     damaged: bool = False  # not complete, and not for want of the rest: see `read`
     size: int = 0  # of the file, in bytes
+    json_messages: list[RawMessage] = field(default_factory=list)  # key: its raw channel's
 
     def attachment(self, name: str) -> Any:
         """A JSON attachment, or None when absent; RecordingError when it does not parse."""
@@ -234,6 +242,7 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
     attachments: dict[str, bytes] = {}
     channels: dict[int, Any] = {}
     messages: list[RawMessage] = []
+    forms: list[RawMessage] = []
     complete, error, short = False, "", False
     with fh:
         if fh.read(len(MAGIC)) != MAGIC:
@@ -251,6 +260,9 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
                 if ch.message_encoding == "msgpack":
                     messages.append(RawMessage(rec.log_time, rec.publish_time, rec.sequence,
                                                ch.topic, bytes(rec.data)))
+                elif ch.topic.endswith(JSON_SUFFIX):
+                    forms.append(RawMessage(rec.log_time, rec.publish_time, rec.sequence,
+                                            ch.topic[:-len(JSON_SUFFIX)], bytes(rec.data)))
 
         try:
             for rec in reader.records:
@@ -305,4 +317,56 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
     return RawRecording(path, meta, attachments, stats,
                         [c.topic for c in channels.values() if c.message_encoding == "msgpack"],
                         [t for t in topics if t.endswith(JSON_SUFFIX)], messages, complete, end,
-                        damaged, size)
+                        damaged, size, forms)
+
+
+def check_json_forms(raw: RawRecording, cfg: WorldConfig
+                     ) -> tuple[int, tuple[str, int, tuple[Any, Any], Any, Any] | None]:
+    """Every JSON form of `raw` against the raw payload it stands beside: (forms checked, the
+    first that differs as (what, run tick, its (episode, tick) or Nones, recorded, expected), or
+    None). Per key the forms are the `json_form`s of its raw payloads that have one, in order,
+    with their times and sequence. A file its recorder finished holds one for each, but for the
+    last `json_skipped` raw messages (an interrupted recorder's deadline); one cut short may
+    lack any (they are written after the run), never hold one with no raw payload."""
+    keys = Keys(raw.meta.get("run_id", ""))
+    expected: dict[str, list[tuple[int, RawMessage, Any]]] = {}
+    for idx, msg in enumerate(raw.messages):
+        form = json_form(keys.kind_of(msg.key)[0] or "", msg.payload, cfg)
+        if form is not None:  # (as a JSON reader reads it back: tuples are lists)
+            expected.setdefault(msg.key, []).append((idx, msg, json.loads(form[1])))
+    seen: dict[str, int] = {}
+    for n, js in enumerate(raw.json_messages):
+        k = seen[js.key] = seen.get(js.key, 0) + 1
+        topic, beside = js.key + JSON_SUFFIX, " (the JSON form of the raw payload beside it)"
+        if k > len(expected.get(js.key, [])):
+            return n, (f"{topic} (a JSON form with no raw payload beside it)", js.tick,
+                       (None, None), js.payload.decode("utf-8", "replace"), None)
+        _, msg, want = expected[js.key][k - 1]
+        head = (want.get("ep"), want.get("t"))
+        try:
+            got = json.loads(js.payload)
+        except ValueError:
+            got = js.payload.decode("utf-8", "replace")
+        if got != want:
+            field = next((f for f in want if got.get(f, ...) != want[f]), None) \
+                if isinstance(got, dict) else None
+            if field is None:
+                return n, (topic + beside, msg.tick, head, got, want)
+            return n, (f"{topic} {field}{beside}", msg.tick, head, got[field], want[field])
+        times = (js.tick, js.vtime_ns, js.wall_ns), (msg.tick, msg.vtime_ns, msg.wall_ns)
+        if times[0] != times[1]:
+            return n, (f"{topic} (sequence, publish and log time){beside}", msg.tick, head,
+                       *times)
+    if raw.complete:
+        try:
+            last = len(raw.messages) - int(raw.stats.get("json_skipped", 0))
+        except ValueError:
+            last = len(raw.messages)
+        missing = [(idx, key, msg, want) for key, forms in expected.items()
+                   for idx, msg, want in forms[seen.get(key, 0):] if idx < last]
+        if missing:
+            _, key, msg, want = min(missing, key=lambda m: m[0])
+            return len(raw.json_messages), (
+                f"{key}{JSON_SUFFIX} (no JSON form of the raw payload beside it)", msg.tick,
+                (want.get("ep"), want.get("t")), None, want)
+    return len(raw.json_messages), None
