@@ -446,3 +446,28 @@ def test_json_forms_may_be_missing_only_where_the_recorder_never_wrote_them(
     raw_only(tmp_path / "cut.mcap", None, finish=False)
     assert check_json_forms(read(tmp_path / "cut.mcap", partial=True), cfg) == (0, None)
 
+
+def test_trace_of_a_recording_with_no_tick_writes_nothing_and_warns_of_nothing(
+        tmp_path: Path, capsys: Any) -> None:
+    """UA pass: `swarm trace` on a run stopped during its start-up exited 0 with header-only
+    CSVs and empty figures, and leaked matplotlib's "No artists with labels found to put in
+    legend"; `swarm replay` said `nothing to replay`, exit 1. Trace now says the same."""
+    import warnings
+
+    from swarm.net.record.recording import RecordingWriter
+    from swarm.procs.runconfig import RunConfig, RunRecord
+    from world.config import WorldConfig
+
+    cfg, started = WorldConfig(n_robots=2, horizon=4), tmp_path / "started.mcap"
+    RecordingWriter(started, "syn", RunRecord(cfg, RunConfig(run_id="syn")).to_record(), cfg,
+                    "virtual", 2.0).finish(None, {})
+    code, err = swarm_main("trace", str(started), "--out", str(tmp_path / "t"), "--json",
+                           str(tmp_path / "t.json"), capsys=capsys)
+    assert code == 1 and err == f"swarm: trace: {started}: nothing to trace (no tick in it)", err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["started.mcap"]
+    good = tmp_path / "good.mcap"
+    synthetic(good)  # ticks, but no status: no elratio line to label
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code, err = swarm_main("trace", str(good), "--out", str(tmp_path / "t"), capsys=capsys)
+    assert code == 0 and not [str(w.message) for w in caught] and "Warning" not in err, err

@@ -12,13 +12,16 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarm.cli.common import _consoles, named_dir, output_dir, output_file
 from swarm.common.flags import check_wait
 from swarm.common.report import counted
 from swarm.net import zconfig
 from world.config import ConfigError
+
+if TYPE_CHECKING:
+    from swarm.studies.replay import Recording
 
 
 def attention_focus(text: str) -> int | None:
@@ -120,10 +123,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                           f"robots 0..{n - 1}")
     span = rec.raw.span()
     if span is None and not args.verify:  # (--verify may still check a result: it says below)
-        print(f"swarm: replay: {args.file}: nothing to replay (no tick in it"
-              + ("" if rec.raw.complete else "; it is cut before its first") + ")",
-              file=sys.stderr)
-        return 1
+        return _no_tick(rec, "replay")
     first, last = span or (0, rec.last_tick)
     if args.verify and first > 0:
         ep, t = divmod(first, rec.record.world.horizon)
@@ -196,6 +196,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _no_tick(rec: Recording, command: str) -> int:
+    """A recording with no tick in it (a run stopped during its start-up): one line, exit
+    status 1, nothing written."""
+    print(f"swarm: {command}: {rec.path}: nothing to {command} (no tick in it"
+          + ("" if rec.raw.complete else "; it is cut before its first") + ")", file=sys.stderr)
+    return 1
+
+
 def _new_dirs(path: str) -> Path | None:
     """The outermost directory of `path` that does not exist yet (None: it exists)."""
     target = Path(path).absolute()
@@ -217,6 +225,8 @@ def cmd_trace(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {args.out} exists and is not a directory")
     output_file(args.json)
     rec = load(args.file, partial=args.partial)  # a bad file fails before --out is made
+    if rec.raw.span() is None:
+        return _no_tick(rec, "trace")
     made = _new_dirs(args.out)
     try:
         output_dir(args.out, "--out")

@@ -302,7 +302,8 @@ def trace(rec: Recording, out: str | Path) -> dict[str, Any]:
         ax.set_xlabel("tick")
         ax.set_ylabel("elratio")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        if tr.elratio:  # (no status recorded: no line, and no empty legend to warn of)
+            ax.legend(fontsize=7)
 
     save_png(out / "links.png", draw_links, ncols=2)
     save_png(out / "latency.png", draw_latency, ncols=2)
