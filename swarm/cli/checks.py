@@ -1,6 +1,7 @@
 """Checks of `swarm run`, `world`, `robot` and `fault` flags that need more than one flag or the
 run's record: a setting that would be silently dropped, or a fault the run can never reach, is
-one line and exit 2 before anything is spawned or sent."""
+one line and exit 2 before anything is spawned or sent; and, for every command, an output flag
+naming one of its inputs or another of its outputs (`check_paths`)."""
 
 from __future__ import annotations
 
