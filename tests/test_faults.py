@@ -321,6 +321,50 @@ def test_a_live_fault_must_fit_the_run_and_a_crash_waits_for_its_tick(tmp_path: 
 
 
 @pytest.mark.procs
+def test_a_process_fault_to_a_world_by_hand_is_refused_and_a_link_fault_goes(
+        tmp_path: Path) -> None:
+    """A world started by hand has no supervisor to kill or stop a robot: `swarm fault --crash`
+    / `--hang` to it is one line and exit 2 with nothing sent (it printed the control and exited
+    0, and nothing happened); a link fault still goes, and applies."""
+    import zenoh
+
+    from swarm.net.keys import Keys
+    from swarm.net.messages import K_CONTROL, pack_record
+    from swarm.net.zconfig import ZenohOptions, free_port
+
+    run_id, hub, out = "handpf", f"tcp/127.0.0.1:{free_port()}", tmp_path / "w.json"
+    procs = [subprocess.Popen([sys.executable, "-m", "swarm.cli", *args, "--run-id", run_id],
+                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+             for args in (["world", "--robots", "2", "--policy", "random", "--episodes", "1000",
+                           "--pace", "20", "--listen", hub, "--json", str(out)],
+                          ["robot", "--id", "0", "--connect", hub],
+                          ["robot", "--id", "1", "--connect", hub])]
+    try:
+        bad = [subprocess.Popen([sys.executable, "-m", "swarm.cli", "fault", "--run", run_id,
+                                 "--connect", hub, "--wait", "60", *args], cwd=ROOT,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+               for args in (("--crash", "1@20000"), ("--hang", "0"), ("--restart", "1"))]
+        for p in bad:
+            sent, err = p.communicate(timeout=90)
+            assert p.returncode == 2 and len(err.strip().splitlines()) == 1, err
+            assert f"run {run_id} has no supervisor" in err and "nothing was sent" in err, err
+            assert sent == ""
+        r = swarm("fault", "--run", run_id, "--connect", hub, "--loss", "0.5", timeout=60)
+        assert r.returncode == 0, r.stderr  # (it returns once a status came after the change)
+        with zenoh.open(ZenohOptions(connect=[hub]).to_config()) as s:
+            s.put(Keys(run_id).control, pack_record(K_CONTROL, {"stop": True}))
+            assert procs[0].wait(timeout=30) == 3
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+    res = json.loads(out.read_text())
+    changes = res["fault_changes"]["changes"]  # the link fault alone reached the world
+    assert len(changes) == 1 and any("loss" in f for f in changes[0]["faults"]), changes
+    assert res["robots_lost"] == 0 and res["never_joined"] == []  # (nobody crashed or hung)
+
+
+@pytest.mark.procs
 def test_experiment_sweep_writes_csv_png_and_resumes(tmp_path: Path) -> None:
     r = swarm("experiment", "deploy/experiments/tiny.toml", "--out", str(tmp_path), "--seeds",
               "0", timeout=300)

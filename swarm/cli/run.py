@@ -230,9 +230,10 @@ def cmd_world(args: argparse.Namespace) -> int:
     _logging(args.verbose)
     if args.spec is not None and not args.spec.strip():
         raise ConfigError("--spec wants a file name, got an empty one")
+    supervised = False  # (a spec's: `swarm run` owns the robots, their process faults too)
     if args.spec:
         rec = RunRecord.read(args.spec)
-        world, run, faults = rec.world, rec.run, rec.faults
+        world, run, faults, supervised = rec.world, rec.run, rec.faults, rec.supervised
     else:
         tables = file_tables(args.config)
         world, run = world_config(args, tables), run_config(args, tables)
@@ -245,7 +246,7 @@ def cmd_world(args: argparse.Namespace) -> int:
     if not args.spec:
         print(f"swarm world: run id {run.run_id}", file=sys.stderr, flush=True)
     try:
-        res = world_main(world, run, zopts, faults=faults)
+        res = world_main(world, run, zopts, faults=faults, supervised=supervised)
     except KeyboardInterrupt:
         if not args.spec:  # (by hand: said, as `swarm run` says it; a supervisor's says it)
             print("swarm: interrupted", file=sys.stderr)
@@ -286,9 +287,12 @@ def cmd_fault(args: argparse.Namespace) -> int:
     """Change the faults of a running swarm: link faults go to the world (from the next tick, or
     --at-tick), process faults to the supervisor (at once, or at ROBOT@TICK)."""
 
+    import time
+
     from swarm.common.spawn import lookup_run
     from swarm.net.keys import Keys, check_run_id
-    from swarm.net.messages import K_CONTROL, pack_record
+    from swarm.net.messages import K_CONTROL, BadMessage, pack_record
+    from swarm.procs.robot_status import fetch_config
 
     check_run_id(args.run)  # before asking the network about it
     if args.at_tick is not None and not 0 <= args.at_tick < 2**40:
@@ -322,11 +326,6 @@ def cmd_fault(args: argparse.Namespace) -> int:
     if process:
         rec["process"] = process
     with open_session(opts) as session:
-        import time
-
-        from swarm.net.messages import BadMessage
-        from swarm.procs.robot_status import fetch_config
-
         # the run's tick, from its status (an operator of a --secure run may not read it)
         ticks: list[int] = []
         timed = [int(t.rpartition("@")[2]) for t in process if "@" in t]  # ROBOT@TICK
@@ -340,6 +339,9 @@ def cmd_fault(args: argparse.Namespace) -> int:
                     else "")  # (TLS refuses another CA's certificate without a word to us)
             raise ConfigError(f"run {args.run} did not answer at {where} ({exc}){hint}; "
                               "nothing was sent") from None
+        if process and not run.supervised:  # (no supervisor: nobody to kill or stop a robot)
+            raise ConfigError(f"run {args.run} has no supervisor (its world was started by hand): "
+                              "process faults need `swarm run`; nothing was sent")
         fault_table(args, {}, run.world.n_robots, False)  # a partition or robot beyond it
         check_fault_ticks(table, run.run, run.world, args.at_tick)  # or a tick beyond its end
         if run.run.clock == "real" and "compute" in link:

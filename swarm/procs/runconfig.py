@@ -126,6 +126,10 @@ class RunRecord:
     """The learned network's config (served by the learner to rollout workers)."""
     version: int = 0
     """The learner's weights version when it answered."""
+    supervised: bool = False
+    """Served by a world `swarm run` started: its supervisor owns the robot processes, so a process
+    fault (crash, hang, restart) has someone to carry it out; `swarm fault` refuses process faults
+    to a world started by hand."""
 
     def to_record(self) -> dict[str, Any]:
         """A JSON- and msgpack-safe map (inf as the string 'inf')."""
@@ -134,6 +138,8 @@ class RunRecord:
         for key in ("learner", "train", "model"):
             if getattr(self, key) is not None:
                 out[key] = dict(getattr(self, key))
+        if self.supervised:
+            out["supervised"] = True
         return out
 
     @classmethod
@@ -141,7 +147,8 @@ class RunRecord:
         """Validate and rebuild; anything missing, unknown or out of range is a ConfigError."""
         if not isinstance(rec, dict) or not isinstance(rec.get("world"), dict):
             raise ConfigError(f"{where}: not a run record (no world table)")
-        unknown = set(rec) - {"world", "run", "faults", "learner", "train", "model", "version"}
+        unknown = set(rec) - {"world", "run", "faults", "learner", "train", "model", "version",
+                              "supervised"}
         if unknown:
             raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
         for key in ("run", "faults", "learner", "train", "model"):
@@ -150,11 +157,14 @@ class RunRecord:
         version = rec.get("version", 0)
         if not isinstance(version, int) or isinstance(version, bool) or version < 0:
             raise ConfigError(f"{where}: version must be a non-negative integer")
+        if not isinstance(rec.get("supervised", False), bool):
+            raise ConfigError(f"{where}: supervised must be true or false")
         try:
             return cls(world=from_dict(WorldConfig, rec["world"], f"{where} world"),
                        run=from_dict(RunConfig, rec.get("run") or {}, f"{where} run"),
                        faults=dict(rec.get("faults") or {}), learner=rec.get("learner"),
-                       train=rec.get("train"), model=rec.get("model"), version=version)
+                       train=rec.get("train"), model=rec.get("model"), version=version,
+                       supervised=rec.get("supervised", False))
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{where}: {exc}") from None
 

@@ -157,7 +157,7 @@ class Supervisor:
                                                checkpoint=str(self.tmp / "initial.pt"))
         learning = self.learning or {}
         RunRecord(self.cfg, self.run_cfg, self.faults, learner=learning.get("learner"),
-                  train=learning.get("train")).write(spec)
+                  train=learning.get("train"), supervised=True).write(spec)
         listen, host, ns = [self.hub], "127.0.0.1", None
         if self.topo is not None:  # the world listens on each of its veths, in its namespace
             self.topo.up()

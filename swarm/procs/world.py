@@ -12,10 +12,10 @@ key, never raised.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections import deque
-from collections.abc import Callable
 from typing import Any
 
 import msgpack
@@ -61,14 +61,15 @@ class WorldProcess:
     """One world of one run; `run()` plays every episode and returns the result record."""
 
     def __init__(self, cfg: WorldConfig, run: RunConfig, session: zenoh.Session,
-                 on_status: Callable[[dict[str, Any]], None] | None = None,
-                 faults: dict[str, Any] | None = None, fast_lane: bool = True) -> None:
+                 faults: dict[str, Any] | None = None, fast_lane: bool = True,
+                 supervised: bool = False) -> None:
         self.cfg, self.run_cfg, self.session = cfg, run, session
         self.keys = Keys(run.run_id)
         self.inbox: Inbox | None = None
         # the human-unit [faults] table in force, and the live changes waiting for their tick
         self.faults = FaultSchedule(dict(faults or {}), run.seed, cfg.n_robots)
-        self._record = RunRecord(cfg, run, self.faults.table).pack()  # served to the robots
+        self.served = RunRecord(cfg, run, self.faults.table, supervised=supervised)
+        self._record = self.served.pack()  # to the robots, and to `swarm fault`
         self.radio = Radio(cfg, plan_from_table(self.faults.table, run.seed))
         self.virtual = run.clock == "virtual"
         # virtual clock + chain: a tick also waits for every hidden-state message, so each one
@@ -106,7 +107,6 @@ class WorldProcess:
         self.late = 0
         self._held: deque[Event] = deque()  # events read between ticks, for the tick's loop
         self.stop, self.stopped = False, ""
-        self.on_status = on_status
         self._pubs: dict[str, zenoh.Publisher] = {}
 
     # --- network plumbing -------------------------------------------------------------------
@@ -304,7 +304,7 @@ class WorldProcess:
             if plan is not None:
                 self.radio.set_plan(plan)
                 log.info("faults now: %s", "; ".join(plan.describe()) or "none")
-                self._record = RunRecord(cfg, self.run_cfg, self.faults.table).pack()
+                self._record = dataclasses.replace(self.served, faults=self.faults.table).pack()
                 if self.direct is not None:  # the robots hold the plan: this tick's obs carry it
                     obs_faults = msgpack.packb(self.faults.table)
             self._outbox.clear()  # nothing of an older tick is ever delivered
@@ -407,8 +407,6 @@ class WorldProcess:
         }
         if state.t == 1:
             rec["static"] = np.argwhere(lay.inner(state.grid[0]) == core.STATIC).tolist()
-        if self.on_status is not None:
-            self.on_status(rec)
         self._put(self.keys.status, pack_record(K_STATUS, rec))
 
     def run(self) -> dict[str, Any]:
@@ -490,11 +488,12 @@ class WorldProcess:
 
 
 def main(cfg: WorldConfig, run: RunConfig, zopts: ZenohOptions,
-         on_status: Callable[[dict[str, Any]], None] | None = None,
-         faults: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Open a session, play the run, return its result record. A config file's session
-    (`--secure`) routes hidden states through here: its ACL may let only the world publish."""
+         faults: dict[str, Any] | None = None, supervised: bool = False) -> dict[str, Any]:
+    """Open a session, play the run, return its result record (`supervised`: `swarm run` started
+    it, from a spec). A config file's session (`--secure`) routes hidden states through here: its
+    ACL may let only the world publish."""
     with open_session(zopts) as session:
         check_free(session, Keys(run.run_id).alive_world, f"a world of run {run.run_id}", 1.0)
-        world = WorldProcess(cfg, run, session, on_status, faults, fast_lane=not zopts.may_acl)
+        world = WorldProcess(cfg, run, session, faults, fast_lane=not zopts.may_acl,
+                             supervised=supervised)
         return world.run()
