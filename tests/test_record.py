@@ -609,6 +609,7 @@ def test_the_tick_of_every_message_kind_is_read_in_one_place() -> None:
     assert [peek_tick(p) for p in bad] == [None] * len(bad)
     rec = RunRecord(cfg, RunConfig(run_id="r1", episodes=5))
     assert run_tick(peek_tick(RobotRollout(3, 2, []).pack()), rec, 40) == 40  # (the last one)
+    assert run_tick(None, rec, None) is None  # (none yet: the recorder holds it for the next)
     bundle = Bundle(3, 17, 1, trajs).pack()
     assert msgjson.to_json("bundle", bundle, cfg)["senders"] == [2, 0]
     stray = Traj(3, 16, 1, 2, 2, visited, [], patch).pack()  # another tick's message

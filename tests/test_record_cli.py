@@ -104,6 +104,18 @@ def test_swarm_record_joins_a_local_run_by_its_id_late(tmp_path: Path) -> None:
     first, last = (int(x) for x in r.stdout.split("(ticks ")[1].split(";")[0].split(".."))
     assert r.returncode == 0 and 0 < first < last == 60, r.stdout[-300:]
     assert f"recording starts mid-run: at run tick {first}" in r.stderr
+    # every message lies within the span: what came before the first tick named (the robots'
+    # statuses) was filed at run tick 0, and `--from` its first tick lost it (UA pass)
+    from swarm.net.record.recording import read
+
+    assert min(m.tick for m in read(f).messages) == first
+    counts = []
+    for flags in ([], ["--from", str(first)]):
+        js = tmp_path / "replayed.json"
+        r = swarm("replay", str(f), "--speed", "0", "--json", str(js), *flags)
+        assert r.returncode == 0, r.stderr
+        counts.append(json.loads(js.read_text())["messages"])
+    assert counts[0] == counts[1] == len(read(f).messages), counts
     r = swarm("replay", str(f), "--verify")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert f"starts mid-run, at run tick {first} (episode {first // 20}" in r.stderr

@@ -36,6 +36,7 @@ from swarm.procs.runconfig import RunRecord
 log = logging.getLogger("swarm.recorder")
 GRACE_S = 0.3  # after `end`: the robots' final statuses still come
 BACKLOG = 50_000  # messages whose JSON form waits for the run's end (~3 s to convert)
+HELD = 1_000  # messages held for a tick before the first that names one (then filed at 0)
 INTERRUPT_JSON_S = 1.0  # interrupted: JSON forms for this long, then the footer
 
 
@@ -60,7 +61,10 @@ class Recorder:
         self.foreign: dict[str, int] = {}
         self.stop = False
         self.result: dict[str, Any] | None = None
-        self.tick = 0  # the run tick of the world's last status
+        self.tick: int | None = None  # the run tick of the world's last status
+        # what came before any message naming its tick (a recorder that joined late): filed
+        # at the first tick named, the run's tick then as well as the recorder can know it
+        self.held: list[tuple[str, str, bytes, int]] = []
         self.backlog: list[tuple[str, str, bytes, int, int, int]] = []  # JSON still to write
 
     def _on_sample(self, s: zenoh.Sample) -> None:
@@ -137,11 +141,12 @@ class Recorder:
             except queue.Empty:
                 return
             self._write(w, rec, *item)
+        self._release(w, rec, 0)  # (no message named its tick: the run's tick is unknown)
 
     def _write(self, w: RecordingWriter, rec: RunRecord, wall_ns: int, key: str,
                payload: bytes) -> bool:
-        """Write one payload raw (its JSON form later, see `_convert`); True when it is this
-        run's `end` record."""
+        """File one payload at its run tick (held while none is known, see `held`); True when it
+        is this run's `end` record."""
         self.c.received += 1
         kind, robot = self.keys.kind_of(key)
         if not kind or (robot is not None and robot >= rec.world.n_robots):
@@ -163,14 +168,31 @@ class Recorder:
         elif kind != "rstatus":
             head = peek_tick(payload)
         tick = run_tick(head, rec, self.tick)
+        if tick is None:
+            self.held.append((key, kind, payload, wall_ns))
+            if len(self.held) >= HELD:
+                self._release(w, rec, 0)
+            return is_end
         if kind == "status":  # (the clock of messages that name no tick: a stale or stray
             self.tick = tick  # message's own tick does not move it back or ahead)
+        self._release(w, rec, tick)
+        self._file(w, rec, key, kind, payload, wall_ns, tick)
+        return is_end
+
+    def _release(self, w: RecordingWriter, rec: RunRecord, tick: int) -> None:
+        """File the held messages at run tick `tick`, in the order they came."""
+        for key, kind, payload, wall_ns in self.held:
+            self._file(w, rec, key, kind, payload, wall_ns, tick)
+        self.held.clear()
+
+    def _file(self, w: RecordingWriter, rec: RunRecord, key: str, kind: str, payload: bytes,
+              wall_ns: int, tick: int) -> None:
+        """Write one payload raw, at run tick `tick` (its JSON form later, see `_convert`)."""
         vtime = int(round(tick * rec.run.tick_timeout * 1e9))
         w.message(key, kind, payload, None, wall_ns, tick, vtime)
         self.backlog.append((key, kind, payload, wall_ns, tick, vtime))
         if len(self.backlog) >= BACKLOG:
             self._convert(w)
-        return is_end
 
     def _convert(self, w: RecordingWriter, deadline: float | None = None) -> int:
         """The JSON forms of the messages written raw so far (after the run, or when the backlog
@@ -189,9 +211,9 @@ class Recorder:
         return skipped
 
 
-def run_tick(head: tuple[Any, Any] | None, rec: RunRecord, last: int) -> int:
+def run_tick(head: tuple[Any, Any] | None, rec: RunRecord, last: int | None) -> int | None:
     """The run tick of a message with (episode, tick) `head` (a status: the tick it ends),
-    else the last one seen."""
+    else the last one seen (None: none yet)."""
     ep, t = head or (None, None)
     if isinstance(ep, int) and isinstance(t, int) and 0 <= t <= rec.world.horizon and \
             rec.run.first_episode <= ep < rec.run.first_episode + rec.run.episodes:

@@ -10,8 +10,9 @@ Layout of a recording (format FORMAT):
   `jsonschema` schema per message kind (`swarm.net.record.msgjson`): the validated, decoded message;
 - every message: log time = wall clock at receipt (ns since the epoch), publish time = the
   run's virtual time at its tick (ns), sequence = the run tick: its own for the kinds of
-  `TICKED`, the last one the recorder saw for the others (0 before any, as in a recorder that
-  joined a run late: `RawRecording.span` gives the ticks a recording holds).
+  `TICKED`, the last one the recorder saw for the others (before any, as in a recorder that
+  joined a run late: the first tick a message names after them, so no message lies before
+  the span; `RawRecording.span` gives the ticks a recording holds).
 
 Chunks are small and flushed every `flush_s`, so a SIGKILLed recorder leaves every chunk
 flushed before it readable (`read(..., partial=True)`). The reader treats the file as hostile:
