@@ -178,7 +178,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                   f"({rec.record.run.policy}, {rec.record.run.clock} clock), {report.ticks} "
                   f"ticks recomputed; {checked}: every one as recorded" + (
                       f"; {report.unreadable} unreadable messages skipped, as the live processes "
-                      "dropped them" if report.unreadable else ""))
+                      "dropped them" if report.unreadable else ""), soft_wrap=True)  # (one line)
         return 0
     try:
         view, stats = replay(rec, out, speed=args.speed, from_tick=args.from_tick,

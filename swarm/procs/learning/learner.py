@@ -106,7 +106,7 @@ class Learner:
         self.ckpt = self.out / "checkpoint.pt"
         self.curves = CurveLog(self.out)
         self.c = LearnerCounters()
-        self.version = 0
+        self.version = self.saved = 0  # saved: the version its checkpoint file holds
         self.seed: int | None = None  # the run's seed its episodes are joined with (`run`)
         check_learned(lc.policy, "the learner")
         cls = policy_class(lc.policy)
@@ -118,7 +118,7 @@ class Learner:
             self.policy = cls(cfg, checkpoint=self.ckpt)
             self.opt = torch.optim.Adam(self.policy.net.parameters(), lr=tc.lr)
             self.opt.load_state_dict(state["optimizer"])
-            self.version = int(state["version"])
+            self.version = self.saved = int(state["version"])
             known = {f.name for f in dataclasses.fields(LearnerCounters)}
             self.c = LearnerCounters(**{k: v for k, v in state["counters"].items() if k in known})
         else:
@@ -335,6 +335,7 @@ class Learner:
                               "counters": dataclasses.asdict(self.c),
                               **({} if self.seed is None else {"seed": self.seed})}
         save_checkpoint(self.ckpt, payload)
+        self.saved = self.version  # (a Ctrl-C during the update or the write leaves the last)
 
     def accounting(self) -> dict[str, int]:
         """Where every episode heard of is: received = trained + pending + stale_dropped +
@@ -421,7 +422,7 @@ def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptio
         status = learner.run(session, seed, stop)
     # where its weights are, however it ended (its checkpoint is written, atomically, at
     # every update); a learner fed by rollout workers alone ends only by Ctrl-C
-    kept = f"version {learner.version} in {learner.ckpt}" if learner.ckpt.is_file() else \
+    kept = f"version {learner.saved} in {learner.ckpt}" if learner.ckpt.is_file() else \
         f"no update (fewer than {learner.tc.batch} episodes): no checkpoint written"
     why = f"run {lc.run_id} ended ({learner.ended})" if learner.ended else "stopped"
     print(f"swarm learner: {why}; {kept}", file=sys.stderr, flush=True)
