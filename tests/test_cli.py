@@ -105,6 +105,20 @@ def test_eval_compares_policies_paired_and_writes_every_episode(tmp_path: Path) 
         assert res[k]["elratio_paired"]["se"] == pytest.approx(diff.std(ddof=1) / 5 ** 0.5)
 
 
+def test_a_reader_that_goes_away_is_said_not_a_silent_exit_1() -> None:
+    """`swarm eval ... | true`: rich's own answer to a closed stdout was a silent exit 1 (for
+    `replay --verify`, the status of a divergence); it is one line and 141, as a shell reports
+    a SIGPIPE, as `swarm run --headless | head` already said."""
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "eval", "--policy", "random",
+                             "--robots", "2", "--episodes", "2"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    proc.stdout.close()  # (before it prints: its results table meets a closed pipe)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 141, err
+    assert err.strip().splitlines()[-1] == "swarm: stdout was closed (its reader went away)", err
+
+
 def test_a_paired_difference_of_one_episode_says_it_has_no_standard_error() -> None:
     """UA pass 61: `swarm eval --episodes 1` with two policies printed "-0.0081 ± nan"."""
     import numpy as np

@@ -309,10 +309,12 @@ def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[st
     data[at:at + 200] = bytes(b ^ 0xFF for b in data[at:at + 200])
     holed = tmp_path / "holed.mcap"
     holed.write_bytes(bytes(data))
-    r = swarm("replay", str(holed), "--partial", "--verify")
+    r = swarm("replay", str(holed), "--partial", "--verify", "--json", str(tmp_path / "h.json"))
     line = r.stderr.strip().splitlines()[-1]
     assert r.returncode == 1 and line.startswith(f"swarm: verify: {holed}: damaged at byte ") \
         and "ticks before it are as recorded" in line, r.stdout + r.stderr
+    h = json.loads((tmp_path / "h.json").read_text())  # (its JSON said ok: true)
+    assert h["damaged"] and not h["ok"], h
 
 
 @pytest.mark.procs

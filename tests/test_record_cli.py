@@ -413,11 +413,11 @@ def test_replay_and_trace_refuse_to_write_over_their_recording(tmp_path: Path,
     before = good.read_bytes()
     for argv, why in (
             (["replay", str(good), "--verify", "--json", str(good)],
-             f"--json {good} is also FILE, which this command reads"),
+             f"--json {good} is also the input file, which this command reads"),
             (["replay", str(good), "--speed", "0", "--json", f"{tmp_path}/./good.mcap"],
-             "is also FILE, which this command reads"),
+             "is also the input file, which this command reads"),
             (["trace", str(good), "--out", str(tmp_path / "t"), "--json", str(good)],
-             "is also FILE"),
+             "is also the input file"),
             (["trace", str(good), "--out", str(tmp_path / "t"), "--json", str(tmp_path / "t")],
              "--json and --out are the same file")):
         code, err = swarm_main(*argv, capsys=capsys)

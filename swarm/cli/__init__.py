@@ -26,12 +26,14 @@ if threading.current_thread() is threading.main_thread() and \
     signal.signal(signal.SIGINT, lambda sig, frame: _early_interrupt.append(sig))
 
 import argparse  # noqa: E402
+import os  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
 from swarm.cli import batch, hosts, learn, record, run, secure  # noqa: E402
 from swarm.cli.checks import check_paths  # noqa: E402
 from swarm.cli.common import _Parser  # noqa: E402
+from swarm.common.report import OutputClosed  # noqa: E402
 from swarm.common.spawn import (  # noqa: E402
     die_with_parent,
     terminate_as_interrupt,
@@ -121,6 +123,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"swarm: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+    except (BrokenPipeError, OutputClosed):  # (`swarm eval ... | head`: the reader went away)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # (a quiet exit flush)
+        print("swarm: stdout was closed (its reader went away)", file=sys.stderr)
+        return 141
     except OSError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return 1

@@ -21,8 +21,9 @@ from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from he
 from swarm.procs.runconfig import RunConfig
 from world.config import ConfigError, WorldConfig
 
-INPUT_FLAGS = {"file": "FILE", "config": "--config", "spec": "--spec", "checkpoint": "--checkpoint",
-               "curve": "--curve", "init": "--init", "zenoh_config": "--zenoh-config"}
+INPUT_FLAGS = {"file": "the input file", "config": "--config", "spec": "--spec",
+               "checkpoint": "--checkpoint", "curve": "--curve", "init": "--init",
+               "zenoh_config": "--zenoh-config"}
 """Flags (by argparse dest) of every command that name a file it reads."""
 OUTPUT_FLAGS = {"json": "--json", "episodes_csv": "--episodes-csv", "record": "--record",
                 "out": "--out", "log_dir": "--log-dir", "learner_out": "--learner-out"}

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, NoReturn, Self
 
 from swarm.common.atomic import in_place
+from swarm.common.report import OutputClosed
 from world.config import (
     ConfigError,
     WorldConfig,
@@ -218,7 +219,12 @@ def _consoles() -> tuple[Any, Any]:
     out = Console()
     if not out.is_terminal:
         out = Console(width=max(out.width, 120))
+    out.on_broken_pipe = _output_closed  # (rich's own: a silent exit 1, read as a failure)
     return out, Console(stderr=True)
+
+
+def _output_closed() -> None:
+    raise OutputClosed  # (swarm.cli.main: one line, exit 141)
 
 
 def _command() -> str:
@@ -307,7 +313,8 @@ def output_file(path: str | None, flag: str = "--json") -> None:
             return
         parent = target.parent if str(target.parent) else Path(".")
         if not parent.is_dir():
-            raise ConfigError(f"{flag} {path}: directory {parent} does not exist")
+            raise ConfigError(f"{flag} {path}: {parent} " + (
+                "is a file, not a directory" if parent.exists() else "does not exist"))
         if target.exists() and not os.access(target, os.W_OK):
             raise ConfigError(f"{flag} {path} is not writable")
         with tempfile.TemporaryFile(dir=parent):  # written beside it, then renamed (atomic.py)

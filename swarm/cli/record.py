@@ -141,23 +141,26 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if rec.raw.damaged:  # (the recorder may well have finished it: say only what is known)
         err.print(f"[yellow]damaged recording[/]: unreadable at byte {rec.raw.end_offset} of "
                   f"{rec.raw.size}; using the {len(rec.messages)} messages before it (up to run "
-                  f"tick {rec.last_tick})")
+                  f"tick {rec.last_tick})", soft_wrap=True)
     elif not rec.raw.complete:
         err.print(f"[yellow]partial recording[/]: the recorder stopped at run tick "
-                  f"{rec.last_tick}; using the {len(rec.messages)} messages before the cut")
+                  f"{rec.last_tick}; using the {len(rec.messages)} messages before the cut",
+                  soft_wrap=True)
     if first > 0:
         err.print(f"[yellow]recording starts mid-run[/]: at run tick {first} (the recorder "
-                  "joined late)")
+                  "joined late)", soft_wrap=True)
     if args.verify:
         from swarm.studies.verify import verify
 
         report = verify(rec)
         div = report.divergence
         checked = ", ".join(f"{v} {k}" for k, v in report.checked.items())
+        empty = not report.ticks and not report.checked.get("results")  # (cut at its start)
         summary = {"file": args.file, "run_id": rec.record.run.run_id,
                    "clock": rec.record.run.clock, "ticks": report.ticks, "checked": report.checked,
-                   "unreadable": report.unreadable,
-                   "notes": report.notes, "ok": div is None,
+                   "unreadable": report.unreadable, "notes": report.notes,
+                   "damaged": rec.raw.damaged,  # (ok as the exit status: no hole, no void)
+                   "ok": div is None and not empty and not rec.raw.damaged,
                    "divergence": None if div is None else vars(div) | {"line": div.line()}}
         _output_json(args.json, summary)
         for note in report.notes:
@@ -165,7 +168,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if div is not None:
             print(f"swarm: verify: {args.file}: {div.line()}", file=sys.stderr)
             return 1
-        if not report.ticks and not report.checked.get("results"):  # (a file cut at its start)
+        if empty:
             print(f"swarm: verify: {args.file}: nothing to verify (no complete tick and no "
                   "result in it)", file=sys.stderr)
             return 1

@@ -462,7 +462,8 @@ def add_parsers(sub: Any) -> None:
     p = sub.add_parser("fault", help="change the faults of a running swarm",
                        description="Live fault injection into run RUN: link faults apply from "
                                    "the world's next tick (or --at-tick K); --crash/--hang/"
-                                   "--restart ROBOT@TICK at run tick TICK, ROBOT alone at once.")
+                                   "--restart ROBOT@TICK at run tick TICK, ROBOT alone at once "
+                                   "(a `swarm run`'s robots only: its supervisor does them).")
     p.add_argument("--run", required=True, help="run id (see the dashboard)")
     p.add_argument("--replace", action="store_true",
                    help="replace the link faults in force instead of changing the given ones")
