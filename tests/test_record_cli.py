@@ -419,10 +419,17 @@ def test_replay_and_trace_refuse_to_write_over_their_recording(tmp_path: Path,
             (["trace", str(good), "--out", str(tmp_path / "t"), "--json", str(good)],
              "is also the input file"),
             (["trace", str(good), "--out", str(tmp_path / "t"), "--json", str(tmp_path / "t")],
-             "--json and --out are the same file")):
+             "--json and --out are the same file"),
+            (["trace", str(good), "--out", str(tmp_path / "t"), "--json",
+              str(tmp_path / "t" / "kinds.csv")], "--json and --out's kinds.csv are the same")):
         code, err = swarm_main(*argv, capsys=capsys)
         assert code == 2 and len(err.splitlines()) == 1 and why in err, (argv, err)
     assert good.read_bytes() == before and not (tmp_path / "t").exists()
+    # a recording named like a file trace writes, in its --out folder
+    named = tmp_path / "links.csv"
+    named.write_bytes(before)
+    code, err = swarm_main("trace", str(named), "--out", str(tmp_path), capsys=capsys)
+    assert code == 2 and "--out's links.csv" in err and named.read_bytes() == before, err
 
 
 def test_json_forms_may_be_missing_only_where_the_recorder_never_wrote_them(

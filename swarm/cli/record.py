@@ -221,11 +221,15 @@ def cmd_trace(args: argparse.Namespace) -> int:
     import shutil
 
     from swarm.studies.replay import load
-    from swarm.studies.trace import trace
+    from swarm.cli.checks import distinct_paths
+    from swarm.studies.trace import WRITES, trace
 
     named_dir(args.out, "--out")  # (before the file is read; Path("") is the working directory)
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ConfigError(f"--out {args.out} exists and is not a directory")
+    distinct_paths({"the input file": args.file},  # (DIR/links.csv as FILE or --json)
+                   {"--json": args.json, **{f"--out's {f}": str(Path(args.out) / f)
+                                            for f in WRITES}})
     output_file(args.json)
     rec = load(args.file, partial=args.partial)  # a bad file fails before --out is made
     if rec.raw.span() is None:

@@ -58,6 +58,10 @@ from swarm.net.messages import (
 )
 from swarm.studies.replay import Recording
 
+WRITES = ("links.csv", "robots.csv", "kinds.csv", "elratio.csv", "attention.csv", "links.png",
+          "latency.png", "elratio.png", "attention.png", "notes.txt")
+"""Every file `trace` may write into its folder (what it writes is in `files` of its result)."""
+
 ATTN_FLOOR = 1e-6  # attention weights are drawn on a log scale down to this
 
 
