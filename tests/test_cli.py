@@ -857,12 +857,22 @@ def test_an_output_over_an_input_or_another_output_is_refused_before_anything_ru
           "--episodes-csv", str(ckpt)], f"--episodes-csv {ckpt} is also --checkpoint"),
         (["learner", "--run-id", "r1", "--out", str(logs), "--json", str(logs / "curve.csv")],
          "--json and --out's curve.csv are the same file"))
+    # the files a config file names count as their flags do, and a flag overrides its key
+    both = tmp_path / "both.toml"
+    both.write_text(f'[eval]\njson = "{tmp_path}/e.csv"\nepisodes_csv = "{tmp_path}/e.csv"\n'
+                    f'checkpoints = {{ commattn = "{ckpt}" }}\n')
+    cases += ((["eval", "--config", str(both), "--episodes", "2"],
+               "[eval] json and [eval] episodes_csv are the same file"),
+              (["eval", "--config", str(both), "--episodes-csv", str(ckpt)],
+               f"--episodes-csv {ckpt} is also [eval] checkpoints"),
+              (["eval", "--config", str(both), "--episodes-csv", str(tmp_path / "f.csv"),
+                "--json", str(both)], "--json"))
     for argv, why in cases:
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and why in err, (argv, err)
     assert ckpt.read_bytes() == before and not logs.exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck.pt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["both.toml", "ck.pt"]
     # a device is written in place, never replaced: two outputs may share /dev/null
     assert main(["eval", "--episodes", "1", "--batch", "1", "--policy", "random", "--json",
                  "/dev/null", "--episodes-csv", "/dev/null"]) == 0

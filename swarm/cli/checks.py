@@ -64,15 +64,56 @@ def distinct_paths(inputs: dict[str, Any], outputs: dict[str, Any]) -> None:
         seen.append((flag, path))
 
 
+FILE_KEYS = {"eval": {"eval": {"checkpoint": "checkpoint", "checkpoints": "checkpoint",
+                                "json": "json", "episodes_csv": "episodes_csv"}},
+             "repro": {"repro": {"checkpoints": "checkpoint", "json": "json", "out": "out"}},
+             "train": {"train": {"init": "init"}},
+             "run": {"learner": {"out": "learner_out"}},
+             "learner": {"learner": {"checkpoint": "checkpoint", "out": "out"}},
+             "bench": {"bench": {"json": "json", "out": "out", "checkpoint": "checkpoint",
+                                 "checkpoints": "checkpoint"}}}
+"""Per command, the config file's keys (per table) that name a file, and the flag (dest) each
+stands for: a key the flag overrides is not read."""
+
+
 def check_paths(args: argparse.Namespace) -> None:
-    """Every command's file flags (INPUT_FLAGS, OUTPUT_FLAGS) through `distinct_paths`, before
-    the command runs; of a repeatable `NAME=FILE` flag, the FILE."""
+    """Every command's file flags (INPUT_FLAGS, OUTPUT_FLAGS) and the files its config file
+    names (FILE_KEYS) through `distinct_paths`, before the command runs; of a repeatable
+    `NAME=FILE` flag, the FILE."""
     def paths(flags: dict[str, str]) -> dict[str, Any]:
         return {flag: [p if Path(p).exists() or "=" not in p else p.partition("=")[2]
                        for p in v] if isinstance(v, list) else v
                 for dest, flag in flags.items() if (v := getattr(args, dest, None)) is not None}
 
-    distinct_paths(paths(INPUT_FLAGS), paths(OUTPUT_FLAGS))
+    inputs, outputs = paths(INPUT_FLAGS), paths(OUTPUT_FLAGS)
+    for label, dest, value in _file_keys(args):
+        (outputs if dest in OUTPUT_FLAGS else inputs)[label] = value
+    distinct_paths(inputs, outputs)
+
+
+def _file_keys(args: argparse.Namespace) -> list[tuple[str, str, Any]]:
+    """(`[table] key`, flag dest, path or paths) of the files the command's config file names
+    that no flag overrides; a file that fails to load is left to the command's own error."""
+    from swarm.cli.common import file_tables
+
+    keys, found = FILE_KEYS.get(getattr(args, "command", None) or "", {}), []
+    if not keys or not getattr(args, "config", None):
+        return []
+    try:
+        tables = file_tables(args.config)
+    except ConfigError:
+        return []
+    for name, fields in keys.items():
+        table = tables.get(name, {})
+        if name == "bench":
+            table, name = table.get(getattr(args, "what", ""), {}), f"bench.{args.what}"
+        for key, dest in fields.items():
+            value = table.get(key) if isinstance(table, dict) else None
+            if isinstance(value, dict):  # (NAME = FILE pairs)
+                value = [v for v in value.values() if isinstance(v, str)]
+            if isinstance(value, (str, list)) and getattr(args, dest, None) is None:
+                found.append((f"[{name}] {key}", dest, value))
+    return found
 
 
 def check_clock(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig,

@@ -220,8 +220,8 @@ def _new_dirs(path: str) -> Path | None:
 def cmd_trace(args: argparse.Namespace) -> int:
     import shutil
 
-    from swarm.studies.replay import load
     from swarm.cli.checks import distinct_paths
+    from swarm.studies.replay import load
     from swarm.studies.trace import WRITES, trace
 
     named_dir(args.out, "--out")  # (before the file is read; Path("") is the working directory)
