@@ -91,30 +91,38 @@ def read_mcap(path: Path) -> tuple[dict[str, Any], list[tuple[str, str, bytes, A
 
 
 def rewrite(src: Path, dst: Path, edit_msg: Any = None, edit_meta: Any = None,
-            rename: Any = None) -> None:
-    """Copy a recording with the mcap reader and writer, editing messages, metadata or topics."""
+            rename: Any = None, chunk_size: int = 1024 * 1024, in_time: bool = False) -> None:
+    """Copy a recording with the mcap reader and writer, editing messages, metadata or topics;
+    `in_time`: messages in log-time order (a JSON form beside its raw payload), else as filed."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
     with open(src, "rb") as fh, open(dst, "wb") as out:
         reader = make_reader(fh)
         summ = reader.get_summary()
-        w = Writer(out)
+        w = Writer(out, chunk_size=chunk_size)
         w.start(profile=reader.get_header().profile, library="test")
         fh.seek(0)
         for md in make_reader(fh).iter_metadata():
             w.add_metadata(md.name, (edit_meta or (lambda n, d: d))(md.name, dict(md.metadata)))
         fh.seek(0)
         for a in make_reader(fh).iter_attachments():
-            w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
+            if a.name == "run_record.json":
+                w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
         sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summ.schemas.items()}
         cids = {i: w.register_channel((rename or (lambda t: t))(c.topic), c.message_encoding,
                                       sids.get(c.schema_id, 0), c.metadata)
                 for i, c in summ.channels.items()}
         fh.seek(0)
-        for _, ch, m in make_reader(fh).iter_messages(log_time_order=False):
+        for _, ch, m in make_reader(fh).iter_messages(log_time_order=in_time):
             data = (edit_msg or (lambda t, d: d))(ch.topic, bytes(m.data))
+            if data is None:  # (the edit deletes it)
+                continue
             w.add_message(cids[m.channel_id], m.log_time, data, m.publish_time, m.sequence)
+        fh.seek(0)  # (but the run record, after the messages, as the recorder files them)
+        for a in make_reader(fh).iter_attachments():
+            if a.name != "run_record.json":
+                w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
         w.finish()
 
 
@@ -304,8 +312,15 @@ def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[st
     r = swarm("replay", str(cut), "--partial", "--verify")
     assert r.returncode == 0 and "every one as recorded" in r.stdout, r.stdout + r.stderr
     # a file with a hole in it is no pass, even with --partial (it passed on the ticks before)
-    data = bytearray(recorded["file"].read_bytes())
-    at = len(data) // 3  # (in the messages' chunks: the attachments and JSON forms come after)
+    from mcap.reader import make_reader
+
+    small = tmp_path / "small.mcap"  # (chunks of 4 kB, however the recorder's flushes fell)
+    rewrite(recorded["file"], small, chunk_size=4096, in_time=True)
+    data = bytearray(small.read_bytes())
+    with open(small, "rb") as fh:  # inside a chunk a third in: whole ticks before it
+        chunks = sorted(make_reader(fh).get_summary().chunk_indexes,
+                        key=lambda c: c.chunk_start_offset)
+    at = chunks[len(chunks) // 3].chunk_start_offset + 100
     data[at:at + 200] = bytes(b ^ 0xFF for b in data[at:at + 200])
     holed = tmp_path / "holed.mcap"
     holed.write_bytes(bytes(data))
@@ -341,6 +356,10 @@ def test_verify_checks_every_json_form_against_the_raw_payload_beside_it(
         return data.replace(b'"robot":1', b'"robot":0') if topic.endswith("robot/1/action/json") \
             else data
 
+    def deleted(topic: str, data: bytes) -> bytes | None:  # one form gone: named as missing,
+        obj = json.loads(data) if topic == "swarm/rec15/robot/2/action/json" else {}
+        return None if obj.get("t") == 3 else data  # not as the next one's changed field
+
     bad = tmp_path / "edited.mcap"
     for edit, said in ((action, "episode 0 tick 3 (run tick 3): swarm/rec15/robot/2/action/json "
                                 "action (the JSON form of the raw payload beside it): recorded"),
@@ -348,7 +367,9 @@ def test_verify_checks_every_json_form_against_the_raw_payload_beside_it(
                                  "elratio (the JSON form of the raw payload beside it): recorded "
                                  "0.999, recomputed"),
                        (stray, "swarm/rec15/robot/1/action/json robot (the JSON form of the raw "
-                               "payload beside it): recorded 0, recomputed 1")):
+                               "payload beside it): recorded 0, recomputed 1"),
+                       (deleted, "episode 0 tick 3 (run tick 3): swarm/rec15/robot/2/action/json "
+                                 "(no JSON form of the raw payload beside it)")):
         rewrite(recorded["file"], bad, edit_msg=edit)
         r = swarm("replay", str(bad), "--verify")
         line = r.stderr.strip().splitlines()[-1]

@@ -331,18 +331,27 @@ def check_json_forms(raw: RawRecording, cfg: WorldConfig
     lack any (they are written after the run), never hold one with no raw payload."""
     keys = Keys(raw.meta.get("run_id", ""))
     expected: dict[str, list[tuple[int, RawMessage, Any]]] = {}
+    at: dict[tuple[str, int, int, int], list[int]] = {}  # (key, times) -> places in expected
     for idx, msg in enumerate(raw.messages):
         form = json_form(keys.kind_of(msg.key)[0] or "", msg.payload, cfg)
         if form is not None:  # (as a JSON reader reads it back: tuples are lists)
-            expected.setdefault(msg.key, []).append((idx, msg, json.loads(form[1])))
-    seen: dict[str, int] = {}
+            forms = expected.setdefault(msg.key, [])
+            at.setdefault((msg.key, msg.tick, msg.vtime_ns, msg.wall_ns), []).append(len(forms))
+            forms.append((idx, msg, json.loads(form[1])))
+    used: dict[str, set[int]] = {}
     for n, js in enumerate(raw.json_messages):
-        k = seen[js.key] = seen.get(js.key, 0) + 1
         topic, beside = js.key + JSON_SUFFIX, " (the JSON form of the raw payload beside it)"
-        if k > len(expected.get(js.key, [])):
+        taken = used.setdefault(js.key, set())
+        # paired by times (a deleted form is then one missing, not the next one's change)
+        same = [k for k in at.get((js.key, js.tick, js.vtime_ns, js.wall_ns), ())
+                if k not in taken]
+        k = same[0] if same else next(
+            (k for k in range(len(expected.get(js.key, []))) if k not in taken), None)
+        if k is None:
             return n, (f"{topic} (a JSON form with no raw payload beside it)", js.tick,
                        (None, None), js.payload.decode("utf-8", "replace"), None)
-        _, msg, want = expected[js.key][k - 1]
+        taken.add(k)
+        _, msg, want = expected[js.key][k]
         head = (want.get("ep"), want.get("t"))
         try:
             got = json.loads(js.payload)
@@ -364,7 +373,8 @@ def check_json_forms(raw: RawRecording, cfg: WorldConfig
         except ValueError:
             last = len(raw.messages)
         missing = [(idx, key, msg, want) for key, forms in expected.items()
-                   for idx, msg, want in forms[seen.get(key, 0):] if idx < last]
+                   for k, (idx, msg, want) in enumerate(forms)
+                   if k not in used.get(key, ()) and idx < last]
         if missing:
             _, key, msg, want = min(missing, key=lambda m: m[0])
             return len(raw.json_messages), (
