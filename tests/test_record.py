@@ -326,8 +326,10 @@ def test_verify_passes_and_names_the_tick_of_an_altered_action(recorded: dict[st
     holed.write_bytes(bytes(data))
     r = swarm("replay", str(holed), "--partial", "--verify", "--json", str(tmp_path / "h.json"))
     line = r.stderr.strip().splitlines()[-1]
-    assert r.returncode == 1 and line.startswith(f"swarm: verify: {holed}: damaged at byte ") \
+    assert r.returncode == 1 and line.startswith(f"swarm: verify: {holed}: damaged at bytes ") \
         and "ticks before it are as recorded" in line, r.stdout + r.stderr
+    first, last = map(int, line.split(" at bytes ")[1].split(" of ")[0].split("-"))
+    assert first <= at < last, line  # (the chunk that holds the flipped bytes, not its end)
     h = json.loads((tmp_path / "h.json").read_text())  # (its JSON said ok: true)
     assert h["damaged"] and not h["ok"], h
 

@@ -266,9 +266,9 @@ def test_a_file_damaged_in_the_middle_is_not_called_cut_by_the_recorder(
     data[at:at + 200] = bytes(b ^ 0xFF for b in data[at:at + 200])
     mid.write_bytes(bytes(data))
     code, err = swarm_main("replay", str(mid), "--speed", "0", capsys=capsys)
-    assert code == 2 and "is damaged or cut: unreadable at byte" in err, err
+    assert code == 2 and "is damaged or cut: unreadable at bytes " in err, err
     code, err = swarm_main("replay", str(mid), "--speed", "0", "--partial", capsys=capsys)
-    assert "damaged recording: unreadable at byte" in err and "recorder stopped" not in err, err
+    assert "damaged recording: unreadable at bytes " in err and "recorder stopped" not in err, err
     cut = tmp_path / "cut.mcap"  # a file cut short is still the recorder stopping
     cut.write_bytes(good.read_bytes()[:-100])
     code, err = swarm_main("replay", str(cut), "--speed", "0", "--partial", capsys=capsys)

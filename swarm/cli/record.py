@@ -139,8 +139,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
                           f"{first}..{last})")
     out, err = _consoles()
     if rec.raw.damaged:  # (the recorder may well have finished it: say only what is known)
-        err.print(f"[yellow]damaged recording[/]: unreadable at byte {rec.raw.end_offset} of "
-                  f"{rec.raw.size}; using the {len(rec.messages)} messages before it (up to run "
+        err.print(f"[yellow]damaged recording[/]: unreadable at {rec.raw.where_bad()}; using "
+                  f"the {len(rec.messages)} messages before it (up to run "
                   f"tick {rec.last_tick})", soft_wrap=True)
     elif not rec.raw.complete:
         err.print(f"[yellow]partial recording[/]: the recorder stopped at run tick "
@@ -173,8 +173,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
                   "result in it)", file=sys.stderr)
             return 1
         if rec.raw.damaged:  # (an audit passes no file with a hole in it: cut is one thing)
-            print(f"swarm: verify: {args.file}: damaged at byte {rec.raw.end_offset} of "
-                  f"{rec.raw.size}: the {report.ticks} ticks before it are as recorded, what "
+            print(f"swarm: verify: {args.file}: damaged at {rec.raw.where_bad()}: the "
+                  f"{report.ticks} ticks before it are as recorded, what "
                   "follows is unreadable and not verified", file=sys.stderr)
             return 1
         out.print(f"verified {args.file}: run {rec.record.run.run_id} "

@@ -202,6 +202,12 @@ class RawRecording:
     damaged: bool = False  # not complete, and not for want of the rest: see `read`
     size: int = 0  # of the file, in bytes
     json_messages: list[RawMessage] = field(default_factory=list)  # key: its raw channel's
+    bad_from: int = 0  # where the record that failed starts (a damaged chunk: its first byte)
+
+    def where_bad(self) -> str:
+        """The bytes of the record that failed, as a reader can find them: a chunk's CRC names
+        the chunk, not the byte in it."""
+        return f"bytes {self.bad_from}-{self.end_offset} of {self.size}"
 
     def attachment(self, name: str) -> Any:
         """A JSON attachment, or None when absent; RecordingError when it does not parse."""
@@ -265,6 +271,7 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
                     forms.append(RawMessage(rec.log_time, rec.publish_time, rec.sequence,
                                             ch.topic[:-len(JSON_SUFFIX)], bytes(rec.data)))
 
+        good = fh.tell()  # (the end of the last record read whole: where a failed one starts)
         try:
             for rec in reader.records:
                 if isinstance(rec, Chunk):
@@ -283,6 +290,7 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
                     complete = True
                 else:
                     take(rec)
+                good = fh.tell()
         except RecordingError:
             raise
         except Exception as exc:  # anything a cut or corrupt file raises inside the reader
@@ -307,10 +315,11 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
     if not complete and not partial:
         last = max((m.tick for m in messages), default=0)
         if damaged:
-            raise RecordingError(f"{path} is damaged or cut: unreadable at byte {end} of {size} "
+            raise RecordingError(f"{path} is damaged or cut: unreadable at bytes {good}-{end} "
+                                 f"of {size} "
                                  f"({len(messages)} messages readable up to run tick {last}); "
                                  "--partial uses what is there")
-        why = f"unreadable at byte {end}" if error else "no footer"
+        why = f"unreadable at bytes {good}-{end}" if error else "no footer"
         raise RecordingError(f"{path} is truncated ({why}: the recorder stopped before the end; "
                              f"{len(messages)} messages readable up to run tick {last}); "
                              "--partial uses what is there")
@@ -318,7 +327,7 @@ def read(path: str | Path, partial: bool = False) -> RawRecording:
     return RawRecording(path, meta, attachments, stats,
                         [c.topic for c in channels.values() if c.message_encoding == "msgpack"],
                         [t for t in topics if t.endswith(JSON_SUFFIX)], messages, complete, end,
-                        damaged, size, forms)
+                        damaged, size, forms, good if error else end)
 
 
 def check_json_forms(raw: RawRecording, cfg: WorldConfig
