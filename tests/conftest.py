@@ -24,6 +24,32 @@ def swarm(*args: str, timeout: float = 180,
                           env={**os.environ, **env} if env else None)
 
 
+def swarm_here(*args: str, capsys: pytest.CaptureFixture[str]
+               ) -> subprocess.CompletedProcess[str]:
+    """`swarm ARGS` in this process, from the repository root as `swarm` runs it, returned as
+    `swarm` returns it: for commands that spawn nothing or only their own workers, and for
+    refusals (no interpreter or torch start; the signal handlers and working directory are put
+    back). The console entry itself is run as a subprocess by every `swarm` test."""
+    import signal
+
+    from swarm.cli import main
+
+    capsys.readouterr()
+    sigs = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+    handlers, cwd = [signal.getsignal(s) for s in sigs], os.getcwd()
+    os.chdir(ROOT)
+    try:
+        code = main(list(args))
+    except SystemExit as exc:  # (argparse's usage errors)
+        code = exc.code if isinstance(exc.code, int) else 1
+    finally:
+        os.chdir(cwd)
+        for sig, handler in zip(sigs, handlers, strict=True):
+            signal.signal(sig, handler)
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(["swarm", *args], code, out, err)
+
+
 def swarm_started(*args: str) -> subprocess.Popen[str]:
     """Start `python -m swarm.cli ARGS` (a headless run) and return once its first tick's status
     line is out, the run on; the caller waits for it (or kills it)."""

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from conftest import swarm
+from conftest import swarm_here
 
 from policies import make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, read_checkpoint, save_checkpoint
@@ -130,7 +130,8 @@ def one_line_error(r: Any, words: str) -> None:
 
 
 @pytest.mark.procs
-def test_every_command_refuses_a_bad_checkpoint_in_one_line(tmp_path: Path) -> None:
+def test_every_command_refuses_a_bad_checkpoint_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     nan = str(tiny_checkpoint(tmp_path / "nan.pt", nan=True))
     garbage = str(tiny_checkpoint(tmp_path / "garbage.pt", model="garbage"))
     whole = str(tiny_checkpoint(tmp_path / "int.pt", dtype=torch.int64))
@@ -138,23 +139,26 @@ def test_every_command_refuses_a_bad_checkpoint_in_one_line(tmp_path: Path) -> N
     # (each reader's refusal of every dtype: the test above; here, that each command reaches
     # them: complex64 stops the torch-free reader of `run` at its storage, int64 after it)
     # (`eval` reads with torch, as `train --init` and `bench policy` do: one of each suffices)
-    one_line_error(swarm("eval", "--policy", "commattn", "--checkpoint", nan, "--episodes",
-                         "1", "--robots", "2", "--horizon", "5", timeout=60), "non-finite weights")
+
+    def swarm_(*args: str) -> Any:
+        return swarm_here(*args, capsys=capsys)
+
+    one_line_error(swarm_("eval", "--policy", "commattn", "--checkpoint", nan, "--episodes",
+                          "1", "--robots", "2", "--horizon", "5"), "non-finite weights")
     for bad, words in ((nan, "non-finite weights"), (whole, "weight s0 is int64"),
                        (complex_, "weight s0 is complex64")):
-        one_line_error(swarm("run", "--headless", "--policy", "commattn", "--checkpoint", bad,
-                             "--robots", "2", "--episodes", "1", "--horizon", "5",
-                             "--log-dir", str(tmp_path / "logs"), timeout=60), words)
-    one_line_error(swarm("bench", "policy", "--policies", "commattn", "--checkpoint",
-                         f"commattn={whole}", timeout=60), "weight s0 is int64")
-    one_line_error(swarm("train", "--init", garbage, "--out", str(tmp_path / "t"),
-                         "--epochs", "1", timeout=60), "field 'model' is a str")
+        one_line_error(swarm_("run", "--headless", "--policy", "commattn", "--checkpoint", bad,
+                              "--robots", "2", "--episodes", "1", "--horizon", "5",
+                              "--log-dir", str(tmp_path / "logs")), words)
+    one_line_error(swarm_("bench", "policy", "--policies", "commattn", "--checkpoint",
+                          f"commattn={whole}"), "weight s0 is int64")
+    one_line_error(swarm_("train", "--init", garbage, "--out", str(tmp_path / "t"),
+                          "--epochs", "1"), "field 'model' is a str")
     run = tmp_path / "run"
     run.mkdir()
     raw = tiny_checkpoint(tmp_path / "good.pt").read_bytes()
     (run / "checkpoint.pt").write_bytes(raw[:len(raw) // 2])
-    one_line_error(swarm("train", "--resume", "--out", str(run), timeout=60),
-                   "not a torch checkpoint file")
+    one_line_error(swarm_("train", "--resume", "--out", str(run)), "not a torch checkpoint file")
 
 
 def test_a_checkpoint_for_a_hand_written_policy_is_one_line() -> None:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_here
 from rich.console import Console
 
 from swarm.cli.batch import EvalConfig
@@ -166,10 +166,11 @@ def test_a_paired_difference_of_one_episode_says_it_has_no_standard_error() -> N
     ["frobnicate"],
 ])
 @pytest.mark.procs
-def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str]) -> None:
+def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str],
+                                          capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "malformed.toml").write_text("[world\nn_robots = = 3\n")
     (tmp_path / "float_episodes.toml").write_text("[eval]\nepisodes = 1e300\n")
-    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args))
+    r = swarm_here(*(a.replace("{tmp}", str(tmp_path)) for a in args), capsys=capsys)
     assert r.returncode == 2, (r.stdout, r.stderr)
     lines = r.stderr.rstrip("\n").splitlines()  # (a progress display closed by the error
     assert len(lines) == 1 and lines[0].startswith("swarm: error: "), r.stderr  # left a line)
@@ -678,10 +679,11 @@ def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_pa
      "fig9 draws commnet and commattn only, not --policies random: name either"),
     (["fig9", "--policies", "commattn,random"], "only, not --policies random:")])
 def test_repro_refuses_a_flag_its_item_does_not_use(tmp_path: Path, flags: list[str],
-                                                     words: str) -> None:
+                                                     words: str,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
     """`repro fig9 --comm-range 3` made the same figure (and its Made-by line recorded the
     flag); `repro fig9 --vision 7` failed on commnet.pt though fig9 sweeps the vision."""
-    r = swarm("repro", *flags, "--out", str(tmp_path / "o"))
+    r = swarm_here("repro", *flags, "--out", str(tmp_path / "o"), capsys=capsys)
     assert r.returncode == 2 and words in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
 

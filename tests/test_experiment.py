@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_here
 
 from swarm.studies.experiment_plan import plan
 from world.config import ConfigError
@@ -78,11 +78,12 @@ def test_a_switch_in_a_sweep_or_config_file_must_be_a_boolean(tmp_path: Path, he
 
 @pytest.mark.procs
 @pytest.mark.parametrize("case", list(BAD_FILES))
-def test_a_bad_sweep_is_one_line_and_exit_2_before_any_run(tmp_path: Path, case: str) -> None:
+def test_a_bad_sweep_is_one_line_and_exit_2_before_any_run(
+        tmp_path: Path, case: str, capsys: pytest.CaptureFixture[str]) -> None:
     """What would fail in a robot process, or run a sweep nobody asked for, is refused first."""
     lines, words = BAD_FILES[case]
     out = tmp_path / "out"
-    r = swarm("experiment", sweep_file(tmp_path, lines), "--out", str(out), timeout=60)
+    r = swarm_here("experiment", sweep_file(tmp_path, lines), "--out", str(out), capsys=capsys)
     assert r.returncode == 2, (r.returncode, r.stderr[-500:])
     assert r.stderr.startswith("swarm: error: ") and len(r.stderr.strip().splitlines()) == 1
     assert all(w in r.stderr for w in words), r.stderr
@@ -120,12 +121,12 @@ def test_an_empty_file_a_directory_or_no_file_is_one_line_and_exit_2(tmp_path: P
     (["--episodes", "1", "--no-out"], "need --out DIR"),
     (["--empty-out"], "--out wants a directory, got an empty name"),  # (fell back to results/)
     (["--episodes", "1", "--empty-out"], "--out wants a directory, got an empty name")])
-def test_bad_episodes_or_seeds_flags_are_one_line_and_exit_2(flags: list[str],
-                                                              words: str) -> None:
+def test_bad_episodes_or_seeds_flags_are_one_line_and_exit_2(
+        flags: list[str], words: str, capsys: pytest.CaptureFixture[str]) -> None:
     out = [] if "--no-out" in flags else ["--out", "" if "--empty-out" in flags else
                                           "/nonexistent/x"]
     flags = [f for f in flags if f not in ("--no-out", "--empty-out")]
-    r = swarm("experiment", "deploy/experiments/tiny.toml", *out, *flags, timeout=60)
+    r = swarm_here("experiment", "deploy/experiments/tiny.toml", *out, *flags, capsys=capsys)
     assert r.returncode == 2 and words in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import swarm
+from conftest import swarm_here
 from rich.console import Console
 
 from policies import make_policy
@@ -387,19 +387,22 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path: Path) -> None:
 
 
 @pytest.mark.procs
-def test_resume_refuses_what_would_change_the_run(tmp_path: Path) -> None:
+def test_resume_refuses_what_would_change_the_run(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
     """--resume goes on with the checkpoint's config and world: a flag that would change the
     run's math is one line, before anything is written; epochs, workers and threads may change,
     and a flag left out keeps the checkpoint's value (not the default)."""
     out = str(tmp_path / "run")
-    first = swarm("train", "--policy", "commattn", "--out", out, "--epochs", "1", "--updates",
-                  "1", "--batch", "4", "--threads", "1", "--val-episodes", "0", "--seed", "3",
-                  "--robots", "3", "--size", "8x8", "--lr", "0.002")
+    first = swarm_here("train", "--policy", "commattn", "--out", out, "--epochs", "1",
+                       "--updates", "1", "--batch", "4", "--threads", "1", "--val-episodes", "0",
+                       "--seed", "3", "--robots", "3", "--size", "8x8", "--lr", "0.002",
+                       capsys=capsys)
     assert first.returncode == 0, first.stderr
     log = (tmp_path / "run" / "log.jsonl").read_bytes()
     for flags, says in ((["--lr", "0.1"], "lr = 0.1 differs from its 0.002"),
                         (["--robots", "5"], "n_robots = 5 differs from its 3")):
-        res = swarm("train", "--resume", "--out", out, "--epochs", "2", *flags)
+        res = swarm_here("train", "--resume", "--out", out, "--epochs", "2", *flags,
+                         capsys=capsys)
         assert res.returncode == 2 and says in res.stderr, res.stderr
         assert len(res.stderr.strip().splitlines()) == 1, res.stderr
         assert (tmp_path / "run" / "log.jsonl").read_bytes() == log  # nothing written
@@ -410,14 +413,16 @@ def test_resume_refuses_what_would_change_the_run(tmp_path: Path) -> None:
         asked = dataclasses.replace(saved, **{field: value, "epochs": 2})
         with pytest.raises(ConfigError, match=says):
             resumed(saved, asked, [field, "epochs"], 1, out)
-    res = swarm("train", "--resume", "--out", out, "--seed", "3", "--threads", "2")
+    res = swarm_here("train", "--resume", "--out", out, "--seed", "3", "--threads", "2",
+                     capsys=capsys)
     assert res.returncode == 0 and "all 1 epochs are done" in res.stdout + res.stderr
-    res = swarm("train", "--resume", "--out", out, "--epochs", "2", "--workers", "2")
+    res = swarm_here("train", "--resume", "--out", out, "--epochs", "2", "--workers", "2",
+                     capsys=capsys)
     assert res.returncode == 0, res.stderr
     saved = load_checkpoint(tmp_path / "run" / "checkpoint.pt")["train"]
     assert saved["epoch"] == 2 and saved["config"]["workers"] == 2
     assert saved["config"]["lr"] == 0.002 and saved["config"]["batch"] == 4
-    res = swarm("train", "--resume", "--out", out, "--epochs", "1")
+    res = swarm_here("train", "--resume", "--out", out, "--epochs", "1", capsys=capsys)
     assert res.returncode == 2 and "has already done 2 epochs" in res.stderr, res.stderr
 
 

@@ -17,7 +17,7 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_here
 
 from swarm.common.spawn import wait_port
 from swarm.learn.config import TrainConfig
@@ -64,10 +64,10 @@ BAD = [  # (argv, what the one line must say); {tmp}/o must not exist afterwards
 @pytest.mark.parametrize("args, says", BAD, ids=lambda a: " ".join(a)[:48] if isinstance(a, list)
                          else "")
 def test_a_bad_learning_input_is_one_line_exit_2_and_leaves_nothing(
-        tmp_path: Path, args: list[str], says: str) -> None:
+        tmp_path: Path, args: list[str], says: str, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "bad.toml").write_text("[learner]\nmax_staleness = -1\njoin_timeout = -5\n")
     (tmp_path / "bad2.toml").write_text("[learner]\njoin_timeout = -5\n")
-    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=60)
+    r = swarm_here(*(a.replace("{tmp}", str(tmp_path)) for a in args), capsys=capsys)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2, r.stderr[-2000:]
     assert len(lines) == 1 and lines[0].startswith("swarm: error: "), r.stderr

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_here
 
 pytest.importorskip("mcap")  # the `record` extra (in `test` too)
 
@@ -68,7 +68,8 @@ def test_trace_of_a_direct_run_counts_what_each_link_delivered(direct: dict[str,
 
 
 @pytest.mark.procs
-def test_replay_refuses_flags_it_would_ignore_or_that_do_not_fit(direct: dict[str, Any]) -> None:
+def test_replay_refuses_flags_it_would_ignore_or_that_do_not_fit(
+        direct: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
     f = str(direct["file"])
     cases = [(["--attention", "9"], f"--attention 9: run dtrace has robots 0..{ROBOTS - 1}"),
              (["--verify", "--from", "3"], "--from does nothing with --verify"),
@@ -78,10 +79,10 @@ def test_replay_refuses_flags_it_would_ignore_or_that_do_not_fit(direct: dict[st
              (["--speed", "1e9"], "--speed must lie in [0, 1000000]"),
              (["--speed", "-1"], "--speed must lie in [0, 1000000]")]
     for flags, why in cases:
-        r = swarm("replay", f, *flags)
+        r = swarm_here("replay", f, *flags, capsys=capsys)
         assert r.returncode == 2, (flags, r.stdout[-500:], r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and why in r.stderr, (flags, r.stderr)
-    r = swarm("replay", f, "--verify")  # the flags it takes still work
+    r = swarm_here("replay", f, "--verify", capsys=capsys)  # the flags it takes still work
     assert r.returncode == 0 and "every one as recorded" in r.stdout, r.stdout + r.stderr
 
 
