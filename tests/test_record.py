@@ -527,9 +527,20 @@ def test_trace_writes_tables_and_figures(recorded: dict[str, Any]) -> None:
     robots = list(csv.DictReader(open(out / "robots.csv")))
     assert [int(x["decisions"]) for x in robots] == [HORIZON] * ROBOTS
     assert all(float(x["latency_ms_p50"]) > 0 for x in robots)
-    if (out / "attention.png").exists():
-        rows = list(csv.DictReader(open(out / "attention.csv")))
-        assert any(x["distance"] == "0" for x in rows)
+    rows = list(csv.DictReader(open(out / "attention.csv")))
+    # every 5th tick's attention of each robot, once (its final status repeated the last one)
+    per_robot = len(range(0, HORIZON, 5))
+    assert sorted(int(x["samples"]) for x in rows if x["distance"] == "0") == [per_robot] * ROBOTS
+    made = json.loads((out / "trace.json").read_text())  # what the figures were made from
+    assert made["attention_samples"] == per_robot * ROBOTS and made["source"] == {
+        "recording": str(recorded["file"]), "run_id": "rec15", "policy": "commattn",
+        "checkpoint": CKPT, "seed": 7, "episodes": 1, "partial": False}
+    assert made["command"].startswith("swarm trace ") and made["provenance"]["git"]
+    # a trace of a recording without attention into the same folder leaves no stale figure
+    synthetic(recorded["dir"] / "syn.mcap")
+    assert swarm("trace", str(recorded["dir"] / "syn.mcap"), "--out", str(out)).returncode == 0
+    assert not (out / "attention.png").exists() and (out / "links.png").exists()
+    assert json.loads((out / "trace.json").read_text())["source"]["run_id"] == "syn"
 
 
 # ------------------------------------------------------------------------ a killed recorder

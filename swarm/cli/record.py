@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from swarm.cli.common import _consoles, named_dir, output_dir, output_file
+from swarm.cli.common import _command, _consoles, named_dir, output_dir, output_file
 from swarm.common.flags import check_wait
 from swarm.common.report import counted
 from swarm.net import zconfig
@@ -237,7 +237,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
     made = _new_dirs(args.out)
     try:
         output_dir(args.out, "--out")
-        res = trace(rec, args.out)
+        res = trace(rec, args.out, _command())
     except BaseException:
         if made is not None:  # a failed trace leaves no folder behind
             shutil.rmtree(made, ignore_errors=True)

@@ -22,7 +22,9 @@ and PNG.
   result's `hidden_delivered` plus the radio's markers).
 - `elratio.csv`, `elratio.png`: elratio after every tick, one line per episode.
 - `attention.csv`, `attention.png` (CommAttn robots that report attention): mean attention
-  weight per (receiver, distance to the sender in cells, rounded), over the members it heard.
+  weight per (receiver, distance to the sender in cells, rounded), over the members it heard,
+  from the ticks a robot reported it: every 5th tick of an episode (with its counters), every
+  tick of a paced run (someone watches); each (episode, tick, robot) once.
 
 A `--delivery direct` recording holds no bundle and no forward: each receiver decides its copies
 itself. Whom each robot heard comes with its action (`Action.heard`), which gives the trajectory
@@ -42,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from swarm.common import atomic
-from swarm.common.report import csv_text, save_png
+from swarm.common.report import csv_text, provenance, save_png
 from swarm.net.direct import DirectTally
 from swarm.net.messages import (
     K_RSTATUS,
@@ -59,8 +61,10 @@ from swarm.net.messages import (
 from swarm.studies.replay import Recording
 
 WRITES = ("links.csv", "robots.csv", "kinds.csv", "elratio.csv", "attention.csv", "links.png",
-          "latency.png", "elratio.png", "attention.png", "notes.txt")
-"""Every file `trace` may write into its folder (what it writes is in `files` of its result)."""
+          "latency.png", "elratio.png", "attention.png", "notes.txt", "trace.json")
+"""Every file `trace` may write into its folder (what it writes is in `files` of its result);
+one of them left by an earlier trace into the same folder is removed, never left to pass as
+this recording's."""
 
 ATTN_FLOOR = 1e-6  # attention weights are drawn on a log scale down to this
 
@@ -89,6 +93,7 @@ class Trace:
         self.compute: dict[int, list[float]] = defaultdict(list)
         self.elratio: list[tuple[int, int, int, float]] = []
         self.attn: list[tuple[int, int, int, list[float]]] = []  # (ep, t, robot, weights)
+        self._attn_seen: set[tuple[int, int, int]] = set()
         self.bad = 0
         self.direct = rec.record.run.delivery == "direct"
         self.tally = DirectTally(n) if self.direct else None  # the robots' own link counters
@@ -158,9 +163,10 @@ class Trace:
         elif m.kind == "rstatus":
             rs = check_robot_status(unpack_record(m.payload, K_RSTATUS), cfg.n_robots,
                                     cfg.horizon)
-            if "attn" in rs:
-                self.attn.append((int(rs["ep"]), int(rs["attn_t"]), int(rs["robot"]),
-                                  [float(x) for x in rs["attn"]]))
+            key = (int(rs["ep"]), int(rs.get("attn_t", -1)), int(rs["robot"]))
+            if "attn" in rs and key not in self._attn_seen:  # (a later status repeats the
+                self._attn_seen.add(key)                      # last tick's: counted once)
+                self.attn.append((*key, [float(x) for x in rs["attn"]]))
             if self.tally is not None and "direct" in rs:
                 self.tally.offer(rs)
         return False
@@ -257,8 +263,10 @@ def _write_csv(path: Path, rows: list[dict[str, Any]], empty: str) -> None:
     atomic.write_text(path, csv_text(rows) if rows else empty + "\n")
 
 
-def trace(rec: Recording, out: str | Path) -> dict[str, Any]:
-    """Write the CSVs and PNGs of the module docstring into `out`; returns what was written."""
+def trace(rec: Recording, out: str | Path, command: str | None = None) -> dict[str, Any]:
+    """Write the CSVs and PNGs of the module docstring into `out`, and `trace.json`: what was
+    written and what it was made from (the recording, its run's id, policy, checkpoint and seed,
+    `command`, provenance); returns that record."""
     out = Path(out)
     tr = Trace(rec)
     n = tr.cfg.n_robots
@@ -348,6 +356,17 @@ def trace(rec: Recording, out: str | Path) -> dict[str, Any]:
     if notes:
         atomic.write_text(out / "notes.txt", "\n".join(notes) + "\n")
         files.append(out / "notes.txt")
-    return {"files": [str(f) for f in files], "links": len(links), "robots": n,
-            "kinds": {r["kind"]: r["bytes"] for r in kinds}, "attention_samples": len(tr.attn),
-            "bad": tr.bad, "messages": len(rec.messages), "notes": notes}
+    files.append(out / "trace.json")
+    for name in WRITES:  # (an earlier trace's, e.g. attention.png of another policy's run)
+        if out / name not in files:
+            (out / name).unlink(missing_ok=True)
+    run = rec.record.run
+    res = {"files": [str(f) for f in files], "links": len(links), "robots": n,
+           "kinds": {r["kind"]: r["bytes"] for r in kinds}, "attention_samples": len(tr.attn),
+           "bad": tr.bad, "messages": len(rec.messages), "notes": notes,
+           "source": {"recording": str(rec.raw.path), "run_id": run.run_id,
+                      "policy": run.policy, "checkpoint": run.checkpoint, "seed": run.seed,
+                      "episodes": run.episodes, "partial": not rec.raw.complete},
+           "command": command, "provenance": provenance()}
+    atomic.write_json(out / "trace.json", res)
+    return res
