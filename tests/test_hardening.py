@@ -16,7 +16,7 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_here
 
 from swarm.common.spawn import registry
 from swarm.net.keys import Keys
@@ -582,11 +582,12 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
     ["world", "--robots", "1", "--episodes", "1", "--start-timeout", "5", "--zenoh-config", ""],
     ["router", "--listen", "tcp/127.0.0.1:0", "--zenoh-config", " "],
 ], ids=lambda a: " ".join(a)[:40])
-def test_an_empty_value_is_refused_not_read_as_not_given(tmp_path: Path, args: list[str]) -> None:
+def test_an_empty_value_is_refused_not_read_as_not_given(
+        tmp_path: Path, args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     """An empty partition ran with none (`0-1/`, an empty group, was refused); an empty --spec
     or --zenoh-config started a world by hand: one line, exit 2, before anything starts."""
     (tmp_path / "part.toml").write_text('[faults]\npartition = ""\n')
-    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=60)
+    r = swarm_here(*(a.replace("{tmp}", str(tmp_path)) for a in args), capsys=capsys)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "is empty" in r.stderr or "got an empty one" in r.stderr, r.stderr
 
@@ -606,10 +607,11 @@ LONG = "x" * 300  # one name over the file system's 255 bytes
     ["experiment", "deploy/experiments/latency.toml", "--out", "{tmp}/a/" + LONG],
     ["train", "--policy", "commattn", "--out", LONG],  # (a traceback: it raised while parsing)
 ], ids=lambda a: " ".join(a)[:30])
-def test_a_name_too_long_is_one_line_and_nothing_is_made(tmp_path: Path, args: list[str]) -> None:
+def test_a_name_too_long_is_one_line_and_nothing_is_made(
+        tmp_path: Path, args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     """A path with a name over 255 bytes was the OS's "File name too long" with exit 1 (or a
     traceback, or after `--log-dir a/b/LONG` had made a/b): one line, exit 2, nothing made."""
-    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=60)
+    r = swarm_here(*(a.replace("{tmp}", str(tmp_path)) for a in args), capsys=capsys)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "255 bytes" in r.stderr or "File name too long" in r.stderr, r.stderr
     assert list(tmp_path.iterdir()) == []

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from conftest import ROOT, swarm, swarm_started
+from conftest import ROOT, swarm, swarm_here, swarm_started
 
 from swarm.net.keys import Keys
 from swarm.net.security.certs import make_certs
@@ -556,15 +556,16 @@ def test_audit_ids_default_inside_the_team_and_outside_ids_are_refused() -> None
         with pytest.raises(ConfigError, match=says):
             team_ids(n, a, v)
 
-def test_flags_that_do_nothing_or_do_not_parse_are_refused(tmp_path: Path) -> None:
+def test_flags_that_do_nothing_or_do_not_parse_are_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`swarm router --router-id` without --secure; a file given as --secure DIR; endpoints
     that are no endpoint, checked when parsed by every command that takes them."""
-    r = swarm("router", "--router-id", "2", timeout=30)
+    r = swarm_here("router", "--router-id", "2", capsys=capsys)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "--router-id" in r.stderr and "--secure" in r.stderr
     f = tmp_path / "somefile"
     f.write_text("not a directory\n")
-    r = swarm("run", "--secure", str(f), "--robots", "2", "--headless", timeout=30)
+    r = swarm_here("run", "--secure", str(f), "--robots", "2", "--headless", capsys=capsys)
     assert r.returncode == 2 and f"--secure {f} is not a directory" in r.stderr, r.stderr
     bad = "tcp/127.0.0.1:notaport"
     for cmd in (["rollout-worker", "--run-id", "x", "--connect", bad],
@@ -573,12 +574,12 @@ def test_flags_that_do_nothing_or_do_not_parse_are_refused(tmp_path: Path) -> No
                 ["fault", "--run", "x", "--loss", "0.1", "--connect", bad],
                 ["record", "--run-id", "x", "--out", str(tmp_path / "r.mcap"), "--connect", bad],
                 ["audit", "--run", "x", "--connect", bad]):
-        r = swarm(*cmd, timeout=30)
+        r = swarm_here(*cmd, capsys=capsys)
         assert r.returncode == 2 and r.stderr.count("\n") == 1, (cmd, r.stderr)
         assert f"'{bad}': port 'notaport' is not a number" in r.stderr, (cmd, r.stderr)
     for e, why in (("tcp/127.0.0.1", "expected PROTO/HOST:PORT"), ("foo/bar", "unknown protocol"),
                    ("tcp/localhost:70000", "port '70000'")):
-        r = swarm("router", "--listen", e, timeout=30)
+        r = swarm_here("router", "--listen", e, capsys=capsys)
         assert r.returncode == 2 and why in r.stderr, (e, r.stderr)
 
 
