@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -340,3 +341,28 @@ def test_the_sd_over_seeds_is_the_sample_sd() -> None:
     rows = [{"policy": "p", "value": "0.1", "elratio_mean": x} for x in ("0.5", "0.7")]
     mean, sd = _stats(rows, "p", 0.1, "elratio_mean")
     assert mean == pytest.approx(0.6) and sd == pytest.approx(0.1 * 2 ** 0.5)
+
+
+@pytest.mark.parametrize("key, value, place", [
+    ("policy", '"random"', "[experiment] policies"),
+    ("checkpoint", '"nonexistent.pt"', "[experiment] checkpoints"),
+    ("seed", "3", "[experiment] seeds")])
+def test_a_run_setting_each_point_sets_is_refused_and_not_recorded(
+        tmp_path: Path, key: str, value: str, place: str) -> None:
+    """`[run] policy = "random"` (or `checkpoint`, `seed`) was accepted, ignored (every run takes
+    its own from `[experiment]`) and written into the sweep record, which also claimed
+    `"policy": "commattn"` for a frontier-only sweep. The committed records, made before, still
+    resume."""
+    from swarm.studies.experiment import _read_rows, write_record
+    from swarm.studies.experiment_plan import check_resume
+
+    exp = BASE + 'policies = ["nearest-frontier"]\n'
+    with pytest.raises(ConfigError, match=rf"\[run\] {key}: a sweep sets it per run from "
+                       rf"{re.escape(place)}; remove it from \[run\]"):
+        plan(sweep_file(tmp_path, exp, head=f"[run]\nepisodes = 1\n{key} = {value}\n"))
+    write_record(plan(sweep_file(tmp_path, exp)), tmp_path)
+    run = json.loads((tmp_path / "t.json").read_text())["run"]
+    assert run["episodes"] == 3 and not {"policy", "checkpoint", "seed", "run_id"} & set(run)
+    shipped = ROOT / "results" / "experiments" / "loss.csv"  # its record holds run.policy
+    assert "policy" in json.loads(shipped.with_suffix(".json").read_text())["run"]
+    check_resume(_read_rows(shipped), plan(str(ROOT / "deploy/experiments/loss.toml")), shipped)

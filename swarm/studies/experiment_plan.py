@@ -146,6 +146,12 @@ class Sweep:
     """The flags that changed the file's sweep (`--episodes 1 --seeds 0`), for the record."""
 
 
+RUN_PER_POINT = {"policy": "[experiment] policies", "checkpoint": "[experiment] checkpoints",
+                 "seed": "[experiment] seeds", "run_id": "[experiment] name (exp-NAME-PID-K)"}
+"""`[run]` fields each point sets itself, and where the experiment file sets them: refused in
+`[run]`, left out of the record's `run` (compared per row or per policy, not as `[run]`)."""
+
+
 def parse_seeds(text: str) -> tuple[int, ...]:
     """`--seeds A,B,..` -> the seeds; anything but comma-separated integers is a ConfigError."""
     items = [s.strip() for s in str(text).split(",")]
@@ -191,7 +197,11 @@ def load(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
         toml_bools(cls, data.get(name, {}), f"{path}: [{name}]")
     world = from_dict(WorldConfig, with_scaled_blocks(data.get("world", {})), "[world]")
     run_t = dict(data.get("run", {}))
-    run_t.setdefault("run_id", "exp")
+    ours = [k for k in RUN_PER_POINT if k in run_t]
+    if ours:  # (each was ignored, and the record claimed it: a policy the sweep never ran)
+        raise ConfigError(f"{path}: [run] {ours[0]}: a sweep sets it per run from "
+                          f"{RUN_PER_POINT[ours[0]]}; remove it from [run]")
+    run_t["run_id"] = "exp"
     if episodes is not None:
         if episodes < 1:
             raise ConfigError(f"--episodes must be >= 1, got {episodes}")
@@ -278,8 +288,6 @@ def checkpoints_of(sweep: Sweep) -> dict[str, str | None]:
             for pt in sweep.points}
 
 
-RUN_PER_POINT = ("run_id", "seed", "policy", "checkpoint")
-"""`[run]` fields each point sets itself (compared per row or per policy, not as `[run]`)."""
 
 
 def sweep_record(sweep: Sweep) -> dict[str, Any]:
@@ -288,7 +296,8 @@ def sweep_record(sweep: Sweep) -> dict[str, Any]:
     value's `[faults]` table and each policy's checkpoint."""
     from world.config import to_dict
 
-    return {"world": to_dict(sweep.world), "run": to_dict(sweep.run),
+    run = {k: v for k, v in to_dict(sweep.run).items() if k not in RUN_PER_POINT}
+    return {"world": to_dict(sweep.world), "run": run,
             "experiment": to_dict(sweep.exp),
             "faults": {str(pt.value): pt.faults for pt in sweep.points},
             "checkpoints": checkpoints_of(sweep)}
@@ -340,8 +349,8 @@ def check_resume(rows: list[dict[str, Any]], sweep: Sweep, csv_path: Path) -> No
                               f"--out")
     old = _read_record(csv_path.with_suffix(".json"), csv_path)
     new = sweep_record(sweep)
-    for k in RUN_PER_POINT:
-        old["run"].pop(k, None), new["run"].pop(k, None)
+    for k in RUN_PER_POINT:  # (a record made before they were left out holds them)
+        old["run"].pop(k, None)
     values = sorted({str(r["value"]) for r in rows})
     policies = sorted({str(r["policy"]) for r in rows})
     diff = (_differs(old["world"], new["world"], "world.")
