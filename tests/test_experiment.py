@@ -366,3 +366,40 @@ def test_a_run_setting_each_point_sets_is_refused_and_not_recorded(
     shipped = ROOT / "results" / "experiments" / "loss.csv"  # its record holds run.policy
     assert "policy" in json.loads(shipped.with_suffix(".json").read_text())["run"]
     check_resume(_read_rows(shipped), plan(str(ROOT / "deploy/experiments/loss.toml")), shipped)
+
+
+@pytest.mark.procs
+def test_a_sweep_killed_before_its_first_run_leaves_no_other_sweeps_rows_under_its_record(
+        tmp_path: Path) -> None:
+    """A 3-robot sweep started over a finished 2-robot one in the same folder wrote its record,
+    then was stopped (Ctrl-C) before its first run ended: the 2-robot rows stayed in the CSV
+    under the 3-robot record, and `--resume` published them as the 3-robot sweep's (no run,
+    exit 0). The old CSV now goes before the new record is written."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    exp = BASE + 'policies = ["nearest-frontier"]\n'
+    out = tmp_path / "out"
+    r = swarm("experiment", sweep_file(tmp_path, exp, "[world]\nn_robots = 2\n\n[run]\n"
+                                       "episodes = 1\n"), "--out", str(out), timeout=240)
+    assert r.returncode == 0 and len(_rows(out / "t.csv")) == 1, r.stderr[-2000:]
+    bigger = sweep_file(tmp_path, exp, "[world]\nn_robots = 3\n\n[run]\nepisodes = 50\n")
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "experiment", bigger,
+                             "--out", str(out)], cwd=ROOT, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    record = out / "t.json"
+    deadline = time.monotonic() + 120  # (a failsafe, not a measurement)
+    while proc.poll() is None and time.monotonic() < deadline and \
+            json.loads(record.read_text())["world"]["n_robots"] != 3:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)  # its first run (50 episodes) has not ended
+    _, err = proc.communicate(timeout=60)
+    assert json.loads(record.read_text())["world"]["n_robots"] == 3, err[-2000:]
+    assert not (out / "t.csv").exists() or _rows(out / "t.csv") == [], err[-2000:]
+    r = swarm("experiment", bigger, "--out", str(out), "--resume", "--episodes", "1",
+              timeout=240)  # (none of its runs is in the CSV: it runs them)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert [row["twin"] for row in _rows(out / "t.csv")] == ["identical"]
+    assert "World: 3 robots" in (out / "t.md").read_text()

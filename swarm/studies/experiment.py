@@ -82,6 +82,8 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
     csv_path = out_dir / f"{exp.name}.csv"
     rows = _read_rows(csv_path) if resume else []
     check_resume(rows, sweep, csv_path)  # a CSV of another sweep: one line, no run
+    if not resume:  # the old rows go before the new record comes: killed between or after,
+        csv_path.unlink(missing_ok=True)  # the record never names another sweep's rows
     write_record(sweep, out_dir)  # before the first run: a killed sweep's CSV has its record
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
