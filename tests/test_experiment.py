@@ -374,7 +374,8 @@ def test_a_sweep_killed_before_its_first_run_leaves_no_other_sweeps_rows_under_i
     """A 3-robot sweep started over a finished 2-robot one in the same folder wrote its record,
     then was stopped (Ctrl-C) before its first run ended: the 2-robot rows stayed in the CSV
     under the 3-robot record, and `--resume` published them as the 3-robot sweep's (no run,
-    exit 0). The old CSV now goes before the new record is written."""
+    exit 0); its Markdown and PNG stayed too. The old files now go before the new record is
+    written (the summary files come at the end)."""
     import signal
     import subprocess
     import sys
@@ -385,9 +386,10 @@ def test_a_sweep_killed_before_its_first_run_leaves_no_other_sweeps_rows_under_i
     r = swarm("experiment", sweep_file(tmp_path, exp, "[world]\nn_robots = 2\n\n[run]\n"
                                        "episodes = 1\n"), "--out", str(out), timeout=240)
     assert r.returncode == 0 and len(_rows(out / "t.csv")) == 1, r.stderr[-2000:]
+    assert (out / "t.md").is_file() and (out / "t.png").is_file()
     bigger = sweep_file(tmp_path, exp, "[world]\nn_robots = 3\n\n[run]\nepisodes = 50\n")
     proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "experiment", bigger,
-                             "--out", str(out)], cwd=ROOT, text=True,
+                             "--out", str(out), "--overwrite"], cwd=ROOT, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     record = out / "t.json"
     deadline = time.monotonic() + 120  # (a failsafe, not a measurement)
@@ -398,8 +400,34 @@ def test_a_sweep_killed_before_its_first_run_leaves_no_other_sweeps_rows_under_i
     _, err = proc.communicate(timeout=60)
     assert json.loads(record.read_text())["world"]["n_robots"] == 3, err[-2000:]
     assert not (out / "t.csv").exists() or _rows(out / "t.csv") == [], err[-2000:]
+    assert not (out / "t.md").exists() and not (out / "t.png").exists()  # (of the old rows)
     r = swarm("experiment", bigger, "--out", str(out), "--resume", "--episodes", "1",
               timeout=240)  # (none of its runs is in the CSV: it runs them)
     assert r.returncode == 0, r.stderr[-2000:]
     assert [row["twin"] for row in _rows(out / "t.csv")] == ["identical"]
     assert "World: 3 robots" in (out / "t.md").read_text()
+
+
+@pytest.mark.procs
+def test_a_folder_holding_the_sweeps_results_is_refused_without_resume_or_overwrite(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`swarm experiment loss.toml --out DIR --episodes 1 --seeds 0` on a folder holding the
+    sweep silently replaced its 30 rows (stopped after 12 s: 2 rows, while loss.md and loss.png
+    still described the 30). Now that folder is refused in one line, its files untouched."""
+    import shutil
+
+    out = tmp_path / "exp"
+    out.mkdir()
+    for f in (ROOT / "results" / "experiments").glob("loss.*"):
+        shutil.copy(f, out)
+    before = {f.name: f.read_bytes() for f in out.iterdir()}
+    for flags, words in (
+            (["--episodes", "1", "--seeds", "0"],
+             f"{out} holds the results of sweep loss (30 runs in {out}/loss.csv): resume it "
+             "(--resume), replace them (--overwrite) or choose another output folder"),
+            (["--resume", "--overwrite"],
+             "--resume adds to the sweep in the folder, --overwrite replaces it; give one")):
+        r = swarm_here("experiment", "deploy/experiments/loss.toml", "--out", str(out), *flags,
+                       capsys=capsys)
+        assert r.returncode == 2 and r.stderr == f"swarm: error: {words}\n", r.stderr[-2000:]
+    assert {f.name: f.read_bytes() for f in out.iterdir()} == before

@@ -375,29 +375,27 @@ def cmd_fault(args: argparse.Namespace) -> int:
 
 
 def cmd_experiment(args: argparse.Namespace) -> int:
-    from swarm.studies.experiment import main as experiment_main
-    from swarm.studies.experiment_plan import parse_seeds, plan
+    from swarm.studies import experiment
 
     named_dir(args.out, "--out")  # (`--out ''` fell back to the file's out: results/)
     path_name(args.file, "swarm experiment")
-    seeds = None if args.seeds is None else parse_seeds(args.seeds)
+    seeds = None if args.seeds is None else experiment.parse_seeds(args.seeds)
     if (args.episodes is not None or seeds is not None) and not args.out:
         raise ConfigError("--episodes/--seeds need --out DIR: a shrunk sweep would overwrite "
                           "the file's own results")
-    sweep = plan(args.file, args.episodes, seeds)  # every run checked: one line, exit 2
+    sweep = experiment.plan(args.file, args.episodes, seeds)  # every run checked: one line, exit 2
     if args.out:  # (the command its files record: rerun, it writes where this one did)
         sweep = dataclasses.replace(sweep, overrides=("--out", args.out, *sweep.overrides))
     out = args.out or sweep.exp.out
     output_dir(out, "--out" if args.out else f"{args.file}: [experiment] out")
-    return experiment_main(sweep, out, args.resume)
+    return experiment.main(sweep, out, args.resume, args.overwrite)
 
 
 def add_parsers(sub: Any) -> None:
     """Register `experiment`, `run`, `world` and `fault` on the `swarm` subparsers."""
     p = sub.add_parser("experiment", help="sweep a fault parameter over policies on the swarm",
-                       description="Run the TOML experiment FILE (see deploy/experiments/): "
-                                   "one real swarm run per (policy, value, seed); writes CSV, "
-                                   "Markdown and PNG.")
+                       description="Run the TOML experiment FILE (deploy/experiments/): one "
+                                   "swarm run per (policy, value, seed) into CSV, Markdown, PNG.")
     p.add_argument("file", metavar="FILE", help="TOML experiment file")
     p.add_argument("--out", metavar="DIR",
                    help="output directory, made if missing (default: [experiment] out, for the "
@@ -410,6 +408,8 @@ def add_parsers(sub: Any) -> None:
                    help="skip runs already in the CSV; refused unless the sweep record beside "
                         "it (<name>.json) holds this sweep's world, [run], parameter, kernel, "
                         "faults and checkpoints (policies, values and seeds may be added)")
+    p.add_argument("--overwrite", action="store_true", help="replace this sweep's results in "
+                   "the output folder (a folder holding them is refused without it or --resume)")
     p.add_argument("--seed", type=int, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_experiment)
 

@@ -4,7 +4,8 @@ The file is a TOML experiment: `[world]`, `[run]`, a base `[faults]` table, and 
 `parameter` (a `[faults]` key: latency, jitter, loss, bandwidth, partition, ...), `values`,
 `policies`, `seeds`, optional `checkpoints = {name = "file"}` and `out`. Every (policy, value,
 seed) is one `swarm run` (world + robot processes over Zenoh). After each run the CSV is
-rewritten atomically, so a killed sweep keeps every finished point and `--resume` skips them.
+rewritten atomically, so a killed sweep keeps every finished point and `--resume` skips them;
+a folder already holding the sweep's rows is refused unless `--resume` or `--overwrite`.
 Outputs: `<name>.csv` (one row per run), `<name>.md` and `<name>.png` (elratio, collisions,
 success and ticks/s against the fault level, one line per policy, error bars = std over seeds).
 With `kernel = true` every run is `swarm run --netns` and the swept loss or bandwidth is applied
@@ -42,13 +43,14 @@ from swarm.studies.experiment_plan import (
     check_resume,
     checkpoints_of,
     load,
+    parse_seeds,
     plan,
     point_run_id,
     sweep_record,
 )
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 
-__all__ = ["ExperimentConfig", "Sweep", "load", "main", "plan", "run_experiment"]
+__all__ = ["ExperimentConfig", "Sweep", "load", "main", "parse_seeds", "plan", "run_experiment"]
 
 COLUMNS = ("policy", "value", "seed", "elratio_mean", "elratio_std", "collisions_mean",
            "success_rate", "reward_mean", "ticks_per_s", "timeouts", "lost", "late", "cut",
@@ -57,10 +59,15 @@ KERNEL_COLUMNS = ("robots_lost", "never_joined", "startup_s", "error")  # kernel
 
 
 def _read_rows(path: Path) -> list[dict[str, Any]]:
+    """A sweep's CSV rows (none without the file); one that cannot be read is one line."""
     if not path.exists():
         return []
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
+    try:
+        with open(path, newline="") as fh:
+            return list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise ConfigError(f"{path} is not a readable CSV ({exc}); give another --out, or "
+                          "--overwrite to replace it") from None
 
 
 def _write_csv(path: Path, rows: list[dict[str, Any]],
@@ -73,17 +80,28 @@ def _write_csv(path: Path, rows: list[dict[str, Any]],
     atomic.write_text(path, buf.getvalue())
 
 
-def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False,
+def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrite: bool = False,
                    on_row: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
     """Run every point of a checked sweep not yet in `<out>/<name>.csv` (with `resume`),
-    rewriting the CSV after each; then the summary files."""
+    rewriting the CSV after each; then the summary files. A CSV with rows there is refused
+    unless `resume` (add to it) or `overwrite` (replace it)."""
     world, exp = sweep.world, sweep.exp
     out_dir = Path(out)
     csv_path = out_dir / f"{exp.name}.csv"
-    rows = _read_rows(csv_path) if resume else []
+    if resume and overwrite:
+        raise ConfigError("--resume adds to the sweep in the folder, --overwrite replaces it; "
+                          "give one")
+    rows = [] if overwrite else _read_rows(csv_path)
+    if rows and not resume:
+        raise ConfigError(f"{out_dir} holds the results of sweep {exp.name} ({len(rows)} runs "
+                          f"in {csv_path}): resume it (--resume), replace them (--overwrite) "
+                          f"or choose another output folder")
     check_resume(rows, sweep, csv_path)  # a CSV of another sweep: one line, no run
-    if not resume:  # the old rows go before the new record comes: killed between or after,
-        csv_path.unlink(missing_ok=True)  # the record never names another sweep's rows
+    # Killed between these steps or after them, the folder never pairs the record with
+    # another sweep's rows, nor the CSV with a Markdown or PNG of other rows (they are
+    # written at the end): the old files go before the new record comes.
+    for stale in (*(() if resume else (".csv",)), ".md", ".png", "_compare.png"):
+        (out_dir / f"{exp.name}{stale}").unlink(missing_ok=True)
     write_record(sweep, out_dir)  # before the first run: a killed sweep's CSV has its record
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
@@ -330,10 +348,10 @@ def _f(x: Any, fmt: str) -> str:
     return "-" if x in (None, "") else f"{float(x):{fmt}}"  # (a run that completed nothing)
 
 
-def main(sweep: Sweep, out: str, resume: bool) -> int:
+def main(sweep: Sweep, out: str, resume: bool, overwrite: bool = False) -> int:
     """`swarm experiment`: run a checked sweep into directory `out`, one line per run on stderr,
     the files written on stdout."""
-    res = run_experiment(sweep, out, resume, on_row=lambda r: print(
+    res = run_experiment(sweep, out, resume, overwrite, on_row=lambda r: print(
         f"  {r['policy']} {r['value']} seed {r['seed']}: elratio {_f(r['elratio_mean'], '.3f')} "
         f"collisions {_f(r['collisions_mean'], '.1f')} ticks/s {_f(r['ticks_per_s'], '.1f')} "
         f"{r.get('twin') or ''}{'  logs in ' + r['logs'] if r.get('logs') else ''}",
