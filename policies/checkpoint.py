@@ -72,6 +72,9 @@ def check_exists(path: Path) -> None:
         raise CheckpointError(f"checkpoint {path} is a directory, not a checkpoint file")
     if not path.is_file():
         where = "" if path.is_absolute() else f" (relative to {Path.cwd()})"
+        repo = Path(__file__).resolve().parents[1] / path  # (a result file's relative paths
+        if not path.is_absolute() and repo.is_file():      # are the repository's)
+            where += f"; results name the repository's {repo} so"
         raise CheckpointError(f"checkpoint not found: {path}{where}")
 
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from conftest import swarm_here
+from conftest import ROOT, swarm_here
 
 from policies import make_policy
 from policies.checkpoint import CheckpointError, load_checkpoint, read_checkpoint, save_checkpoint
@@ -167,3 +167,19 @@ def test_a_checkpoint_for_a_hand_written_policy_is_one_line() -> None:
     with pytest.raises(ValueError, match="a checkpoint applies to learned policies only, not "
                                          "'nearest-frontier'"):
         make_policy("nearest-frontier", WorldConfig(), checkpoint="checkpoints/commattn.pt")
+
+
+def test_a_relative_path_a_result_names_is_found_in_the_repository_hint(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """UA pass 73: a result JSON names the shipped checkpoint `checkpoints/commattn.pt`
+    (relative to the repository); given back from another folder it was only "not found"."""
+    from policies.checkpoint import CheckpointError, check_exists
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(CheckpointError) as err:
+        check_exists(Path("checkpoints/commattn.pt"))
+    assert f"relative to {tmp_path}" in str(err.value)
+    assert f"results name the repository's {ROOT / 'checkpoints' / 'commattn.pt'}" in str(err.value)
+    with pytest.raises(CheckpointError) as err:  # (no hint for a file the repository lacks)
+        check_exists(Path("checkpoints/none.pt"))
+    assert "repository" not in str(err.value)
