@@ -288,7 +288,6 @@ def checkpoints_of(sweep: Sweep) -> dict[str, str | None]:
             for pt in sweep.points}
 
 
-
 def sweep_record(sweep: Sweep) -> dict[str, Any]:
     """What makes a row of the sweep, as `<name>.json` holds it (`write_record`) and
     `check_resume` compares it: the world, `[run]`, the parameter, the kernel switch, each
