@@ -735,6 +735,7 @@ def test_repro_fig11_runs_on_the_configs_world(tmp_path: Path) -> None:
     assert md.startswith(f"# Fig. 11: mean communication-vector norm per cell (seed 1)\n\n"
                          f"Made by `swarm repro fig11 --out {tmp_path} --config {cfg} "
                          "--seed 1` (seed 1, "), md[:400]  # as every other item
+    assert "Checkpoints: commattn `checkpoints/commattn.pt`." in md, md[:600]  # (UA 75)
 
 
 def on_terminal(columns: int, *args: str) -> str:

@@ -165,3 +165,30 @@ def test_a_policy_written_twice_is_refused_as_a_typo(tmp_path: Path,
     from swarm.common.policy_spec import resolve_policies
 
     assert resolve_policies("all,random").count("random") == 1
+
+
+@pytest.mark.parametrize("item,args", [
+    ("fig4", ["--episodes", "1", "--robots", "2"]),
+    ("fig5", ["--episodes", "1", "--add-every", "3"]),
+    ("table1", ["--decisions", "2"]),
+], ids=["fig4", "fig5", "table1"])
+def test_every_repro_item_names_the_checkpoints_it_ran(tmp_path: Path, item: str,
+                                                       args: list[str]) -> None:
+    """UA 75: fig4.json, fig4.csv and fig4.md named no checkpoint (the Made by line only the
+    command); every item's JSON now has `checkpoints`, each row a `checkpoint` (empty for a
+    policy without weights) and the Made by line names them, a shipped one relative to the
+    repository."""
+    import json
+
+    given = tmp_path / "mine.pt"
+    given.write_bytes((ROOT / "checkpoints" / "commattn.pt").read_bytes())
+    assert main(["repro", item, "--out", str(tmp_path), "--policies", "commattn,vain,random",
+                 "--checkpoint", f"commattn={given}", *args]) == 0
+    data = json.loads((tmp_path / f"{item}.json").read_text())
+    assert data["checkpoints"] == {"commattn": [str(given)], "vain": ["checkpoints/vain.pt"]}
+    assert {(r["policy"], r["checkpoint"]) for r in data["rows"]} == {
+        ("commattn", str(given)), ("vain", "checkpoints/vain.pt"), ("random", "")}
+    assert "checkpoint" in (tmp_path / f"{item}.csv").read_text().splitlines()[0].split(",")
+    md = (tmp_path / f"{item}.md").read_text()
+    assert f"Checkpoints: commattn `{given}`; vain `checkpoints/vain.pt`." in md, md[:600]
+

@@ -11,7 +11,7 @@ import math
 import platform
 import subprocess
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -50,10 +50,26 @@ def provenance() -> dict[str, Any]:
             "platform": platform.platform()}
 
 
-def header(title: str, command: str, seed: int, note: str) -> str:
-    """The Markdown heading plus the provenance line every item file starts with."""
+def header(title: str, command: str, seed: int, note: str,
+           checkpoints: Mapping[str, Sequence[str]] | None = None) -> str:
+    """The Markdown heading plus the provenance line every item file starts with: the command,
+    seed, date and the checkpoints the learned policies ran (`checkpoints_of`)."""
     today = dt.date.today().isoformat()
-    return f"# {title}\n\nMade by `{command}` (seed {seed}, {today}). {note}\n\n"
+    ran = "; ".join(f"{name} {', '.join(f'`{c}`' for c in paths)}"
+                    for name, paths in (checkpoints or {}).items())
+    ran = f" Checkpoints: {ran}." if ran else ""
+    return f"# {title}\n\nMade by `{command}` (seed {seed}, {today}).{ran} {note}\n\n"
+
+
+def checkpoints_of(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[str]]:
+    """Per policy, the checkpoints its rows ran (their `checkpoint` column, in the order first
+    run; several where a point needs its own, as fig9's visions), policies without weights left
+    out: what an item's JSON `checkpoints` and its Made by line name."""
+    ran: dict[str, list[str]] = {}
+    for r in rows:
+        if r.get("checkpoint") and r["checkpoint"] not in ran.get(r["policy"], []):
+            ran.setdefault(r["policy"], []).append(r["checkpoint"])
+    return ran
 
 
 def paired(first: np.ndarray, other: np.ndarray) -> tuple[float, float]:
@@ -113,12 +129,14 @@ def save_png(path: Path, draw: Callable[[Any], None], ncols: int = 1) -> None:
 
 def write_item(out: Path, item: str, rows: list[dict[str, Any]], md: str,
                draw: Callable[[Any], None], meta: dict[str, Any], ncols: int = 1) -> list[str]:
-    """Write ITEM.csv/.md/.png/.json; returns the paths written."""
+    """Write ITEM.csv/.md/.png/.json; returns the paths written. Rows with a `checkpoint`
+    column give the JSON its `checkpoints` (`checkpoints_of`)."""
     paths = [out / f"{item}.{ext}" for ext in ("csv", "md", "png", "json")]
     atomic.write_text(paths[0], csv_text(rows))
     atomic.write_text(paths[1], md)
     save_png(paths[2], draw, ncols)
-    atomic.write_json(paths[3], {**meta, "provenance": provenance(), "rows": rows})
+    ran = {"checkpoints": checkpoints_of(rows)} if any("checkpoint" in r for r in rows) else {}
+    atomic.write_json(paths[3], {**meta, **ran, "provenance": provenance(), "rows": rows})
     return [str(p) for p in paths]
 
 

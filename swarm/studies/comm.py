@@ -22,7 +22,14 @@ import numpy as np
 
 from policies.base import Policy
 from swarm.common.policy_spec import SHIPPED, build_policy, effective_checkpoint, shown
-from swarm.common.report import header, md_table, paired, paired_cell, write_item
+from swarm.common.report import (
+    checkpoints_of,
+    header,
+    md_table,
+    paired,
+    paired_cell,
+    write_item,
+)
 from swarm.learn.evaluate import EvalResult, evaluate
 from swarm.net.faults import plan_from_table
 from world.config import WorldConfig, replace, scaled_blocks, to_dict
@@ -208,7 +215,7 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                 "elratio minus the other's, "
                 "episode by episode, with the standard error of that paired mean."
                 + (f" The world's {', '.join(unused)} are not used: each condition sets its "
-                   "own." if unused else ""))
+                   "own." if unused else ""), checkpoints_of(rows))
     conds = shown_order()
     cell = {(r["policy"], r["condition"]): r for r in rows}
     def fmt(r: dict[str, Any]) -> str:

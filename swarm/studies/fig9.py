@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.common.policy_spec import SHIPPED, build_policy, shown
-from swarm.common.report import header, md_table, write_item
+from swarm.common.report import checkpoints_of, header, md_table, write_item
 from swarm.learn.evaluate import evaluate
 from world.config import ConfigError, WorldConfig, replace, to_dict
 
@@ -79,7 +79,7 @@ def fig9(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
                  "(for the other items of the command) are not used here: this figure sweeps "
                  "both.")
     md = header("Fig. 9: success rate over vision range x communication range", command, seed,
-                note)
+                note, checkpoints_of(rows))
     cols = [str(c) for c in ("inf" if math.isinf(r) else f"{r:g}" for r in ranges)]
     for name in policies:
         for v in visions:

@@ -29,6 +29,7 @@ from swarm.bench.micro import (
 from swarm.common import atomic
 from swarm.common.policy_spec import SHIPPED, build_policy, shown
 from swarm.common.report import (
+    checkpoints_of,
     counted,
     header,
     md_table,
@@ -170,15 +171,15 @@ def table1(world: WorldConfig, cfg: ReproConfig, command: str,
     rows: list[dict[str, Any]] = []
     for name in cfg.policies:
         progress.start(f"table1 {name}", cfg.decisions)
-        ms = time_decisions(world, name, cfg.decisions, cfg.seed, 1, cfg.checkpoint(name),
-                            progress)
+        ckpt = cfg.checkpoint(name)
+        ms = time_decisions(world, name, cfg.decisions, cfg.seed, 1, ckpt, progress)
         paper = PAPER_TABLE1.get(name, (None, None))
-        rows.append({"policy": name, "robots": world.n_robots, **timing_stats(ms),
-                     "paper_mean_ms": paper[0], "paper_std_ms": paper[1]})
+        rows.append({"policy": name, "robots": world.n_robots, "checkpoint": shown(ckpt) or "",
+                     **timing_stats(ms), "paper_mean_ms": paper[0], "paper_std_ms": paper[1]})
     md = header("Table 1: planning time per decision, ms", command, cfg.seed,
                 f"{world.n_robots} robots, one episode at a time, every robot deciding; "
                 f"{cfg.decisions} decisions per policy. The paper's figures are from its own "
-                "hardware and implementation.")
+                "hardware and implementation.", checkpoints_of(rows))
     md += md_table(
         ["policy", "ours mean ± std", "ours median", "ours p90", "paper mean ± std"],
         [[r["policy"], f"{r['mean_ms']:.3f} ± {r['std_ms']:.3f}", f"{r['median_ms']:.3f}",
@@ -220,12 +221,12 @@ def sweep(world: WorldConfig, item: str, cfg: ReproConfig, command: str,
     rows: list[dict[str, Any]] = []
     for name in cfg.policies:
         for x, wc in points:
-            policy = build_policy(name, wc, cfg.checkpoint(name))
+            policy = build_policy(name, wc, ckpt := cfg.checkpoint(name))
             res = evaluate(wc, policy, cfg.seed, cfg.episodes, batch=cfg.batch,
                            on_progress=progress.advance)
             s = res.summary(wc)
             rows.append({"policy": name, x_name: x, "episodes": cfg.episodes,
-                         **{k: s[k] for k in SWEEP_KEYS}})
+                         "checkpoint": shown(ckpt) or "", **{k: s[k] for k in SWEEP_KEYS}})
     t = world.horizon
     if item == "fig4":
         title = f"Fig. 4: exploration rate in {t} steps vs number of robots (static map)"
@@ -239,7 +240,8 @@ def sweep(world: WorldConfig, item: str, cfg: ReproConfig, command: str,
         xlabel = "block-adding period m (steps between batches)"
         short = f"Fig. 5: dynamic map, {world.n_robots} robots, T = {t}"
     md = header(title, command, cfg.seed,
-                f"elratio mean ± std over {cfg.episodes} episodes per point. {note}")
+                f"elratio mean ± std over {cfg.episodes} episodes per point. {note}",
+                checkpoints_of(rows))
     policies = list(cfg.policies)
     cell = {(r["policy"], r[x_name]): r for r in rows}
     md += md_table([x_name, *policies],
@@ -305,8 +307,7 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
             first = res.elratio
         lead, se = paired(first[:episodes], res.elratio)  # same episodes
         rows.append({"policy": name, "robots": wc.n_robots, "episodes": episodes,
-                     "checkpoint": shown(ckpt) if ckpt else "",
-                     "decentralized": bool(policy.decentralized),
+                     "checkpoint": shown(ckpt) or "", "decentralized": bool(policy.decentralized),
                      **{k: s[k] for k in SWEEP_KEYS}, "robot_collisions_mean":
                      float(res.robot_collisions.mean()),
                      "first_minus_elratio": lead, "first_minus_elratio_se": se,
@@ -327,7 +328,7 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
                 "own reward scale. Collisions = block + robot collisions per episode. Column "
                 f"`{names[0]} - this (paired)` is {names[0]}'s elratio minus the row's, episode "
                 "by episode, with the standard error of that paired mean."
-                + table2_notes(rows, cfg))
+                + table2_notes(rows, cfg), checkpoints_of(rows))
 
     def paper_cell(r: dict[str, Any]) -> str:
         if r["paper_reward"] is None:
@@ -396,16 +397,15 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
         return comm(world or WorldConfig(), out, command, cfg.seed, cfg.comm_episodes,
                     policies=cfg.comm_policies, checkpoints=cfg.checkpoints, batch=cfg.batch)
     ckpt = cfg.checkpoint("commattn")
-    static = None if world is None else replace(world, dynamic=False)  # (static
-    if item == "fig10":  # studies, on the run's map size and team: they ignored --config's)
-        res = commviz.fig10(out, seed=cfg.seed, episodes=cfg.fig10_episodes, checkpoint=ckpt,
-                            cfg=static)
-    else:
-        res = commviz.fig11(out, seed=cfg.seed, episodes=cfg.fig11_episodes, checkpoint=ckpt,
-                            cfg=static)
+    static = None if world is None else replace(world, dynamic=False)  # (static studies, on
+    study = commviz.fig10 if item == "fig10" else commviz.fig11  # the run's map and team)
+    res = study(out, seed=cfg.seed, episodes=getattr(cfg, f"{item}_episodes"), checkpoint=ckpt,
+                cfg=static)
     title, _, rest = (md := out / item_files(item)[3]).read_text().partition("\n\n")
-    atomic.write_text(md, header(title[2:], command, cfg.seed, "")[:-2] + rest)  # Made by
-    return {"item": item, "rows": [res], "files": [str(out / n) for n in item_files(item)]}
+    ran = {"commattn": [shown(ckpt) or ""]}  # (its Made by line, as every other item's)
+    atomic.write_text(md, header(title[2:], command, cfg.seed, "", ran)[:-2] + rest)
+    return {"item": item, "rows": [{**res, "checkpoint": shown(ckpt) or ""}],
+            "files": [str(out / n) for n in item_files(item)]}
 
 
 def item_files(item: str) -> tuple[str, ...]:
