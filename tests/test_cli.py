@@ -219,6 +219,25 @@ def test_config_file_applies_and_flags_override(tmp_path: Path) -> None:
     assert prov["versions"]["commattn-swarm"] and prov["versions"]["numpy"] == np.__version__
 
 
+def test_eval_json_records_the_settings_that_change_its_figures(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """UA 75: `[eval] tick_timeout = 0.3` changed elratio under a latency but was recorded
+    nowhere, nor `greedy = false` or the fault seed (`[faults] seed`); the JSON now holds them
+    and the whole fault plan (burst and seed too, which the `faults` line leaves out)."""
+    cfg = tmp_path / "e.toml"
+    cfg.write_text('[world]\nn_robots = 3\nhorizon = 10\n[eval]\npolicy = "random"\n'
+                   'episodes = 2\ntick_timeout = 0.3\ngreedy = false\n'
+                   '[faults]\nlatency = "250ms"\nbandwidth = "60B/s"\nburst = 240\nseed = 7\n')
+    out = tmp_path / "e.json"
+    r = swarm_here("eval", "--config", str(cfg), "--json", str(out), capsys=capsys)
+    assert r.returncode == 0, r.stderr
+    data = json.loads(out.read_text())
+    assert (data["greedy"], data["tick_timeout"]) == (False, 0.3)
+    plan = data["fault_plan"]
+    assert plan["seed"] == 7 and plan["default"]["latency_ms"] == 250
+    assert plan["default"]["burst"] == 240
+
+
 @pytest.mark.procs
 def test_eval_warns_that_it_plays_without_the_process_faults_of_a_shared_file(
         tmp_path: Path) -> None:

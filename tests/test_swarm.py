@@ -70,6 +70,21 @@ def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str
 
 
 @pytest.mark.procs
+def test_run_json_records_the_run_config_that_made_it(tmp_path: Path) -> None:
+    """UA 75: `[run] greedy = false` and `tick_timeout = 0.3` changed the run but its JSON held
+    neither; it now holds the whole resolved `[run]` config as `run`."""
+    cfg = tmp_path / "r.toml"
+    cfg.write_text('[world]\nn_robots = 2\nhorizon = 4\n[run]\npolicy = "nearest-frontier"\n'
+                   'episodes = 1\ngreedy = false\ntick_timeout = 0.3\nwatchdog = 30\n')
+    out = tmp_path / "run.json"
+    r = swarm("run", "--headless", "--config", str(cfg), "--run-id", "runcfg", "--json", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    run = json.loads(out.read_text())["run"]
+    assert (run["greedy"], run["tick_timeout"], run["watchdog"]) == (False, 0.3, 30.0), run
+    assert (run["policy"], run["episodes"], run["checkpoint"]) == ("nearest-frontier", 1, None)
+
+
+@pytest.mark.procs
 def test_a_run_with_a_log_dir_leaves_nothing_in_the_temp_folder(tmp_path: Path) -> None:
     """--log-dir: the logs and the run's spec are in the log dir; the temp folder the run
     made for its children (the spec, the world's result file) is gone after a clean run."""

@@ -170,8 +170,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         else:
             obj = {"policy": ",".join(s["policy"] for s in summaries), "robots": world.n_robots,
                    "episodes": cfg.episodes, "seed": cfg.seed, "results": summaries}
-        atomic.write_json(cfg.json, {**obj, "world": to_dict(world),
-                                     "faults": shown_faults or None, "command": _command(),
+        made = {"greedy": cfg.greedy, "tick_timeout": cfg.tick_timeout, "world": to_dict(world),
+                "faults": shown_faults or None, "fault_plan": faults and faults.to_record()}
+        atomic.write_json(cfg.json, {**obj, **made, "command": _command(),
                                      "provenance": provenance()})
         out.print(f"wrote {cfg.json}")
     return 0
@@ -317,10 +318,9 @@ def cmd_repro(args: argparse.Namespace) -> int:
     world = world_config(args, tables)
     flags = {"out": args.out, "episodes": args.episodes, "seed": args.seed,
              "policies": args.policies, "checkpoints": _checkpoint_pairs(args.checkpoint),
-             "robots": args.robots, "add_every": args.add_every,
-             "decisions": args.decisions, "batch": args.batch, "json": args.json,
+             "robots": args.robots, "add_every": args.add_every, "decisions": args.decisions,
+             "batch": args.batch, "json": args.json, "comm_policies": args.comm_policies,
              "table2_episodes": args.table2_episodes, "comm_episodes": args.comm_episodes,
-             "comm_policies": args.comm_policies,
              "curves": _checkpoint_pairs(args.curve, "--curve")}
     cfg = merged(repro.ReproConfig, tables.get("repro", {}), flags, "[repro]")
     # every check before the progress display (whose closing would print a blank line)

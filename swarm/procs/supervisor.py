@@ -398,7 +398,7 @@ class Supervisor:
         ckpt = None if rc.checkpoint == str(self.tmp / "initial.pt") else rc.checkpoint \
             if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)  # weights of --seed)
         res.update(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
-                   provenance=provenance())
+                   run={**to_dict(rc), "checkpoint": shown(ckpt)}, provenance=provenance())
         if self.topo is not None:  # a robot whose session never opened is in no other count
             res["netns"] = {**self.topo.describe(), "never_joined": sum(
                 r.state == "starting" for r in self.view.robots.values())}
