@@ -192,3 +192,27 @@ def test_every_repro_item_names_the_checkpoints_it_ran(tmp_path: Path, item: str
     md = (tmp_path / f"{item}.md").read_text()
     assert f"Checkpoints: commattn `{given}`; vain `checkpoints/vain.pt`." in md, md[:600]
 
+
+@pytest.mark.parametrize("args,says", [
+    (["fig4", "--policies", "commattn"], "is not among --policies commattn"),
+    (["fig9", "--policies", "commattn"], "is not among --policies commattn"),
+    (["fig10"], "is not among fig10's policy commattn"),
+    (["comm", "--comm-policies", "commattn,random"], "is not among --comm-policies "
+                                                     "commattn,random"),
+    (["fig8", "--policies", "commattn"], "is not among the policies fig8 runs (none)"),
+    (["all", "--policies", "commattn,random"], "is not among the policies table1, table2, "
+                                               "fig4, fig5, fig8, fig9, fig10, fig11, comm run"),
+], ids=["fig4", "fig9", "fig10", "comm", "fig8", "all"])
+def test_repro_refuses_a_checkpoint_of_a_policy_it_does_not_run(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], says: str) -> None:
+    """UA 75: `repro fig4 --policies commattn --checkpoint commnet=FILE` exited 0 and its Made
+    by line named a checkpoint that played no part (`eval` refuses one); items that choose their
+    own policies (fig9, fig10, comm) are checked against those."""
+    tiny = tmp_path / "tiny.toml"  # (budgets that keep a run that is not refused short)
+    tiny.write_text("[repro]\nepisodes = 1\nrobots = [2]\ndecisions = 1\ntable2_episodes = 1\n"
+                    "comm_episodes = 1\nfig9_episodes = 1\nfig10_episodes = 1\n"
+                    "fig11_episodes = 1\noracle_episodes = 1\nadd_every = [3]\n")
+    line = refused(["repro", *args, "--out", str(tmp_path / "o"), "--config", str(tiny),
+                    "--checkpoint", f"commnet={ROOT / 'checkpoints' / 'commnet.pt'}"], capsys)
+    assert f"--checkpoint commnet=...: 'commnet' {says}" in line, line
+    assert not (tmp_path / "o").exists()

@@ -325,7 +325,7 @@ def cmd_repro(args: argparse.Namespace) -> int:
     cfg = merged(repro.ReproConfig, tables.get("repro", {}), flags, "[repro]")
     # every check before the progress display (whose closing would print a blank line)
     items = repro.prepare(repro.expand(args.item), world, cfg)
-    check_repro_flags(items, args)  # (after prepare: `all` drops the items it cannot make)
+    check_repro_flags(items, args, cfg)  # (after prepare: `all` drops items it cannot make)
     output_dir(cfg.out, "--out")  # before the work, which can take hours
     output_file(cfg.json)
     out, err = _consoles()

@@ -244,7 +244,7 @@ def stray_checkpoints(checkpoints: dict[str, str], names: list[str], flag: str) 
 
     stray = sorted(set(checkpoints) - set(names))
     if stray:
-        what = f"not among {flag} {','.join(names)}" if stray[0] in REGISTRY else \
+        what = f"not among {flag} {','.join(names) or '(none)'}" if stray[0] in REGISTRY else \
             f"not a policy (learned ones: {', '.join(sorted(LEARNED))})"
         raise ConfigError(f"--checkpoint {stray[0]}=...: {stray[0]!r} is {what}")
 
@@ -280,9 +280,11 @@ _WHY = {"fig8": "it draws training curves", "fig9": "it sweeps vision and comm r
                 "--comm-policies"}
 
 
-def check_repro_flags(items: list[str], args: argparse.Namespace) -> None:
+def check_repro_flags(items: list[str], args: argparse.Namespace, cfg: Any) -> None:
     """A `swarm repro` flag none of the items uses is one line, not silently ignored (`repro
-    fig9 --comm-range 3` made the same figure and recorded the flag in its "Made by" line)."""
+    fig9 --comm-range 3` made the same figure and recorded the flag in its "Made by" line); so
+    is a checkpoint of `cfg` (a `ReproConfig`) for a policy none of them runs."""
+    repro_checkpoints(items, cfg)
     for dest, users in REPRO_FLAGS.items():
         if getattr(args, dest, None) is None or set(items) & set(users):
             continue
@@ -311,3 +313,22 @@ def buildable(names: tuple[str, ...], world: WorldConfig, checkpoints: dict[str,
             continue
         kept.append(name)
     return tuple(kept)
+
+
+def repro_checkpoints(items: list[str], cfg: Any) -> None:
+    """`repro --checkpoint NAME=FILE` (or `[repro] checkpoints`) for a policy none of `items`
+    runs is refused, as `eval` refuses one (its Made by line named a checkpoint that played no
+    part): fig9 draws CommNet and CommAttn of --policies, fig10 and fig11 study CommAttn, comm
+    runs --comm-policies, fig8 draws training curves and runs none."""
+    from swarm.studies.fig9 import drawn
+
+    runs = {"fig8": ((), "the policies fig8 runs"), "fig9": (drawn(cfg.policies), "--policies"),
+            "fig10": (("commattn",), "fig10's policy"), "fig11": (("commattn",), "fig11's policy"),
+            "comm": (cfg.comm_policies, "--comm-policies")}
+    names, flags = [], []
+    for item in items:
+        ran, flag = runs.get(item, (cfg.policies, "--policies"))
+        names += [n for n in ran if n not in names]
+        flags += [flag] if flag not in flags else []
+    stray_checkpoints(cfg.checkpoints, names, flags[0] if len(flags) == 1 else
+                      f"the policies {', '.join(items)} run")

@@ -131,7 +131,7 @@ def fig9_items(items: Sequence[str], policies: Sequence[str], default: bool) -> 
     return list(items)
 
 
-def _names(policies: Sequence[str]) -> list[str]:
+def drawn(policies: Sequence[str]) -> list[str]:
     """The policies fig9 draws: CommNet and CommAttn, those of them in `policies`, else both."""
     return [n for n in POLICIES if n in policies] or list(POLICIES)
 
@@ -141,7 +141,7 @@ def check_fig9_checkpoints(world: WorldConfig, cfg: Any) -> None:
     policy: a wrong one is refused before any point is run (it was found after the first
     policy's whole sweep)."""
     default = WorldConfig().vision
-    for name in _names(cfg.policies):
+    for name in drawn(cfg.policies):
         ckpt = vision_checkpoint(name, default, WorldConfig(), cfg.checkpoint(name))
         if ckpt is not None:
             build_policy(name, replace(world, dynamic=True, vision=default), str(ckpt))
@@ -150,6 +150,6 @@ def check_fig9_checkpoints(world: WorldConfig, cfg: Any) -> None:
 def fig9_item(world: WorldConfig, cfg: Any, command: str) -> dict[str, Any]:
     """`swarm repro fig9`: CommNet and CommAttn (those of them in `cfg.policies`, else both)
     with `cfg` (a `ReproConfig`)'s seed, episodes, batch and checkpoints."""
-    names = _names(cfg.policies)
+    names = drawn(cfg.policies)
     return fig9(world, Path(cfg.out), command, cfg.seed, cfg.fig9_episodes, policies=names,
                 batch=cfg.batch, checkpoints={n: cfg.checkpoint(n) for n in names})
