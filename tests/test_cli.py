@@ -238,6 +238,23 @@ def test_eval_json_records_the_settings_that_change_its_figures(
     assert plan["default"]["burst"] == 240
 
 
+def test_every_episodes_csv_column_is_documented(capsys: pytest.CaptureFixture[str]) -> None:
+    """UA 75: `repeat_ratio` was documented nowhere and the CSV's `reward` unit unsaid (the
+    README's tables say "reward / robot"): the README names every column by its CSV name next
+    to `--episodes-csv`, and `--help` says the reward is per robot."""
+    from swarm.cli import main
+    from world.core import METRIC_NAMES
+
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    said = readme[readme.index("`--episodes-csv F` writes"):][:1200]
+    for column in ("policy", "episode", *METRIC_NAMES):
+        assert f"`{column}`" in said, (column, said)
+    assert "return per robot" in said and "`repeat_ratio`, the share of robot-steps" in said
+    with pytest.raises(SystemExit):
+        main(["eval", "--help"])
+    assert "episode return per robot" in " ".join(capsys.readouterr().out.split())
+
+
 @pytest.mark.procs
 def test_eval_warns_that_it_plays_without_the_process_faults_of_a_shared_file(
         tmp_path: Path) -> None:

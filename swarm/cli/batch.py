@@ -358,8 +358,8 @@ def add_parsers(sub: Any) -> None:
                    help="checkpoint of the learned policy, or NAME=FILE per learned policy "
                         "(repeatable; default: the shipped one)")
     p.add_argument("--episodes", type=int, metavar="K", help="episodes (default 1000)")
-    p.add_argument("--episodes-csv", metavar="FILE",
-                   help="also write every episode's metrics per policy (for paired analyses)")
+    p.add_argument("--episodes-csv", metavar="FILE", help="also write every episode's metrics "
+                   "per policy (reward: episode return per robot; columns: README)")
     p.add_argument("--batch", type=int, metavar="B", help="episodes stepped at once (default 250)")
     p.add_argument("--sample", action="store_true", help="sample actions instead of greedy")
     p.add_argument("--tick-timeout", type=float, metavar="S",
