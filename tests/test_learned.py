@@ -293,6 +293,37 @@ def test_parallel_update_equals_single_process_update() -> None:
         torch.testing.assert_close(two[key], one[key], rtol=1e-4, atol=1e-6)
 
 
+def test_a_worker_stopped_between_its_moments_and_its_gradients_leaves_quietly() -> None:
+    """UA pass 76: Ctrl-C on `swarm train --workers 2` printed a worker's traceback ("cannot
+    unpack non-iterable NoneType") when the parent's stop came where the worker waited for the
+    batch's moments, not for a request."""
+    import dataclasses
+    import threading
+    from multiprocessing import Pipe
+
+    from swarm.learn.parallel import _worker
+    from world.config import to_dict
+
+    pol = policy("commattn", SMALL)
+    parent, child = Pipe()
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            _worker(child, "commattn", to_dict(SMALL), dataclasses.asdict(pol.model_cfg), 1)
+        except BaseException as exc:  # (what the spawned process would print as a traceback)
+            failed.append(exc)
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    parent.send((pol.net.state_dict(), to_dict(SMALL), 5, np.arange(2),
+                 dataclasses.asdict(TrainConfig(policy="commattn", batch=2)), None))
+    assert parent.poll(120) and parent.recv() is not None  # its moments
+    parent.send(None)  # the stop, where the worker waits for the normaliser
+    worker.join(60)
+    assert not worker.is_alive() and failed == []
+
+
 @pytest.mark.parametrize("name", LEARNED)
 def test_checkpoint_roundtrip_and_errors(name: str, tmp_path: Path) -> None:
     pol = policy(name, seed=3)

@@ -120,8 +120,10 @@ class TrainConfig:
     val_episodes: int = 96
     """Validation episodes (greedy, then sampled) on the full world after every epoch, on a
     seed of their own (0 disables)."""
-    threads: int = 2
-    """torch.set_num_threads of each training process."""
+    threads: int = 1
+    """torch.set_num_threads of each training process. One by default: on a 2-core machine
+    whose other core is busy a second thread spin-waits, and an update took ~50x longer (UA
+    pass 76: 74 s against 1.4 s); raise it only with idle cores to spare."""
     workers: int = 1
     """Processes that collect and backpropagate the episodes of each update in parallel (this
     one plus workers - 1 spawned ones, see swarm.learn.parallel); the update is the same for

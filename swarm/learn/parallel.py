@@ -70,7 +70,10 @@ def _worker(conn: Connection, policy_name: str, world: dict[str, Any], model: di
                            episodes, faults, cfg.tick_s, cfg.imitate, cfg.imitate_samples)
             adv = train.advantages(roll, cfg)
             conn.send(adv.moments())
-            mean, std, decisions = conn.recv()
+            moments = conn.recv()
+            if moments is None:  # the parent stopped between the two halves (Ctrl-C)
+                return
+            mean, std, decisions = moments
             pol.net.zero_grad(set_to_none=True)
             last = (roll, adv, cfg, mean, std, decisions)
             totals = train.backward(pol, *last)
