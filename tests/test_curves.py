@@ -1,17 +1,23 @@
 """A training run's folder (swarm.learn.curves): what a kill mid-write leaves is gone once the
-run resumes (a real tiny run, in-process)."""
+run resumes, what the files record across resumes (real tiny runs, in-process)."""
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import io
+import json
 from pathlib import Path
 
+import pytest
 from rich.console import Console
 
 from swarm.learn.config import TrainConfig
+from swarm.learn.curves import CURVE_FIELDS, fig8
 from swarm.learn.trainer import main
 from world.config import WorldConfig
+
+ROOT = Path(__file__).resolve().parents[1]
 
 TINY = WorldConfig(height=6, width=6, n_static=4, n_dynamic=3, n_robots=3, horizon=9, add_every=3,
                    vision=3, comm_range=float("inf"))
@@ -32,3 +38,25 @@ def test_resume_removes_the_temp_files_a_killed_run_left(tmp_path: Path) -> None
     assert not [p.name for p in stale if p.exists()]
     assert len((out / "curve.csv").read_text().splitlines()) == 3  # header, two updates
     assert {"curve.csv", "curve.png"} <= {p.name for p in out.iterdir()}
+
+
+def _train(cfg: TrainConfig, out: Path, argv: str, monkeypatch: pytest.MonkeyPatch,
+           resume: bool = False) -> None:
+    monkeypatch.setattr("sys.argv", argv.split())
+    main(cfg, TINY, out, resume=resume, console=Console(file=io.StringIO()))
+
+
+def test_the_log_records_the_estimator_and_fig8_reads_old_and_new_curves(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Under PPO the loss columns mean PPO's terms: every update line of log.jsonl names the
+    estimator; curve.csv keeps its columns, so `swarm repro fig8` draws a new run's curve beside
+    the shipped ones."""
+    out = tmp_path / "run"
+    _train(TrainConfig(policy="commattn", epochs=1, updates=2, batch=2, threads=1,
+                       val_episodes=0, algo="ppo", ppo_epochs=2), out, "swarm train", monkeypatch)
+    lines = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    assert [r["algo"] for r in lines if r["kind"] == "update"] == ["ppo", "ppo"]
+    assert next(csv.reader((out / "curve.csv").open())) == CURVE_FIELDS
+    res = fig8({"commattn": ROOT / "checkpoints" / "commattn_curve.csv",
+                "mine": out / "curve.csv"}, 5, tmp_path / "fig8", "test", 0)
+    assert {r["policy"] for r in res["rows"]} == {"commattn", "mine"}

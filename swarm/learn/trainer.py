@@ -155,7 +155,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                        "block_collisions": float(m.block_collisions.mean()), **parts,
                        "episodes_per_s": cfg.batch / dt, "elapsed_s": time.perf_counter() - start}
                 cur.observe(row["elratio"], world, cfg)
-                curves.append(row)
+                curves.append(row, algo=cfg.algo)
                 bar.update(task, advance=1, stats=_progress_line(row, total))
                 if not console.is_terminal and upd % 10 == 0:
                     console.print(_progress_line(row, total), highlight=False, soft_wrap=True)
