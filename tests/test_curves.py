@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
+from policies.checkpoint import load_checkpoint, save_checkpoint
 from swarm.learn.config import TrainConfig
 from swarm.learn.curves import CURVE_FIELDS, fig8
 from swarm.learn.trainer import main
@@ -60,3 +61,30 @@ def test_the_log_records_the_estimator_and_fig8_reads_old_and_new_curves(
     res = fig8({"commattn": ROOT / "checkpoints" / "commattn_curve.csv",
                 "mine": out / "curve.csv"}, 5, tmp_path / "fig8", "test", 0)
     assert {r["policy"] for r in res["rows"]} == {"commattn", "mine"}
+
+
+def _strip_history(ckpt_path: Path) -> None:
+    """Make a checkpoint as written before runs kept their commands."""
+    old = load_checkpoint(ckpt_path)
+    old["meta"] = {k: v for k, v in old["meta"].items() if k != "commands"}
+    save_checkpoint(ckpt_path, old)
+
+
+CFG = TrainConfig(policy="commattn", epochs=1, updates=2, batch=2, threads=1, val_episodes=0)
+
+
+def test_resume_keeps_every_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A resumed run's checkpoint names every command that made its epochs, in order
+    (`meta.commands`; `meta.command` is the last); an older checkpoint's one command starts
+    the list."""
+    out = tmp_path / "run"
+    _train(CFG, out, "swarm train --first", monkeypatch)
+    assert load_checkpoint(out / "checkpoint.pt")["meta"]["commands"] == ["swarm train --first"]
+    _train(dataclasses.replace(CFG, epochs=2), out, "swarm train --second", monkeypatch, True)
+    meta = load_checkpoint(out / "checkpoint.pt")["meta"]
+    assert meta["commands"] == ["swarm train --first", "swarm train --second"]
+    assert meta["command"] == "swarm train --second"
+    _strip_history(out / "checkpoint.pt")
+    _train(dataclasses.replace(CFG, epochs=3), out, "swarm train --third", monkeypatch, True)
+    assert load_checkpoint(out / "checkpoint.pt")["meta"]["commands"] == [
+        "swarm train --second", "swarm train --third"]

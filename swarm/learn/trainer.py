@@ -41,6 +41,15 @@ def _progress_line(row: dict[str, Any], total: int) -> str:
             f"loss {row['loss']:.3f}  dyn {row['n_dynamic']}")
 
 
+def earlier_commands(meta: dict[str, Any]) -> list[str]:
+    """The commands that made a checkpoint's epochs, first to last: `meta.commands`, or the one
+    `meta.command` of a checkpoint written before runs kept their history."""
+    commands = meta.get("commands")
+    if isinstance(commands, list) and all(isinstance(c, str) for c in commands):
+        return list(commands)
+    return [meta["command"]] if isinstance(meta.get("command"), str) else []
+
+
 # ---------------------------------------------------------------------------------- the loop
 def main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool = False,
          console: Any | None = None, given: Collection[str] | None = None,
@@ -79,7 +88,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         raise ConfigError(f"policy {cfg.policy!r} is not a learned policy")
     curves = CurveLog(out)
     cur = Curriculum()
-    epoch0, upd = 0, 0
+    epoch0, upd, commands = 0, 0, [" ".join(sys.argv)]
     if resume and ckpt_path.exists():
         data = load_checkpoint(ckpt_path)
         cfg, world, tr = resume_point(data, cfg, given, world, world_given, str(out))
@@ -91,6 +100,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         epoch0, upd = tr["epoch"], tr["update"]
         cur = Curriculum(**tr["curriculum"])
         curves.resume(upd)
+        commands = earlier_commands(data.get("meta", {})) + commands
         console.print(f"resuming {cfg.policy} from epoch {epoch0}, update {upd}" +
                       (f": all {cfg.epochs} epochs are done (--epochs N goes on)"
                        if epoch0 >= cfg.epochs else ""))
@@ -125,7 +135,6 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         curves.start()
     train_seed = cfg.train_seed_offset + cfg.seed
     total = cfg.epochs * cfg.updates
-    command = " ".join(sys.argv)
     last: dict[str, Any] = {}
     start = time.perf_counter()
     columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
@@ -169,8 +178,9 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                     val |= {prefix + k: v for k, v in res.summary(world).items()
                             if k in ("elratio_mean", "success_rate", "reward_mean",
                                      "collisions_mean", "block_collisions_mean")}
-            meta = {"command": command, "seed": cfg.seed, "epoch": epoch + 1, "update": upd,
-                    "episodes": upd * cfg.batch, "provenance": provenance(), **val}
+            meta = {"command": commands[-1], "commands": commands, "seed": cfg.seed,
+                    "epoch": epoch + 1, "update": upd, "episodes": upd * cfg.batch,
+                    "provenance": provenance(), **val}
             payload = policy.payload(meta)
             payload["train"] = {"config": dataclasses.asdict(cfg), "optimizer": opt.state_dict(),
                                 "rng": torch.get_rng_state(), "epoch": epoch + 1, "update": upd,
@@ -180,7 +190,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
             curves.note({"kind": "epoch", "update": upd, "epoch": epoch + 1,
                          "curriculum_level": cur.level, **val})
             save_checkpoint(ckpt_path, payload)
-            plot_curve(curves.csv, out / "curve.png", f"{cfg.policy}: {command}")
+            plot_curve(curves.csv, out / "curve.png", f"{cfg.policy}: {commands[0]}" + (
+                f" (resumed {len(commands) - 1}x)" if len(commands) > 1 else ""))
             console.print(f"epoch {epoch + 1}/{cfg.epochs}  update {upd}  train elratio "
                           f"{last.get('elratio', float('nan')):.3f}  "
                           + "  ".join(f"{k} {v:.3f}" for k, v in val.items()), highlight=False,
