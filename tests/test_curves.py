@@ -14,7 +14,7 @@ from rich.console import Console
 
 from policies.checkpoint import load_checkpoint, save_checkpoint
 from swarm.learn.config import TrainConfig
-from swarm.learn.curves import CURVE_FIELDS, fig8
+from swarm.learn.curves import CURVE_FIELDS, fig8, read_curve
 from swarm.learn.trainer import main
 from world.config import WorldConfig
 
@@ -64,9 +64,10 @@ def test_the_log_records_the_estimator_and_fig8_reads_old_and_new_curves(
 
 
 def _strip_history(ckpt_path: Path) -> None:
-    """Make a checkpoint as written before runs kept their commands."""
+    """Make a checkpoint as written before runs kept their commands and clock."""
     old = load_checkpoint(ckpt_path)
     old["meta"] = {k: v for k, v in old["meta"].items() if k != "commands"}
+    old["train"] = {k: v for k, v in old["train"].items() if k != "elapsed_s"}
     save_checkpoint(ckpt_path, old)
 
 
@@ -88,3 +89,19 @@ def test_resume_keeps_every_command(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     _train(dataclasses.replace(CFG, epochs=3), out, "swarm train --third", monkeypatch, True)
     assert load_checkpoint(out / "checkpoint.pt")["meta"]["commands"] == [
         "swarm train --second", "swarm train --third"]
+
+
+def test_resume_continues_the_run_clock(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """curve.csv's elapsed_s is the run's training time: a resumed run goes on from its
+    checkpoint's total instead of restarting at 0 (an older checkpoint: from its curve's last
+    row)."""
+    out = tmp_path / "run"
+    _train(CFG, out, "swarm train", monkeypatch)
+    _train(dataclasses.replace(CFG, epochs=2), out, "swarm train", monkeypatch, True)
+    elapsed = read_curve(out / "curve.csv")["elapsed_s"]
+    assert elapsed == sorted(elapsed) and elapsed[2] > elapsed[1], elapsed
+    assert load_checkpoint(out / "checkpoint.pt")["train"]["elapsed_s"] >= elapsed[3]
+    _strip_history(out / "checkpoint.pt")
+    _train(dataclasses.replace(CFG, epochs=3), out, "swarm train", monkeypatch, True)
+    elapsed = read_curve(out / "curve.csv")["elapsed_s"]
+    assert len(elapsed) == 6 and elapsed == sorted(elapsed) and elapsed[4] > elapsed[3], elapsed

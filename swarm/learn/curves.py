@@ -59,6 +59,14 @@ class CurveLog:
             if len(out) < len(lines):
                 write_text(path, "".join(out))
 
+    def last_elapsed(self) -> float:
+        """The last row's `elapsed_s` (0 for none): where a resumed run's clock goes on from when
+        its checkpoint predates the trainer state's `elapsed_s`."""
+        try:
+            return read_curve(self.csv)["elapsed_s"][-1]
+        except (ConfigError, KeyError, IndexError):
+            return 0.0
+
     def append(self, row: dict[str, Any], **extra: Any) -> None:
         """One update's row: CURVE_FIELDS to the CSV, everything (plus `extra`) to the log."""
         with self.jsonl.open("a") as fh:

@@ -88,7 +88,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         raise ConfigError(f"policy {cfg.policy!r} is not a learned policy")
     curves = CurveLog(out)
     cur = Curriculum()
-    epoch0, upd, commands = 0, 0, [" ".join(sys.argv)]
+    epoch0, upd, elapsed0, commands = 0, 0, 0.0, [" ".join(sys.argv)]
     if resume and ckpt_path.exists():
         data = load_checkpoint(ckpt_path)
         cfg, world, tr = resume_point(data, cfg, given, world, world_given, str(out))
@@ -100,6 +100,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         epoch0, upd = tr["epoch"], tr["update"]
         cur = Curriculum(**tr["curriculum"])
         curves.resume(upd)
+        elapsed0 = float(tr["elapsed_s"]) if isinstance(tr.get("elapsed_s"), float) \
+            else curves.last_elapsed()  # (a checkpoint from before it was kept: its curve's)
         commands = earlier_commands(data.get("meta", {})) + commands
         console.print(f"resuming {cfg.policy} from epoch {epoch0}, update {upd}" +
                       (f": all {cfg.epochs} epochs are done (--epochs N goes on)"
@@ -162,7 +164,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
                        "elratio": float(m.elratio.mean()), "success": float(m.success.mean()),
                        "reward": float(m.reward.mean()), "collisions": float(m.collisions.mean()),
                        "block_collisions": float(m.block_collisions.mean()), **parts,
-                       "episodes_per_s": cfg.batch / dt, "elapsed_s": time.perf_counter() - start}
+                       "episodes_per_s": cfg.batch / dt,
+                       "elapsed_s": elapsed0 + time.perf_counter() - start}
                 cur.observe(row["elratio"], world, cfg)
                 curves.append(row, algo=cfg.algo)
                 bar.update(task, advance=1, stats=_progress_line(row, total))
@@ -184,7 +187,8 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
             payload = policy.payload(meta)
             payload["train"] = {"config": dataclasses.asdict(cfg), "optimizer": opt.state_dict(),
                                 "rng": torch.get_rng_state(), "epoch": epoch + 1, "update": upd,
-                                "curriculum": dataclasses.asdict(cur)}
+                                "curriculum": dataclasses.asdict(cur),
+                                "elapsed_s": elapsed0 + time.perf_counter() - start}
             # the epoch's row first: a kill before the checkpoint lands drops it on resume (it is
             # past the last checkpoint's update); one after keeps it
             curves.note({"kind": "epoch", "update": upd, "epoch": epoch + 1,
