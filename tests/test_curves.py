@@ -105,3 +105,23 @@ def test_resume_continues_the_run_clock(tmp_path: Path, monkeypatch: pytest.Monk
     _train(dataclasses.replace(CFG, epochs=3), out, "swarm train", monkeypatch, True)
     elapsed = read_curve(out / "curve.csv")["elapsed_s"]
     assert len(elapsed) == 6 and elapsed == sorted(elapsed) and elapsed[4] > elapsed[3], elapsed
+
+
+def test_fig8_says_when_the_curves_come_from_different_worlds(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """`swarm repro fig8 --curve NAME=FILE` drew a run of another world beside the shipped
+    curves without a word: the checkpoints beside the curves tell, in one line on stderr and in
+    the Markdown; the shipped curves alone (one world) get no note."""
+    out = tmp_path / "run"
+    _train(CFG, out, "swarm train", monkeypatch)
+    shipped = ROOT / "checkpoints" / "commattn_curve.csv"
+    fig8({"commattn": shipped, "vain": shipped.with_name("vain_curve.csv")}, 5,
+         tmp_path / "same", "test", 0)
+    assert "Not comparable" not in (tmp_path / "same" / "fig8.md").read_text()
+    assert capsys.readouterr().err == ""
+    fig8({"commattn": shipped, "mine": out / "curve.csv"}, 5, tmp_path / "mixed", "test", 0)
+    err = capsys.readouterr().err
+    assert err.startswith("fig8: Not comparable") and err.count("\n") == 1, err
+    assert "commattn: comm_range 10.0, height 20" in err and "mine: comm_range inf, height 6" in err
+    assert err.removeprefix("fig8: ").strip() in (tmp_path / "mixed" / "fig8.md").read_text()

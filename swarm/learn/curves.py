@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -155,6 +156,31 @@ def plot_curve(csv_path: Path, png_path: Path, title: str, smooth: int = 25) -> 
     save_png(Path(png_path), draw, ncols=2)
 
 
+def run_world(curve: Path) -> dict[str, Any] | None:
+    """The world a training curve was trained on, from the checkpoint beside it (a run folder's
+    `checkpoint.pt`, or `NAME.pt` beside a shipped `NAME_curve.csv`); None where none reads."""
+    from policies.checkpoint import read_checkpoint
+
+    stem = curve.name.removesuffix("_curve.csv")
+    beside = curve.with_name(f"{stem}.pt" if stem != curve.name else "checkpoint.pt")
+    try:
+        return read_checkpoint(beside)["world"] if beside.is_file() else None
+    except ConfigError:
+        return None
+
+
+def world_note(paths: dict[str, Path]) -> str:
+    """A sentence when the curves were trained on different worlds (their checkpoints'), naming
+    each curve's differing fields; "" when they agree or are unknown."""
+    worlds = {n: w for n, p in paths.items() if (w := run_world(Path(p))) is not None}
+    keys = sorted(k for k in {k for w in worlds.values() for k in w}
+                  if len({repr(w.get(k)) for w in worlds.values()}) > 1)
+    if not keys:
+        return ""
+    return ("Not comparable: these curves were trained on different worlds (" + "; ".join(
+        f"{n}: " + ", ".join(f"{k} {w.get(k)}" for k in keys) for n, w in worlds.items()) + ").")
+
+
 def fig8(paths: dict[str, Path], smooth_over: int, out: Path, command: str,
          seed: int) -> dict[str, Any]:
     """Fig. 8 (`swarm repro fig8`): training curves (score = mean reward per robot, and
@@ -178,6 +204,9 @@ def fig8(paths: dict[str, Path], smooth_over: int, out: Path, command: str,
                 f"Training elratio and reward per robot (sampled actions, curriculum on), "
                 f"moving mean over {smooth_over} updates. Paper: CommAttn's score ~150% of the "
                 "others'.")
+    if note := world_note(paths):
+        print(f"fig8: {note}", file=sys.stderr, flush=True)
+        md += note + "\n\n"
     md += md_table(["policy", "training episodes", "final elratio", "final reward / robot"],
                    [[n, f"{e:,}", f"{el:.3f}", f"{rw:.1f}"] for n, (el, rw, e) in last.items()])
 
