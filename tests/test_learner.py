@@ -215,6 +215,8 @@ def test_learner_update_from_the_swarm_equals_the_batched_update(tmp_path: Path,
         torch.testing.assert_close(field["state_dict"][k], v, rtol=1e-4, atol=1e-5)
     row = next(csv.DictReader((out / "curve.csv").open()))
     assert float(row["elratio"]) == pytest.approx(float(roll.metrics.elratio.mean()))
+    line = json.loads((out / "log.jsonl").read_text().splitlines()[0])  # names its estimator
+    assert line["kind"] == "update" and line["algo"] == algo and line["version"] == 1
 
 
 @pytest.mark.procs

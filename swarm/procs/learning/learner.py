@@ -318,8 +318,8 @@ class Learner:
         self.save()  # acknowledged only once durable ...
         self.weights_payload = weights_of(self.policy, self.version, self.origin).pack()
         self.weights_pub.put(self.weights_payload)  # ... then published
-        self.curves.append(row, version=self.version, episode_ids=[e.ep for e in batch],
-                           versions=[e.version for e in batch])
+        self.curves.append(row, algo=self.tc.algo, version=self.version,
+                           episode_ids=[e.ep for e in batch], versions=[e.version for e in batch])
         self.curve.append(row["elratio"])
         self.last_row = row
         log.info("learner: version %d, elratio %.3f", self.version, row["elratio"])
