@@ -915,3 +915,33 @@ def test_an_output_over_an_input_or_another_output_is_refused_before_anything_ru
     # a device is written in place, never replaced: two outputs may share /dev/null
     assert main(["eval", "--episodes", "1", "--batch", "1", "--policy", "random", "--json",
                  "/dev/null", "--episodes-csv", "/dev/null"]) == 0
+
+
+def test_eval_pairs_two_checkpoints_of_one_policy_under_a_label(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """UA pass 76: your CommAttn against the shipped one could not run in one `swarm eval` (a
+    policy runs once): `LABEL=NAME` runs NAME again under a label, with its own checkpoint,
+    paired over the same episodes."""
+    other = str(ROOT / "checkpoints" / "commattn_nomemory.pt")
+    out, rows = tmp_path / "e.json", tmp_path / "e.csv"
+    r = swarm_here("eval", "--policy", "commattn,mine=commattn", "--checkpoint",
+                   f"mine={other}", "--episodes", "3", "--robots", "3", "--horizon", "6",
+                   "--json", str(out), "--episodes-csv", str(rows), capsys=capsys)
+    assert r.returncode == 0, r.stderr
+    first, mine = json.loads(out.read_text())["results"]
+    assert (first["policy"], first["checkpoint"], "runs" in first) == (
+        "commattn", "checkpoints/commattn.pt", False)
+    assert (mine["policy"], mine["runs"], mine["checkpoint"]) == (
+        "mine", "commattn", "checkpoints/commattn_nomemory.pt")
+    assert mine["elratio_paired"]["vs"] == "commattn" and mine["elratio_mean"] != \
+        first["elratio_mean"]  # (another network on the same episodes)
+    assert {row["policy"] for row in csv.DictReader(rows.open())} == {"commattn", "mine"}
+    for policy, says in (("commattn,commnet=commattn", "that is no policy's name"),
+                         ("mine=commattn,mine=commnet", "'mine' is named twice"),
+                         ("mine=all", "a label names one policy, not all"),
+                         ("mine=nope", "unknown policy 'nope'")):
+        r = swarm_here("eval", "--policy", policy, "--episodes", "1", capsys=capsys)
+        assert r.returncode == 2 and says in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    r = swarm_here("eval", "--policy", "commattn", "--checkpoint", f"mine={other}",
+                   "--episodes", "1", capsys=capsys)  # (a label not run: as any stray name)
+    assert r.returncode == 2 and "'mine' is not a policy" in r.stderr, r.stderr

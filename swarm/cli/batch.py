@@ -91,16 +91,15 @@ class EvalConfig:
 
 
 def eval_policies(world: WorldConfig, cfg: EvalConfig) -> list[tuple[str, Any]]:
-    """(name, built policy) of every policy `cfg.policy` names: a bad name or checkpoint fails
-    here, before anything runs."""
-    from swarm.common.policy_spec import build_policy, resolve_policies
+    """(label, built policy) per `labelled_policies(cfg.policy)`; any bad input fails here."""
+    from swarm.common.policy_spec import build_policy, labelled_policies
 
-    names = resolve_policies(cfg.policy)
-    if cfg.checkpoint is not None and len(names) > 1:
+    runs = labelled_policies(cfg.policy)
+    if cfg.checkpoint is not None and len(runs) > 1:
         raise ConfigError("--checkpoint FILE needs a single --policy; name each policy's "
                           "checkpoint with --checkpoint NAME=FILE")
-    stray_checkpoints(cfg.checkpoints, names, "--policy")
-    return [(n, build_policy(n, world, checkpoint_of(cfg, n))) for n in names]
+    stray_checkpoints(cfg.checkpoints, [label for label, _ in runs], "--policy")
+    return [(label, build_policy(n, world, checkpoint_of(cfg, label))) for label, n in runs]
 
 
 def checkpoint_of(cfg: EvalConfig, name: str) -> str | None:
@@ -113,10 +112,10 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
              ) -> list[dict[str, Any]]:
     """Evaluate each policy of `cfg.policy` on the same episodes; summaries in order."""
     from swarm.bench.micro import NullProgress
-    from swarm.common.policy_spec import effective_checkpoint, shown
+    from swarm.common.policy_spec import effective_checkpoint, labelled_policies, shown
     from swarm.learn.evaluate import evaluate
 
-    built = built if built is not None else eval_policies(world, cfg)
+    built, runs = built or eval_policies(world, cfg), dict(labelled_policies(cfg.policy))
     names, policies = [n for n, _ in built], [p for _, p in built]
     progress = progress or NullProgress()
     out, results = [], []
@@ -125,8 +124,9 @@ def run_eval(world: WorldConfig, cfg: EvalConfig, progress: Any = None,
         res = evaluate(world, policy, cfg.seed, cfg.episodes, batch=cfg.batch, greedy=cfg.greedy,
                        on_progress=progress.advance, faults=faults, tick_s=cfg.tick_timeout)
         results.append(res)
-        out.append({**res.summary(world), "policy": name,
-                    "checkpoint": shown(effective_checkpoint(name, checkpoint_of(cfg, name))),
+        out.append({**res.summary(world), "policy": name, **({"runs": runs[name]} if runs[name]
+                    != name else {}), "checkpoint": shown(effective_checkpoint(
+                        runs[name], checkpoint_of(cfg, name))),
                     "decentralized": bool(policy.decentralized),
                     **({"faults": faults.describe()} if faults is not None else {})})
         if len(out) > 1:  # the same episodes: each policy against the first, episode by episode
@@ -350,10 +350,10 @@ def cmd_repro(args: argparse.Namespace) -> int:
 
 def add_parsers(sub: Any) -> None:
     """Register `eval`, `bench`, `repro` and `train` on the `swarm` subparsers."""
-    p = sub.add_parser("eval", help="batched in-process evaluation of one or more policies",
-                       description="Batched, in-process evaluation; prints a results table.")
+    p = sub.add_parser("eval", help="batched in-process evaluation of one or more policies")
     p.add_argument("--policy", help="policy name, comma list or 'all' (the four baselines: "
-                   f"{', '.join(BASELINES)}; default nearest-frontier)")
+                   f"{', '.join(BASELINES)}; default nearest-frontier); LABEL=NAME runs NAME "
+                   "under a label, e.g. commattn,mine=commattn --checkpoint mine=FILE")
     p.add_argument("--checkpoint", action="append", metavar="FILE|NAME=FILE",
                    help="checkpoint of the learned policy, or NAME=FILE per learned policy "
                         "(repeatable; default: the shipped one)")

@@ -6,6 +6,7 @@ registered in `policies.REGISTRY` becomes usable everywhere by its name alone.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from policies import BASELINES, LEARNED, REGISTRY, PluginError, make_policy, policy_class
@@ -34,6 +35,34 @@ def resolve_policies(spec: str | list[str] | tuple[str, ...]) -> list[str]:
     if not names:
         raise ConfigError("no policy given")
     return names
+
+
+def labelled_policies(spec: str | list[str] | tuple[str, ...]) -> list[tuple[str, str]]:
+    """`swarm eval --policy`: `resolve_policies`' entries, any of them `LABEL=NAME`, as (label,
+    registry name) in the order written; a plain name is its own label. A label runs one policy
+    a second time under a name of its own, e.g. your checkpoint beside the shipped one:
+    `commattn,mine=commattn --checkpoint mine=FILE` (paired over the same episodes)."""
+    items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec)
+             if s.strip()]
+    plain = [s for s in items if "=" not in s]
+    if plain:
+        resolve_policies(plain)  # (unknown or repeated names: its one line)
+    out: dict[str, str] = {}
+    for item in items:
+        label, sep, name = (s.strip() for s in item.partition("="))
+        if not sep:
+            out.update({n: n for n in (BASELINES if item == "all" else [item]) if n not in out})
+            continue
+        if not re.fullmatch(r"[A-Za-z][\w-]*", label) or label in REGISTRY or label == "all":
+            raise ConfigError(f"--policy {item}: LABEL=NAME wants a label of letters, digits, "
+                              "'-' and '_' that is no policy's name")
+        if label in out or name == "all":
+            raise ConfigError(f"--policy {item}: " + ("a label names one policy, not all"
+                              if name == "all" else f"{label!r} is named twice"))
+        out[label] = resolve_policies([name])[0]
+    if not out:
+        raise ConfigError("no policy given")
+    return list(out.items())
 
 
 def load_class(name: str) -> type[Policy]:
