@@ -254,6 +254,7 @@ def test_manual_start_and_robots_exit_when_world_dies(tmp_path: Path) -> None:
         assert world.wait(timeout=60) == 0
         res = json.loads(out.read_text())
         assert res["completed"] == 1 and res["timeouts"] == 0 and res["never_joined"] == [2]
+        assert res["run"]["start_timeout"] == 3.0 and res["run"]["greedy"] is True  # (as run's)
         assert b"robots [2] not alive" in world.stderr.read()  # type: ignore[union-attr]
         for r in robots:  # the world is gone after its run's end: robots leave by themselves
             assert r.wait(timeout=10) == 0

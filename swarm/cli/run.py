@@ -46,7 +46,7 @@ from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
 from swarm.procs.runconfig import RunConfig, RunRecord
-from world.config import ConfigError, from_dict, toml_bools
+from world.config import ConfigError, from_dict, to_dict, toml_bools
 
 
 def _add_run_flags(p: argparse.ArgumentParser, pace: str) -> None:
@@ -226,7 +226,6 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_world(args: argparse.Namespace) -> int:
     from swarm.common.atomic import write_json
     from swarm.procs.world import main as world_main
-
     _logging(args.verbose)
     if args.spec is not None and not args.spec.strip():
         raise ConfigError("--spec wants a file name, got an empty one")
@@ -252,7 +251,8 @@ def cmd_world(args: argparse.Namespace) -> int:
             print("swarm: interrupted", file=sys.stderr)
         return 130
     if args.json:
-        write_json(args.json, {**res, "command": _command(), "provenance": provenance()})
+        write_json(args.json, {**res, "run": res.get("run") or to_dict(run),  # (as `run`'s)
+                               "command": _command(), "provenance": provenance()})
     if res.get("stopped") and not args.spec:  # (spawned, the supervisor says it)
         print(f"swarm world: stopped by a control record after {res['completed']} of "
               f"{run.episodes} episodes", file=sys.stderr)
