@@ -296,7 +296,8 @@ def test_the_help_states_defaults_and_what_it_names(monkeypatch: pytest.MonkeyPa
     assert "for the world (default 30)" in text("record") and "(default 0.5)" in text("record")
     learner = text("learner")
     for flag in ("--lr TRAIN_LR Adam learning rate (default 0.003)", "alpha (default 0.03)",
-                 "discount (default 1)", "entropy bonus (default 0.01)", "(default 2)"):
+                 "discount (default 1)", "entropy bonus (default 0.01)",
+                 "torch threads (default 1)"):
         assert flag in learner, flag
     assert "write OUT/checkpoint.pt (atomically) after each update" in learner
     assert "'all' (the four baselines: random, nearest-frontier, coordinated-frontier, " \

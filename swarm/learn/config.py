@@ -7,7 +7,6 @@ import argparse
 import dataclasses
 import json
 import math
-import os
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
@@ -469,9 +468,6 @@ def learner_configs(args: argparse.Namespace,
     ldata = {**tables.get("learner", {}), **{k: v for k, v in lflags.items() if v is not None}}
     tflags = {k: getattr(args, f"train_{k}", None) for k in LEARNER_TRAIN_FIELDS}
     tdata = {**tables.get("train", {}), **{k: v for k, v in tflags.items() if v is not None}}
-    # A learner shares the machine with the world and every robot: on two cores a second torch
-    # thread only fights them (updates 50-100x slower under contention), so one by default.
-    tdata.setdefault("threads", 1 if (os.cpu_count() or 1) <= 2 else 2)
     defaults = TrainConfig()
     batch_only = sorted(k for k in BATCH_TRAIN_FIELDS
                         if k in tdata and tdata[k] != getattr(defaults, k))
