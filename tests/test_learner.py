@@ -406,6 +406,8 @@ def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> Non
     rows = list(csv.DictReader((out / "curve.csv").open()))
     updates = [int(r["update"]) for r in rows]
     assert updates == sorted(set(updates)) and updates[0] == 1  # no row repeated after resume
+    elapsed = [float(r["elapsed_s"]) for r in rows]  # the run's time: it goes on across resume
+    assert elapsed == sorted(elapsed), elapsed
 
 
 @pytest.mark.procs

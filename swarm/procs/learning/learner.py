@@ -136,7 +136,7 @@ class Learner:
         self.origin = 1 + secrets.randbelow(BIG)  # this process's weights (Weights.origin)
         self.weights_payload = weights_of(self.policy, self.version, self.origin).pack()
         self.curve: list[float] = []  # the dashboard's sparkline: elratio per update
-        self.t0 = time.monotonic()
+        self.t0, self.elapsed0 = time.monotonic(), 0.0  # (elapsed0: the run's, before a resume)
         self._last_status = 0.0
         self.inbox: Inbox | None = None  # (its drops go in the status)
         self.last_row: dict[str, Any] = {}
@@ -162,6 +162,7 @@ class Learner:
                 self.curve = cols["elratio"][-40:]
                 self.last_row = {k: cols[k][-1] for k in ("elratio", "reward", "loss")
                                  if cols.get(k)}
+                self.elapsed0 = cols["elapsed_s"][-1] if cols.get("elapsed_s") else 0.0
             log.warning("learner resumed at version %d", self.version)
         elif not self.lc.gather_only:
             self.curves.start()
@@ -314,7 +315,7 @@ class Learner:
                "collisions": float(m.collisions.mean()),
                "block_collisions": float(m.block_collisions.mean()), **parts,
                "episodes_per_s": len(batch) / max(time.perf_counter() - t0, 1e-9),
-               "elapsed_s": time.monotonic() - self.t0}
+               "elapsed_s": self.elapsed0 + time.monotonic() - self.t0}
         self.save()  # acknowledged only once durable ...
         self.weights_payload = weights_of(self.policy, self.version, self.origin).pack()
         self.weights_pub.put(self.weights_payload)  # ... then published
