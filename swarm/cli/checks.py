@@ -14,7 +14,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from swarm.cli.common import _checkpoint_pairs
+from swarm.cli.common import _checkpoint_pairs, file_tables
 from swarm.common.atomic import in_place
 from swarm.common.policy_spec import build_inference
 from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from here)
@@ -94,8 +94,6 @@ def check_paths(args: argparse.Namespace) -> None:
 def _file_keys(args: argparse.Namespace) -> list[tuple[str, str, Any]]:
     """(`[table] key`, flag dest, path or paths) of the files the command's config file names
     that no flag overrides; a file that fails to load is left to the command's own error."""
-    from swarm.cli.common import file_tables
-
     keys, found = FILE_KEYS.get(getattr(args, "command", None) or "", {}), []
     if not keys or not getattr(args, "config", None):
         return []
