@@ -816,6 +816,7 @@ def test_swarm_eval_results_stay_whole_on_a_narrow_terminal(columns: int) -> Non
     figures = re.findall(r"-?\d+\.\d+%?(?:±\d+\.\d+)?", res)
     assert len(figures) >= 13, res  # six figures a policy, and the paired Δ
     assert re.search(r"-?\d\.\d{4}±\d\.\d{4}", res), res
+    assert "reward: the episode's return per robot" in " ".join(res.split()), res  # (its unit)
 
 
 @pytest.mark.procs

@@ -106,6 +106,8 @@ def _eval_table(summaries: Sequence[Mapping[str, Any]], title: str, narrow: bool
             table.add_row(policy, *cells)
     notes = ([f"Δ: elratio minus {vs}'s on the same episodes (paired; se of the mean)"]
              if vs else [])
+    notes.append("reward: the episode's return per robot (SPEC rewards summed over the steps, "
+                 "averaged over the team)")
     notes.append("plan ms: per team decision (eval: the batched act amortized over its "
                  "episodes; run: every robot's own decision, summed)")
     if any(not s.get("decentralized", True) for s in summaries):
