@@ -374,8 +374,9 @@ def test_a_sweep_killed_before_its_first_run_leaves_no_other_sweeps_rows_under_i
     """A 3-robot sweep started over a finished 2-robot one in the same folder wrote its record,
     then was stopped (Ctrl-C) before its first run ended: the 2-robot rows stayed in the CSV
     under the 3-robot record, and `--resume` published them as the 3-robot sweep's (no run,
-    exit 0); its Markdown and PNG stayed too. The old files now go before the new record is
-    written (the summary files come at the end)."""
+    exit 0); its Markdown and PNG stayed too, and `--overwrite` left the old runs' recordings
+    and kept logs. The old files now go before the new record is written (the summary files
+    come at the end)."""
     import signal
     import subprocess
     import sys
@@ -388,6 +389,9 @@ def test_a_sweep_killed_before_its_first_run_leaves_no_other_sweeps_rows_under_i
     assert r.returncode == 0 and len(_rows(out / "t.csv")) == 1, r.stderr[-2000:]
     assert (out / "t.md").is_file() and (out / "t.png").is_file()
     bigger = sweep_file(tmp_path, exp, "[world]\nn_robots = 3\n\n[run]\nepisodes = 50\n")
+    (out / "t-7.mcap").write_bytes(b"an old sweep's recording")  # (its 8th run's; -k: its own)
+    (out / "t-3-logs").mkdir()
+    (out / "t-note.mcap").write_bytes(b"not a run's")
     proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "experiment", bigger,
                              "--out", str(out), "--overwrite"], cwd=ROOT, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -401,6 +405,8 @@ def test_a_sweep_killed_before_its_first_run_leaves_no_other_sweeps_rows_under_i
     assert json.loads(record.read_text())["world"]["n_robots"] == 3, err[-2000:]
     assert not (out / "t.csv").exists() or _rows(out / "t.csv") == [], err[-2000:]
     assert not (out / "t.md").exists() and not (out / "t.png").exists()  # (of the old rows)
+    assert not (out / "t-7.mcap").exists() and not (out / "t-3-logs").exists()  # (its runs')
+    assert (out / "t-note.mcap").exists()
     r = swarm("experiment", bigger, "--out", str(out), "--resume", "--episodes", "1",
               timeout=240)  # (none of its runs is in the CSV: it runs them)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -23,8 +23,10 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import glob
 import io
 import math
+import re
 import shlex
 import shutil
 import sys
@@ -102,6 +104,8 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
     # written at the end): the old files go before the new record comes.
     for stale in (*(() if resume else (".csv",)), ".md", ".png", "_compare.png"):
         (out_dir / f"{exp.name}{stale}").unlink(missing_ok=True)
+    if not resume:  # and the old runs' recordings and kept logs (`<name>-<k>.mcap`, `-logs`)
+        _remove_point_files(out_dir, exp.name)
     write_record(sweep, out_dir)  # before the first run: a killed sweep's CSV has its record
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
@@ -152,6 +156,18 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
         files.append(write_comparison(rows, _read_rows(Path(exp.compare)), exp, out_dir,
                                       sweep.source))
     return {"rows": rows, "files": files}
+
+
+def _remove_point_files(out_dir: Path, name: str) -> None:
+    """A replaced sweep's per-run files: `<name>-<k>.mcap` and `<name>-<k>-logs/` of each
+    run k (a new sweep with fewer runs left the old sweep's last ones beside its CSV)."""
+    pattern = re.compile(rf"{re.escape(name)}-\d+(\.mcap|-logs)")
+    for path in out_dir.glob(f"{glob.escape(name)}-*") if out_dir.is_dir() else ():
+        if pattern.fullmatch(path.name):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
 
 
 def _keep_logs(res: dict[str, Any], dest: Path) -> str | None:
