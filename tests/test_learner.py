@@ -574,6 +574,56 @@ def test_a_training_run_says_where_its_weights_went(tmp_path: Path) -> None:
     assert said == [f"swarm: trained weights (version 2): {ckpt}"], r.stderr[-2000:]
 
 
+def _processes() -> list[tuple[int, list[str]]]:
+    """(pid, argv) of every process readable now (one that ended meanwhile is left out)."""
+    found = []
+    for p in Path("/proc").iterdir():
+        try:
+            if p.name.isdigit():
+                found.append((int(p.name), (p / "cmdline").read_bytes().decode(
+                    errors="replace").split("\0")))
+        except OSError:
+            pass
+    return found
+
+
+@pytest.mark.procs
+def test_a_field_learner_that_dies_ends_the_run_with_its_checkpoint_named_and_a_json(
+        tmp_path: Path) -> None:
+    """A SIGKILLed field learner ended `swarm run --train` with "the learner failed: exit code
+    -9" and no result JSON: an older run's file at the --json path stood as if it were this
+    run's, and the line did not say where the trained weights were. The line now names the
+    learner's last checkpoint, and --json holds the error and what the run had done."""
+    cfg = dataclasses.replace(SMALL, n_robots=2)
+    out, res, learner = tmp_path / "r.json", tmp_path / "L", tmp_path / "L" / "checkpoint.pt"
+    out.write_text('{"an": "older run"}')
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", "--train", "--train-sync", "--headless",
+         "--config", str(world_toml(tmp_path, cfg)), "--policy", "commattn", "--checkpoint",
+         str(initial(tmp_path, cfg)), "--episodes", "500", "--train-batch", "2",
+         "--learner-out", str(res), "--json", str(out)], cwd=ROOT, text=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env={**os.environ,
+                                                                "TMPDIR": str(tmp_path)})
+    try:
+        deadline = time.monotonic() + 120  # (a failsafe, not a measurement)
+        while not learner.is_file() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        pids = [pid for pid, args in _processes() if "learner" in args and str(res) in args]
+        # (the run's learner child: `swarm.cli learner ... --out L`, not the run itself)
+        assert len(pids) == 1, pids
+        os.kill(pids[0], signal.SIGKILL)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    lines = err.strip().splitlines()
+    assert proc.returncode == 1 and "the learner failed: killed by SIGKILL" in lines[-1], err
+    assert f"its last checkpoint: {learner} (its last status: version " in lines[-1], err
+    got = json.loads(out.read_text())
+    assert got["error"] in lines[-1] and got["run"]["train"] is True, got
+    acc = got["learner"]["accounting"]
+    assert acc["played"] == got["completed"] >= 2 and acc["trained"] >= 2, got
+
+
 def test_no_update_says_what_became_of_the_episodes_that_came() -> None:
     """It said "fewer than 3 episodes reached it" when 8 had, 7 of them incomplete."""
     from swarm.procs.learning.supervised import trained_line

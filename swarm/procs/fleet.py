@@ -30,6 +30,17 @@ def how_it_ended(code: int) -> str:
     return f"exit code {code}"
 
 
+def recording_result(path: str | None, code: int, log_dir: Path) -> dict[str, Any]:
+    """A run's `recording`; a recorder that failed (killed, an error) left its file cut at its
+    last flushed chunk: `partial`, and a warning line (`swarm run` exits 1)."""
+    if code != 0:
+        why = last_error(log_dir / "recorder.log") or how_it_ended(code)
+        print(f"swarm: warning: the recorder failed ({why}): {path} is partial, cut at its last "
+              "flushed chunk (`swarm replay --partial` reads it; logs in "
+              f"{log_dir})", file=sys.stderr, flush=True)
+    return {"path": path, "exit": code, "partial": code != 0}
+
+
 class Fleet:
     """Robot id -> its running process, with the counts the run's result reports."""
 

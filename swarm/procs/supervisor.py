@@ -2,11 +2,9 @@
 
 Every child is a fresh interpreter (subprocess, never fork: a forked Zenoh session hangs). The
 world listens on a free loopback port; robots and the supervisor's own session connect to it.
-Ctrl-C (or any exit) sends SIGINT to every child, then SIGKILL to whatever is left after 2 s,
-so no process of the run outlives it. With `--netns` (swarm/net/kernel/netns.py) the world and each
-robot run in network namespaces of their own, joined by veth pairs, and the kernel applies the
-link faults.
-"""
+Ctrl-C (or any exit) SIGINTs every child, then SIGKILLs what is left after 2 s: no process of
+the run outlives it. With `--netns` (swarm/net/kernel/netns.py) each process has a network
+namespace of its own, joined by veth pairs, and the kernel applies the link faults."""
 
 from __future__ import annotations
 
@@ -65,8 +63,8 @@ from swarm.net.messages import (
 from swarm.net.security.tls import identity_of, run_configs, topology_configs, topology_secure
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
-from swarm.procs.fleet import Fleet, how_it_ended
-from swarm.procs.learning.supervised import drain, learner_result
+from swarm.procs.fleet import Fleet, how_it_ended, recording_result
+from swarm.procs.learning.supervised import drain, learner_left, learner_result
 from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
 from swarm.procs.status_order import StatusOrder
 from world.config import ConfigError, WorldConfig, to_dict
@@ -292,6 +290,14 @@ class Supervisor:
         except (KeyboardInterrupt, ConfigError):  # (refused by --netns, say: no result either)
             stopped = True
             raise
+        except RuntimeError as exc:  # a failed run's --json says so (not an older run's file)
+            if self.opts.json_path:
+                v, lr = self.view, {} if self.learning is None else {"learner": learner_result(
+                    self.learner_status, self.view.episodes_done, self.learner_out)}
+                write_json(self.opts.json_path, {"error": str(exc), "ticks_done": v.ticks_done,
+                                                 "completed": v.episodes_done, **lr,
+                                                 **self._made_by()})
+            raise
         finally:
             try:  # (a Ctrl-C held during the stop is raised after it: the namespaces go anyway)
                 self.stop_all()
@@ -380,7 +386,8 @@ class Supervisor:
             res["supervisor_dropped"] = self.inbox.dropped
         res["result_message_lost"] = lost
         if self.recorder is not None:  # one that failed cut the file: data lost, said
-            self._recording(res, self.recorder.returncode)
+            res["recording"] = recording_result(self.opts.record, self.recorder.returncode,
+                                                self.log_dir)
         res["process_faults"] = self.fleet.log
         if res.get("stopped"):  # a stop on the control key ended the run early: said, not hidden
             print(f"swarm: run {self.run_cfg.run_id} was stopped by a control message after "
@@ -394,11 +401,7 @@ class Supervisor:
         if self.learning is not None:
             res["learner"] = learner_result(self.learner_status, int(res.get("completed", 0)),
                                             self.learner_out)
-        rc = self.run_cfg  # what made the result (--train without a checkpoint: None, fresh
-        ckpt = None if rc.checkpoint == str(self.tmp / "initial.pt") else rc.checkpoint \
-            if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)  # weights of --seed)
-        res.update(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
-                   run={**to_dict(rc), "checkpoint": shown(ckpt)}, provenance=provenance())
+        res.update(self._made_by())
         if self.topo is not None:  # a robot whose session never opened is in no other count
             res["netns"] = {**self.topo.describe(), "never_joined": sum(
                 r.state == "starting" for r in self.view.robots.values())}
@@ -412,6 +415,13 @@ class Supervisor:
         if self.opts.json_path:
             write_json(self.opts.json_path, res)
         return res
+
+    def _made_by(self) -> dict[str, Any]:
+        rc = self.run_cfg  # what made the result (--train without a checkpoint: None, fresh
+        ckpt = None if rc.checkpoint == str(self.tmp / "initial.pt") else rc.checkpoint \
+            if rc.train else effective_checkpoint(rc.policy, rc.checkpoint)  # weights of --seed)
+        return dict(command=self.opts.command, checkpoint=shown(ckpt), world=to_dict(self.cfg),
+                    run={**to_dict(rc), "checkpoint": shown(ckpt)}, provenance=provenance())
 
     def _drain_learner(self) -> None:
         if self.learner is not None and self.result is not None:
@@ -441,16 +451,6 @@ class Supervisor:
             self.recorder.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             log.warning("the recorder did not finish within %g s; stopping it", timeout)
-
-    def _recording(self, res: dict[str, Any], code: int) -> None:
-        """The result's `recording`; a recorder that failed (killed, an error) left its file
-        cut at its last flushed chunk: `partial`, a warning line, and `swarm run` exits 1."""
-        res["recording"] = {"path": self.opts.record, "exit": code, "partial": code != 0}
-        if code != 0:
-            why = last_error(self.log_dir / "recorder.log") or how_it_ended(code)
-            print(f"swarm: warning: the recorder failed ({why}): {self.opts.record} is partial, "
-                  "cut at its last flushed chunk (`swarm replay --partial` reads it; logs in "
-                  f"{self.log_dir})", file=sys.stderr, flush=True)
 
     def _late_status(self, grace: float = 2.0) -> None:
         """Wait (up to `grace` s) for what can reach us after the result on a loaded machine:
@@ -489,8 +489,9 @@ class Supervisor:
             raise RuntimeError(f"{who} failed: {why}{'' if self.robots else '; no robot is left'}"
                                f" (logs in {self.log_dir})")
         if self.learner is not None and self.learner.poll() is not None and self.result is None:
-            why = last_error(self.log_dir / "learner.log") or f"exit code {self.learner.returncode}"
-            raise RuntimeError(f"the learner failed: {why} (logs in {self.log_dir})")
+            why = last_error(self.log_dir / "learner.log") or how_it_ended(self.learner.returncode)
+            raise RuntimeError(f"the learner failed: {why} (logs in {self.log_dir})"
+                               + learner_left(self.learner_status, self.learner_out))
 
 
 def main(cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,

@@ -47,6 +47,18 @@ def learner_result(status: dict[str, Any] | None, played: int, out: str | None) 
     return {**st, "accounting": acc, "out": out}
 
 
+def learner_left(status: dict[str, Any] | None, out: str | None) -> str:
+    """What a learner that died left, for the line that says so: its last checkpoint (the
+    weights of its last update, written atomically) and how many episodes it had trained on."""
+    ckpt = Path(str(out)) / "checkpoint.pt"
+    if out is None or not ckpt.is_file():
+        return "; it left no checkpoint"
+    if status is None:
+        return f"; its last checkpoint: {ckpt}"
+    return f"; its last checkpoint: {ckpt} (its last status: version {status.get('version')}, " \
+        f"{(status.get('accounting') or {}).get('trained', 0)} episodes trained)"
+
+
 def trained_line(learner: dict[str, Any], batch: int) -> str:
     """The one line `swarm run --train` ends with: where the trained checkpoint is (without
     --learner-out, in the run's kept temp folder), or that no update made one."""
