@@ -285,7 +285,7 @@ def test_a_live_fault_must_fit_the_run_and_a_crash_waits_for_its_tick(tmp_path: 
     run_id, out = "livec", tmp_path / "r.json"
     proc = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
-         "random", "--episodes", "4", "--horizon", "20", "--pace", "10", "--run-id", run_id,
+         "random", "--episodes", "5", "--horizon", "20", "--pace", "10", "--run-id", run_id,
          "--json", str(out)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -303,7 +303,7 @@ def test_a_live_fault_must_fit_the_run_and_a_crash_waits_for_its_tick(tmp_path: 
         for p, err in zip(bad, errs, strict=False):        # still there for the others)
             assert p.returncode == 2 and len(err.strip().splitlines()) == 1, err
         assert all("robots 0..2" in e for e in errs[:2]) and "did not answer" in errs[2], errs
-        assert "beyond the run's last tick 79" in errs[3], errs[3]
+        assert "beyond the run's last tick 99" in errs[3], errs[3]
         assert "ROBOT@TICK 0: run livec is at tick" in errs[4], errs[4]
         r = swarm("fault", "--run", run_id, "--crash", "0", timeout=30)  # ROBOT alone: at once
         assert r.returncode == 0, r.stderr  # (refused for a day: "use ROBOT@TICK")
