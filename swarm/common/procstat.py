@@ -3,8 +3,10 @@ per tick by process kind (startup excluded), for the run's result and `swarm ben
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
+import time
 from typing import Any
 
 
@@ -46,12 +48,16 @@ class ProcSampler:
         self.cpu_first: dict[str, tuple[float, int]] = {}
         self.cpu_last: dict[str, tuple[float, int]] = {}
         self._turn = 0  # round robin over the children for PSS
+        self._last = -math.inf  # when it last sampled (time.monotonic)
 
     def sample(self, procs: dict[str, subprocess.Popen | None], ticks_done: int,
-               pss_per_call: int = 4) -> None:
+               pss_per_call: int = 4, every: float = 0.0) -> None:
         """RSS and CPU of every child; PSS of `pss_per_call` of them in turn (the kernel walks
         a process's page tables for it: for hundreds of robots, every one every call would be
-        most of the supervisor's time)."""
+        most of the supervisor's time). Nothing if it sampled less than `every` s ago."""
+        if time.monotonic() - self._last < every:
+            return
+        self._last = time.monotonic()
         names = sorted(n for n in procs if n != "world")
         pss_for = {names[(self._turn + k) % len(names)]
                    for k in range(min(pss_per_call, len(names)))} if names else set()

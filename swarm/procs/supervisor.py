@@ -8,6 +8,7 @@ namespace of its own, joined by veth pairs, and the kernel applies the link faul
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -121,7 +122,6 @@ class Supervisor:
         self.result: dict[str, Any] | None = None
         self.procstat = ProcSampler()  # peak memory and CPU per tick of the children
         self.first_tick_age: float | None = None
-        self._last_rss = 0.0
 
     def _spawn(self, args: list[str], name: str, zopts: ZenohOptions,
                ns: str | None = None) -> subprocess.Popen[bytes]:
@@ -291,12 +291,13 @@ class Supervisor:
             stopped = True
             raise
         except RuntimeError as exc:  # a failed run's --json says so (not an older run's file)
-            if self.opts.json_path:
-                v, lr = self.view, {} if self.learning is None else {"learner": learner_result(
-                    self.learner_status, self.view.episodes_done, self.learner_out)}
-                write_json(self.opts.json_path, {"error": str(exc), "ticks_done": v.ticks_done,
-                                                 "completed": v.episodes_done, **lr,
-                                                 **self._made_by()})
+            v, lr = self.view, {} if self.learning is None else {"learner": learner_result(
+                self.learner_status, self.view.episodes_done, self.learner_out)}
+            with contextlib.suppress(OSError):  # (unwritable: the run's own error is said)
+                if self.opts.json_path:
+                    write_json(self.opts.json_path, {
+                        "error": str(exc), "ticks_done": v.ticks_done,
+                        "completed": v.episodes_done, **lr, **self._made_by()})
             raise
         finally:
             try:  # (a Ctrl-C held during the stop is raised after it: the namespaces go anyway)
@@ -437,8 +438,9 @@ class Supervisor:
             if ev is not None:
                 self._handle(*ev)
             if self.recorder.poll() is not None or time.monotonic() > deadline:
-                why = last_error(self.log_dir / "recorder.log") or \
-                    f"exit code {self.recorder.poll()}"
+                code = self.recorder.poll()  # (None: it did not come up in time)
+                why = last_error(self.log_dir / "recorder.log") or (
+                    f"not up within {timeout:g} s" if code is None else how_it_ended(code))
                 self.stop_all()
                 raise RuntimeError(f"the recorder did not start: {why} (logs in {self.log_dir})")
 
@@ -465,13 +467,9 @@ class Supervisor:
         while self.inbox is not None and (ev := self.inbox.next(end - time.monotonic())):
             self._handle(*ev)
 
-    def _sample_rss(self, every: float = 0.5) -> None:
-        now = time.monotonic()
-        if now - self._last_rss < every:
-            return
-        self._last_rss = now
+    def _sample_rss(self) -> None:
         procs = {"world": self.world, **{f"robot{i}": p for i, p in self.robots.items()}}
-        self.procstat.sample(procs, self.view.ticks_done)
+        self.procstat.sample(procs, self.view.ticks_done, every=0.5)
 
     def _check_children(self) -> None:
         """Robots that died are counted, said and restarted with --restart-crashed
