@@ -426,6 +426,40 @@ def test_chained_memory_policy_under_loss_acts_as_the_batched_eval(tmp_path: Pat
     assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
 
 
+def test_a_run_whose_robots_all_left_while_its_world_plays_on_is_ended(tmp_path: Path) -> None:
+    """A world stopped (SIGSTOP) past its Zenoh lease lost every robot (each saw its token gone
+    and left, exit 0); resumed, it played the other ~70% of the episodes with nobody and the run
+    exited 0 with those averaged in (elratio 0.53 for 0.99; UA pass 79). `Fleet.deserted` is
+    the line `swarm run` now fails with, once no robot is left for `grace` s; robots crashed on
+    purpose (a planned fault) and a world that is not playing (its end) are not a desertion."""
+    from swarm.net.faults import ProcessFault
+    from swarm.procs.fleet import Fleet
+
+    def leaves(i: int) -> subprocess.Popen[bytes]:  # (a robot that left by itself: exit 0)
+        return subprocess.Popen([sys.executable, "-c", "pass"])
+
+    fleet = Fleet(leaves, tmp_path, restart_crashed=False)
+    for i in range(2):
+        fleet.start(i)
+    for p in fleet.procs.values():
+        p.wait()
+    fleet.check()
+    assert fleet.left == {0, 1} and not fleet.procs and not fleet.errors
+    assert fleet.deserted(False, grace=0.0) is None  # (the world's own end)
+    assert fleet.deserted(True, grace=60.0) is None  # (its end may still be on its way)
+    assert fleet.deserted(True, grace=0.0) == (
+        "every robot left the run (robots [0, 1] said the world's token was gone: was the "
+        "world stopped past its Zenoh lease?); the world would play on alone")
+
+    crashed = Fleet(lambda i: subprocess.Popen([sys.executable, "-c", "import time; "
+                                                "time.sleep(60)"]), tmp_path, False)
+    crashed.start(0)
+    crashed.fault(ProcessFault("crash", 0, 5), 5)
+    crashed.procs[0].wait()
+    crashed.check()
+    assert not crashed.procs and crashed.deserted(True, grace=0.0) is None  # (planned)
+
+
 def test_the_fleet_counts_each_death_once_and_says_the_unplanned(tmp_path: Path) -> None:
     """`Fleet` on real child processes: a planned crash is counted where it is done (also when
     a restart of the same tick replaces the process before anyone looks), an unplanned death

@@ -1,13 +1,15 @@
 """The robot processes of a `swarm run`, as its supervisor keeps them: spawned, faulted on purpose
 (crash = SIGKILL, hang = SIGSTOP, restart = SIGCONT a hung robot or respawn a dead one), and
 watched for deaths nobody planned. Every death is counted once (`crashes`), and one that was not
-planned is also said (`errors`: the last error line of its log, or how it ended)."""
+planned is also said (`errors`: the last error line of its log, or how it ended). And the end of
+the run's recorder, as the supervisor waits for it (`finish_recorder`, `recording_result`)."""
 
 from __future__ import annotations
 
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,6 +30,18 @@ def how_it_ended(code: int) -> str:
         except ValueError:
             return f"killed by signal {-code}"
     return f"exit code {code}"
+
+
+def finish_recorder(proc: Proc | None, timeout: float = 60.0) -> None:
+    """A supervised recorder ends by itself at the world's `end` record; give it the time to
+    write the result and the footer (stopping it would SIGINT it: it still writes the footer)."""
+    if proc is None:
+        return
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        print(f"swarm: warning: the recorder did not finish within {timeout:g} s; stopping it",
+              file=sys.stderr, flush=True)
 
 
 def recording_result(path: str | None, code: int, log_dir: Path) -> dict[str, Any]:
@@ -56,6 +70,8 @@ class Fleet:
         self.seen: set[Proc] = set()  # processes whose end was accounted for (not pids: reused)
         self.log_from: dict[int, int] = {}  # robot -> where its current process's log begins
         self.errors: dict[str, str] = {}  # "robot i" -> why it died (not planned)
+        self.left: set[int] = set()  # robots whose process ended by itself (exit 0 or 75)
+        self._deserted: float | None = None  # since when no robot is left (`deserted`)
         self.log: list[str] = []  # the process faults done, or found nothing to act on
         self.stopped_at_end: set[int] = set()  # robots found stopped by nobody's plan (`halt`)
 
@@ -119,6 +135,21 @@ class Fleet:
                 else:
                     del self.procs[i]
 
+    def deserted(self, playing: bool, grace: float = 5.0) -> str | None:
+        """Every robot has left by itself (the world's token was gone for it: the world stopped
+        past its lease, say) while the world plays on (`playing`): episodes nobody plays would
+        be averaged into the result. The line that ends the run, once that has lasted `grace`
+        s (a world's own end can reach us after its robots', on a loaded machine)."""
+        if self.procs or not self.left or not playing:
+            self._deserted = None
+            return None
+        self._deserted = self._deserted or time.monotonic()
+        if time.monotonic() - self._deserted < grace:
+            return None
+        return (f"every robot left the run (robots {sorted(self.left)} said the world's token "
+                "was gone: was the world stopped past its Zenoh lease?); the world would play on "
+                "alone")
+
     def _reaped(self, i: int) -> bool:
         """Whether robot i's process has ended; the first time it is seen ended, a death
         nobody planned (a non-zero exit) is counted and said (`errors`). It stays in `procs`
@@ -132,8 +163,10 @@ class Fleet:
         self.seen.add(p)
         if p in self.killed:
             self.killed.discard(p)
-        elif p.returncode not in (0, EXIT_INCOMPLETE):  # (it left on its own, at the run's end
-            self.crashes += 1  # or when its world was gone: the world's `robots_lost` says which)
+        elif p.returncode in (0, EXIT_INCOMPLETE):  # it left on its own, at the run's end or
+            self.left.add(i)  # when its world was gone: the world's `robots_lost` says which
+        else:
+            self.crashes += 1
             self.errors[f"robot {i}"] = last_error(
                 self.log_dir / f"robot{i}.log", since=self.log_from.get(i, 0)) or \
                 how_it_ended(p.returncode)

@@ -64,7 +64,7 @@ from swarm.net.messages import (
 from swarm.net.security.tls import identity_of, run_configs, topology_configs, topology_secure
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
-from swarm.procs.fleet import Fleet, how_it_ended, recording_result
+from swarm.procs.fleet import Fleet, finish_recorder, how_it_ended, recording_result
 from swarm.procs.learning.supervised import drain, learner_left, learner_result
 from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
 from swarm.procs.status_order import StatusOrder
@@ -284,20 +284,14 @@ class Supervisor:
             if self.opts.log_dir is None:
                 tidy_interrupted(self.tmp)
             raise
-        stopped = False
+        stopped, failed = False, None
         try:  # whatever happens, no process and no namespace of the run is left behind
             return self._supervise()
-        except (KeyboardInterrupt, ConfigError):  # (refused by --netns, say: no result either)
-            stopped = True
+        except (KeyboardInterrupt, ConfigError) as exc:  # (ConfigError: refused by --netns)
+            stopped, failed = True, "interrupted" if isinstance(exc, KeyboardInterrupt) else None
             raise
-        except RuntimeError as exc:  # a failed run's --json says so (not an older run's file)
-            v, lr = self.view, {} if self.learning is None else {"learner": learner_result(
-                self.learner_status, self.view.episodes_done, self.learner_out)}
-            with contextlib.suppress(OSError):  # (unwritable: the run's own error is said)
-                if self.opts.json_path:
-                    write_json(self.opts.json_path, {
-                        "error": str(exc), "ticks_done": v.ticks_done,
-                        "completed": v.episodes_done, **lr, **self._made_by()})
+        except RuntimeError as exc:
+            failed = str(exc)
             raise
         finally:
             try:  # (a Ctrl-C held during the stop is raised after it: the namespaces go anyway)
@@ -308,6 +302,24 @@ class Supervisor:
                 if stopped and self.opts.log_dir is None:  # no result names the temp folder
                     tidy_interrupted(self.tmp, self.learner_out is not None)
                 release_run(self.run_cfg.run_id)
+                if failed:
+                    self._ended_early(failed)
+
+    def _ended_early(self, failed: str) -> None:
+        """A run that failed or was interrupted, once every process is stopped: where the
+        learner's weights are (its last checkpoint, read from the file), and its --json with
+        `error`, what was done and the learner's accounting (not an older run's file)."""
+        left = None if self.learner is None else learner_left(self.learner_out)
+        if left is not None:
+            print(f"swarm: {left['line']}", file=sys.stderr, flush=True)
+        if self.opts.json_path:
+            v, lr = self.view, {} if self.learning is None else {"learner": {**learner_result(
+                self.learner_status, self.view.episodes_done, self.learner_out), **(
+                    {"checkpoint": left["checkpoint"]} if left else {})}}
+            with contextlib.suppress(OSError):  # (unwritable: the run's own error is said)
+                write_json(self.opts.json_path, {
+                    "error": failed, "ticks_done": v.ticks_done,
+                    "completed": v.episodes_done, **lr, **self._made_by()})
 
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()
@@ -358,7 +370,7 @@ class Supervisor:
                 if self.learner is not None:
                     put_once(session, k.control, pack_record(K_CONTROL, {"stop": True}))
                 self._late_status()
-                self._finish_recorder()
+                finish_recorder(self.recorder)
             except KeyboardInterrupt:
                 put_once(session, k.control, pack_record(K_CONTROL, {"stop": True,
                                                                      "why": "interrupt"}))
@@ -401,7 +413,7 @@ class Supervisor:
         res.update(self.procstat.summary())
         if self.learning is not None:
             res["learner"] = learner_result(self.learner_status, int(res.get("completed", 0)),
-                                            self.learner_out)
+                                            self.learner_out, warn=True)
         res.update(self._made_by())
         if self.topo is not None:  # a robot whose session never opened is in no other count
             res["netns"] = {**self.topo.describe(), "never_joined": sum(
@@ -434,25 +446,13 @@ class Supervisor:
         assert self.recorder is not None
         deadline = time.monotonic() + timeout
         while not self.recorder_alive:
-            ev = inbox.next(0.1)
-            if ev is not None:
+            if (ev := inbox.next(0.1)) is not None:
                 self._handle(*ev)
             if self.recorder.poll() is not None or time.monotonic() > deadline:
                 code = self.recorder.poll()  # (None: it did not come up in time)
                 why = last_error(self.log_dir / "recorder.log") or (
                     f"not up within {timeout:g} s" if code is None else how_it_ended(code))
-                self.stop_all()
                 raise RuntimeError(f"the recorder did not start: {why} (logs in {self.log_dir})")
-
-    def _finish_recorder(self, timeout: float = 60.0) -> None:
-        """The recorder ends by itself at the world's `end` record; give it the time to write
-        the result and the footer (stop_all would SIGINT it: it still writes the footer)."""
-        if self.recorder is None:
-            return
-        try:
-            self.recorder.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            log.warning("the recorder did not finish within %g s; stopping it", timeout)
 
     def _late_status(self, grace: float = 2.0) -> None:
         """Wait (up to `grace` s) for what can reach us after the result on a loaded machine:
@@ -482,14 +482,16 @@ class Supervisor:
         if self.result is None:
             self.fleet.check()
         early = self.view.ticks_done == 0 and not (self.run_cfg.restart_crashed or self.topo)
+        if why := self.fleet.deserted(self.result is None and self.world is not None and
+                                      self.world.poll() is None):
+            raise RuntimeError(f"{why} (logs in {self.log_dir})")
         if self.fleet.errors and (early or not self.robots):  # (--netns: may never join)
             who, why = next(iter(self.fleet.errors.items()))
             raise RuntimeError(f"{who} failed: {why}{'' if self.robots else '; no robot is left'}"
                                f" (logs in {self.log_dir})")
         if self.learner is not None and self.learner.poll() is not None and self.result is None:
             why = last_error(self.log_dir / "learner.log") or how_it_ended(self.learner.returncode)
-            raise RuntimeError(f"the learner failed: {why} (logs in {self.log_dir})"
-                               + learner_left(self.learner_status, self.learner_out))
+            raise RuntimeError(f"the learner failed: {why} (logs in {self.log_dir})")
 
 
 def main(cfg: WorldConfig, run: RunConfig, opts: SuperviseOptions,

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -37,26 +38,40 @@ def drain(proc: subprocess.Popen[bytes], status: Callable[[], dict[str, Any] | N
     pump(0.3)  # its final status
 
 
-def learner_result(status: dict[str, Any] | None, played: int, out: str | None) -> dict[str, Any]:
+def learner_result(status: dict[str, Any] | None, played: int, out: str | None,
+                   warn: bool = False) -> dict[str, Any]:
     """The result's `learner`: its last status, with every episode `played` ending in exactly
-    one of its counters (`unaccounted`: 0 when it heard every episode), and its folder."""
+    one of its counters (`unaccounted`: 0 when it heard every episode), and its folder. `warn`:
+    episodes it never heard (say, stopped past its lease) are also a warning line."""
     st = status or {}
     acc = dict(st.get("accounting") or {})
     acc["played"] = played
     acc["unaccounted"] = played - sum(acc.get(k, 0) for k in LEARNER_COUNTERS)
+    if warn and acc["unaccounted"] > 0:
+        print(f"swarm: warning: {acc['unaccounted']} of the {played} episodes played reached no "
+              "learner counter (unaccounted: the learner never heard them, or its last status "
+              "did not come)", file=sys.stderr, flush=True)
     return {**st, "accounting": acc, "out": out}
 
 
-def learner_left(status: dict[str, Any] | None, out: str | None) -> str:
-    """What a learner that died left, for the line that says so: its last checkpoint (the
-    weights of its last update, written atomically) and how many episodes it had trained on."""
+def learner_left(out: str | None) -> dict[str, Any] | None:
+    """What a learner that did not end with its run left: its last checkpoint (the weights of
+    its last update, written atomically at every update), read from the file, as the line
+    that says so and the result's `checkpoint`; None when it left none."""
+    from policies.checkpoint import load_checkpoint
+
     ckpt = Path(str(out)) / "checkpoint.pt"
     if out is None or not ckpt.is_file():
-        return "; it left no checkpoint"
-    if status is None:
-        return f"; its last checkpoint: {ckpt}"
-    return f"; its last checkpoint: {ckpt} (its last status: version {status.get('version')}, " \
-        f"{(status.get('accounting') or {}).get('trained', 0)} episodes trained)"
+        return None
+    try:
+        state = load_checkpoint(ckpt).get("learner") or {}
+        version, trained = int(state["version"]), int(state["counters"]["trained"])
+    except Exception as exc:  # (a file it did not finish is never renamed into place)
+        return {"line": f"the learner's checkpoint {ckpt} cannot be read: {exc}",
+                "checkpoint": {"path": str(ckpt)}}
+    return {"line": f"the learner's last checkpoint: {ckpt} (version {version}, {trained} "
+                    "episodes trained)",
+            "checkpoint": {"path": str(ckpt), "version": version, "trained": trained}}
 
 
 def trained_line(learner: dict[str, Any], batch: int) -> str:
