@@ -437,3 +437,25 @@ def test_a_folder_holding_the_sweeps_results_is_refused_without_resume_or_overwr
                        capsys=capsys)
         assert r.returncode == 2 and r.stderr == f"swarm: error: {words}\n", r.stderr[-2000:]
     assert {f.name: f.read_bytes() for f in out.iterdir()} == before
+
+
+def test_a_resumed_sweep_removes_the_temp_files_a_killed_one_left(tmp_path: Path) -> None:
+    """A sweep SIGKILLed mid-write left `.t.csv.*.tmp` (and the like) in its folder, and
+    `--resume` never removed them (`swarm train --resume` does). Every sweep now removes its
+    own on start; another file's temp files stay (no process run: every point is done)."""
+    from swarm.studies.experiment import _write_csv, run_experiment, write_record
+
+    sweep = plan(sweep_file(tmp_path, BASE + 'policies = ["nearest-frontier"]\n'))
+    out = tmp_path / "out"
+    write_record(sweep, out)
+    _write_csv(out / "t.csv", [{"policy": "nearest-frontier", "value": 0.0, "seed": 0,
+                                "elratio_mean": 0.9, "episodes": 3}])
+    stale = [out / f".t{ext}.k2j4x_9a.tmp" for ext in (".csv", ".md", ".png", ".json")]
+    for f in stale:
+        f.write_bytes(b"half a file")
+    other = out / ".other.csv.abc.tmp"
+    other.write_bytes(b"not the sweep's")
+    res = run_experiment(sweep, out, resume=True)
+    assert len(res["rows"]) == 1
+    assert [f.name for f in stale if f.exists()] == [] and other.exists()
+

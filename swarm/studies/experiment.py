@@ -58,6 +58,7 @@ COLUMNS = ("policy", "value", "seed", "elratio_mean", "elratio_std", "collisions
            "success_rate", "reward_mean", "ticks_per_s", "timeouts", "lost", "late", "cut",
            "queued", "dropped_bw", "stale", "delivered", "clock", "twin", "wall_s", "episodes")
 KERNEL_COLUMNS = ("robots_lost", "never_joined", "startup_s", "error")  # kernel = true only
+SWEEP_FILES = (".csv", ".md", ".png", "_compare.png", ".json")  # `<name>` + each, beside the CSV
 
 
 def _read_rows(path: Path) -> list[dict[str, Any]]:
@@ -99,10 +100,12 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
                           f"in {csv_path}): resume it (--resume), replace them (--overwrite) "
                           f"or choose another output folder")
     check_resume(rows, sweep, csv_path)  # a CSV of another sweep: one line, no run
+    # the temp files of a sweep killed mid-write (atomic.write_*: nothing else removes them)
+    atomic.remove_stale(out_dir, tuple(f"{exp.name}{ext}" for ext in SWEEP_FILES))
     # Killed between these steps or after them, the folder never pairs the record with
     # another sweep's rows, nor the CSV with a Markdown or PNG of other rows (they are
     # written at the end): the old files go before the new record comes.
-    for stale in (*(() if resume else (".csv",)), ".md", ".png", "_compare.png"):
+    for stale in SWEEP_FILES[1 if resume else 0:-1]:  # (not the record; nor the CSV resumed)
         (out_dir / f"{exp.name}{stale}").unlink(missing_ok=True)
     if not resume:  # and the old runs' recordings and kept logs (`<name>-<k>.mcap`, `-logs`)
         _remove_point_files(out_dir, exp.name)
