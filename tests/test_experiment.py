@@ -459,3 +459,61 @@ def test_a_resumed_sweep_removes_the_temp_files_a_killed_one_left(tmp_path: Path
     assert len(res["rows"]) == 1
     assert [f.name for f in stale if f.exists()] == [] and other.exists()
 
+
+def _cmdline(pid: str) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:  # (it ended)
+        return b""
+
+
+@pytest.mark.procs
+def test_a_sweep_whose_recorder_failed_says_so_and_exits_1(tmp_path: Path) -> None:
+    """With `record = true`, a recorder killed mid-run left `t-0.mcap` cut short, and the sweep
+    exited 0 with nothing in its CSV, Markdown or output saying so (`swarm run --record` exits
+    1). Now the row is `recording_partial`, the Markdown names the file, a warning line says
+    where the run's logs are, and the exit status is 1, the sweep's files still written. The
+    recorder of run 0 is killed once that run's robots are spawned: the supervisor starts them
+    only after the recorder is up, and they cannot end the run before the kill."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    src = sweep_file(tmp_path, 'name = "t"\nparameter = "loss"\nvalues = [0.0]\n'
+                     'policies = ["nearest-frontier"]\nseeds = [0, 1]\nrecord = true\n',
+                     "[world]\nn_robots = 3\nheight = 8\nwidth = 8\n\n[run]\nepisodes = 3\n")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "experiment", src, "--out",
+                             str(out), "--overwrite"], cwd=ROOT, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    run_id = f"exp-t-{proc.pid}-0".encode()  # (point_run_id in the sweep's process)
+    try:
+        deadline = time.monotonic() + 120  # (a failsafe, not a measurement)
+        recorder = None
+        while recorder is None and proc.poll() is None and time.monotonic() < deadline:
+            lines = {p: _cmdline(p) for p in os.listdir("/proc") if p.isdigit()}
+            if any(b"robot\0--id\0" in c and b"\0" + run_id + b"\0" in c
+                   for c in lines.values()):
+                recorder = next((int(p) for p, c in lines.items()
+                                 if b"record\0--run-id\0" + run_id + b"\0" in c), None)
+            time.sleep(0.02)
+        assert recorder is not None, "no recorder of run 0 while its robots ran"
+        os.kill(recorder, signal.SIGKILL)
+        stdout, err = proc.communicate(timeout=240)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 1, err[-2000:]
+    rows = _rows(out / "t.csv")
+    assert [(r["recording"], r["recording_partial"]) for r in rows] == [
+        (str(out / "t-0.mcap"), "True"), (str(out / "t-1.mcap"), "False")]
+    md = (out / "t.md").read_text()
+    assert "Recordings cut short" in md and "`t-0.mcap` (logs in `t-0-logs/`)" in md
+    assert "t-1.mcap" not in md
+    assert f"wrote {out / 't.md'}" in stdout and (out / "t.png").is_file()
+    said = [x for x in err.splitlines() if x.startswith("swarm: warning: the recording ")]
+    assert said == [f"swarm: warning: the recording {out / 't-0.mcap'} is partial (its "
+                    f"recorder failed); the run's logs are in {out / 't-0-logs'}"], err[-2000:]
+    assert (out / "t-0-logs" / "recorder.log").is_file() and not (out / "t-1-logs").exists()

@@ -11,7 +11,9 @@ success and ticks/s against the fault level, one line per policy, error bars = s
 With `kernel = true` every run is `swarm run --netns` and the swept loss or bandwidth is applied
 by the kernel (swarm/net/kernel/netns.py) instead of the radio; `compare = "other.csv"` then
 also draws `<name>_compare.png` against another sweep of the same parameter (e.g. the radio's).
-With `record = true` every run's traffic is also recorded into `<name>-<k>.mcap` beside the CSV.
+With `record = true` every run's traffic is also recorded into `<name>-<k>.mcap` beside the CSV;
+a recorder that failed left its file cut short: `recording_partial` in the CSV, named in the
+Markdown and in a warning line, and the sweep exits 1 (its files still written), as `swarm run`.
 A run that keeps its logs (process faults, or something went wrong) keeps them in `<name>-<k>-logs`
 beside the CSV, named on its line, never in a temp folder nothing names.
 `--episodes K` and `--seeds A,B` override `[run] episodes` and `[experiment] seeds` (a quick try
@@ -113,7 +115,7 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
     if exp.record:
-        columns = columns + ("recording",)
+        columns = columns + ("recording", "recording_partial")
     for pt in sweep.points:
         policy, value, seed, faults = pt.policy, pt.value, pt.seed, pt.faults
         if (policy, str(value), str(seed)) in done:
@@ -135,7 +137,7 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
                          "episodes": rc.episodes, "error": str(exc).split(";")[0]})
             _write_csv(csv_path, rows, columns)
             continue
-        logs = _keep_logs(res, out_dir / f"{exp.name}-{len(rows)}-logs")
+        logs = _keep_logs(res, point_logs(out_dir, exp.name, len(rows)))
         m = res["messages"]
         row = {"policy": policy, "value": value, "seed": seed,
                **{k: res.get(k) for k in ("elratio_mean", "elratio_std", "collisions_mean",
@@ -146,7 +148,8 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
                "delivered": m.get("traj_to_others"), "clock": rc.clock,
                "twin": twin(world, rc, faults, res) if rc.clock == "virtual" else "",
                "wall_s": round(time.monotonic() - t0, 2), "episodes": rc.episodes,
-               "recording": recording, "logs": logs}
+               "recording": recording, "logs": logs,
+               "recording_partial": res.get("recording", {}).get("partial") if recording else None}
         if exp.kernel:
             row.update(robots_lost=res.get("robots_lost"), startup_s=res.get("startup_s"),
                        never_joined=res["netns"]["never_joined"])
@@ -158,7 +161,20 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
     if exp.kernel and exp.compare:
         files.append(write_comparison(rows, _read_rows(Path(exp.compare)), exp, out_dir,
                                       sweep.source))
-    return {"rows": rows, "files": files}
+    return {"rows": rows, "files": files, "partial": [
+        (r["recording"], str(point_logs(out_dir, exp.name, k)))
+        for k, r in enumerate(rows) if partial(r)]}
+
+
+def partial(row: dict[str, Any]) -> bool:
+    """Whether a row's recording was cut short by a failed recorder (True from a run, "True"
+    read back from the CSV)."""
+    return str(row.get("recording_partial")) == "True"
+
+
+def point_logs(out_dir: Path, name: str, k: int) -> Path:
+    """Where run k of sweep `name` keeps its logs: `<name>-<k>-logs` beside the CSV."""
+    return out_dir / f"{name}-{k}-logs"
 
 
 def _remove_point_files(out_dir: Path, name: str) -> None:
@@ -309,6 +325,11 @@ def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> li
               "of either kind (trajectory or hidden state) that did not; `queued` copies that "
               "waited for bandwidth tokens (then delivered or late); `stale` whole messages "
               "that reached the world after their tick."]
+    cut = [f"`{Path(r['recording']).name}` (logs in `{point_logs(out_dir, exp.name, k).name}/`)"
+           for k, r in enumerate(rows) if partial(r)]
+    if cut:  # data lost: said where the figures are, not only in the CSV
+        lines += ["", "Recordings cut short, their recorder failed (`swarm replay --partial` "
+                  f"reads each up to the cut): {', '.join(cut)}."]
     md = out_dir / f"{exp.name}.md"
     atomic.write_text(md, "\n".join(lines) + "\n")
     return [str(md), str(png)]
@@ -377,4 +398,7 @@ def main(sweep: Sweep, out: str, resume: bool, overwrite: bool = False) -> int:
         file=sys.stderr, flush=True))
     for f in res["files"]:
         print(f"wrote {f}")
-    return 0
+    for recording, logs in res["partial"]:  # (the supervisor's warning named the temp folder)
+        print(f"swarm: warning: the recording {recording} is partial (its recorder failed); "
+              f"the run's logs are in {logs}", file=sys.stderr, flush=True)
+    return 1 if res["partial"] else 0  # a recording asked for is lost in part, as `swarm run`
