@@ -216,3 +216,35 @@ def test_repro_refuses_a_checkpoint_of_a_policy_it_does_not_run(
                     "--checkpoint", f"commnet={ROOT / 'checkpoints' / 'commnet.pt'}"], capsys)
     assert f"--checkpoint commnet=...: 'commnet' {says}" in line, line
     assert not (tmp_path / "o").exists()
+
+
+def test_an_interrupted_item_leaves_none_of_its_old_files_beside_new_ones(tmp_path: Path) -> None:
+    """`swarm repro ITEM --out DIR` stopped part-way over an earlier output left a mixed set
+    (new fig8.csv and .md beside the old .png and .json). An item's old files now go when it
+    starts (its new ones come at its end), with the temp files a killed repro of it left; here
+    it is stopped (Ctrl-C) during its work. Another item's files and temp files stay."""
+    from swarm.studies.repro import ReproConfig, run
+    from world.config import WorldConfig
+
+    out = tmp_path / "out"
+    out.mkdir()
+    old = [out / f"fig4.{ext}" for ext in ("csv", "md", "png", "json")]
+    stale = out / ".fig4.png.x7k2q_1b.tmp"
+    others = [out / "table2.csv", out / ".table2.csv.a1b2c3.tmp"]
+    for f in (*old, stale, *others):
+        f.write_text("an earlier run's")
+
+    class Stopped:  # a progress sink: Ctrl-C during the item's first point
+        def start(self, label: str, total: int) -> None:
+            pass
+
+        def advance(self, n: int = 1) -> None:
+            raise KeyboardInterrupt
+
+    cfg = ReproConfig(out=str(out), policies=("random",), robots=(2,), episodes=2, batch=1)
+    with pytest.raises(KeyboardInterrupt):
+        run(["fig4"], WorldConfig(n_robots=2), cfg, "swarm repro fig4", Stopped())
+    assert [f.name for f in (*old, stale) if f.exists()] == []
+    assert all(f.read_text() == "an earlier run's" for f in others)
+    res = run(["fig4"], WorldConfig(n_robots=2), cfg, "swarm repro fig4")  # whole: all four
+    assert res["fig4"]["files"] == [str(f) for f in old] and all(f.is_file() for f in old)

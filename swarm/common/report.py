@@ -127,11 +127,20 @@ def save_png(path: Path, draw: Callable[[Any], None], ncols: int = 1) -> None:
     atomic.write_bytes(path, buf.getvalue())
 
 
+def item_files(item: str) -> tuple[str, ...]:
+    """The names of the files repro item `item` writes into its output directory (those of
+    `write_item`, or fig10's and fig11's own)."""
+    if item in ("fig10", "fig11"):
+        extra = "scores" if item == "fig10" else "by_neighbours"
+        return (f"{item}.png", f"{item}.csv", f"{item}_{extra}.csv", f"{item}_{extra}.md")
+    return tuple(f"{item}.{ext}" for ext in ("csv", "md", "png", "json"))
+
+
 def write_item(out: Path, item: str, rows: list[dict[str, Any]], md: str,
                draw: Callable[[Any], None], meta: dict[str, Any], ncols: int = 1) -> list[str]:
     """Write ITEM.csv/.md/.png/.json; returns the paths written. Rows with a `checkpoint`
     column give the JSON its `checkpoints` (`checkpoints_of`)."""
-    paths = [out / f"{item}.{ext}" for ext in ("csv", "md", "png", "json")]
+    paths = [out / name for name in item_files(item)]
     atomic.write_text(paths[0], csv_text(rows))
     atomic.write_text(paths[1], md)
     save_png(paths[2], draw, ncols)

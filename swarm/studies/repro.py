@@ -3,7 +3,8 @@ evaluator (Fig. 8 from the training curves shipped beside the checkpoints).
 
 Each item writes `ITEM.csv` (long format), `ITEM.md` (a Markdown table headed by the command and
 seed that made it), `ITEM.png` (matplotlib, Agg) and `ITEM.json` into the output directory,
-every file atomically. Policies are registry names, so a learned policy joins by name (with
+every file atomically; its old files go when it starts (one stopped part-way leaves no new files
+beside old ones). Policies are registry names, so a learned policy joins by name (with
 `checkpoints[name]` when it needs one; by default the one shipped in `checkpoints/NAME.pt`).
 """
 
@@ -32,6 +33,7 @@ from swarm.common.report import (
     checkpoints_of,
     counted,
     header,
+    item_files,
     md_table,
     paired,
     paired_cell,
@@ -408,14 +410,6 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
             "files": [str(out / n) for n in item_files(item)]}
 
 
-def item_files(item: str) -> tuple[str, ...]:
-    """The names of the files `item` writes into the output directory."""
-    if item in ("fig10", "fig11"):
-        extra = "scores" if item == "fig10" else "by_neighbours"
-        return (f"{item}.png", f"{item}.csv", f"{item}_{extra}.csv", f"{item}_{extra}.md")
-    return tuple(f"{item}.{ext}" for ext in ("csv", "md", "png", "json"))
-
-
 def expand(item: str) -> list[str]:
     """`all` -> every item; otherwise the one item (ConfigError if unknown)."""
     if item == "all":
@@ -476,8 +470,12 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
     (`prepared`: the caller has had `prepare` do it)."""
     items = items if prepared else prepare(items, world, cfg)
     progress = progress or NullProgress()
+    out = Path(cfg.out or ".")  # a killed repro's temp files (these items': another may run)
+    atomic.remove_stale(out, tuple(n for i in items for n in item_files(i)))
     results: dict[str, Any] = {}
     for item in items:
+        for name in item_files(item):  # old files go at its start, new ones come at its end
+            (out / name).unlink(missing_ok=True)
         if item == "table1":
             results[item] = table1(world, cfg, command, progress)
         elif item == "table2":
