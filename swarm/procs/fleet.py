@@ -139,16 +139,17 @@ class Fleet:
         """Every robot has left by itself (the world's token was gone for it: the world stopped
         past its lease, say) while the world plays on (`playing`): episodes nobody plays would
         be averaged into the result. The line that ends the run, once that has lasted `grace`
-        s (a world's own end can reach us after its robots', on a loaded machine)."""
+        s (a world's own end can reach us after its robots', on a loaded machine); at the
+        run's end (grace 0) the same line fails a run whose world finished first."""
         if self.procs or not self.left or not playing:
             self._deserted = None
             return None
         self._deserted = self._deserted or time.monotonic()
         if time.monotonic() - self._deserted < grace:
             return None
-        return (f"every robot left the run (robots {sorted(self.left)} said the world's token "
-                "was gone: was the world stopped past its Zenoh lease?); the world would play on "
-                "alone")
+        return (f"every robot left the run before its end (robots {sorted(self.left)}: the "
+                "world's token was gone for them; was the world stopped past its Zenoh lease?): "
+                "no robot played the rest of its episodes")
 
     def _reaped(self, i: int) -> bool:
         """Whether robot i's process has ended; the first time it is seen ended, a death

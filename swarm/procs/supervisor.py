@@ -170,13 +170,9 @@ class Supervisor:
         self.world = self._spawn(["world", "--spec", str(spec), "--run-id", self.run_cfg.run_id,
                                   "--json", str(self.tmp / "world_result.json")], "world",
                                  ZenohOptions("router", listen=listen), ns)
-        if fresh:
-            try:
-                fresh_checkpoint(self.run_cfg.policy, self.cfg, self.run_cfg.seed,
-                                 Path(str(self.run_cfg.checkpoint)))
-            except BaseException:
-                self.stop_all()
-                raise
+        if fresh:  # (one that fails: `supervise` stops the world)
+            fresh_checkpoint(self.run_cfg.policy, self.cfg, self.run_cfg.seed,
+                             Path(str(self.run_cfg.checkpoint)))
         wait_port(host, self.port, self.world, 30.0)
         for name, args, zopts, rns, addr in self.topo.routers(self.port) if self.topo else []:
             self.routers.append(self._spawn(args, name, zopts, rns))
@@ -394,6 +390,8 @@ class Supervisor:
         res["startup_s"] = (first_tick - t_start) if first_tick else None
         res["first_tick_s"] = self.first_tick_age  # from the command (this process's start)
         self.fleet.account(res, self.view, self.planned, self.run_cfg.start_timeout)
+        if why := self.fleet.deserted(True, grace=0.0):  # (the world's end came before the 5 s)
+            raise RuntimeError(f"{why} (logs in {self.log_dir})")
         res["supervisor_bad"] = self.bad  # records it dropped (status, result, control, ...)
         if self.inbox is not None:  # and what its inbox dropped unread
             res["supervisor_dropped"] = self.inbox.dropped

@@ -48,6 +48,7 @@ import zenoh
 from policies import check_learned, policy_class
 from policies.checkpoint import load_checkpoint, save_checkpoint
 from swarm.common.report import provenance
+from swarm.common.spawn import stops_held
 from swarm.learn.config import LearnerConfig, TrainConfig, learner_resume_point
 from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
@@ -335,8 +336,9 @@ class Learner:
                               "train": dataclasses.asdict(self.tc),
                               "counters": dataclasses.asdict(self.c),
                               **({} if self.seed is None else {"seed": self.seed})}
-        save_checkpoint(self.ckpt, payload)
-        self.saved = self.version  # (a Ctrl-C during the update or the write leaves the last)
+        with stops_held():  # (a Ctrl-C between the file's rename and this line: the stop line
+            save_checkpoint(self.ckpt, payload)  # named the version before the file's)
+            self.saved = self.version  # (one during the update: the last file stands)
 
     def accounting(self) -> dict[str, int]:
         """Where every episode heard of is: received = trained + pending + stale_dropped +
