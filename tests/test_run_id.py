@@ -92,3 +92,68 @@ def test_one_process_cannot_hold_a_run_id_twice(tmp_path: Path, monkeypatch: pyt
         release_run("twice")
     check_run_free("twice")
     assert not list((tmp_path / "swarm-runs").iterdir())
+
+
+def dead_pid() -> int:
+    """The pid of a process that has exited (and been reaped)."""
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+@pytest.mark.procs
+def test_a_sigkilled_runs_entry_and_lock_are_both_removed_by_whoever_finds_it(
+        tmp_path: Path) -> None:
+    """A SIGKILLed supervisor leaves its registry entry and its id's lock file; `swarm fault
+    --run ID` said the run was gone and removed the entry, but the lock file stayed forever."""
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    runs = tmp_path / "swarm-runs"
+    sup = subprocess.Popen([sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots",
+                            "2", "--size", "8x8", "--episodes", "50", "--run-id", "k1"],
+                           cwd=ROOT, env=env, text=True, stdout=subprocess.PIPE,
+                           stderr=subprocess.DEVNULL)
+    try:
+        assert sup.stdout is not None
+        for line in sup.stdout:  # its first status: registered, robots running
+            if line.startswith('{"status"'):
+                break
+        assert sorted(p.name for p in runs.iterdir()) == ["k1.json", "k1.lock"]
+    finally:
+        sup.kill()  # (its children follow: they die with their supervisor)
+        sup.communicate()
+    assert sorted(p.name for p in runs.iterdir()) == ["k1.json", "k1.lock"]  # left behind
+    r = swarm("fault", "--run", "k1", "--loss", "0.1", env={"TMPDIR": str(tmp_path)})
+    assert r.returncode == 2 and "swarm 'k1' is no longer running" in r.stderr, r.stderr
+    assert not list(runs.iterdir())
+
+
+def test_a_dead_runs_entry_leaves_a_live_holders_lock_alone(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The lock of an id a live process holds (a new run of it, still starting) is never removed
+    with a dead run's entry: it is what refuses a second run of the id. Once nobody holds it, a
+    claim of the id removes the dead run's entry with the lock."""
+    from swarm.common.spawn import check_run_free, lookup_run, registry
+    from world.config import ConfigError
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr("tempfile.tempdir", None)
+    runs = tmp_path / "swarm-runs"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "from swarm.common.spawn import claim_run; claim_run('again'); "
+         "print('held', flush=True); input()"], cwd=ROOT, text=True,
+        env={**os.environ, "TMPDIR": str(tmp_path)}, stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        registry("again").write_text(f'{{"hub": "tcp/127.0.0.1:9", "pid": {dead_pid()}}}')
+        with pytest.raises(ConfigError, match="'again' is no longer running"):
+            lookup_run("again")
+        assert (runs / "again.lock").exists()
+        with pytest.raises(ConfigError, match="run id 'again' is taken"):
+            check_run_free("again")
+    finally:
+        holder.kill()
+        holder.wait()
+    registry("again").write_text(f'{{"hub": "tcp/127.0.0.1:9", "pid": {dead_pid()}}}')
+    check_run_free("again")
+    assert not list(runs.iterdir())

@@ -144,8 +144,9 @@ def _registered(run_id: str) -> str:
     except (OSError, ValueError, KeyError, TypeError):
         raise ConfigError(f"no running swarm {run_id!r} on this machine; "
                           f"give --connect ENDPOINT") from None
-    if not alive(pid):
-        path.unlink(missing_ok=True)
+    if not alive(pid):  # its entry and lock go, unless a new run of the id holds the lock
+        with contextlib.suppress(ConfigError, OSError):  # (that run writes its own entry)
+            check_run_free(run_id)
         raise ConfigError(f"swarm {run_id!r} is no longer running (its supervisor, pid {pid}, "
                           "is gone)")
     return hub
@@ -161,10 +162,11 @@ def claim_run(run_id: str) -> None:
     `swarm-runs/ID.lock`, beside the registry), so of two runs started in the same instant one
     is refused, where both passed a check of the registry the supervisor wrote later; the
     kernel drops the lock when its holder dies, SIGKILL included, so a dead holder's lock is
-    never in the way. `release_run` gives it back."""
+    never in the way, and its registry entry (written only by a holder) is removed here.
+    `release_run` gives the id back, its lock file removed."""
     if run_id in _CLAIMS:
         raise _taken(run_id)
-    path = registry(run_id).with_suffix(".lock")
+    path = _lock_file(run_id)
     path.parent.mkdir(parents=True, exist_ok=True)
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
@@ -180,6 +182,7 @@ def claim_run(run_id: str) -> None:
         if same:
             break
         os.close(fd)
+    registry(run_id).unlink(missing_ok=True)
     os.ftruncate(fd, 0)
     os.write(fd, f"{os.getpid()}\n".encode())
     _CLAIMS[run_id] = fd
@@ -196,8 +199,12 @@ def release_run(run_id: str) -> None:
     """Give back a `claim_run` of this process (the lock file removed, then unlocked)."""
     fd = _CLAIMS.pop(run_id, None)
     if fd is not None:
-        registry(run_id).with_suffix(".lock").unlink(missing_ok=True)
+        _lock_file(run_id).unlink(missing_ok=True)
         os.close(fd)
+
+
+def _lock_file(run_id: str) -> Path:
+    return registry(run_id).with_suffix(".lock")
 
 
 def _release_all() -> None:
@@ -207,7 +214,8 @@ def _release_all() -> None:
 
 def check_run_free(run_id: str) -> None:
     """`claim_run`'s refusal early, before a command's other checks (its supervisor then takes
-    the id for good, and refuses it still if another run took it meanwhile)."""
+    the id for good, and refuses it still if another run took it meanwhile); a free id's
+    leftovers of a dead run (registry entry, lock file) are removed on the way."""
     claim_run(run_id)
     release_run(run_id)
 
