@@ -147,6 +147,40 @@ def test_swarm_record_started_before_its_run_waits_for_it(tmp_path: Path) -> Non
     assert r.returncode == 0 and "(ticks " in r.stdout, r.stdout[-300:] + r.stderr[-300:]
 
 
+@pytest.mark.procs
+def test_swarm_record_stopped_by_ctrl_c_finishes_its_file_and_exits_130(tmp_path: Path) -> None:
+    """A recorder started by hand ends with its run; stopped first (Ctrl-C) it said nothing of
+    it and exited 0, where every other command stopped so exits 130. It still writes its
+    footer and its summary line (`ended: interrupted`), then `swarm: interrupted`."""
+    f = tmp_path / "stopped.mcap"
+    run = swarm_started("run", "--headless", "--robots", "2", "--episodes", "50", "--pace",
+                        "12", "--run-id", "rec81int", "--log-dir", str(tmp_path / "logs"))
+    try:
+        rec = subprocess.Popen([sys.executable, "-m", "swarm.cli", "record", "--run-id",
+                                "rec81int", "--out", str(f), "--wait", "30"], cwd=ROOT,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            opened = 0
+            for _ in range(2):  # the file opened, then a chunk flushed: the recorder writes
+                while (f.stat().st_size if f.exists() else 0) <= opened:
+                    assert rec.poll() is None, rec.communicate()
+                    time.sleep(0.05)
+                opened = f.stat().st_size
+            rec.send_signal(signal.SIGINT)
+            _, err = rec.communicate(timeout=60)
+        finally:
+            if rec.poll() is None:
+                rec.kill()
+    finally:
+        run.send_signal(signal.SIGINT)
+        run.communicate(timeout=60)
+    *summary, last = err.strip().splitlines()
+    assert rec.returncode == 130 and last == "swarm: interrupted", err[-1500:]
+    assert len(summary) == 1 and json.loads(summary[0])["ended"] == "interrupted", err[-1500:]
+    r = swarm("replay", str(f), "--speed", "0")  # whole: no --partial needed
+    assert r.returncode == 0 and "recording starts mid-run" in r.stderr, r.stderr[-1500:]
+
+
 def test_swarm_record_refuses_a_run_it_cannot_join(tmp_path: Path, capsys: Any) -> None:
     """No local run of that id after --wait, or a secure one without --secure (at once): one
     line, exit 2."""

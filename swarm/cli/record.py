@@ -69,6 +69,8 @@ def run_endpoint(args: argparse.Namespace, zopts: zconfig.ZenohOptions,
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    """`swarm record`: exit 0 at the run's end; stopped before it, the file is finished all the
+    same (footer, summary line) and the exit is an interrupt's (130)."""
     import logging
 
     from swarm.net.record.recording import need_mcap
@@ -92,6 +94,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     except TimeoutError as exc:
         raise ConfigError(str(exc)) from None
     print(json.dumps({"recording": args.out, **stats}), file=sys.stderr)
+    if stats["ended"] == "interrupted":  # the file is whole (footer written), the run was not
+        raise KeyboardInterrupt  # (exit 130, as every command stopped by Ctrl-C)
     return 0
 
 
@@ -255,7 +259,8 @@ def add_parsers(sub: Any) -> None:
     """Register `record`, `replay` and `trace` on the `swarm` subparsers."""
     p = sub.add_parser("record", help="record a running swarm's traffic into an MCAP file",
                        description="Join run RUN_ID and write every message of it (raw msgpack "
-                                   "and JSON) into FILE until the run ends; `swarm run --record "
+                                   "and JSON) into FILE until the run ends (Ctrl-C stops it "
+                                   "early, the file finished); `swarm run --record "
                                    "FILE` starts this for you. A run started on this machine is "
                                    "found by its id; elsewhere give --connect ENDPOINT.")
     p.add_argument("--run-id", required=True,
