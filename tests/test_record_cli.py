@@ -181,6 +181,31 @@ def test_swarm_record_stopped_by_ctrl_c_finishes_its_file_and_exits_130(tmp_path
     assert r.returncode == 0 and "recording starts mid-run" in r.stderr, r.stderr[-1500:]
 
 
+@pytest.mark.procs
+def test_an_interrupted_recorded_run_leaves_no_logs_and_a_readable_file(tmp_path: Path) -> None:
+    """Ctrl-C on `swarm run --record` kept the run's log folder every time (named on stderr):
+    its recorder's summary line, in its log, read as more than an interruption."""
+    tmp, f = tmp_path / "tmp", tmp_path / "int.mcap"
+    tmp.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots",
+                             "2", "--episodes", "20", "--pace", "12", "--run-id", "rec81run",
+                             "--record", str(f)], cwd=ROOT, env={**os.environ, "TMPDIR": str(tmp)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        proc.stdout.readline()  # the first tick's status: the recorder is up (robots wait for it)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    kept = {str(p): p.read_text(errors="replace")[-1500:] for p in tmp.rglob("*.log")}
+    assert proc.returncode == 130 and "logs are in" not in err, (err, kept)
+    assert [p.name for p in tmp.iterdir()] == ["swarm-runs"], list(tmp.rglob("*"))
+    r = swarm("replay", str(f), "--verify", "--partial")
+    assert r.returncode == 0, r.stderr[-1500:]
+
+
 def test_swarm_record_refuses_a_run_it_cannot_join(tmp_path: Path, capsys: Any) -> None:
     """No local run of that id after --wait, or a secure one without --secure (at once): one
     line, exit 2."""

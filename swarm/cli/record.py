@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 from swarm.cli.common import _command, _consoles, named_dir, output_dir, output_file
 from swarm.common.flags import check_wait
 from swarm.common.report import counted
+from swarm.common.spawn import supervised
 from swarm.net import zconfig
 from world.config import ConfigError
 
@@ -70,7 +71,7 @@ def run_endpoint(args: argparse.Namespace, zopts: zconfig.ZenohOptions,
 
 def cmd_record(args: argparse.Namespace) -> int:
     """`swarm record`: exit 0 at the run's end; stopped before it, the file is finished all the
-    same (footer, summary line) and the exit is an interrupt's (130)."""
+    same (footer; the summary line by hand) and the exit is an interrupt's (130)."""
     import logging
 
     from swarm.net.record.recording import need_mcap
@@ -93,7 +94,10 @@ def cmd_record(args: argparse.Namespace) -> int:
         stats = record_main(args.run_id, args.out, zopts, wait, args.flush)
     except TimeoutError as exc:
         raise ConfigError(str(exc)) from None
-    print(json.dumps({"recording": args.out, **stats}), file=sys.stderr)
+    # not into a supervisor's log: an interrupted run keeps its logs when one says more than
+    # `swarm: interrupted` (the counts are in the file's metadata, the run's result names it)
+    if not supervised():
+        print(json.dumps({"recording": args.out, **stats}), file=sys.stderr)
     if stats["ended"] == "interrupted":  # the file is whole (footer written), the run was not
         raise KeyboardInterrupt  # (exit 130, as every command stopped by Ctrl-C)
     return 0
