@@ -549,3 +549,17 @@ def test_trace_of_a_recording_with_no_tick_writes_nothing_and_warns_of_nothing(
         warnings.simplefilter("always")
         code, err = swarm_main("trace", str(good), "--out", str(tmp_path / "t"), capsys=capsys)
     assert code == 0 and not [str(w.message) for w in caught] and "Warning" not in err, err
+
+
+def test_a_recorder_stopped_in_time_is_said_whole_up_to_its_stop(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A supervised recorder that did not finish in time is SIGINTed and, since fixer 81, exits
+    130 with its footer written: the warning said "cut at its last flushed chunk" and sent the
+    user to `--partial`, which such a file does not need."""
+    from swarm.procs.fleet import recording_result
+
+    assert recording_result("r.mcap", 130, tmp_path) == {"path": "r.mcap", "exit": 130,
+                                                          "partial": True}
+    err = capsys.readouterr().err
+    assert "stopped before the run's end: r.mcap is partial, whole up to where it stopped" in err
+    assert "--partial" not in err

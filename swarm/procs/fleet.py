@@ -47,7 +47,11 @@ def finish_recorder(proc: Proc | None, timeout: float = 60.0) -> None:
 def recording_result(path: str | None, code: int, log_dir: Path) -> dict[str, Any]:
     """A run's `recording`; a recorder that failed (killed, an error) left its file cut at its
     last flushed chunk: `partial`, and a warning line (`swarm run` exits 1)."""
-    if code != 0:
+    if code == 130:  # stopped (SIGINT: it did not finish in time): its footer is written
+        print(f"swarm: warning: the recorder was stopped before the run's end: {path} is "
+              "partial, whole up to where it stopped (`swarm replay` reads it; logs in "
+              f"{log_dir})", file=sys.stderr, flush=True)
+    elif code != 0:
         why = last_error(log_dir / "recorder.log") or how_it_ended(code)
         print(f"swarm: warning: the recorder failed ({why}): {path} is partial, cut at its last "
               "flushed chunk (`swarm replay --partial` reads it; logs in "
