@@ -433,13 +433,21 @@ def test_a_run_whose_robots_all_left_while_its_world_plays_on_is_ended(tmp_path:
     exited 0 with those averaged in (elratio 0.53 for 0.99; UA pass 79). `Fleet.deserted` is
     the line `swarm run` now fails with, once no robot is left for `grace` s; robots crashed on
     purpose (a planned fault) and a world that is not playing (its end) are not a desertion."""
+    from collections.abc import Callable
+
+    from swarm.common.spawn import EXIT_INCOMPLETE
     from swarm.net.faults import ProcessFault
     from swarm.procs.fleet import Fleet
 
-    def leaves(i: int) -> subprocess.Popen[bytes]:  # (a robot that left by itself: exit 0)
-        return subprocess.Popen([sys.executable, "-c", "pass"])
+    def exits(code: int) -> Callable[[int], subprocess.Popen[bytes]]:
+        return lambda i: subprocess.Popen([sys.executable, "-c", f"raise SystemExit({code})"])
 
-    fleet = Fleet(leaves, tmp_path, restart_crashed=False)
+    done = Fleet(exits(0), tmp_path, restart_crashed=False)  # (0: after the world's `end`)
+    done.start(0)
+    done.procs[0].wait()
+    done.check()  # (a supervisor behind on its inbox reaps them before it reads the result)
+    assert not done.procs and not done.left and done.deserted(True, grace=0.0) is None
+    fleet = Fleet(exits(EXIT_INCOMPLETE), tmp_path, restart_crashed=False)  # (WorldLeft)
     for i in range(2):
         fleet.start(i)
     for p in fleet.procs.values():

@@ -74,7 +74,7 @@ class Fleet:
         self.seen: set[Proc] = set()  # processes whose end was accounted for (not pids: reused)
         self.log_from: dict[int, int] = {}  # robot -> where its current process's log begins
         self.errors: dict[str, str] = {}  # "robot i" -> why it died (not planned)
-        self.left: set[int] = set()  # robots whose process ended by itself (exit 0 or 75)
+        self.left: set[int] = set()  # robots that left, their world gone (EXIT_INCOMPLETE)
         self._deserted: float | None = None  # since when no robot is left (`deserted`)
         self.log: list[str] = []  # the process faults done, or found nothing to act on
         self.stopped_at_end: set[int] = set()  # robots found stopped by nobody's plan (`halt`)
@@ -168,9 +168,9 @@ class Fleet:
         self.seen.add(p)
         if p in self.killed:
             self.killed.discard(p)
-        elif p.returncode in (0, EXIT_INCOMPLETE):  # it left on its own, at the run's end or
-            self.left.add(i)  # when its world was gone: the world's `robots_lost` says which
-        else:
+        elif p.returncode == EXIT_INCOMPLETE:  # it left on its own: its world was gone (the
+            self.left.add(i)  # world's `robots_lost` says which); 0: the run's end, after it
+        elif p.returncode != 0:
             self.crashes += 1
             self.errors[f"robot {i}"] = last_error(
                 self.log_dir / f"robot{i}.log", since=self.log_from.get(i, 0)) or \

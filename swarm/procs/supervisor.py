@@ -8,7 +8,6 @@ namespace of its own, joined by veth pairs, and the kernel applies the link faul
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 import os
@@ -286,8 +285,8 @@ class Supervisor:
         except (KeyboardInterrupt, ConfigError) as exc:  # (ConfigError: refused by --netns)
             stopped, failed = True, "interrupted" if isinstance(exc, KeyboardInterrupt) else None
             raise
-        except RuntimeError as exc:
-            failed = str(exc)
+        except Exception as exc:  # (RuntimeError, TimeoutError, OSError, a Zenoh error: said)
+            failed = str(exc) or type(exc).__name__
             raise
         finally:
             try:  # (a Ctrl-C held during the stop is raised after it: the namespaces go anyway)
@@ -305,17 +304,19 @@ class Supervisor:
         """A run that failed or was interrupted, once every process is stopped: where the
         learner's weights are (its last checkpoint, read from the file), and its --json with
         `error`, what was done and the learner's accounting (not an older run's file)."""
-        left = None if self.learner is None else learner_left(self.learner_out)
-        if left is not None:
-            print(f"swarm: {left['line']}", file=sys.stderr, flush=True)
-        if self.opts.json_path:
-            v, lr = self.view, {} if self.learning is None else {"learner": {**learner_result(
-                self.learner_status, self.view.episodes_done, self.learner_out), **(
-                    {"checkpoint": left["checkpoint"]} if left else {})}}
-            with contextlib.suppress(OSError):  # (unwritable: the run's own error is said)
+        try:  # (in a `finally`: nothing here may hide the run's own error)
+            left = None if self.learner is None else learner_left(self.learner_out)
+            if left is not None:
+                print(f"swarm: {left['line']}", file=sys.stderr, flush=True)
+            if self.opts.json_path:
+                v, lr = self.view, {} if self.learning is None else {"learner": {**learner_result(
+                    self.learner_status, self.view.episodes_done, self.learner_out), **(
+                        {"checkpoint": left["checkpoint"]} if left else {})}}
                 write_json(self.opts.json_path, {
                     "error": failed, "ticks_done": v.ticks_done,
                     "completed": v.episodes_done, **lr, **self._made_by()})
+        except Exception as exc:
+            log.warning("what the run left could not be said in full: %s", exc)
 
     def _supervise(self) -> dict[str, Any]:
         t_start = self.start()

@@ -109,8 +109,8 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
     # written at the end): the old files go before the new record comes.
     for stale in SWEEP_FILES[1 if resume else 0:-1]:  # (not the record; nor the CSV resumed)
         (out_dir / f"{exp.name}{stale}").unlink(missing_ok=True)
-    if not resume:  # and the old runs' recordings and kept logs (`<name>-<k>.mcap`, `-logs`)
-        _remove_point_files(out_dir, exp.name)
+    if overwrite:  # and the old runs' recordings and kept logs (`<name>-<k>.mcap`, `-logs`):
+        _remove_point_files(out_dir, exp.name)  # asked for (a fresh sweep leaves what it finds)
     write_record(sweep, out_dir)  # before the first run: a killed sweep's CSV has its record
     done = {(r["policy"], str(r["value"]), str(r["seed"])) for r in rows}
     columns = COLUMNS + KERNEL_COLUMNS if exp.kernel else COLUMNS
