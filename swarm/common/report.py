@@ -133,14 +133,19 @@ def item_files(item: str) -> tuple[str, ...]:
     if item in ("fig10", "fig11"):
         extra = "scores" if item == "fig10" else "by_neighbours"
         return (f"{item}.png", f"{item}.csv", f"{item}_{extra}.csv", f"{item}_{extra}.md")
-    return tuple(f"{item}.{ext}" for ext in ("csv", "md", "png", "json"))
+    return _table_files(item)
+
+
+def _table_files(item: str) -> tuple[str, str, str, str]:
+    """`write_item`'s files, in its order: ITEM.csv, .md, .png, .json."""
+    return f"{item}.csv", f"{item}.md", f"{item}.png", f"{item}.json"
 
 
 def write_item(out: Path, item: str, rows: list[dict[str, Any]], md: str,
                draw: Callable[[Any], None], meta: dict[str, Any], ncols: int = 1) -> list[str]:
     """Write ITEM.csv/.md/.png/.json; returns the paths written. Rows with a `checkpoint`
     column give the JSON its `checkpoints` (`checkpoints_of`)."""
-    paths = [out / name for name in item_files(item)]
+    paths = [out / name for name in _table_files(item)]
     atomic.write_text(paths[0], csv_text(rows))
     atomic.write_text(paths[1], md)
     save_png(paths[2], draw, ncols)
