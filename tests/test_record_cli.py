@@ -191,17 +191,9 @@ def test_an_interrupted_recorded_run_leaves_no_logs_and_a_readable_file(tmp_path
                              "2", "--episodes", "20", "--pace", "12", "--run-id", "rec81run",
                              "--record", str(f)], cwd=ROOT, env={**os.environ, "TMPDIR": str(tmp)},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        proc.stdout.readline()  # the first tick's status: the recorder is up (robots wait for it)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    kept = {str(p): p.read_text(errors="replace")[-1500:] for p in tmp.rglob("*.log")}
-    assert proc.returncode == 130 and "logs are in" not in err, (err, kept)
-    assert [p.name for p in tmp.iterdir()] == ["swarm-runs"], list(tmp.rglob("*"))
+    assert proc.stdout is not None
+    proc.stdout.readline()  # the first tick's status: the recorder is up (robots wait for it)
+    _stopped_leaving_nothing(proc, tmp, signal.SIGINT)
     r = swarm("replay", str(f), "--verify", "--partial")
     assert r.returncode == 0, r.stderr[-1500:]
 
@@ -397,10 +389,17 @@ def test_bench_record_interrupted_while_its_robots_start_leaves_nothing(
                              "200", "--episodes", "5", "--robots", "4"], cwd=ROOT,
                             env={**os.environ, "TMPDIR": str(tmp)}, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
+    while not list(tmp.glob("swarm-brec-*/robot*.log")):  # (the robots are loading)
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.01)
+    _stopped_leaving_nothing(proc, tmp, sig)
+    assert not list((tmp / "swarm-runs").iterdir())
+
+
+def _stopped_leaving_nothing(proc: subprocess.Popen[str], tmp: Path, sig: int) -> None:
+    """Send `sig` to the command `proc` (its TMPDIR `tmp`): it exits 130, names no log folder
+    and leaves none (only the run-id registry folder stays)."""
     try:
-        while not list(tmp.glob("swarm-brec-*/robot*.log")):  # (the robots are loading)
-            assert proc.poll() is None, proc.communicate()
-            time.sleep(0.01)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
     finally:
@@ -409,7 +408,6 @@ def test_bench_record_interrupted_while_its_robots_start_leaves_nothing(
     kept = {str(p): p.read_text(errors="replace")[-1500:] for p in tmp.rglob("*.log")}
     assert proc.returncode == 130 and "logs are in" not in err, (err, kept)
     assert [p.name for p in tmp.iterdir()] == ["swarm-runs"], list(tmp.rglob("*"))
-    assert not list((tmp / "swarm-runs").iterdir())
 
 
 def test_an_interrupts_traceback_says_no_more_than_interrupted() -> None:
