@@ -394,8 +394,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
 def add_parsers(sub: Any) -> None:
     """Register `experiment`, `run`, `world` and `fault` on the `swarm` subparsers."""
     p = sub.add_parser("experiment", help="sweep a fault parameter over policies on the swarm",
-                       description="Run the TOML experiment FILE (deploy/experiments/): one "
-                                   "swarm run per (policy, value, seed) into CSV, Markdown, PNG.")
+                       description="A swarm run per (policy, value, seed) of TOML FILE into "
+                                   "CSV, Markdown, PNG; exit 1 if a recording is partial.")
     p.add_argument("file", metavar="FILE", help="TOML experiment file")
     p.add_argument("--out", metavar="DIR",
                    help="output directory, made if missing (default: [experiment] out, for the "

@@ -107,7 +107,8 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
     # Killed between these steps or after them, the folder never pairs the record with
     # another sweep's rows, nor the CSV with a Markdown or PNG of other rows (they are
     # written at the end): the old files go before the new record comes.
-    for stale in SWEEP_FILES[1 if resume else 0:-1]:  # (not the record; nor the CSV resumed)
+    for stale in (*(() if resume else (".csv",)), ".md", ".png", "_compare.png"):  # (not the
+        # record, `.json`: it is rewritten next)
         (out_dir / f"{exp.name}{stale}").unlink(missing_ok=True)
     if overwrite:  # and the old runs' recordings and kept logs (`<name>-<k>.mcap`, `-logs`):
         _remove_point_files(out_dir, exp.name)  # asked for (a fresh sweep leaves what it finds)
