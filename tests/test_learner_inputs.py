@@ -235,6 +235,58 @@ def test_a_resumed_learner_shows_its_curve(trained: Path) -> None:
     assert st["last"]["reward"] == pytest.approx(float(rows[-1]["reward"]), rel=1e-5)
 
 
+def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> None:
+    """The episodes a learner heard of after its last checkpoint and never trained on (its
+    partial batch) end in a counter when it is killed and resumed: `lost`, once however often
+    it is killed before its next update, and the accounting still sums (they were in no
+    counter: the checkpoint's counters are its last update's)."""
+    from swarm.learn.config import LearnerConfig
+    from swarm.learn.join import episodes_of
+    from swarm.learn.rollout import collect
+    from swarm.net.learning import ACCOUNTING
+    from swarm.procs.learning.learner import Learner
+
+    out = trained / "lost"  # a copy: the other tests read the original
+    shutil.copytree(trained / "l", out)
+    lc = LearnerConfig(run_id="resumed", policy="vain", out=str(out), resume=True)
+    made: list[Learner] = []
+
+    def resumed() -> dict[str, int]:
+        learner = Learner(SMALL, lc, TrainConfig(batch=2, threads=1), {"threads"})
+        learner.open_out()
+        made.append(learner)
+        return learner.accounting()
+
+    def sums(acc: dict[str, int]) -> int:  # (the fixture trained on episodes it never heard
+        return acc["received"] - sum(acc[k] for k in ACCOUNTING if k != "received")  # of)
+
+    try:
+        before = resumed()
+        assert before["lost"] == 0
+        eps = episodes_of(collect(made[0].policy, SMALL, 0, np.arange(6, 9)), made[0].version)
+        made[0].handle("worker", "w", eps[0].pack())  # half a batch, then SIGKILL (nothing more
+        assert made[0].accounting()["pending"] == before["pending"] + 1  # is written: its
+        # line is the OS's)
+        acc = resumed()
+        assert acc["lost"] == 1 and acc["received"] == before["received"] + 1, acc
+        assert sums(acc) == sums(before) and acc["trained"] == before["trained"]
+        assert resumed()["lost"] == 1  # killed again before an update: counted once
+        with open_session(ZenohOptions()) as session:
+            inbox = made[-1]._declare(session)
+            try:
+                made[-1].handle("worker", "w", eps[1].pack())
+                made[-1].handle("worker", "w", eps[2].pack())
+                assert made[-1].maybe_update()  # its checkpoint now holds the lost one
+            finally:
+                inbox.close()
+        acc = resumed()
+        assert acc["lost"] == 1 and acc["trained"] == before["trained"] + 2, acc
+        assert acc["received"] == before["received"] + 3 and sums(acc) == sums(before), acc
+    finally:
+        for learner in made:
+            learner.journal.close()
+
+
 @pytest.mark.procs
 def test_a_failed_rollout_bench_keeps_the_log_it_names() -> None:
     """A bench process that fails: the error line says why and names a log that still exists

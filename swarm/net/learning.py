@@ -253,7 +253,8 @@ class EpisodeRollout:
 LSTATUS_COUNTS = ("version", "episodes", "updates", "pending", "ready", "stale_used",
                   "stale_dropped", "incomplete", "bad", "worker_episodes", "rollout_bytes",
                   "late_records", "oversized", "overflow")
-ACCOUNTING = ("received", "trained", "pending", "stale_dropped", "incomplete", "rejected")
+ACCOUNTING = ("received", "trained", "pending", "stale_dropped", "incomplete", "rejected",
+              "lost")
 MAX_COUNT = 2**62
 
 

@@ -405,8 +405,7 @@ def render_learner(v: SwarmView) -> Table:
     table = Table.grid(padding=(0, 2))
     table.add_column(style="bold")
     table.add_column()
-    last = rec.get("last") or {}
-    curve = [float(x) for x in rec.get("curve", [])]
+    last, curve = rec.get("last") or {}, [float(x) for x in rec.get("curve", [])]
     rows = [
         ("weights version", str(rec.get("version", "-"))),
         ("episodes gathered", f"{rec.get('episodes', 0)} (waiting {rec.get('ready', 0)}, "
@@ -424,7 +423,8 @@ def render_learner(v: SwarmView) -> Table:
         rows.append(("episodes received", f"{acc.get('received', 0)} = trained "
                      f"{acc.get('trained', 0)} + pending {acc.get('pending', 0)} + too old "
                      f"{acc.get('stale_dropped', 0)} + incomplete {acc.get('incomplete', 0)} + "
-                     f"rejected {acc.get('rejected', 0)}"))
+                     f"rejected {acc.get('rejected', 0)}"
+                     + (f" + lost at a restart {acc['lost']}" if acc.get("lost") else "")))
     for k, val in rows:
         table.add_row(k, val)
     return table

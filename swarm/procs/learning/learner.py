@@ -59,6 +59,7 @@ from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
+from swarm.procs.learning.journal import Journal
 from swarm.procs.learning.watch import RunWatch
 from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
@@ -81,6 +82,7 @@ class LearnerCounters:
     # played with weights newer than this learner's (another learner's)
     trained: int = 0  # episodes that went into an update
     received: int = 0  # distinct episodes heard of (swarm episodes + worker episodes)
+    lost: int = 0  # heard of by this learner before a stop, not yet in an update (`Journal`)
     late_records: int = 0  # robot or world records of an episode already joined or given up
     bad: int = 0
     rollout_bytes: int = 0
@@ -106,6 +108,7 @@ class Learner:
             raise ConfigError(f"--out {self.out} exists and is not a directory")
         self.ckpt = self.out / "checkpoint.pt"
         self.curves = CurveLog(self.out)
+        self.journal = Journal(self.out / "heard.log")
         self.c = LearnerCounters()
         self.version = self.saved = 0  # saved: the version its checkpoint file holds
         self.seed: int | None = None  # the run's seed its episodes are joined with (`run`)
@@ -167,6 +170,14 @@ class Learner:
             log.warning("learner resumed at version %d", self.version)
         elif not self.lc.gather_only:
             self.curves.start()
+        if not self.lc.gather_only:  # (one never updates: nothing to lose, nor a checkpoint)
+            lost = self.journal.past(self.c.received)
+            if lost:
+                self.c.received += lost
+                self.c.lost += lost
+                log.warning("learner: %d episodes heard of since the last checkpoint (version "
+                            "%d) were never trained on: counted lost", lost, self.version)
+            self.journal.open()
 
     # --- network ----------------------------------------------------------------------------
     def _declare(self, session: zenoh.Session) -> Inbox:
@@ -219,7 +230,7 @@ class Learner:
             else:
                 er = EpisodeRollout.unpack(payload, self.cfg)
                 self.c.worker_episodes += 1
-                self.c.received += 1
+                self._heard(er.ep)
                 self._accept(er)
         except (BadMessage, ValueError) as exc:
             self._bad(key, str(exc))
@@ -231,9 +242,13 @@ class Learner:
             self.c.late_records += 1
             return None
         if ep not in self.pending:
-            self.c.received += 1
+            self._heard(ep)
             self.pending[ep] = {"robots": {}, "first": time.monotonic()}
         return self.pending[ep]
+
+    def _heard(self, ep: int) -> None:
+        self.c.received += 1
+        self.journal.heard(self.c.received, ep)
 
     def _close(self, ep: int) -> None:
         del self.pending[ep]
@@ -339,16 +354,18 @@ class Learner:
         with stops_held():  # (a Ctrl-C between the file's rename and this line: the stop line
             save_checkpoint(self.ckpt, payload)  # named the version before the file's)
             self.saved = self.version  # (one during the update: the last file stands)
+            self.journal.clear()
 
     def accounting(self) -> dict[str, int]:
         """Where every episode heard of is: received = trained + pending + stale_dropped +
-        incomplete + rejected, exactly (pending: joining, or joined and waiting for a batch;
-        in a gather-only learner every accepted episode stays pending)."""
+        incomplete + rejected + lost, exactly (pending: joining, or joined and waiting for a
+        batch; in a gather-only learner every accepted episode stays pending; lost: held by
+        this learner when it stopped before an update, counted when it resumed)."""
         gathered = self.c.episodes - self.c.trained - len(self.ready)
         return {"received": self.c.received, "trained": self.c.trained,
                 "pending": len(self.pending) + len(self.ready) + gathered,
                 "stale_dropped": self.c.stale_dropped, "incomplete": self.c.incomplete,
-                "rejected": self.c.rejected}
+                "rejected": self.c.rejected, "lost": self.c.lost}
 
     def finish(self, inbox: Inbox, seed: int, watch: RunWatch | None = None,
                grace: float = 0.3) -> dict[str, Any]:
@@ -407,6 +424,7 @@ class Learner:
             return self.finish(inbox, seed, watch)
         finally:
             inbox.close()
+            self.journal.close()
 
 
 def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptions,

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-LEARNER_COUNTERS = ("trained", "pending", "stale_dropped", "incomplete", "rejected")
+LEARNER_COUNTERS = ("trained", "pending", "stale_dropped", "incomplete", "rejected", "lost")
 
 
 def drain(proc: subprocess.Popen[bytes], status: Callable[[], dict[str, Any] | None],
