@@ -7,6 +7,7 @@ import json
 import re
 import subprocess
 import sys
+import time
 from io import StringIO
 from pathlib import Path
 
@@ -619,6 +620,44 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
     assert {row["checkpoint"] for row in big if row["policy"] == "commattn"} == {tuned}
 
 
+@pytest.mark.procs
+def test_a_killed_repro_comm_resumes_to_the_same_files(tmp_path: Path) -> None:
+    """`swarm repro comm` SIGKILLed mid-study, then `--resume`d: the cells it had made are kept
+    (not played again) and the study's CSV equals an uninterrupted run's; a resume with other
+    settings, or with nothing to resume, is one line, exit 2."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[repro]\ncomm_episodes = 2\n")
+    args = ["repro", "comm", "--config", str(cfg), "--seed", "2", "--batch", "2",
+            "--comm-policies", "nearest-frontier,random"]
+    assert swarm(*args, "--out", str(tmp_path / "whole")).returncode == 0
+    partial = tmp_path / "cut" / "comm.partial.json"
+    proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", *args, "--out",
+                             str(tmp_path / "cut")], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while not partial.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.01)
+        proc.kill()
+    finally:
+        proc.wait(timeout=30)
+    made = json.loads(partial.read_text())["cells"]
+    assert 1 <= len(made) < 24 and not (tmp_path / "cut" / "comm.csv").exists()
+    other = swarm(*args[:-2], "--comm-policies", "nearest-frontier", "--out",
+                  str(tmp_path / "cut"), "--resume")
+    assert other.returncode == 2 and other.stderr.strip().splitlines() == [
+        f"swarm: error: --resume: the interrupted comm in {tmp_path / 'cut'} was made with "
+        "other policies; give its settings, or drop --resume to start again"], other.stderr
+    none = swarm(*args, "--out", str(tmp_path / "none"), "--resume")
+    assert none.returncode == 2 and "no interrupted comm" in none.stderr, none.stderr
+    r = swarm(*args, "--out", str(tmp_path / "cut"), "--resume")
+    assert r.returncode == 0, r.stderr
+    assert f"resumes with {len(made)} of 24 cells made" in r.stderr
+    assert not partial.exists()  # the item's files hold every cell now
+    assert (tmp_path / "cut" / "comm.csv").read_text() == \
+        (tmp_path / "whole" / "comm.csv").read_text()
+
+
 def test_repro_comm_without_commattn_needs_no_commattn_checkpoint(tmp_path: Path,
                                                                    monkeypatch) -> None:
     """UA pass: `repro comm --comm-policies coordinated-frontier,nearest-frontier` demanded a
@@ -711,6 +750,7 @@ def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_pa
     (["table2", "--episodes", "5"], "--episodes is not used by table2; it is for fig4, fig5"),
     (["fig8", "--horizon", "20"], "--horizon is not used by fig8 (fig8: it draws training"),
     (["comm", "--policies", "random"], "it takes --comm-policies"),
+    (["fig4", "--resume"], "--resume is not used by fig4; it is for comm"),
     (["table1", "--robots", "2,4"], "--robots is not used by table1; it is for fig4"),
     (["fig9", "--policies", "random"],  # (UA pass: drew CommNet and CommAttn)
      "fig9 draws commnet and commattn only, not --policies random: name either"),

@@ -316,12 +316,11 @@ def cmd_repro(args: argparse.Namespace) -> int:
 
     tables = file_tables(args.config)
     world = world_config(args, tables)
-    flags = {"out": args.out, "episodes": args.episodes, "seed": args.seed,
-             "policies": args.policies, "checkpoints": _checkpoint_pairs(args.checkpoint),
-             "robots": args.robots, "add_every": args.add_every, "decisions": args.decisions,
-             "batch": args.batch, "json": args.json, "comm_policies": args.comm_policies,
-             "table2_episodes": args.table2_episodes, "comm_episodes": args.comm_episodes,
-             "curves": _checkpoint_pairs(args.curve, "--curve")}
+    flags = {k: getattr(args, k) for k in (
+        "out", "episodes", "seed", "policies", "robots", "add_every", "decisions", "batch", "json",
+        "comm_policies", "table2_episodes", "comm_episodes", "resume")}
+    flags.update(checkpoints=_checkpoint_pairs(args.checkpoint),
+                 curves=_checkpoint_pairs(args.curve, "--curve"))
     cfg = merged(repro.ReproConfig, tables.get("repro", {}), flags, "[repro]")
     # every check before the progress display (whose closing would print a blank line)
     items = repro.prepare(repro.expand(args.item), world, cfg)
@@ -338,11 +337,9 @@ def cmd_repro(args: argparse.Namespace) -> int:
             out.print(table2_table(res["rows"]))
         elif item == "fig8":
             out.print(curves_table(res["rows"]))
-        elif item in ("fig9", "fig10", "fig11", "comm"):
-            continue  # its files are listed below
-        else:
-            x = "robots" if item == "fig4" else "add_every"
-            title = "Fig. 4 (static map)" if item == "fig4" else "Fig. 5 (dynamic map)"
+        elif item not in ("fig9", "fig10", "fig11", "comm"):  # (theirs: the files below)
+            x, title = ("robots", "Fig. 4 (static map)") if item == "fig4" else \
+                ("add_every", "Fig. 5 (dynamic map)")
             out.print(sweep_table(f"{title}: elratio mean ± std", x, res["rows"]))
     out.print(files_table({k: v["files"] for k, v in results.items()}))
     return 0
@@ -484,6 +481,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--add-every", metavar="M,M,..", help="Fig. 5 periods (default 1,2,3,4,5,6,9)")
     p.add_argument("--decisions", type=int, metavar="K", help="Table 1 decisions (default 150)")
     p.add_argument("--batch", type=int, metavar="B", help="episodes stepped at once (default 250)")
+    p.add_argument("--resume", action="store_true", default=None,
+                   help="comm: go on from an interrupted comm's cells in --out (same settings)")
     add_common(p)
     add_world(p, robots=False, schedule=False)
     p.set_defaults(func=cmd_repro)

@@ -266,7 +266,7 @@ _WORLD_ITEMS = ("table1", "table2", "fig4", "fig5", "fig9", "fig10", "fig11", "c
 REPRO_FLAGS = {  # `swarm repro` flag (its dest) -> the items that use it
     "episodes": ("fig4", "fig5"), "table2_episodes": ("table2",), "robots": ("fig4",),
     "add_every": ("fig5",), "decisions": ("table1",), "curve": ("fig8",),
-    "comm_episodes": ("comm",), "comm_policies": ("comm",),
+    "comm_episodes": ("comm",), "comm_policies": ("comm",), "resume": ("comm",),
     "policies": ("table1", "table2", "fig4", "fig5", "fig8", "fig9"),
     "sense": _WORLD_ITEMS, "vision": tuple(i for i in _WORLD_ITEMS if i != "fig9"),
     **dict.fromkeys(("size", "static_blocks", "horizon"), tuple(i for i in _WORLD_ITEMS

@@ -13,6 +13,7 @@ per cell (10 x 30 / 400); there CommAttn runs the checkpoint fine-tuned on 40 x 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -32,7 +33,7 @@ from swarm.common.report import (
 )
 from swarm.learn.evaluate import EvalResult, evaluate
 from swarm.net.faults import plan_from_table
-from world.config import WorldConfig, replace, scaled_blocks, to_dict
+from world.config import ConfigError, WorldConfig, replace, scaled_blocks, to_dict
 
 # (label, world changes, [faults] table): the conditions; tables and the figure show the 20 x 20
 # ones first (`shown_order`), then the harder tasks
@@ -131,7 +132,6 @@ def paired_script(argv: Sequence[str], script: str, specs: dict[str, tuple[str, 
     (condition indices; K episodes of `seed` each, default `episodes`), each row printed and
     OUT.json rewritten (atomically, with `meta`) as each condition finishes."""
     import json
-    import sys
 
     import torch
 
@@ -166,15 +166,80 @@ def comm_title(policies: Sequence[str]) -> str:
             + (" (central: a perfect radio)" if "central" in policies else ""))
 
 
+PARTIAL = "comm.partial.json"
+"""The cells (condition, policy) an unfinished `comm` has made, rewritten after each and
+removed with the item's files written: `swarm repro comm --resume` goes on from them."""
+
+
+def comm_base(world: WorldConfig) -> WorldConfig:
+    """The world every condition changes: `world`'s, with the settings they name at default."""
+    return replace(world, dynamic=True, **{k: getattr(WorldConfig, k) for k in SET})
+
+
+def comm_key(world: WorldConfig, seed: int, episodes: int, policies: Sequence[str],
+             checkpoints: dict[str, str | None], batch: int, tick_s: float = 2.0
+             ) -> dict[str, Any]:
+    """What makes a `comm` study's cells: a resumed one must have the same (the checkpoints it
+    runs by their bytes' SHA-256, so a file retrained in place is not taken for the old)."""
+    import hashlib
+
+    from swarm.common.atomic import json_safe
+
+    base = comm_base(world)
+    files = sorted({c for _, changes, _ in CONDITIONS for name in policies
+                    if (c := checkpoint_for(name, replace(base, **changes),
+                                            checkpoints.get(name)))})
+    return json_safe({"seed": seed, "episodes": episodes, "policies": list(policies),
+                      "batch": batch, "tick_s": tick_s, "world": to_dict(base),
+                      "checkpoints": {shown(f): hashlib.sha256(Path(f).read_bytes()).hexdigest()
+                                      for f in files}})
+
+
+def repro_key(world: WorldConfig, cfg: Any) -> dict[str, Any]:
+    """`comm_key` of `swarm repro comm` with `cfg` (a swarm.studies.repro.ReproConfig)."""
+    return comm_key(world, cfg.seed, cfg.comm_episodes, cfg.comm_policies, cfg.checkpoints,
+                    cfg.batch)
+
+
+def resumed_cells(out: Path, key: dict[str, Any]) -> dict[str, Any]:
+    """The cells an interrupted `comm` in `out` made with the same `key` (a one-line ConfigError
+    naming what differs, or that there is none to resume)."""
+    import json
+
+    path = out / PARTIAL
+    try:
+        held = json.loads(path.read_text())
+        cells, old = held["cells"], held["key"]
+        assert isinstance(cells, dict) and isinstance(old, dict)
+    except FileNotFoundError:
+        raise ConfigError(f"--resume: no interrupted comm in {out} ({PARTIAL} not found)"
+                          ) from None
+    except (ValueError, KeyError, TypeError, AssertionError):
+        raise ConfigError(f"--resume: {path} is not a comm study's cells") from None
+    if differ := [k for k in sorted(set(key) | set(old)) if key.get(k) != old.get(k)]:
+        raise ConfigError(f"--resume: the interrupted comm in {out} was made with other "
+                          f"{', '.join(differ)}; give its settings, or drop --resume to start "
+                          "again")
+    return cells
+
+
 def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
          policies: Sequence[str] = POLICIES, checkpoints: dict[str, str | None] | None = None,
-         batch: int = 250, tick_s: float = 2.0) -> dict[str, Any]:
+         batch: int = 250, tick_s: float = 2.0, resume: bool = False) -> dict[str, Any]:
     """Rows per (policy, condition): elratio, success, the gap to `central`, and the first
-    policy's paired lead over each (mean and standard error over the same episodes)."""
+    policy's paired lead over each (mean and standard error over the same episodes). Each
+    cell's episodes go into `PARTIAL` as it ends; `resume` takes the cells found there."""
+    from swarm.common.atomic import write_json
+
     checkpoints = checkpoints or {}
     unused = [f"{k} {getattr(world, k):g}" for k in SET
               if getattr(world, k) != getattr(WorldConfig, k)]
-    base = replace(world, dynamic=True, **{k: getattr(WorldConfig, k) for k in SET})
+    base = comm_base(world)
+    key = comm_key(world, seed, episodes, policies, checkpoints, batch, tick_s)
+    cells = resumed_cells(out, key) if resume else {}
+    if resume:
+        print(f"swarm: repro comm resumes with {len(cells)} of {len(CONDITIONS) * len(policies)} "
+              f"cells made ({out / PARTIAL})", file=sys.stderr, flush=True)
     rows: list[dict[str, Any]] = []
     for label, changes, faults in CONDITIONS:
         wc = replace(base, **changes)
@@ -182,11 +247,16 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
         first: np.ndarray | None = None  # the first policy's per-episode elratio (paired ref.)
         for name in policies:
             ckpt = checkpoint_for(name, wc, checkpoints.get(name))
-            policy = build_policy(name, wc, ckpt)
-            res = under(wc, faults, policy, seed, episodes, batch, tick_s)
-            s = res.summary(wc)
-            first = res.elratio if first is None else first
-            lead, se = paired(first, res.elratio)  # the same episodes
+            cell = cells.get(f"{label} | {name}")
+            if cell is None:
+                res = under(wc, faults, build_policy(name, wc, ckpt), seed, episodes, batch,
+                            tick_s)
+                cell = {"elratio": res.elratio.tolist(), "summary": res.summary(wc)}
+                cells[f"{label} | {name}"] = cell
+                write_json(out / PARTIAL, {"key": key, "command": command, "cells": cells})
+            s, elratio = cell["summary"], np.asarray(cell["elratio"], dtype=np.float64)
+            first = elratio if first is None else first
+            lead, se = paired(first, elratio)  # the same episodes
             rows.append({"condition": label, "policy": name, "episodes": episodes,
                          "size": size, "robots": wc.n_robots, "horizon": wc.horizon,
                          "checkpoint": shown(ckpt) if ckpt else "",
@@ -247,4 +317,6 @@ def comm(world: WorldConfig, out: Path, command: str, seed: int, episodes: int,
         ax.legend(fontsize=8, loc="upper center", ncol=len(policies))
 
     meta = {"item": "comm", "command": command, "seed": seed, "world": to_dict(base)}
-    return {"item": "comm", "rows": rows, "files": write_item(out, "comm", rows, md, draw, meta)}
+    files = write_item(out, "comm", rows, md, draw, meta)
+    (out / PARTIAL).unlink(missing_ok=True)  # (the item's files hold every cell now)
+    return {"item": "comm", "rows": rows, "files": files}

@@ -43,7 +43,7 @@ from swarm.common.report import (
 from swarm.learn.curves import fig8 as curves_figure
 from swarm.learn.curves import read_curve
 from swarm.learn.evaluate import evaluate
-from swarm.studies.comm import POLICIES as COMM_POLICIES
+from swarm.studies import comm as cs
 from world.config import ConfigError, WorldConfig, check_count, check_seed, replace, to_dict
 
 ITEMS = ("table1", "table2", "fig4", "fig5", "fig8", "fig9", "fig10", "fig11", "comm")
@@ -91,7 +91,7 @@ class ReproConfig:
     """Table 2: held-out episodes per policy (the paper: 1000)."""
     comm_episodes: int = 200
     """`comm`: held-out episodes per (policy, condition)."""
-    comm_policies: tuple[str, ...] = COMM_POLICIES
+    comm_policies: tuple[str, ...] = cs.POLICIES
     """`comm`: policies compared, the first one paired against each other (learned ones take
     `checkpoints`; e.g. add `chain-plan`, or a network of your own as `commattn`)."""
     fig9_episodes: int = 1000
@@ -120,6 +120,8 @@ class ReproConfig:
     """Episodes stepped at once by the evaluator."""
     json: str | None = None
     """Also write every item's results into this one JSON file."""
+    resume: bool = False
+    """`comm`: go on from the cells an interrupted one in `out` made with the same settings."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "policies", name_list(self.policies))
@@ -392,12 +394,10 @@ def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
     from swarm.studies import commviz
 
     out = Path(cfg.out or ".")
-    if item == "comm":
-        from swarm.studies.comm import comm
-
-        # only the checkpoints given here: else comm picks the shipped one per map size
-        return comm(world or WorldConfig(), out, command, cfg.seed, cfg.comm_episodes,
-                    policies=cfg.comm_policies, checkpoints=cfg.checkpoints, batch=cfg.batch)
+    if item == "comm":  # only the checkpoints given here: else it picks one per map size
+        return cs.comm(world or WorldConfig(), out, command, cfg.seed, cfg.comm_episodes,
+                    policies=cfg.comm_policies, checkpoints=cfg.checkpoints, batch=cfg.batch,
+                    resume=cfg.resume)
     ckpt = cfg.checkpoint("commattn")
     static = None if world is None else replace(world, dynamic=False)  # (static studies, on
     study = commviz.fig10 if item == "fig10" else commviz.fig11  # the run's map and team)
@@ -449,6 +449,8 @@ def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[
     if "comm" in items:
         for name in cfg.comm_policies:
             build_policy(name, world, cfg.checkpoint(name))
+        if cfg.resume:  # (its settings held before any other item runs)
+            cs.resumed_cells(Path(cfg.out), cs.repro_key(world, cfg))
     if "fig8" in items:
         if stray := sorted(set(cfg.curves) - set(learned_of(cfg))):
             raise ConfigError(f"--curve {stray[0]}=...: {stray[0]} is not among --policies "
@@ -471,7 +473,7 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
     items = items if prepared else prepare(items, world, cfg)
     progress = progress or NullProgress()
     out = Path(cfg.out or ".")  # a killed repro's temp files (these items': another may run)
-    atomic.remove_stale(out, tuple(n for i in items for n in item_files(i)))
+    atomic.remove_stale(out, tuple(n for i in items for n in item_files(i)) + (cs.PARTIAL,))
     results: dict[str, Any] = {}
     for item in items:
         for name in item_files(item):  # old files go at its start, new ones come at its end
