@@ -650,6 +650,14 @@ def test_a_killed_repro_comm_resumes_to_the_same_files(tmp_path: Path) -> None:
         "other policies; give its settings, or drop --resume to start again"], other.stderr
     none = swarm(*args, "--out", str(tmp_path / "none"), "--resume")
     assert none.returncode == 2 and "no interrupted comm" in none.stderr, none.stderr
+    held = json.loads(partial.read_text())  # a cell cut short (hand-edited, or not ours)
+    next(iter(held["cells"].values()))["elratio"].pop()
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "comm.partial.json").write_text(json.dumps(held))
+    bad = swarm(*args, "--out", str(tmp_path / "bad"), "--resume")
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines() == [
+        f"swarm: error: --resume: {tmp_path / 'bad' / 'comm.partial.json'} is not a comm "
+        "study's cells"], bad.stderr
     r = swarm(*args, "--out", str(tmp_path / "cut"), "--resume")
     assert r.returncode == 0, r.stderr
     assert f"resumes with {len(made)} of 24 cells made" in r.stderr

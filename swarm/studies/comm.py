@@ -166,6 +166,7 @@ def comm_title(policies: Sequence[str]) -> str:
             + (" (central: a perfect radio)" if "central" in policies else ""))
 
 
+SUMMARY = ("elratio_mean", "elratio_std", "success_rate")  # what a row takes of a cell's
 PARTIAL = "comm.partial.json"
 """The cells (condition, policy) an unfinished `comm` has made, rewritten after each and
 removed with the item's files written: `swarm repro comm --resume` goes on from them."""
@@ -211,6 +212,10 @@ def resumed_cells(out: Path, key: dict[str, Any]) -> dict[str, Any]:
         held = json.loads(path.read_text())
         cells, old = held["cells"], held["key"]
         assert isinstance(cells, dict) and isinstance(old, dict)
+        for cell in cells.values():  # (each one read as it is used: whole, or refused here)
+            assert len(cell["elratio"]) == key["episodes"] and isinstance(cell["summary"], dict)
+            assert all(isinstance(x, float) for x in cell["elratio"])
+            assert all(isinstance(cell["summary"][k], float) for k in SUMMARY)
     except FileNotFoundError:
         raise ConfigError(f"--resume: no interrupted comm in {out} ({PARTIAL} not found)"
                           ) from None
