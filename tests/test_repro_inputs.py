@@ -47,6 +47,28 @@ def test_repro_fig8_refuses_a_curve_of_no_policy_or_one_not_drawn(
     assert "vain is not among --policies commattn" in line, line
 
 
+def test_repro_fig8_draws_a_second_curve_of_a_policy_as_name_tag(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`--curve commattn:mine=FILE` draws your run beside the shipped commattn curve (one curve
+    per policy name was all fig8 drew); the policy part is held like a plain name."""
+    import csv
+
+    shipped = ROOT / "checkpoints" / "commattn_curve.csv"
+    out = tmp_path / "o"
+    assert main(["repro", "fig8", "--out", str(out), "--policies", "commattn", "--curve",
+                 f"commattn:mine={ROOT / 'checkpoints' / 'vain_curve.csv'}"]) == 0
+    capsys.readouterr()
+    rows = list(csv.DictReader((out / "fig8.csv").open()))
+    assert [p for p in dict.fromkeys(r["policy"] for r in rows)] == ["commattn", "commattn:mine"]
+    assert "| commattn:mine |" in (out / "fig8.md").read_text()
+    for curve, says in ((f"bogus:x={shipped}", "--curve bogus:x=...: not a learned policy"),
+                        (f"commattn:={shipped}", "--curve commattn:=...: not a learned policy"),
+                        (f"vain:x={shipped}", "vain is not among --policies commattn")):
+        line = refused(["repro", "fig8", "--out", str(tmp_path / "p"), "--policies", "commattn",
+                        "--curve", curve], capsys)
+        assert says in line, line
+
+
 @pytest.mark.parametrize("flag", ["--curve", "--checkpoint"])
 def test_repro_refuses_a_name_given_twice(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                           flag: str) -> None:

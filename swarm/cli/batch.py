@@ -476,7 +476,7 @@ def add_parsers(sub: Any) -> None:
                    help="checkpoint of a learned policy (repeatable)")
     p.add_argument("--curve", action="append", metavar="NAME=FILE",
                    help="Fig. 8 training-curve CSV of a learned policy (repeatable; default "
-                        "checkpoints/NAME_curve.csv)")
+                        "checkpoints/NAME_curve.csv; NAME:TAG=FILE draws one more of NAME)")
     p.add_argument("--robots", metavar="N,N,..", help="Fig. 4 team sizes (default 2,4,6,8,10,12)")
     p.add_argument("--add-every", metavar="M,M,..", help="Fig. 5 periods (default 1,2,3,4,5,6,9)")
     p.add_argument("--decisions", type=int, metavar="K", help="Table 1 decisions (default 150)")

@@ -107,7 +107,8 @@ class ReproConfig:
     """Table 2 with the default policies: add the planners (team-beam, chain-plan, central, oracle)
     and each policy's share of the oracle-to-random gap (name them in `policies` to choose)."""
     curves: dict[str, str] = field(default_factory=dict)
-    """Fig. 8: training-curve CSV per learned policy (default: checkpoints/NAME_curve.csv)."""
+    """Fig. 8: training-curve CSV per learned policy (default: checkpoints/NAME_curve.csv); a
+    key NAME:TAG draws one more curve of NAME, labelled so (yours beside the shipped one)."""
     smooth: int = 25
     """Fig. 8: moving-average window, in updates."""
     robots: tuple[int, ...] = (2, 4, 6, 8, 10, 12)
@@ -144,17 +145,17 @@ class ReproConfig:
             raise ConfigError("checkpoints must map policy names to file names")
         from policies import LEARNED
 
-        stray = sorted(set(self.checkpoints) - LEARNED)  # (a typo ran the shipped network)
-        if stray:
+        if stray := sorted(set(self.checkpoints) - LEARNED):  # (a typo ran the shipped one)
             raise ConfigError(f"--checkpoint {', '.join(stray)}: not a learned policy; "
                               f"checkpoints are for {', '.join(sorted(LEARNED))}")
         if not isinstance(self.curves, dict) or not all(
                 isinstance(k, str) and isinstance(v, str) for k, v in self.curves.items()):
             raise ConfigError("curves must map policy names to CSV file names")
-        stray = sorted(set(self.curves) - LEARNED)  # (the figure was drawn without it)
-        if stray:
-            raise ConfigError(f"--curve {stray[0]}=...: not a learned policy; curves are for "
-                              f"{', '.join(sorted(LEARNED))}")
+        # (the figure was drawn without it); NAME:TAG is a second curve of NAME
+        if stray := sorted(k for k in self.curves if k.partition(":")[0] not in LEARNED
+                           or k.endswith(":")):
+            raise ConfigError(f"--curve {stray[0]}=...: not a learned policy (or NAME:TAG); "
+                              f"curves are for {', '.join(sorted(LEARNED))}")
 
     def checkpoint(self, name: str) -> str | None:
         """The checkpoint of policy `name`: given, else shipped (learned policies), else None."""
@@ -168,6 +169,11 @@ class ReproConfig:
     def curve(self, name: str) -> Path:
         return Path(self.curves.get(name, SHIPPED / f"{name}_curve.csv"))
 
+    def curve_files(self, names: Sequence[str]) -> dict[str, Path]:
+        """Fig. 8's curves: each of `names` (given, or shipped), then each `NAME:TAG` given."""
+        return {**{n: self.curve(n) for n in names},
+                **{k: Path(v) for k, v in self.curves.items() if ":" in k}}
+
 
 def table1(world: WorldConfig, cfg: ReproConfig, command: str,
            progress: ProgressSink) -> dict[str, Any]:
@@ -175,8 +181,8 @@ def table1(world: WorldConfig, cfg: ReproConfig, command: str,
     rows: list[dict[str, Any]] = []
     for name in cfg.policies:
         progress.start(f"table1 {name}", cfg.decisions)
-        ckpt = cfg.checkpoint(name)
-        ms = time_decisions(world, name, cfg.decisions, cfg.seed, 1, ckpt, progress)
+        ms = time_decisions(world, name, cfg.decisions, cfg.seed, 1, ckpt := cfg.checkpoint(name),
+                            progress)
         paper = PAPER_TABLE1.get(name, (None, None))
         rows.append({"policy": name, "robots": world.n_robots, "checkpoint": shown(ckpt) or "",
                      **timing_stats(ms), "paper_mean_ms": paper[0], "paper_std_ms": paper[1]})
@@ -234,8 +240,7 @@ def sweep(world: WorldConfig, item: str, cfg: ReproConfig, command: str,
     t = world.horizon
     if item == "fig4":
         title = f"Fig. 4: exploration rate in {t} steps vs number of robots (static map)"
-        note = "Paper: learned > nearest > coordinated > cost-utility."
-        xlabel = "number of robots"
+        note, xlabel = "Paper: learned > nearest > coordinated > cost-utility.", "number of robots"
         short = f"Fig. 4: static map, T = {t}"
     else:
         title = (f"Fig. 5: exploration rate in {t} steps vs block-adding period m "
@@ -279,8 +284,7 @@ def table2_notes(rows: list[dict[str, Any]], cfg: ReproConfig) -> str:
     says = [SAYS.get(r["policy"], f"`{r['policy']}`").format(r["episodes"]) for r in rows]
     text = "".join(f" {s[0].upper()}{s[1:]}." for r, s in zip(rows, says, strict=True)
                    if r["decentralized"] and r["policy"] in SAYS)
-    starred = [s for r, s in zip(rows, says, strict=True) if not r["decentralized"]]
-    if starred:
+    if starred := [s for r, s in zip(rows, says, strict=True) if not r["decentralized"]]:
         text += f" Rows marked * are not decentralized: {'; '.join(starred)}."
     if any(r["gap_closed"] is not None for r in rows):
         text += " 'gap' is the share of the oracle-to-random elratio gap a policy closes."
@@ -378,15 +382,6 @@ def table2(world: WorldConfig, cfg: ReproConfig, command: str,
             "files": write_item(Path(cfg.out or "."), "table2", rows, md, draw, meta)}
 
 
-def fig8(cfg: ReproConfig, command: str) -> dict[str, Any]:
-    """Fig. 8: the learned policies' training curves (`swarm.learn.curves.fig8`)."""
-    names = learned_of(cfg)
-    if not names:
-        raise ConfigError("fig8 needs at least one learned policy in --policies")
-    return curves_figure({n: cfg.curve(n) for n in names}, cfg.smooth, Path(cfg.out or "."),
-                         command, cfg.seed)
-
-
 def analysis(item: str, cfg: ReproConfig, world: WorldConfig | None = None,
              command: str = "") -> dict[str, Any]:
     """Fig. 10 (t-SNE of decoder states, with a silhouette and a linear probe) or Fig. 11
@@ -452,13 +447,15 @@ def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[
         if cfg.resume:  # (its settings held before any other item runs)
             cs.resumed_cells(Path(cfg.out), cs.repro_key(world, cfg))
     if "fig8" in items:
-        if stray := sorted(set(cfg.curves) - set(learned_of(cfg))):
-            raise ConfigError(f"--curve {stray[0]}=...: {stray[0]} is not among --policies "
-                              f"{','.join(cfg.policies)}")
-        for name in learned_of(cfg):
-            if not cfg.curve(name).exists():
-                raise ConfigError(f"no training curve for {name}: {cfg.curve(name)} not found")
-            read_curve(cfg.curve(name))  # (one that is not a curve: before any other item)
+        if not learned_of(cfg):
+            raise ConfigError("fig8 needs at least one learned policy in --policies")
+        if stray := sorted(k for k in cfg.curves if k.partition(":")[0] not in learned_of(cfg)):
+            raise ConfigError(f"--curve {stray[0]}=...: {stray[0].partition(':')[0]} is not "
+                              f"among --policies {','.join(cfg.policies)}")
+        for name, path in cfg.curve_files(learned_of(cfg)).items():
+            if not path.exists():
+                raise ConfigError(f"no training curve for {name}: {path} not found")
+            read_curve(path)  # (one that is not a curve: before any other item)
     for name in (n for item in items for n in item_files(item)) if cfg.json else ():
         if Path(cfg.json).resolve() == (Path(cfg.out) / name).resolve():
             raise ConfigError(f"--json {cfg.json} is a file repro writes ({name}); give "
@@ -482,8 +479,9 @@ def run(items: Sequence[str], world: WorldConfig, cfg: ReproConfig, command: str
             results[item] = table1(world, cfg, command, progress)
         elif item == "table2":
             results[item] = table2(world, cfg, command, progress)
-        elif item == "fig8":
-            results[item] = fig8(cfg, command)
+        elif item == "fig8":  # the learned policies' training curves
+            results[item] = curves_figure(cfg.curve_files(learned_of(cfg)), cfg.smooth, out,
+                                          command, cfg.seed)
         elif item in ANALYSES:
             results[item] = analysis(item, cfg, world, command)
         elif item == "fig9":
