@@ -648,6 +648,10 @@ def test_a_killed_repro_comm_resumes_to_the_same_files(tmp_path: Path) -> None:
     assert other.returncode == 2 and other.stderr.strip().splitlines() == [
         f"swarm: error: --resume: the interrupted comm in {tmp_path / 'cut'} was made with "
         "other policies; give its settings, or drop --resume to start again"], other.stderr
+    more = swarm(*args, "--comm-episodes", "3", "--out", str(tmp_path / "cut"), "--resume")
+    assert more.returncode == 2 and "was made with other episodes;" in more.stderr, more.stderr
+    every = swarm("repro", "all", *args[2:], "--out", str(tmp_path / "cut"), "--resume")
+    assert every.returncode == 2 and "goes on with an interrupted comm, alone" in every.stderr
     none = swarm(*args, "--out", str(tmp_path / "none"), "--resume")
     assert none.returncode == 2 and "no interrupted comm" in none.stderr, none.stderr
     held = json.loads(partial.read_text())  # a cell cut short (hand-edited, or not ours)
@@ -758,7 +762,8 @@ def test_paired_condition_script_writes_each_row_and_checks_its_arguments(tmp_pa
     (["table2", "--episodes", "5"], "--episodes is not used by table2; it is for fig4, fig5"),
     (["fig8", "--horizon", "20"], "--horizon is not used by fig8 (fig8: it draws training"),
     (["comm", "--policies", "random"], "it takes --comm-policies"),
-    (["fig4", "--resume"], "--resume is not used by fig4; it is for comm"),
+    (["fig4", "--resume"], "--resume (or [repro] resume) goes on with an interrupted comm, "
+                           "alone: `swarm repro comm --resume`, not fig4"),
     (["table1", "--robots", "2,4"], "--robots is not used by table1; it is for fig4"),
     (["fig9", "--policies", "random"],  # (UA pass: drew CommNet and CommAttn)
      "fig9 draws commnet and commattn only, not --policies random: name either"),

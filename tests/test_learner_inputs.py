@@ -125,7 +125,8 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
         try:
             for u in range(3):
                 roll = collect(learner.policy, SMALL, 0, np.arange(2 * u, 2 * u + 2))
-                learner.ready.extend(episodes_of(roll, learner.version))
+                for ep in episodes_of(roll, learner.version):  # (as a rollout worker's)
+                    learner.handle("worker", "w", ep.pack())
                 assert learner.maybe_update()
         finally:
             inbox.close()
@@ -263,7 +264,7 @@ def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> N
     try:
         before = resumed()
         assert before["lost"] == 0
-        eps = episodes_of(collect(made[0].policy, SMALL, 0, np.arange(6, 9)), made[0].version)
+        eps = episodes_of(collect(made[0].policy, SMALL, 0, np.arange(6, 10)), made[0].version)
         made[0].handle("worker", "w", eps[0].pack())  # half a batch, then SIGKILL (nothing more
         assert made[0].accounting()["pending"] == before["pending"] + 1  # is written: its
         # line is the OS's)
@@ -274,17 +275,44 @@ def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> N
         with open_session(ZenohOptions()) as session:
             inbox = made[-1]._declare(session)
             try:
-                made[-1].handle("worker", "w", eps[1].pack())
-                made[-1].handle("worker", "w", eps[2].pack())
-                assert made[-1].maybe_update()  # its checkpoint now holds the lost one
-            finally:
-                inbox.close()
+                for ep in eps[1:]:
+                    made[-1].handle("worker", "w", ep.pack())
+                assert made[-1].maybe_update()  # its checkpoint now holds the lost one, and
+            finally:  # one episode of the three waiting for the next batch (UA 83: it was in
+                inbox.close()  # no counter once resumed)
         acc = resumed()
-        assert acc["lost"] == 1 and acc["trained"] == before["trained"] + 2, acc
-        assert acc["received"] == before["received"] + 3 and sums(acc) == sums(before), acc
+        assert acc["lost"] == 2 and acc["trained"] == before["trained"] + 2, acc
+        assert acc["received"] == before["received"] + 4 and sums(acc) == sums(before), acc
+        assert resumed() == acc  # and again: counted once
     finally:
         for learner in made:
             learner.journal.close()
+
+
+def test_a_fresh_learner_starts_its_journal_again_and_a_bad_line_is_skipped(
+        tmp_path: Path) -> None:
+    """UA 83: a fresh learner (and so `swarm run --train --learner-out DIR`) counted the lines an
+    earlier learner that never made a checkpoint left in DIR as its own `lost` (unaccounted
+    -2 in a run's result); a line of digits `int` does not take was a traceback."""
+    from swarm.learn.config import LearnerConfig
+    from swarm.procs.learning.journal import Journal
+    from swarm.procs.learning.learner import Learner
+
+    (tmp_path / "l").mkdir()
+    journal = tmp_path / "l" / "heard.log"
+    journal.write_text("1 0\n2 1\n")
+    learner = Learner(SMALL, LearnerConfig(run_id="fresh", policy="vain", out=str(tmp_path / "l")),
+                      TrainConfig(batch=2, threads=1))
+    learner.open_out()
+    try:
+        assert learner.accounting()["received"] == 0 and learner.accounting()["lost"] == 0
+        assert journal.read_text() == ""
+    finally:
+        learner.journal.close()
+    journal.write_text("\u00b27 1\n5 2\n5 2\nhello\n4 9\n99999999999999999999999 3\n")
+    assert Journal(journal).past(4) == 1  # 5 (twice, one episode); the rest skipped or not past
+
+
 
 
 @pytest.mark.procs

@@ -127,12 +127,14 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--run-id", help="the run to learn from")
     p.add_argument("--policy", help="learned policy (default commattn)")
     p.add_argument("--checkpoint", metavar="FILE", help="initial weights")
-    p.add_argument("--out", metavar="DIR", help="checkpoint.pt, curve.csv, log.jsonl go here")
+    p.add_argument("--out", metavar="DIR",
+                   help="checkpoint.pt, curve.csv, log.jsonl, heard.log go here")
     p.add_argument("--resume", action="store_true",
                    help="continue from OUT/checkpoint.pt with its train settings, world and "
                         "seed (a loss flag that differs from them is refused; of those only "
                         "--threads may change; --max-staleness and --join-timeout, how this "
-                        "learner gathers, are not held and may change)")
+                        "learner gathers, are not held and may change); the episodes its "
+                        "stopped self had heard of since its last update are counted lost")
     p.add_argument("--max-staleness", type=int, metavar="K",
                    help="drop episodes more than K >= 0 versions old (default 1)")
     p.add_argument("--join-timeout", type=float, metavar="S",

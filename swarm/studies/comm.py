@@ -212,19 +212,26 @@ def resumed_cells(out: Path, key: dict[str, Any]) -> dict[str, Any]:
         held = json.loads(path.read_text())
         cells, old = held["cells"], held["key"]
         assert isinstance(cells, dict) and isinstance(old, dict)
-        for cell in cells.values():  # (each one read as it is used: whole, or refused here)
-            assert len(cell["elratio"]) == key["episodes"] and isinstance(cell["summary"], dict)
-            assert all(isinstance(x, float) for x in cell["elratio"])
-            assert all(isinstance(cell["summary"][k], float) for k in SUMMARY)
     except FileNotFoundError:
         raise ConfigError(f"--resume: no interrupted comm in {out} ({PARTIAL} not found)"
                           ) from None
+    except OSError as exc:
+        raise ConfigError(f"--resume: {path} cannot be read ({exc.strerror or exc})") from None
     except (ValueError, KeyError, TypeError, AssertionError):
         raise ConfigError(f"--resume: {path} is not a comm study's cells") from None
     if differ := [k for k in sorted(set(key) | set(old)) if key.get(k) != old.get(k)]:
         raise ConfigError(f"--resume: the interrupted comm in {out} was made with other "
                           f"{', '.join(differ)}; give its settings, or drop --resume to start "
                           "again")
+    try:  # each cell whole and in range, or refused here (not read part way through a table)
+        for cell in cells.values():
+            summary, elratio = cell["summary"], cell["elratio"]
+            assert isinstance(summary, dict) and len(elratio) == key["episodes"]
+            assert all(isinstance(x, float) and 0.0 <= x <= 1.0 for x in elratio)
+            assert all(isinstance(summary[k], float) and 0.0 <= summary[k] <= 1.0
+                       for k in SUMMARY)
+    except (KeyError, TypeError, AssertionError):
+        raise ConfigError(f"--resume: {path} is not a comm study's cells") from None
     return cells
 
 

@@ -441,10 +441,13 @@ def prepare(items: Sequence[str], world: WorldConfig, cfg: ReproConfig) -> list[
         build_policy(name, world, cfg.checkpoint(name))
     if set(items) & {"fig10", "fig11"}:
         build_policy("commattn", world, cfg.checkpoint("commattn"))
+    if cfg.resume and items != ["comm"]:  # (`all` would make every other item again first)
+        raise ConfigError("--resume (or [repro] resume) goes on with an interrupted comm, alone:"
+                          f" `swarm repro comm --resume`, not {', '.join(items)}")
     if "comm" in items:
         for name in cfg.comm_policies:
             build_policy(name, world, cfg.checkpoint(name))
-        if cfg.resume:  # (its settings held before any other item runs)
+        if cfg.resume:  # (its settings held before it runs)
             cs.resumed_cells(Path(cfg.out), cs.repro_key(world, cfg))
     if "fig8" in items:
         if not learned_of(cfg):

@@ -3,11 +3,13 @@ two updates and resumed counts what it held (never trained on) instead of forget
 
 One line per episode heard of, `<n> <episode>`, n being the learner's `received` count with
 that episode. A line is written to the OS as it is made (line-buffered), so a SIGKILL loses
-none; the file is emptied after every checkpoint. On resume, the lines whose n is past the
-checkpoint's `received` are the episodes the stopped learner had and lost (`lost` in its
-accounting); earlier lines are ones the checkpoint already counts (a kill between the
-checkpoint's rename and the emptying). They are left in the file until the next checkpoint,
-which counts them: a learner killed again before it makes one finds them again, once."""
+none; the file is emptied after every checkpoint, which itself holds how many episodes it had
+heard of and not yet settled (`pending`: joining, or waiting for a batch). On resume, those and
+the lines whose n is past the checkpoint's `received` are the episodes the stopped learner had
+and lost (`lost` in its accounting); earlier lines are ones the checkpoint already counts (a
+kill between the checkpoint's rename and the emptying). They are left in the file until the
+next checkpoint, which counts them: a learner killed again before it makes one finds them
+again, once. Only a resumed learner reads the file; a fresh one starts it again."""
 
 from __future__ import annotations
 
@@ -30,19 +32,26 @@ class Journal:
             lines = self.path.read_text(errors="replace").splitlines()
         except FileNotFoundError:
             return 0
-        past = skipped = 0
+        past: set[int] = set()  # (a line written twice is one episode)
+        skipped = 0
         for line in lines:
             head = line.split(" ", 1)[0]
-            if not head.isdigit():
+            if not (head.isascii() and head.isdigit() and len(head) < 19):
                 skipped += 1
                 continue
-            past += int(head) > received
+            if int(head) > received:
+                past.add(int(head))
         if skipped:
             log.warning("learner: %d unreadable lines in %s skipped", skipped, self.path)
-        return past
+        return len(past)
 
-    def open(self) -> None:
-        self.file = self.path.open("a", buffering=1)
+    def open(self, fresh: bool) -> None:
+        """Append (resumed), or start the file again (`fresh`: an earlier learner's lines, one
+        that never made a checkpoint, are no episodes of this one; said when there were any)."""
+        if fresh and self.path.is_file() and self.path.stat().st_size:
+            log.warning("learner: %s of an earlier learner (no checkpoint to resume) started "
+                        "again", self.path)
+        self.file = self.path.open("w" if fresh else "a", buffering=1)
 
     def heard(self, n: int, ep: int) -> None:
         if self.file is not None:

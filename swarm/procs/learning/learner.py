@@ -47,7 +47,7 @@ import zenoh
 
 from policies import check_learned, policy_class
 from policies.checkpoint import load_checkpoint, save_checkpoint
-from swarm.common.report import provenance
+from swarm.common.report import counted, provenance
 from swarm.common.spawn import stops_held
 from swarm.learn.config import LearnerConfig, TrainConfig, learner_resume_point
 from swarm.learn.curves import CurveLog, read_curve
@@ -111,6 +111,7 @@ class Learner:
         self.journal = Journal(self.out / "heard.log")
         self.c = LearnerCounters()
         self.version = self.saved = 0  # saved: the version its checkpoint file holds
+        self.held = 0  # episodes unsettled at the resumed checkpoint (lost with its process)
         self.seed: int | None = None  # the run's seed its episodes are joined with (`run`)
         check_learned(lc.policy, "the learner")
         cls = policy_class(lc.policy)
@@ -125,6 +126,8 @@ class Learner:
             self.version = self.saved = int(state["version"])
             known = {f.name for f in dataclasses.fields(LearnerCounters)}
             self.c = LearnerCounters(**{k: v for k, v in state["counters"].items() if k in known})
+            held = state.get("pending", 0)  # (a checkpoint from before it was kept: 0)
+            self.held = held if isinstance(held, int) and 0 <= held <= self.c.received else 0
         else:
             if self.ckpt.exists() and not lc.gather_only:
                 raise ConfigError(f"{self.out} already holds a learner; pass --resume")
@@ -171,13 +174,15 @@ class Learner:
         elif not self.lc.gather_only:
             self.curves.start()
         if not self.lc.gather_only:  # (one never updates: nothing to lose, nor a checkpoint)
-            lost = self.journal.past(self.c.received)
-            if lost:
-                self.c.received += lost
-                self.c.lost += lost
-                log.warning("learner: %d episodes heard of since the last checkpoint (version "
-                            "%d) were never trained on: counted lost", lost, self.version)
-            self.journal.open()
+            if self.lc.resume:  # unsettled at the checkpoint, and heard of after it
+                past = self.journal.past(self.c.received)
+                self.c.received += past
+                if lost := self.held + past:
+                    self.c.lost += lost
+                    log.warning("learner: %s heard of by the stopped learner after its last "
+                                "update (version %d) never trained on: counted lost",
+                                counted(lost, "episode"), self.version)
+            self.journal.open(fresh=not self.lc.resume)
 
     # --- network ----------------------------------------------------------------------------
     def _declare(self, session: zenoh.Session) -> Inbox:
@@ -350,6 +355,7 @@ class Learner:
         payload["learner"] = {"version": self.version, "optimizer": self.opt.state_dict(),
                               "train": dataclasses.asdict(self.tc),
                               "counters": dataclasses.asdict(self.c),
+                              "pending": self.accounting()["pending"],  # (lost, if it stops)
                               **({} if self.seed is None else {"seed": self.seed})}
         with stops_held():  # (a Ctrl-C between the file's rename and this line: the stop line
             save_checkpoint(self.ckpt, payload)  # named the version before the file's)
@@ -361,7 +367,9 @@ class Learner:
         incomplete + rejected + lost, exactly (pending: joining, or joined and waiting for a
         batch; in a gather-only learner every accepted episode stays pending; lost: held by
         this learner when it stopped before an update, counted when it resumed)."""
-        gathered = self.c.episodes - self.c.trained - len(self.ready)
+        # (a gather-only learner's accepted episodes; in one that trains, those its stopped self
+        # had ready for a batch are in `lost`, though still in `episodes`, the accepted count)
+        gathered = self.c.episodes - self.c.trained if self.lc.gather_only else 0
         return {"received": self.c.received, "trained": self.c.trained,
                 "pending": len(self.pending) + len(self.ready) + gathered,
                 "stale_dropped": self.c.stale_dropped, "incomplete": self.c.incomplete,
@@ -437,13 +445,15 @@ def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptio
     with open_session(zopts) as session:  # (two learners would publish two lines of weights)
         check_free(session, Keys(lc.run_id).alive_learner, f"a learner of run {lc.run_id}", 1.0)
         learner.open_out()
-        print(f"swarm learner: run {lc.run_id}, {lc.policy}, writing {lc.out}; it trains on "
-              "the run's episodes until the run ends (Ctrl-C stops it)", file=sys.stderr,
-              flush=True)
+        does = "counts the run's episodes (--gather-only: no update)" if lc.gather_only else \
+            "trains on the run's episodes"
+        print(f"swarm learner: run {lc.run_id}, {lc.policy}, writing {lc.out}; it {does} until "
+              "the run ends (Ctrl-C stops it)", file=sys.stderr, flush=True)
         status = learner.run(session, seed, stop)
     # where its weights are, however it ended (its checkpoint is written, atomically, at
     # every update); a learner fed by rollout workers alone ends only by Ctrl-C
     kept = f"version {learner.saved} in {learner.ckpt}" if learner.ckpt.is_file() else \
+        "--gather-only: no checkpoint written" if lc.gather_only else \
         f"no update (fewer than {learner.tc.batch} episodes): no checkpoint written"
     why = f"run {lc.run_id} ended ({learner.ended})" if learner.ended else "stopped"
     print(f"swarm learner: {why}; {kept}", file=sys.stderr, flush=True)
