@@ -668,6 +668,14 @@ def test_a_killed_repro_comm_resumes_to_the_same_files(tmp_path: Path) -> None:
     assert not partial.exists()  # the item's files hold every cell now
     assert (tmp_path / "cut" / "comm.csv").read_text() == \
         (tmp_path / "whole" / "comm.csv").read_text()
+    cell = next(iter(made))  # a kept cell is read, not played again: one kept, marked
+    held["cells"] = {cell: {**made[cell], "summary": {**made[cell]["summary"],
+                                                      "elratio_mean": 0.123456}}}
+    (tmp_path / "bad" / "comm.partial.json").write_text(json.dumps(held))
+    assert swarm(*args, "--out", str(tmp_path / "bad"), "--resume").returncode == 0
+    rows = list(csv.DictReader((tmp_path / "bad" / "comm.csv").open()))
+    assert [float(row["elratio_mean"]) for row in rows
+            if f"{row['condition']} | {row['policy']}" == cell] == [0.123456]
 
 
 def test_repro_comm_without_commattn_needs_no_commattn_checkpoint(tmp_path: Path,

@@ -44,6 +44,7 @@ BAD = [  # (argv, what the one line must say); {tmp}/o must not exist afterwards
     (["run", "--train", "--headless", "--config", "{tmp}/bad.toml"],
      "max_staleness"),
     (["learner", "--out", "{tmp}/o", "--policy", "nearest-frontier"], "needs a learned policy"),
+    (["learner", "--out", "{tmp}/o", "--gather-only", "--resume"], "nothing to --resume"),
     (["learner", "--out", "{tmp}/o", "--policy", "nope"], "unknown policy"),
     (["learner", "--out", "{tmp}/o", "--checkpoint", "{tmp}"], "is a directory"),
     (["eval", "--policy", "commattn", "--checkpoint", "{tmp}", "--episodes", "1"],
@@ -130,6 +131,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
                 assert learner.maybe_update()
         finally:
             inbox.close()
+            learner.journal.close()
     return tmp
 
 
@@ -258,12 +260,12 @@ def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> N
         made.append(learner)
         return learner.accounting()
 
-    def sums(acc: dict[str, int]) -> int:  # (the fixture trained on episodes it never heard
-        return acc["received"] - sum(acc[k] for k in ACCOUNTING if k != "received")  # of)
+    def sums(acc: dict[str, int]) -> int:  # 0: every episode heard of in one counter
+        return acc["received"] - sum(acc[k] for k in ACCOUNTING if k != "received")
 
     try:
         before = resumed()
-        assert before["lost"] == 0
+        assert before["lost"] == 0 and sums(before) == 0
         eps = episodes_of(collect(made[0].policy, SMALL, 0, np.arange(6, 10)), made[0].version)
         made[0].handle("worker", "w", eps[0].pack())  # half a batch, then SIGKILL (nothing more
         assert made[0].accounting()["pending"] == before["pending"] + 1  # is written: its

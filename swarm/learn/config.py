@@ -443,6 +443,8 @@ class LearnerConfig:
             if (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
                     or not lo <= v <= hi):
                 raise ConfigError(f"learner {name} must lie in [{lo}, {hi}] seconds, got {v!r}")
+        if self.gather_only and self.resume:  # (its counts would mix a trainer's checkpoint's)
+            raise ConfigError("--gather-only never updates or checkpoints: nothing to --resume")
 
 
 LEARNER_TRAIN_FIELDS = ("batch", "lr", "alpha", "gamma", "reward_scale", "adv_norm", "ent_coef",

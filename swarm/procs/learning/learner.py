@@ -449,7 +449,10 @@ def main(cfg: WorldConfig, lc: LearnerConfig, tc: TrainConfig, zopts: ZenohOptio
             "trains on the run's episodes"
         print(f"swarm learner: run {lc.run_id}, {lc.policy}, writing {lc.out}; it {does} until "
               "the run ends (Ctrl-C stops it)", file=sys.stderr, flush=True)
-        status = learner.run(session, seed, stop)
+        try:  # (`run` closes its journal; this, if `run` never got so far)
+            status = learner.run(session, seed, stop)
+        finally:
+            learner.journal.close()
     # where its weights are, however it ended (its checkpoint is written, atomically, at
     # every update); a learner fed by rollout workers alone ends only by Ctrl-C
     kept = f"version {learner.saved} in {learner.ckpt}" if learner.ckpt.is_file() else \
