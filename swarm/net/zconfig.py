@@ -12,6 +12,9 @@ import argparse
 import json
 import re
 import socket
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import zenoh
@@ -151,14 +154,27 @@ def zenoh_reason(exc: BaseException) -> str:
     return (m.group(1) if m else text).strip()
 
 
-def open_session(opts: ZenohOptions) -> zenoh.Session:
-    """A session for these options; a refused connection is one line, not a traceback."""
+@contextmanager
+def open_session(opts: ZenohOptions) -> Iterator[zenoh.Session]:
+    """`with open_session(opts) as session:` a session for these options, closed on the way out.
+    A refused connection is one line, not a traceback; a close that fails (Zenoh's "close
+    operation timed out" on a link that lost its peer, under kernel loss) is a warning line,
+    never the process's error: it was raised from the `with`, hid the error that ended the body
+    (a world with no robot up) and failed the run of a robot that had done its work."""
     conf = opts.to_config()
     try:
-        return zenoh.open(conf)
+        session = zenoh.open(conf)
     except zenoh.ZError as exc:
         where = ", ".join(opts.connect or opts.listen) or "defaults"
         raise RuntimeError(f"cannot open a Zenoh session ({where}): {zenoh_reason(exc)}") from None
+    try:
+        yield session
+    finally:
+        try:
+            session.close()
+        except zenoh.ZError as exc:
+            print(f"swarm: warning: the Zenoh session did not close cleanly: {zenoh_reason(exc)}",
+                  file=sys.stderr, flush=True)
 
 
 def free_port(host: str = "127.0.0.1") -> int:
