@@ -159,3 +159,23 @@ def test_kernel_loss_makes_messages_late_or_robots_lost(tmp_path: Path) -> None:
                         + res["netns"]["never_joined"])
     assert damage["0"] == 0 and damage["0.3"] > 0, damage
     assert ours("nsloss0") == [] and ours("nsloss03") == []
+
+
+@pytest.mark.procs
+@pytest.mark.skipif(shutil.which("iptables") is None, reason="needs iptables (kernel loss)")
+def test_a_kernel_sweeps_failed_run_keeps_its_logs_beside_the_csv(tmp_path: Path) -> None:
+    """A kernel sweep's run that never started (no robot up within the start timeout) is a row
+    with its error, and its logs go beside the CSV as every kept run's do (they stayed in /tmp,
+    named only in a line on stderr)."""
+    import csv
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text("[world]\nn_robots = 2\n[run]\nepisodes = 1\nstart_timeout = 2.0\n"
+                     "[experiment]\nname = \"kfail\"\nparameter = \"loss\"\nkernel = true\n"
+                     "values = [0.97]\npolicies = [\"nearest-frontier\"]\nseeds = [0]\n")
+    r = swarm("experiment", str(sweep), "--out", str(tmp_path / "o"), timeout=240)
+    rows = list(csv.DictReader((tmp_path / "o" / "kfail.csv").open()))
+    assert len(rows) == 1 and "no robot came alive" in rows[0]["error"], (rows, r.stderr)
+    logs = tmp_path / "o" / "kfail-0-logs"
+    assert (logs / "world.log").is_file(), r.stderr
+    assert f"logs in {logs}" in r.stderr

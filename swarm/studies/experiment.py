@@ -128,12 +128,16 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
         opts = SuperviseOptions(headless=True, status_lines=False, netns=exp.netns(value),
                                 record=recording)
         t0 = time.monotonic()
+        sup = Supervisor(world, rc, opts, faults=faults)
         try:
-            res = Supervisor(world, rc, opts, faults=faults).supervise()
+            res = sup.supervise()
         except RuntimeError as exc:  # kernel faults can keep every robot from joining
             if not exp.kernel:
                 raise
-            print(f"  {policy} {value} seed {seed}: failed: {exc}", file=sys.stderr)
+            kept = _keep_logs({"logs": sup.log_dir} if sup.log_dir.is_dir() else {},
+                              point_logs(out_dir, exp.name, len(rows)))  # (beside the CSV, as
+            print(f"  {policy} {value} seed {seed}: failed: {str(exc).split(';')[0]}"  # a run's
+                  + (f"; logs in {kept}" if kept else ""), file=sys.stderr)  # that played)
             rows.append({"policy": policy, "value": value, "seed": seed,
                          "episodes": rc.episodes, "error": str(exc).split(";")[0]})
             _write_csv(csv_path, rows, columns)
