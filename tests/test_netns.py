@@ -179,3 +179,5 @@ def test_a_kernel_sweeps_failed_run_keeps_its_logs_beside_the_csv(tmp_path: Path
     logs = tmp_path / "o" / "kfail-0-logs"
     assert (logs / "world.log").is_file(), r.stderr
     assert f"logs in {logs}" in r.stderr
+    assert "| nearest-frontier | 0.97 | no run played (1 failed: `error` in the CSV) |" in (
+        tmp_path / "o" / "kfail.md").read_text()  # (it said "nan ± - | nan | nan | nan")

@@ -310,6 +310,11 @@ def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> li
                         capsize=3, label=policy)
         for v in exp.values:
             e, c, s, tps = (_stats(rows, policy, v, k) for k in keys)
+            if math.isnan(e[0]):  # every run of the point failed (kernel faults): not "nan"
+                n = sum(r["policy"] == policy and str(r["value"]) == str(v) for r in rows)
+                lines.append(f"| {policy} | {v} | no run played ({n} failed: `error` in the CSV)"
+                             " | - | - | - |")
+                continue
             sd = "-" if math.isnan(e[1]) else f"{e[1]:.3f}"
             lines.append(f"| {policy} | {v} | {e[0]:.3f} ± {sd} | {c[0]:.1f} | "
                          f"{s[0]:.2f} | {tps[0]:.1f} |")
