@@ -313,6 +313,12 @@ def test_a_fresh_learner_starts_its_journal_again_and_a_bad_line_is_skipped(
         learner.journal.close()
     journal.write_text("\u00b27 1\n5 2\n5 2\nhello\n4 9\n99999999999999999999999 3\n")
     assert Journal(journal).past(4) == 1  # 5 (twice, one episode); the rest skipped or not past
+    journal.unlink()
+    journal.mkdir()  # a folder of its name: one line, not a traceback
+    with pytest.raises(ConfigError, match="heard.log cannot be read"):
+        Journal(journal).past(0)
+    with pytest.raises(ConfigError, match="heard.log cannot be written"):
+        Journal(journal).open(fresh=True)
 
 
 

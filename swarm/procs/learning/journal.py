@@ -17,6 +17,8 @@ import logging
 from pathlib import Path
 from typing import TextIO
 
+from world.config import ConfigError
+
 log = logging.getLogger("swarm.learner")
 
 
@@ -32,6 +34,8 @@ class Journal:
             lines = self.path.read_text(errors="replace").splitlines()
         except FileNotFoundError:
             return 0
+        except OSError as exc:  # (a folder of its name, no permission: one line, no traceback)
+            raise ConfigError(f"{self.path} cannot be read: {exc.strerror or exc}") from None
         past: set[int] = set()  # (a line written twice is one episode)
         skipped = 0
         for line in lines:
@@ -51,7 +55,10 @@ class Journal:
         if fresh and self.path.is_file() and self.path.stat().st_size:
             log.warning("learner: %s of an earlier learner (no checkpoint to resume) started "
                         "again", self.path)
-        self.file = self.path.open("w" if fresh else "a", buffering=1)
+        try:
+            self.file = self.path.open("w" if fresh else "a", buffering=1)
+        except OSError as exc:
+            raise ConfigError(f"{self.path} cannot be written: {exc.strerror or exc}") from None
 
     def heard(self, n: int, ep: int) -> None:
         if self.file is not None:
