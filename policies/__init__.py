@@ -13,14 +13,13 @@ import importlib
 import inspect
 import sys
 from collections.abc import Iterable
-from importlib import metadata
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from policies.base import Policy
     from world.config import WorldConfig
 
-REGISTRY: dict[str, str] = {
+_REGISTRY: dict[str, str] = {
     "random": "policies.random_policy:RandomPolicy",
     "nearest-frontier": "policies.nearest_frontier:NearestFrontier",
     "coordinated-frontier": "policies.coordinated_frontier:CoordinatedFrontier",
@@ -38,29 +37,62 @@ REGISTRY: dict[str, str] = {
 PLUGIN_GROUP = "commattn_swarm.policies"
 
 
-SKIPPED: list[str] = []
-"""One line per entry point `_plugins` skipped: `swarm` prints them once a command (its
-children, robots included, do not repeat them); a library user reads them here."""
+BUILTIN = frozenset(_REGISTRY)
+"""The policies of this package (known without looking at the installed packages)."""
+_SKIPPED: list[str] = []
+_PLUGINS: dict[str, str] | None = None  # (scanned on first use: `_plugins`)
 
 
 def _plugins() -> dict[str, str]:
-    """`name = "module:Class"` entry points of installed packages; one that shadows a built-in
-    name or is not `module:Class` is skipped, noted in SKIPPED."""
+    """`name = "module:Class"` entry points of installed packages, scanned once, on first use
+    (importlib.metadata and the scan cost each process ~60 ms, and a robot of a built-in policy
+    never needs them); one that shadows a built-in name or is not `module:Class` is skipped,
+    noted in SKIPPED. The plugins join REGISTRY."""
+    global _PLUGINS
+    if _PLUGINS is not None:
+        return _PLUGINS
+    from importlib import metadata
+
     found: dict[str, str] = {}
     for ep in metadata.entry_points(group=PLUGIN_GROUP):
         module, sep, cls = ep.value.partition(":")
-        why = ("shadows a built-in policy" if ep.name in REGISTRY else
+        why = ("shadows a built-in policy" if ep.name in BUILTIN else
                "is not 'module:Class'" if not (module and sep and cls) else "")
         if why:
-            SKIPPED.append(f"policy plugin {ep.name!r} = {ep.value!r} {why}; skipped")
+            _SKIPPED.append(f"policy plugin {ep.name!r} = {ep.value!r} {why}; skipped")
             continue
         found[ep.name] = ep.value
+    _REGISTRY.update(found)
+    _PLUGINS = found
     return found
 
 
-PLUGINS = _plugins()
-"""Policies registered by other packages (entry points), also in REGISTRY."""
-REGISTRY.update(PLUGINS)
+def __getattr__(attr: str) -> Any:
+    """REGISTRY (every policy: the built-ins, then the plugins), PLUGINS (policies registered
+    by other packages through the `commattn_swarm.policies` entry points) and SKIPPED (one line
+    per entry point skipped: `swarm` prints them once a command, its children do not repeat
+    them; a library user reads them here): the installed packages are scanned on first use."""
+    if attr in ("REGISTRY", "PLUGINS", "SKIPPED"):
+        plugins = _plugins()
+        return {"REGISTRY": _REGISTRY, "PLUGINS": plugins, "SKIPPED": _SKIPPED}[attr]
+    raise AttributeError(f"module {__name__!r} has no attribute {attr!r}")
+
+
+def is_plugin(name: str) -> bool:
+    """Whether `name` is a policy of another package (a built-in name scans nothing)."""
+    return name not in BUILTIN and name in _plugins()
+
+
+def is_registered(name: str) -> bool:
+    """Whether `name` is a built-in policy or an installed plugin."""
+    return name in BUILTIN or name in _plugins()
+
+
+def registered() -> tuple[str, ...]:
+    """Every registered policy name: the built-ins, then the plugins."""
+    _plugins()
+    return tuple(_REGISTRY)
+
 
 BASELINES = ("random", "nearest-frontier", "coordinated-frontier", "cost-utility")
 # Policies whose robots send hidden-state messages along the id chain (SPEC 3.5), known without
@@ -81,23 +113,22 @@ class PluginError(ValueError):
 def policy_class(name: str) -> type[Policy]:
     """The class registered under `name`; an unknown name is a one-line ValueError, a plugin
     that cannot be used a one-line PluginError."""
-    try:
-        target = REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown policy {name!r}; choose from {', '.join(REGISTRY)}") from None
+    if not is_registered(name):
+        raise ValueError(f"unknown policy {name!r}; choose from {', '.join(registered())}")
+    target, plugin = _REGISTRY[name], name not in BUILTIN
     module, cls = target.split(":")
     try:
         found = getattr(importlib.import_module(module), cls, None)
     except Exception as exc:  # (another package's module: a SyntaxError there is one line too)
-        if name not in PLUGINS:
+        if not plugin:
             raise
         raise PluginError(f"policy plugin {name!r} ({target}) does not import: "
                           f"{type(exc).__name__}: {exc}") from None
     if found is None:
-        kind = PluginError if name in PLUGINS else ValueError
-        raise kind(f"policy {'plugin ' if name in PLUGINS else ''}{name!r} ({target}): "
+        kind = PluginError if plugin else ValueError
+        raise kind(f"policy {'plugin ' if plugin else ''}{name!r} ({target}): "
                    f"{module} has no {cls}")
-    if name in PLUGINS:  # another package's class: checked before anyone builds it
+    if plugin:  # another package's class: checked before anyone builds it
         from policies.base import Policy
 
         if not (isinstance(found, type) and issubclass(found, Policy)):
@@ -116,8 +147,8 @@ def loadable(names: Iterable[str] | None = None) -> tuple[str, ...]:
     """`names` (default: every registered one) but the plugins that cannot be used, each
     skipped with a one-line warning: for the commands that take every policy by default."""
     kept = []
-    for name in REGISTRY if names is None else names:
-        if name in PLUGINS:
+    for name in registered() if names is None else names:
+        if is_plugin(name):
             try:
                 policy_class(name)
             except PluginError as exc:
@@ -130,7 +161,7 @@ def loadable(names: Iterable[str] | None = None) -> tuple[str, ...]:
 def is_chained(name: str) -> bool:
     """Whether robots of policy `name` pass hidden-state messages down the id chain (SPEC
     3.5): built-ins from CHAINED (no import), a plugin from its class."""
-    return name in CHAINED or (name in PLUGINS and policy_class(name).chained)
+    return name in CHAINED or (is_plugin(name) and policy_class(name).chained)
 
 
 def check_learned(name: str, what: str) -> None:
@@ -138,8 +169,8 @@ def check_learned(name: str, what: str) -> None:
     from the names alone, so a refusal costs no torch import."""
     from world.config import ConfigError
 
-    if name not in REGISTRY:
-        raise ConfigError(f"unknown policy {name!r}; choose from {', '.join(REGISTRY)}")
+    if not is_registered(name):
+        raise ConfigError(f"unknown policy {name!r}; choose from {', '.join(registered())}")
     if name not in LEARNED:
         raise ConfigError(f"{what} needs a learned policy, not {name!r}")
 
@@ -147,7 +178,7 @@ def check_learned(name: str, what: str) -> None:
 def learned_names() -> tuple[str, ...]:
     """Registry names of the learned (torch) policies, in registry order, from the names alone
     (a plugin is never learned, so none is imported: one that does not import breaks nothing)."""
-    return tuple(name for name in REGISTRY if name in LEARNED)
+    return tuple(name for name in _REGISTRY if name in LEARNED)
 
 
 def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
@@ -159,12 +190,12 @@ def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
     cls = policy_class(name)
     if "checkpoint" in kwargs and not cls.learned:  # (a bare TypeError from its __init__)
         raise ValueError(f"a checkpoint applies to learned policies only, not {name!r}")
-    if name not in PLUGINS:
+    if name in BUILTIN:
         return cls(cfg, **kwargs)  # type: ignore[call-arg]
     try:
         policy = cls(cfg, **kwargs)  # type: ignore[call-arg]
     except Exception as exc:  # (another package's bug: whatever it raises)
-        raise PluginError(f"policy plugin {name!r} ({REGISTRY[name]}) could not be built: "
+        raise PluginError(f"policy plugin {name!r} ({_REGISTRY[name]}) could not be built: "
                           f"{type(exc).__name__}: {exc}") from None
     policy.name = name  # type: ignore[misc]
     return policy

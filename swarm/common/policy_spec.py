@@ -9,7 +9,15 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from policies import BASELINES, LEARNED, REGISTRY, PluginError, make_policy, policy_class
+from policies import (
+    BASELINES,
+    LEARNED,
+    PluginError,
+    is_registered,
+    make_policy,
+    policy_class,
+    registered,
+)
 from policies.base import Policy
 from swarm.common.shipped import ROOT, SEARCHED, SHIPPED
 from world.config import ConfigError, WorldConfig
@@ -27,8 +35,8 @@ def resolve_policies(spec: str | list[str] | tuple[str, ...]) -> list[str]:
     for item in written:
         expanded = list(BASELINES) if item == "all" else [item]
         for name in expanded:
-            if name not in REGISTRY:
-                known = ", ".join(REGISTRY)
+            if not is_registered(name):
+                known = ", ".join(registered())
                 raise ConfigError(f"unknown policy {name!r}; choose from all, {known}")
             if name not in names:
                 names.append(name)
@@ -53,7 +61,7 @@ def labelled_policies(spec: str | list[str] | tuple[str, ...]) -> list[tuple[str
         if not sep:
             out.update({n: n for n in (BASELINES if item == "all" else [item]) if n not in out})
             continue
-        if not re.fullmatch(r"[A-Za-z][\w-]*", label) or label in REGISTRY or label == "all":
+        if not re.fullmatch(r"[A-Za-z][\w-]*", label) or is_registered(label) or label == "all":
             raise ConfigError(f"--policy {item}: LABEL=NAME wants a label of letters, digits, "
                               "'-' and '_' that is no policy's name")
         if label in out or name == "all":

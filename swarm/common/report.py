@@ -12,7 +12,6 @@ import platform
 import subprocess
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,8 @@ def provenance() -> dict[str, Any]:
     """What made a result, for its JSON: package versions (read from the installed metadata,
     nothing imported), the source tree's git commit (`+dirty` with uncommitted changes to
     tracked files; None outside a checkout), Python and the platform."""
+    from importlib import metadata  # (~50 ms a process: only where a result is written)
+
     versions: dict[str, str | None] = {}
     for name in PROVENANCE_PACKAGES:
         try:

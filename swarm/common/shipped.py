@@ -9,8 +9,11 @@ distribution's file list.
 
 from __future__ import annotations
 
-from importlib.metadata import Distribution, distributions
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from importlib.metadata import Distribution
 
 DIST = "commattn-swarm"
 SHARE = Path("share") / DIST  # below the install prefix
@@ -20,6 +23,8 @@ ROOT = Path(__file__).resolve().parents[2]  # the source tree (site-packages onc
 def _own_distribution() -> Distribution | None:
     """The installed distribution this very module came from (another install of the project
     earlier on sys.path, an editable one say, holds other data or none)."""
+    from importlib.metadata import distributions  # (~50 ms: only where there is no tree)
+
     me = Path(__file__).resolve()
     for dist in distributions(name=DIST):
         if Path(str(dist.locate_file(Path(*me.parts[-3:])))).resolve() == me:
