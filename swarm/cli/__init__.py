@@ -33,6 +33,7 @@ from collections.abc import Sequence  # noqa: E402
 from swarm.cli import batch, hosts, learn, record, run, secure  # noqa: E402
 from swarm.cli.checks import check_paths  # noqa: E402
 from swarm.cli.common import _Parser  # noqa: E402
+from swarm.common import flags  # noqa: E402
 from swarm.common.report import OutputClosed  # noqa: E402
 from swarm.common.spawn import (  # noqa: E402
     die_with_parent,
@@ -103,6 +104,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _early_interrupt.clear()
         print("swarm: interrupted", file=sys.stderr)
         return 130
+    flags.HELP = not supervised  # (a child prints no help: its flags need none)
     if not supervised:
         from policies import SKIPPED  # (once a command: not again in each child's log)
 

@@ -16,6 +16,11 @@ from typing import Any
 
 from world.config import ConfigError, replace
 
+HELP = True
+"""Whether `add_flags` gives each flag its field's docstring as help: a process the supervisor
+spawned never prints a help, so `swarm.cli.main` turns it off there (reading the docstrings
+parses the dataclasses' source: ~30 ms of each child's start)."""
+
 
 @functools.cache
 def field_docs(cls: type) -> dict[str, str]:
@@ -53,7 +58,7 @@ def add_flags(parser: argparse.ArgumentParser | Any, cls: type, skip: tuple[str,
               dest_prefix: str = "") -> None:
     """One `--field-name` flag per field of `cls` (ints, floats, strings, bools); fields in
     `skip` and flags the parser already has (a shared --seed, say) are left out."""
-    docs = field_docs(cls)
+    docs = field_docs(cls) if HELP else {}
     for f in dataclasses.fields(cls):
         flag = "--" + f.name.replace("_", "-")
         if f.name in skip or flag in parser._option_string_actions:
