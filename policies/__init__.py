@@ -78,14 +78,19 @@ def __getattr__(attr: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {attr!r}")
 
 
+def __dir__() -> list[str]:
+    return sorted([*globals(), "REGISTRY", "PLUGINS", "SKIPPED"])
+
+
 def is_plugin(name: str) -> bool:
     """Whether `name` is a policy of another package (a built-in name scans nothing)."""
     return name not in BUILTIN and name in _plugins()
 
 
 def is_registered(name: str) -> bool:
-    """Whether `name` is a built-in policy or an installed plugin."""
-    return name in BUILTIN or name in _plugins()
+    """Whether `name` is a registered policy: built-in, added to REGISTRY by a script, or an
+    installed plugin (only a name not yet in the registry scans the installed packages)."""
+    return name in _REGISTRY or name in _plugins()
 
 
 def registered() -> tuple[str, ...]:
@@ -115,7 +120,7 @@ def policy_class(name: str) -> type[Policy]:
     that cannot be used a one-line PluginError."""
     if not is_registered(name):
         raise ValueError(f"unknown policy {name!r}; choose from {', '.join(registered())}")
-    target, plugin = _REGISTRY[name], name not in BUILTIN
+    target, plugin = _REGISTRY[name], is_plugin(name)
     module, cls = target.split(":")
     try:
         found = getattr(importlib.import_module(module), cls, None)
@@ -190,7 +195,7 @@ def make_policy(name: str, cfg: WorldConfig, **kwargs: object) -> Policy:
     cls = policy_class(name)
     if "checkpoint" in kwargs and not cls.learned:  # (a bare TypeError from its __init__)
         raise ValueError(f"a checkpoint applies to learned policies only, not {name!r}")
-    if name in BUILTIN:
+    if not is_plugin(name):
         return cls(cfg, **kwargs)  # type: ignore[call-arg]
     try:
         policy = cls(cfg, **kwargs)  # type: ignore[call-arg]

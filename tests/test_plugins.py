@@ -208,3 +208,22 @@ def test_a_chained_policy_s_decision_is_public() -> None:
     from policies.base import Decision
 
     assert chain_plan.Decision is Decision and Decision._fields == ("actions", "state")
+
+
+def test_a_policy_a_script_adds_to_the_registry_is_usable_by_its_name() -> None:
+    """Review 85: once the installed packages were scanned lazily, a name a script put into
+    `policies.REGISTRY` was listed but refused ("unknown policy"); it is a policy like the
+    built-ins (no plugin checks), and the lazily served names are still in `dir(policies)`."""
+    import policies
+    from swarm.common.policy_spec import resolve_policies
+    from world.config import WorldConfig
+
+    policies.REGISTRY["script-nearest"] = "policies.nearest_frontier:NearestFrontier"
+    try:
+        cfg = WorldConfig(n_robots=2)
+        assert type(policies.make_policy("script-nearest", cfg)).__name__ == "NearestFrontier"
+        assert resolve_policies("script-nearest") == ["script-nearest"]
+        assert not policies.is_plugin("script-nearest")
+        assert {"REGISTRY", "PLUGINS", "SKIPPED"} <= set(dir(policies))
+    finally:
+        del policies.REGISTRY["script-nearest"]
