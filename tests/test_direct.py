@@ -613,3 +613,33 @@ def test_a_closed_terminal_ends_a_hosts_run_and_leaves_no_namespace(tmp_path: Pa
             hosts.remove(run_id, 2)            # the next run of this test to trip over)
     assert proc.returncode == 130, err[-1500:]
     assert _ours(run_id) == [], _ours(run_id)
+
+
+def test_a_peer_that_came_back_is_waited_for_before_its_new_token_is_seen() -> None:
+    """A robot that vanished and that the world lists again ticks later has come back
+    (restarted): it is waited for, its new token and then its trajectory, even where that token
+    has not reached this robot yet (on a loaded machine a peer decided its restart tick without
+    it, which `swarm replay --verify` named a divergence); one that vanished during the last tick
+    and is still listed is not (it crashed after the world sent this tick's observation)."""
+    cfg = WorldConfig(n_robots=3)
+    keys = Keys("back")
+    link = DirectLink(cfg, 2, plan_from_table({}, 0, 3), 0.2)
+
+    def tick(t: int, live: bytes) -> None:
+        link.begin(Obs(0, t, 2, 1, 1, bytes(25), 0.0, False, 1e3, live))
+        link.stamp(K_TRAJ, Traj(0, t, 2, 1, 1, bytes(50), [3], bytes(25)).pack())
+        link.offer(keys.direct(0), msgpack.packb([1, K_STAMPED, K_TRAJ, 0, t, 0, 0.0, Traj(
+            0, t, 0, 3, 4, bytes(50), [3], bytes(25)).pack()], use_bin_type=True))
+
+    for j in (0, 1):
+        link.peer(keys.alive_robot(j), True)
+    tick(3, b"\xe0")  # all three listed
+    link.peer(keys.alive_robot(1), False)  # robot 1 crashes during tick 3
+    tick(4, b"\xe0")  # the world had not seen it go: listed, not waited for
+    assert link.sees_peers() and link.traj_complete()
+    tick(5, b"\xa0")  # the world saw it go
+    assert link.sees_peers() and link.traj_complete()
+    tick(6, b"\xe0")  # restarted: listed again, its new token not here yet
+    assert not link.sees_peers() and not link.traj_complete()
+    link.peer(keys.alive_robot(1), True)
+    assert link.sees_peers() and not link.traj_complete()  # its trajectory still to come
