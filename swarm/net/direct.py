@@ -95,8 +95,8 @@ class DirectLink:
         self.ep, self.t = -1, -1
         self.done_ep = -1  # the last episode whose end this robot saw (the world's tally waits)
         self.expected = np.zeros(self.n, dtype=bool)
-        self.gone: set[int] = set()  # peers whose liveliness token vanished
-        self.gone_at: dict[int, int] = {}  # ... and the tick (a count of `begin`s) it did
+        # peers whose liveliness token vanished -> the tick (a count of `begin`s) it did
+        self.gone: dict[int, int] = {}
         self.begins = 0
         self.seen: set[int] = {robot}  # peers whose liveliness token it sees now
         self.store: dict[tuple[int, int, int, int], tuple[Stamped, Traj | Hidden]] = {}
@@ -128,14 +128,12 @@ class DirectLink:
             np.frombuffer(obs.live, dtype=np.uint8), count=self.n).astype(bool)
         self.expected[self.robot] = True
         self.begins += 1
-        for j in [j for j in self.gone if self.expected[j]
-                  and self.gone_at.get(j, self.begins) < self.begins - 1]:
+        for j in [j for j, at in self.gone.items() if self.expected[j] and at < self.begins - 1]:
             # it vanished before the last tick began and the world lists it again: it came
             # back (restarted), so it is waited for, its new token first (`sees_peers`), even
             # where that token has not reached this robot yet (a loaded machine)
-            self.gone.discard(j)
+            del self.gone[j]
             self.seen.discard(j)
-            del self.gone_at[j]
         for key in [k for k in self.store if (k[1], k[2]) < (self.ep, self.t)]:
             del self.store[key]  # others' hidden states, copies that came after it decided
             self.arrived.pop(key, None)
@@ -186,12 +184,11 @@ class DirectLink:
         except ValueError:
             return
         if 0 <= j < self.n and j != self.robot:
-            (self.gone.discard if live else self.gone.add)(j)
             (self.seen.add if live else self.seen.discard)(j)
             if live:
-                self.gone_at.pop(j, None)
+                self.gone.pop(j, None)
             else:
-                self.gone_at[j] = self.begins
+                self.gone[j] = self.begins
 
     def sees_peers(self) -> bool:
         """It sees the token of every robot the world sent this tick's observation to, except
@@ -200,7 +197,7 @@ class DirectLink:
         A peer's token comes after its subscriptions on the same links, so from then on this
         robot's messages reach it: a robot sends only once this holds (or a wait ran out), or a
         subscription still on its way across routers could miss its first messages."""
-        want = set(np.flatnonzero(self.expected).tolist()) - self.gone
+        want = set(np.flatnonzero(self.expected).tolist()) - self.gone.keys()
         return bool(self.seen.issuperset(want))
 
     def offer(self, key: str, payload: bytes, now: float | None = None) -> None:
