@@ -59,6 +59,8 @@ class ZenohOptions:
             conf.insert_json5("transport/link/tx/lease", "1000")
             conf.insert_json5("transport/shared_memory/enabled", "false")
         conf.insert_json5("mode", json.dumps(self.mode))
+        if not self.config_file and no_scouting_wait(self.mode, self.connect):
+            conf.insert_json5("scouting/delay", "0")
         # a client never listens; a peer or router listens on an ephemeral loopback port
         default = [] if self.config_file or self.mode == "client" else ["tcp/127.0.0.1:0"]
         listen = self.listen or default
@@ -85,6 +87,14 @@ class ZenohOptions:
         for c in self.cfg:
             out += ["--cfg", c]
         return out
+
+
+def no_scouting_wait(mode: str, connect: list[str]) -> bool:
+    """Whether a session opens without Zenoh's scouting wait: a router that connects to nobody
+    (the hub). Zenoh holds a router's `open` for `scouting/delay` (500 ms) after binding its
+    listeners, to find peers first; with multicast off and nothing to connect to there is nobody
+    to find, and the world and every hand-started hub paid that half second."""
+    return mode == "router" and not connect
 
 
 def add_arguments(parser: argparse.ArgumentParser, mode: str = "peer") -> None:

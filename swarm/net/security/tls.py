@@ -15,6 +15,7 @@ from typing import Any
 
 from swarm.net.keys import Keys
 from swarm.net.security.roles import CA_CERT, CA_KEY, ROSTER, acl, identities, is_relay, roles
+from swarm.net.zconfig import no_scouting_wait
 from world.config import ConfigError
 
 
@@ -132,7 +133,8 @@ class Secure:
         """A complete Zenoh configuration (what `--zenoh-config FILE` loads) for `identity`."""
         conf: dict[str, Any] = {
             "mode": mode, "listen": {"endpoints": listen}, "connect": {"endpoints": connect},
-            "scouting": {"multicast": {"enabled": False}},
+            "scouting": {"multicast": {"enabled": False},
+                         **({"delay": 0} if no_scouting_wait(mode, connect) else {})},
             "transport": {"link": {"protocols": ["tls"], "tx": {"lease": 1000},
                                    "tls": self.tls(identity)},
                           "shared_memory": {"enabled": False}},
