@@ -675,7 +675,8 @@ def test_a_rollout_worker_follows_a_fresh_learner_that_replaced_its_own(tmp_path
     with them ("newer than its own v0") and never trained (UA pass). The worker now asks a
     learner that comes up for its weights, so the new learner trains. Both end by Ctrl-C, their
     usual end, and say what they did (they said nothing: the learner where its checkpoint is,
-    the worker its summary)."""
+    the worker its summary). The same worker started again goes on where the new learner has
+    it."""
     hub = f"tcp/127.0.0.1:{free_port()}"
     cfg = world_toml(tmp_path, SMALL)
 
@@ -712,6 +713,13 @@ def test_a_rollout_worker_follows_a_fresh_learner_that_replaced_its_own(tmp_path
         worker.send_signal(signal.SIGINT)
         summary = json.loads(worker.communicate(timeout=60)[0].strip().splitlines()[-1])
         assert worker.returncode == 0 and summary["interrupted"] and summary["episodes"] > 0
+        # the same worker again goes on after the last episode the learner heard from it (it
+        # replayed its seed's episodes from 0)
+        again = swarm("rollout-worker", "--run-id", "swap", "--connect", hub, "--zenoh-mode",
+                      "client", "--batch", "2", "--max-batches", "1", timeout=120)
+        assert again.returncode == 0, again.stderr[-1500:]
+        second = json.loads(again.stdout.strip().splitlines()[-1])
+        assert (second["first_episode"], second["episodes"]) == (summary["episodes"], 2), second
     finally:
         for p in procs:
             if p.poll() is None:

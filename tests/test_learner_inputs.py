@@ -5,6 +5,7 @@ subprocesses); a resumed learner holds its flags against its checkpoint and show
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import signal
 import subprocess
@@ -28,6 +29,8 @@ from world.config import ConfigError, WorldConfig, from_dict
 
 SMALL = WorldConfig(height=8, width=8, n_static=6, n_dynamic=4, n_robots=3, horizon=8,
                     add_every=2, vision=3, comm_range=4.0, recent_len=4)
+WORKER0 = TrainConfig().train_seed_offset + TrainConfig().seed + 1
+"""The seed rollout worker 0 plays (a learner drops a worker episode of any other seed)."""
 
 BAD = [  # (argv, what the one line must say); {tmp}/o must not exist afterwards
     (["learner", "--out", "{tmp}/o", "--ppo-epochs", "3"], "ppo_epochs = 3 only applies"),
@@ -125,7 +128,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
         inbox = learner._declare(session)
         try:
             for u in range(3):
-                roll = collect(learner.policy, SMALL, 0, np.arange(2 * u, 2 * u + 2))
+                roll = collect(learner.policy, SMALL, WORKER0, np.arange(2 * u, 2 * u + 2))
                 for ep in episodes_of(roll, learner.version):  # (as a rollout worker's)
                     learner.handle("worker", "w", ep.pack())
                 assert learner.maybe_update()
@@ -266,7 +269,8 @@ def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> N
     try:
         before = resumed()
         assert before["lost"] == 0 and sums(before) == 0
-        eps = episodes_of(collect(made[0].policy, SMALL, 0, np.arange(6, 10)), made[0].version)
+        eps = episodes_of(collect(made[0].policy, SMALL, WORKER0, np.arange(6, 10)),
+                          made[0].version)
         made[0].handle("worker", "w", eps[0].pack())  # half a batch, then SIGKILL (nothing more
         assert made[0].accounting()["pending"] == before["pending"] + 1  # is written: its
         # line is the OS's)
@@ -468,3 +472,48 @@ def test_a_resumed_learner_may_change_how_it_gathers(trained: Path) -> None:
     r = swarm("learner", "--help", timeout=60)
     assert "--max-staleness and --join-timeout, how this learner gathers, are not held and may " \
         "change" in " ".join(r.stdout.split()), r.stdout
+
+
+def test_a_learner_keeps_where_each_rollout_worker_is_and_drops_replays(tmp_path: Path) -> None:
+    """A rollout worker restarted with its id replayed its seed's episodes from 0 (the learner
+    trained on the same maps again). The learner keeps, per worker, one past the last episode
+    it heard, serves it in its run record (where a restarted worker starts) and in its
+    checkpoint (a resumed learner knows it too); an episode at or before that is a replay, and a
+    seed no worker plays is foreign: both dropped as bad, never received."""
+    from swarm.learn.config import LearnerConfig
+    from swarm.learn.join import episodes_of
+    from swarm.learn.rollout import collect
+    from swarm.procs.learning.learner import Learner
+    from swarm.procs.runconfig import RunRecord
+
+    tc = TrainConfig(batch=8, threads=1, seed=3)
+    lc = LearnerConfig(run_id="wk", policy="vain", out=str(tmp_path / "l"))
+    learner = Learner(SMALL, lc, tc)
+    learner.open_out()
+    key = Keys("wk").worker_episodes
+
+    def play(worker: int, episodes: list[int], seed: int | None = None) -> None:
+        seed = tc.train_seed_offset + tc.seed + worker + 1 if seed is None else seed
+        for er in episodes_of(collect(learner.policy, SMALL, seed, np.array(episodes)), 0):
+            learner.handle("worker", key, er.pack())
+
+    try:
+        play(0, [0, 1, 2])
+        play(5, [7])
+        assert RunRecord.unpack(learner.record()).workers == {0: 3, 5: 8}
+        play(0, [1, 2, 3])  # a worker restarted from 0 would send 1 and 2 again
+        play(0, [0], seed=tc.train_seed_offset + tc.seed)  # (worker -1: nobody's seed)
+        assert learner.c.bad == 3 and learner.c.received == 5, learner.c
+        assert sorted(learner.c.bad_by_key.values()) == [3] and learner.c.worker_episodes == 5
+        assert RunRecord.unpack(learner.record()).workers == {0: 4, 5: 8}
+        learner.save()
+    finally:
+        learner.journal.close()
+    resumed = Learner(SMALL, LearnerConfig(run_id="wk", policy="vain", out=str(tmp_path / "l"),
+                                           resume=True), tc)
+    assert resumed.worker_next == {0: 4, 5: 8}
+    for bad, why in (([1, 2], "must be a table"), ({-1: 0}, "worker id -1"),
+                     ({0: "3"}, "episode '3'"), ({True: 1}, "worker id True")):
+        rec = {"world": dataclasses.asdict(SMALL), "workers": bad}
+        with pytest.raises(ConfigError, match=f"run record workers: .*{why}"):
+            RunRecord.from_record(rec)

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import msgpack
 
+from swarm.learn.config import MAX_WORKER_ID
+from swarm.net.messages import BIG
 from world.config import ConfigError, WorldConfig, from_dict, to_dict
 
 if TYPE_CHECKING:
@@ -110,6 +112,25 @@ class RunConfig:
             raise ConfigError("policy must be a registry name")
 
 
+MAX_WORKERS = 4096
+"""Rollout workers whose next episode a learner keeps (`RunRecord.workers`); one of a further id
+still works, but starts from its seed's episode 0 when restarted."""
+
+
+def check_worker_next(table: Any, where: str) -> dict[int, int] | None:
+    """`RunRecord.workers` (or a learner checkpoint's copy): worker ids in [0, MAX_WORKER_ID] to
+    episode numbers in [0, BIG], at most MAX_WORKERS of them; anything else a ConfigError."""
+    if table is None:
+        return None
+    if not isinstance(table, dict) or len(table) > MAX_WORKERS:
+        raise ConfigError(f"{where}: must be a table of at most {MAX_WORKERS} worker ids")
+    for k, v in table.items():
+        for what, x, hi in (("worker id", k, MAX_WORKER_ID), ("episode", v, BIG)):
+            if isinstance(x, bool) or not isinstance(x, int) or not 0 <= x <= hi:
+                raise ConfigError(f"{where}: {what} {x!r} is not an integer in [0, {hi}]")
+    return dict(table)
+
+
 @dataclass(frozen=True)
 class RunRecord:
     """What every process of a run needs to agree on, as one record."""
@@ -126,6 +147,10 @@ class RunRecord:
     """The learned network's config (served by the learner to rollout workers)."""
     version: int = 0
     """The learner's weights version when it answered."""
+    workers: dict[int, int] | None = None
+    """Rollout worker id -> the episode it plays next (served by a learner: one past the last
+    episode it heard from that worker), so a worker restarted with its id goes on where it
+    stopped instead of replaying its seed's episodes from 0."""
     supervised: bool = False
     """Served by a world `swarm run` started: its supervisor owns the robot processes, so a process
     fault (crash, hang, restart) has someone to carry it out; `swarm fault` refuses process faults
@@ -138,6 +163,8 @@ class RunRecord:
         for key in ("learner", "train", "model"):
             if getattr(self, key) is not None:
                 out[key] = dict(getattr(self, key))
+        if self.workers:
+            out["workers"] = dict(self.workers)
         if self.supervised:
             out["supervised"] = True
         return out
@@ -148,7 +175,7 @@ class RunRecord:
         if not isinstance(rec, dict) or not isinstance(rec.get("world"), dict):
             raise ConfigError(f"{where}: not a run record (no world table)")
         unknown = set(rec) - {"world", "run", "faults", "learner", "train", "model", "version",
-                              "supervised"}
+                              "workers", "supervised"}
         if unknown:
             raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
         for key in ("run", "faults", "learner", "train", "model"):
@@ -159,12 +186,13 @@ class RunRecord:
             raise ConfigError(f"{where}: version must be a non-negative integer")
         if not isinstance(rec.get("supervised", False), bool):
             raise ConfigError(f"{where}: supervised must be true or false")
+        workers = check_worker_next(rec.get("workers"), f"{where} workers")
         try:
             return cls(world=from_dict(WorldConfig, rec["world"], f"{where} world"),
                        run=from_dict(RunConfig, rec.get("run") or {}, f"{where} run"),
                        faults=dict(rec.get("faults") or {}), learner=rec.get("learner"),
                        train=rec.get("train"), model=rec.get("model"), version=version,
-                       supervised=rec.get("supervised", False))
+                       workers=workers, supervised=rec.get("supervised", False))
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{where}: {exc}") from None
 

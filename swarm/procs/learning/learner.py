@@ -49,7 +49,7 @@ from policies import check_learned, policy_class
 from policies.checkpoint import load_checkpoint, save_checkpoint
 from swarm.common.report import counted, provenance
 from swarm.common.spawn import stops_held
-from swarm.learn.config import LearnerConfig, TrainConfig, learner_resume_point
+from swarm.learn.config import MAX_WORKER_ID, LearnerConfig, TrainConfig, learner_resume_point
 from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
@@ -61,7 +61,7 @@ from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.learning.journal import Journal
 from swarm.procs.learning.watch import RunWatch
-from swarm.procs.runconfig import RunConfig, RunRecord
+from swarm.procs.runconfig import MAX_WORKERS, RunConfig, RunRecord, check_worker_next
 from world.config import ConfigError, WorldConfig
 
 log = logging.getLogger("swarm.learner")
@@ -111,6 +111,7 @@ class Learner:
         self.journal = Journal(self.out / "heard.log")
         self.c = LearnerCounters()
         self.version = self.saved = 0  # saved: the version its checkpoint file holds
+        self.worker_next: dict[int, int] = {}  # rollout worker id -> its next episode
         self.held = 0  # episodes unsettled at the resumed checkpoint (lost with its process)
         self.seed: int | None = None  # the run's seed its episodes are joined with (`run`)
         check_learned(lc.policy, "the learner")
@@ -128,6 +129,8 @@ class Learner:
             self.c = LearnerCounters(**{k: v for k, v in state["counters"].items() if k in known})
             held = state.get("pending", 0)  # (a checkpoint from before it was kept: 0)
             self.held = held if isinstance(held, int) and 0 <= held <= self.c.received else 0
+            self.worker_next = check_worker_next(state.get("workers", {}),
+                                                 f"{self.ckpt} learner workers") or {}
         else:
             if self.ckpt.exists() and not lc.gather_only:
                 raise ConfigError(f"{self.out} already holds a learner; pass --resume")
@@ -203,7 +206,7 @@ class Learner:
         return RunRecord(self.cfg, RunConfig(run_id=self.lc.run_id, policy=self.lc.policy),
                          learner=dataclasses.asdict(self.lc), train=dataclasses.asdict(self.tc),
                          model=dataclasses.asdict(self.policy.model_cfg),
-                         version=self.version).pack()
+                         version=self.version, workers=self.worker_next).pack()
 
     def _bad(self, key: str, why: str) -> None:
         self.c.bad += 1
@@ -234,11 +237,26 @@ class Learner:
                     slot["world"], slot["t"] = wr, time.monotonic()
             else:
                 er = EpisodeRollout.unpack(payload, self.cfg)
+                self._worker_episode(er)
                 self.c.worker_episodes += 1
                 self._heard(er.ep)
                 self._accept(er)
         except (BadMessage, ValueError) as exc:
             self._bad(key, str(exc))
+
+    def _worker_episode(self, er: EpisodeRollout) -> None:
+        """A rollout worker's episode: its id is its seed's offset (`rollout_worker`); BadMessage
+        for a seed no worker plays or an episode at or before one heard from that worker already
+        (a worker's episodes come in order on its one link: an earlier one is a replay)."""
+        worker = er.seed - (self.tc.train_seed_offset + self.tc.seed + 1)
+        if not 0 <= worker <= MAX_WORKER_ID:
+            raise BadMessage(f"seed {er.seed} is no rollout worker's of this run")
+        nxt = self.worker_next.get(worker)
+        if nxt is not None and er.ep < nxt:
+            raise BadMessage(f"episode {er.ep} of rollout worker {worker} heard already (a "
+                             f"replay: its next is {nxt})")
+        if nxt is not None or len(self.worker_next) < MAX_WORKERS:  # (further ids: not kept)
+            self.worker_next[worker] = er.ep + 1
 
     def _slot(self, ep: int) -> dict[str, Any] | None:
         """The joining slot of swarm episode `ep` (a new episode counts as received); None
@@ -356,6 +374,7 @@ class Learner:
                               "train": dataclasses.asdict(self.tc),
                               "counters": dataclasses.asdict(self.c),
                               "pending": self.accounting()["pending"],  # (lost, if it stops)
+                              "workers": dict(self.worker_next),
                               **({} if self.seed is None else {"seed": self.seed})}
         with stops_held():  # (a Ctrl-C between the file's rename and this line: the stop line
             save_checkpoint(self.ckpt, payload)  # named the version before the file's)

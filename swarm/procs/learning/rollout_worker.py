@@ -5,11 +5,12 @@ run's configuration and current weights, then loops: collect `batch` episodes wi
 actions (the batched trainer's `collect`, one process, `threads` torch threads), put each as an
 `EpisodeRollout` on `rollout/episode`, adopt any newer weights between batches. Worker K plays
 episodes of its own seed (the train offset + run seed + K + 1, never an evaluation seed), so
-workers on several hosts never repeat each other's episodes. It exits after `max_batches` (0:
-never) or on Ctrl-C, with the same summary either way; while the learner is gone it goes on with
-its last weights (what it sends meanwhile is lost, as on any pub/sub link without a subscriber),
-and whenever a learner's token comes up (the first, the same one back, or a fresh one replacing
-it) it asks for its weights.
+workers on several hosts never repeat each other's episodes; restarted, it goes on after the last
+episode its learner heard from it (`RunRecord.workers`), so it does not repeat its own either.
+It exits after `max_batches` (0: never) or on Ctrl-C, with the same summary either way; while
+the learner is gone it goes on with its last weights (what it sends meanwhile is lost, as on any
+pub/sub link without a subscriber), and whenever a learner's token comes up (the first, the same
+one back, or a fresh one replacing it) it asks for its weights.
 """
 
 from __future__ import annotations
@@ -64,6 +65,10 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         pub = publisher(session, keys.worker_episodes)
         version, origin, sent, bad, batches, sent_bytes = -1, -1, 0, 0, 0, 0
         seed = tc.train_seed_offset + tc.seed + worker_id + 1
+        first = (rec.workers or {}).get(worker_id, 0)  # restarted: where the learner has it
+        if first:
+            log.warning("worker %d: the learner heard its episodes up to %d; going on from "
+                        "there", worker_id, first - 1)
         t0, interrupted = time.monotonic(), False
         try:
             while max_batches <= 0 or batches < max_batches:
@@ -89,7 +94,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
                     if time.monotonic() - t0 > wait:
                         raise TimeoutError("no weights from the learner")
                     continue
-                episodes = batches * batch + np.arange(batch)
+                episodes = first + batches * batch + np.arange(batch)
                 roll = collect(policy, cfg, seed, episodes)
                 for er in episodes_of(roll, version):
                     payload = er.pack()
@@ -104,6 +109,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
         finally:
             inbox.close()
         wall = time.monotonic() - t0
-        return {"worker": worker_id, "episodes": sent, "batches": batches, "bytes": sent_bytes,
+        return {"worker": worker_id, "first_episode": first, "episodes": sent,
+                "batches": batches, "bytes": sent_bytes,
                 "weights_bad": bad, "version": version, "episodes_per_s": sent / max(wall, 1e-9),
                 "interrupted": interrupted}
