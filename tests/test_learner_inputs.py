@@ -241,6 +241,40 @@ def test_a_resumed_learner_shows_its_curve(trained: Path) -> None:
     assert st["last"]["reward"] == pytest.approx(float(rows[-1]["reward"]), rel=1e-5)
 
 
+def test_a_late_record_of_what_the_stopped_learner_held_is_late_not_a_new_episode(
+        trained: Path) -> None:
+    """A learner SIGKILLed while it joined swarm episode 7 (one robot's record in) is resumed:
+    episode 7 is counted lost once, and a late record of it reaching the resumed learner is a
+    late record, not episode 7 received a second time (it opened a new slot and was counted in
+    `received` again, then as incomplete); a lockstep world learns that 7 is settled."""
+    from swarm.learn.config import LearnerConfig
+    from swarm.procs.learning.learner import Learner
+
+    out = trained / "late"  # a copy: the other tests read the original
+    shutil.copytree(trained / "l", out)
+    lc = LearnerConfig(run_id="resumed", policy="vain", out=str(out), resume=True)
+
+    def resumed() -> Learner:
+        learner = Learner(SMALL, lc, TrainConfig(batch=2, threads=1), {"threads"})
+        learner.open_out()
+        return learner
+
+    first = resumed()
+    try:
+        assert first._slot(7) is not None and first.accounting()["pending"] == 1
+    finally:  # (then SIGKILL: nothing more is written)
+        first.journal.close()
+    second = resumed()
+    try:
+        acc = second.accounting()
+        assert acc["lost"] == 1 and acc["received"] == first.accounting()["received"], acc
+        assert second._slot(7) is None and second.c.late_records == 1
+        assert second.accounting() == acc and second.last_closed == 7
+        assert second._slot(8) is not None and second.c.received == acc["received"] + 1
+    finally:
+        second.journal.close()
+
+
 def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> None:
     """The episodes a learner heard of after its last checkpoint and never trained on (its
     partial batch) end in a counter when it is killed and resumed: `lost`, once however often
@@ -316,7 +350,10 @@ def test_a_fresh_learner_starts_its_journal_again_and_a_bad_line_is_skipped(
     finally:
         learner.journal.close()
     journal.write_text("\u00b27 1\n5 2\n5 2\nhello\n4 9\n99999999999999999999999 3\n")
-    assert Journal(journal).past(4) == 1  # 5 (twice, one episode); the rest skipped or not past
+    assert Journal(journal).past(4) == (1, -1)  # 5 (twice, one episode); the rest skipped or not
+    # past; no swarm episode named (lines of before the s/w marks)
+    journal.write_text("3 s12\n5 w40\n6 s9\n7 s\u00b2\n")
+    assert Journal(journal).past(4) == (3, 12)  # 5, 6, 7; the highest swarm episode 12
     journal.unlink()
     journal.mkdir()  # a folder of its name: one line, not a traceback
     with pytest.raises(ConfigError, match="heard.log cannot be read"):

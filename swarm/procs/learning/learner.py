@@ -128,6 +128,8 @@ class Learner:
             known = {f.name for f in dataclasses.fields(LearnerCounters)}
             self.c = LearnerCounters(**{k: v for k, v in state["counters"].items() if k in known})
             held = state.get("pending", 0)  # (a checkpoint from before it was kept: 0)
+            top = state.get("swarm_heard", -1)
+            self.heard_upto = top if isinstance(top, int) and -1 <= top <= BIG else -1
             self.held = held if isinstance(held, int) and 0 <= held <= self.c.received else 0
             self.worker_next = check_worker_next(state.get("workers", {}),
                                                  f"{self.ckpt} learner workers") or {}
@@ -142,6 +144,11 @@ class Learner:
         self.pending: dict[int, dict[str, Any]] = {}  # ep -> {"world": rec, "robots": {}, "t": s}
         self.closed: set[int] = set()  # swarm episodes joined or given up
         self.last_closed = -1  # the highest of them (a lockstep world waits for it: train_sync)
+        self.closed_upto = -1  # every swarm episode at or below it is settled too (forgotten
+        # from `closed`, or heard of by the learner this one resumed)
+        self.heard_upto = -1  # the highest swarm episode heard of
+        self.resumed_upto = -1  # the highest one the learner this one resumed heard of
+        self.resumed_late = 0  # records of those since (said at the 1st, 2nd, 4th...)
         self.ready: list[EpisodeRollout] = []
         self.origin = 1 + secrets.randbelow(BIG)  # this process's weights (Weights.origin)
         self.weights_payload = weights_of(self.policy, self.version, self.origin).pack()
@@ -178,8 +185,12 @@ class Learner:
             self.curves.start()
         if not self.lc.gather_only:  # (one never updates: nothing to lose, nor a checkpoint)
             if self.lc.resume:  # unsettled at the checkpoint, and heard of after it
-                past = self.journal.past(self.c.received)
+                past, top = self.journal.past(self.c.received)
                 self.c.received += past
+                # what the stopped learner heard of is settled (trained, or counted here): a
+                # late record of it is late, not a new episode received a second time
+                self.heard_upto = max(self.heard_upto, top)
+                self.closed_upto = self.last_closed = self.resumed_upto = self.heard_upto
                 if lost := self.held + past:
                     self.c.lost += lost
                     log.warning("learner: %s heard of by the stopped learner after its last "
@@ -239,7 +250,7 @@ class Learner:
                 er = EpisodeRollout.unpack(payload, self.cfg)
                 self._worker_episode(er)
                 self.c.worker_episodes += 1
-                self._heard(er.ep)
+                self._heard(er.ep, swarm=False)
                 self._accept(er)
         except (BadMessage, ValueError) as exc:
             self._bad(key, str(exc))
@@ -261,24 +272,33 @@ class Learner:
     def _slot(self, ep: int) -> dict[str, Any] | None:
         """The joining slot of swarm episode `ep` (a new episode counts as received); None
         for an episode already joined or given up (its late record is counted, not kept)."""
-        if ep in self.closed:
+        if ep in self.pending:
+            return self.pending[ep]
+        if ep <= self.closed_upto or ep in self.closed:
             self.c.late_records += 1
+            self.resumed_late += ep <= self.resumed_upto
+            if ep <= self.resumed_upto and self.resumed_late & (self.resumed_late - 1) == 0:
+                log.warning("learner: a record of episode %d, which the learner this one resumed "
+                            "had heard of (up to %d), counted late (a world started again? give "
+                            "it --first-episode %d)", ep, self.resumed_upto, self.resumed_upto + 1)
             return None
-        if ep not in self.pending:
-            self._heard(ep)
-            self.pending[ep] = {"robots": {}, "first": time.monotonic()}
+        self._heard(ep, swarm=True)
+        self.heard_upto = max(self.heard_upto, ep)
+        self.pending[ep] = {"robots": {}, "first": time.monotonic()}
         return self.pending[ep]
 
-    def _heard(self, ep: int) -> None:
+    def _heard(self, ep: int, swarm: bool) -> None:
         self.c.received += 1
-        self.journal.heard(self.c.received, ep)
+        self.journal.heard(self.c.received, ep, swarm)
 
     def _close(self, ep: int) -> None:
         del self.pending[ep]
         self.closed.add(ep)
         self.last_closed = max(self.last_closed, ep)
         if len(self.closed) > 100_000:  # a long run: forget the oldest half
-            self.closed = set(sorted(self.closed)[50_000:])
+            old = sorted(self.closed)
+            self.closed_upto = max(self.closed_upto, old[49_999])
+            self.closed = set(old[50_000:])
 
     def _accept(self, er: EpisodeRollout) -> None:
         if er.actions.shape[0] != self.cfg.horizon:  # a batch stacks whole episodes only
@@ -375,6 +395,7 @@ class Learner:
                               "counters": dataclasses.asdict(self.c),
                               "pending": self.accounting()["pending"],  # (lost, if it stops)
                               "workers": dict(self.worker_next),
+                              "swarm_heard": self.heard_upto,
                               **({} if self.seed is None else {"seed": self.seed})}
         with stops_held():  # (a Ctrl-C between the file's rename and this line: the stop line
             save_checkpoint(self.ckpt, payload)  # named the version before the file's)
