@@ -91,7 +91,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
         zopts = secure_options(args, zopts, "recorder", args.run_id)
         wait = max(deadline - time.monotonic(), 0.1)
-        stats = record_main(args.run_id, args.out, zopts, wait, args.flush)
+        stats = record_main(args.run_id, args.out, zopts, wait, args.flush, args.wait)
     except TimeoutError as exc:
         raise ConfigError(str(exc)) from None
     # not into a supervisor's log: an interrupted run keeps its logs when one says more than

@@ -137,13 +137,15 @@ def replies(session: zenoh.Session, key: str, timeout: float) -> Iterator[bytes]
 
 
 def query(session: zenoh.Session, key: str, timeout: float, parse: Callable[[bytes], T],
-          what: str = "", stop: Callable[[], bool] = lambda: False) -> T:
+          what: str = "", stop: Callable[[], bool] = lambda: False,
+          said: float | None = None) -> T:
     """`parse` of the first reply on `key` that it takes, retried until `timeout` seconds. A
     reply `parse` refuses (a ValueError: BadMessage, ConfigError) is hostile input: dropped,
     counted and logged, and the next one is tried, so a foreign peer answering with garbage
     cannot stop a process from joining its run. A one-line TimeoutError naming `what` (default:
     the key) and the replies dropped when no good one came, and KeyboardInterrupt once `stop()`
-    (a signal handler's flag) is true."""
+    (a signal handler's flag) is true. `said`: the wait the error names, when `timeout` is
+    what is left of a wait the user gave (`--wait 0.5` said "within 0.49 s")."""
     deadline = time.monotonic() + timeout
     dropped, last = 0, ""
     while True:
@@ -160,8 +162,8 @@ def query(session: zenoh.Session, key: str, timeout: float, parse: Callable[[byt
                                 dropped, last)
         if time.monotonic() >= deadline:
             why = f" ({dropped} unreadable replies dropped; the last: {last})" if dropped else ""
-            raise TimeoutError(f"no {what or 'answer on ' + key} within {round(timeout, 2):g} "
-                               f"s{why}")  # (a budget's remainder: 1.99932 s is 2 s to a person)
+            named = round(said or timeout, 2)  # (a budget's remainder: 1.99932 s is 2 s)
+            raise TimeoutError(f"no {what or 'answer on ' + key} within {named:g} s{why}")
         time.sleep(0.1)
 
 

@@ -52,8 +52,10 @@ class Recorder:
     """Records run `run_id` into `out` until the run ends."""
 
     def __init__(self, run_id: str, out: str | Path, session: zenoh.Session,
-                 wait_world: float = 30.0, flush_s: float = 0.5) -> None:
+                 wait_world: float = 30.0, flush_s: float = 0.5,
+                 wait_said: float | None = None) -> None:
         self.keys = Keys(run_id)
+        self.wait_said = wait_said  # (the --wait that `wait_world` is what is left of)
         self.out, self.session = str(out), session
         self.wait_world, self.flush_s = wait_world, flush_s
         self.c = RecorderCounters()
@@ -91,7 +93,8 @@ class Recorder:
         try:
             rec = query(self.session, self.keys.config, self.wait_world,
                         lambda b: RunRecord.unpack(b, f"run record from {self.keys.config}"),
-                        f"world answered on {self.keys.config}", lambda: self.stop)
+                        f"world answered on {self.keys.config}", lambda: self.stop,
+                        self.wait_said)
             w = RecordingWriter(self.out, self.keys.run, rec.to_record(), rec.world,
                                 rec.run.clock, rec.run.tick_timeout, flush_s=self.flush_s)
             inbox.liveliness(self.keys.alive_world, "world").token(self.keys.alive_recorder)
@@ -222,7 +225,7 @@ def run_tick(head: tuple[Any, Any] | None, rec: RunRecord, last: int | None) -> 
 
 
 def main(run_id: str, out: str, zopts: ZenohOptions, wait_world: float = 30.0,
-         flush_s: float = 0.5) -> dict[str, Any]:
+         flush_s: float = 0.5, wait_said: float | None = None) -> dict[str, Any]:
     """Open a session and record run `run_id` into `out`."""
     with open_session(zopts) as session:
-        return Recorder(run_id, out, session, wait_world, flush_s).run()
+        return Recorder(run_id, out, session, wait_world, flush_s, wait_said).run()
