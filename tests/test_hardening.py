@@ -555,7 +555,7 @@ BAD_INPUTS = [
 @pytest.mark.procs
 @pytest.mark.parametrize("args", BAD_INPUTS, ids=lambda a: " ".join(a)[:40])
 def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
-        tmp_path: Path, args: list[str]) -> None:
+        tmp_path: Path, args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "file").write_text("not a checkpoint")
     (tmp_path / "crash.toml").write_text('[faults]\ncrash = ["1@3"]\n')
     (tmp_path / "types.toml").write_text("[eval]\ncheckpoint = 3\n")  # (a TypeError once)
@@ -564,7 +564,7 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
     (tmp_path / "crash_now.toml").write_text("[world]\nn_robots = 4\n[faults]\ncrash = [1]\n")
     (tmp_path / "robot_int.toml").write_text('[faults.robot]\n"3" = 5\n')
     (tmp_path / "robot_list.toml").write_text("[faults]\nrobot = []\n")
-    r = swarm(*(a.replace("{tmp}", str(tmp_path)) for a in args), timeout=30)
+    r = swarm_here(*(a.replace("{tmp}", str(tmp_path)) for a in args), capsys=capsys)
     assert r.returncode in (1, 2), (r.returncode, r.stderr)
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("swarm: error: "), r.stderr
