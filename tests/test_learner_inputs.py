@@ -246,9 +246,15 @@ def test_a_late_record_of_what_the_stopped_learner_held_is_late_not_a_new_episod
     """A learner SIGKILLed while it joined swarm episode 7 (one robot's record in) is resumed:
     episode 7 is counted lost once, and a late record of it reaching the resumed learner is a
     late record, not episode 7 received a second time (it opened a new slot and was counted in
-    `received` again, then as incomplete); a lockstep world learns that 7 is settled."""
+    `received` again, then as incomplete); a lockstep world learns that 7 is settled. So too
+    when the learner wrote a checkpoint while 7 was joining (the checkpoint names it), and for
+    a rollout worker's episodes heard after the checkpoint: a restarted worker goes on after
+    them (it was served the checkpoint's next episode and played them again)."""
     from swarm.learn.config import LearnerConfig
+    from swarm.learn.join import episodes_of
+    from swarm.learn.rollout import collect
     from swarm.procs.learning.learner import Learner
+    from swarm.procs.runconfig import RunRecord
 
     out = trained / "late"  # a copy: the other tests read the original
     shutil.copytree(trained / "l", out)
@@ -262,17 +268,29 @@ def test_a_late_record_of_what_the_stopped_learner_held_is_late_not_a_new_episod
     first = resumed()
     try:
         assert first._slot(7) is not None and first.accounting()["pending"] == 1
+        er = episodes_of(collect(first.policy, SMALL, WORKER0 + 1, np.arange(3, 4)), 0)[0]
+        first.handle("worker", Keys("resumed").worker_episodes, er.pack())  # worker 1's ep 3
     finally:  # (then SIGKILL: nothing more is written)
         first.journal.close()
     second = resumed()
     try:
         acc = second.accounting()
-        assert acc["lost"] == 1 and acc["received"] == first.accounting()["received"], acc
+        assert acc["lost"] == 2 and acc["received"] == first.accounting()["received"], acc
         assert second._slot(7) is None and second.c.late_records == 1
         assert second.accounting() == acc and second.last_closed == 7
+        assert RunRecord.unpack(second.record()).workers == {0: 6, 1: 4}  # (0: the fixture's)
         assert second._slot(8) is not None and second.c.received == acc["received"] + 1
-    finally:
+        second.save()  # a checkpoint while 8 is joining: it names 8
+    finally:  # (SIGKILL again)
         second.journal.close()
+    third = resumed()
+    try:
+        late = third.c.late_records
+        assert third._slot(8) is None and third._slot(7) is None
+        assert third.c.late_records == late + 2 and third.last_closed == 8
+        assert RunRecord.unpack(third.record()).workers == {0: 6, 1: 4}
+    finally:
+        third.journal.close()
 
 
 def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> None:
@@ -350,10 +368,11 @@ def test_a_fresh_learner_starts_its_journal_again_and_a_bad_line_is_skipped(
     finally:
         learner.journal.close()
     journal.write_text("\u00b27 1\n5 2\n5 2\nhello\n4 9\n99999999999999999999999 3\n")
-    assert Journal(journal).past(4) == (1, -1)  # 5 (twice, one episode); the rest skipped or not
-    # past; no swarm episode named (lines of before the s/w marks)
-    journal.write_text("3 s12\n5 w40\n6 s9\n7 s\u00b2\n")
-    assert Journal(journal).past(4) == (3, 12)  # 5, 6, 7; the highest swarm episode 12
+    past = Journal(journal).past(4)  # 5 (twice, one episode); the rest skipped or not past
+    assert (past.count, past.swarm, past.workers) == (1, set(), {})  # (no s/w marks: nothing)
+    journal.write_text("3 s12\n5 w2:40\n6 s9\n7 s\u00b2\n8 w2:41\n9 w2:7\n9 w:3\n9 w2\n")
+    past = Journal(journal).past(4)
+    assert (past.count, past.swarm, past.workers) == (5, {12, 9}, {2: 41})
     journal.unlink()
     journal.mkdir()  # a folder of its name: one line, not a traceback
     with pytest.raises(ConfigError, match="heard.log cannot be read"):
@@ -544,13 +563,19 @@ def test_a_learner_keeps_where_each_rollout_worker_is_and_drops_replays(tmp_path
         assert sorted(learner.c.bad_by_key.values()) == [3] and learner.c.worker_episodes == 5
         assert RunRecord.unpack(learner.record()).workers == {0: 4, 5: 8}
         learner.save()
+        learner._worker_heard(9, 2**31 - 1)  # (a last episode number: its next stays in range,
+        assert RunRecord.unpack(learner.record()).workers[9] == 2**31 - 1  # or no worker joins)
     finally:
         learner.journal.close()
     resumed = Learner(SMALL, LearnerConfig(run_id="wk", policy="vain", out=str(tmp_path / "l"),
                                            resume=True), tc)
     assert resumed.worker_next == {0: 4, 5: 8}
     for bad, why in (([1, 2], "must be a table"), ({-1: 0}, "worker id -1"),
-                     ({0: "3"}, "episode '3'"), ({True: 1}, "worker id True")):
+                     ({0: "3"}, "episode '3'"), ({True: 1}, "worker id True"),
+                     ({"x": 1}, "worker id 'x'"), ({0: 2**31}, "episode 2147483648")):
         rec = {"world": dataclasses.asdict(SMALL), "workers": bad}
         with pytest.raises(ConfigError, match=f"run record workers: .*{why}"):
             RunRecord.from_record(rec)
+    spec = tmp_path / "spec.json"  # a record as JSON: its worker ids become strings, read back
+    RunRecord(SMALL, workers={0: 4, 5: 8}).write(spec)
+    assert RunRecord.read(spec).workers == {0: 4, 5: 8}

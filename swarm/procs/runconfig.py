@@ -118,17 +118,21 @@ still works, but starts from its seed's episode 0 when restarted."""
 
 
 def check_worker_next(table: Any, where: str) -> dict[int, int] | None:
-    """`RunRecord.workers` (or a learner checkpoint's copy): worker ids in [0, MAX_WORKER_ID] to
-    episode numbers in [0, BIG], at most MAX_WORKERS of them; anything else a ConfigError."""
+    """`RunRecord.workers` (or a learner checkpoint's copy): worker ids in [0, MAX_WORKER_ID] (an
+    integer or its decimal string, as JSON keys are) to episode numbers in [0, BIG], at most
+    MAX_WORKERS of them; anything else a ConfigError."""
     if table is None:
         return None
     if not isinstance(table, dict) or len(table) > MAX_WORKERS:
         raise ConfigError(f"{where}: must be a table of at most {MAX_WORKERS} worker ids")
+    out = {}
     for k, v in table.items():
-        for what, x, hi in (("worker id", k, MAX_WORKER_ID), ("episode", v, BIG)):
+        key = int(k) if isinstance(k, str) and k.isascii() and k.isdigit() and len(k) < 12 else k
+        for what, x, hi in (("worker id", key, MAX_WORKER_ID), ("episode", v, BIG)):
             if isinstance(x, bool) or not isinstance(x, int) or not 0 <= x <= hi:
                 raise ConfigError(f"{where}: {what} {x!r} is not an integer in [0, {hi}]")
-    return dict(table)
+        out[key] = v
+    return out
 
 
 @dataclass(frozen=True)
@@ -163,8 +167,8 @@ class RunRecord:
         for key in ("learner", "train", "model"):
             if getattr(self, key) is not None:
                 out[key] = dict(getattr(self, key))
-        if self.workers:
-            out["workers"] = dict(self.workers)
+        if self.workers:  # (string keys, as JSON has them)
+            out["workers"] = {str(k): v for k, v in dict(self.workers).items()}
         if self.supervised:
             out["supervised"] = True
         return out

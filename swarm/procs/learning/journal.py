@@ -1,28 +1,45 @@
 """The episodes a learner heard of since its last checkpoint, so that a learner killed between two
 updates and resumed counts what it held (never trained on) instead of forgetting it.
 
-One line per episode heard of, `<n> s<episode>` (a swarm episode) or `<n> w<episode>` (a rollout
-worker's), n being the learner's `received` count with that episode. A line is written to the OS
-as it is made (line-buffered), so a SIGKILL loses none; the file is emptied after every
+One line per episode heard of, `<n> s<episode>` (a swarm episode) or `<n> w<worker>:<episode>` (a
+rollout worker's), n being the learner's `received` count with that episode. A line is written to
+the OS as it is made (line-buffered), so a SIGKILL loses none; the file is emptied after every
 checkpoint, which itself holds how many episodes it had heard of and not yet settled (`pending`:
 joining, or waiting for a batch). On resume, those and the lines whose n is past the
 checkpoint's `received` are the episodes the stopped learner had and lost (`lost` in its
 accounting); earlier lines are ones the checkpoint already counts (a kill between the
 checkpoint's rename and the emptying). They are left in the file until the next checkpoint,
 which counts them: a learner killed again before it makes one finds them again, once. The
-highest swarm episode named tells a resumed learner which episodes its stopped self had heard
-of, so a late record of one is late, not a new episode. Only a resumed learner reads the file; a
-fresh one starts it again."""
+episodes named are settled for the resumed learner: a late record of a swarm episode is late,
+not a new episode, and a restarted worker goes on after its last one. Only a resumed learner
+reads the file; a fresh one starts it again."""
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
+from swarm.learn.config import MAX_WORKER_ID
+from swarm.net.messages import BIG
 from world.config import ConfigError
 
 log = logging.getLogger("swarm.learner")
+
+
+@dataclass
+class Past:
+    """What a journal names (`Journal.past`)."""
+
+    count: int = 0  # episodes past the checkpoint's `received`
+    swarm: set[int] = field(default_factory=set)  # every swarm episode named
+    workers: dict[int, int] = field(default_factory=dict)  # worker id -> its last episode named
+
+
+def _count(text: str) -> bool:
+    """A non-negative decimal integer that fits 64 bits."""
+    return text.isascii() and text.isdigit() and len(text) < 19
 
 
 class Journal:
@@ -30,31 +47,37 @@ class Journal:
         self.path = path
         self.file: TextIO | None = None
 
-    def past(self, received: int) -> tuple[int, int]:
-        """How many episodes the file names past `received` (0 without a file), and the highest
-        swarm episode it names (-1: none); a line that does not parse (not ours, or cut) is
-        skipped and said."""
+    def past(self, received: int) -> Past:
+        """What the file names (nothing without a file): how many episodes past `received`, and
+        every swarm episode and each worker's last episode; a line that does not parse (not
+        ours, or cut) is skipped and said."""
+        out = Past()
         try:
             lines = self.path.read_text(errors="replace").splitlines()
         except FileNotFoundError:
-            return 0, -1
+            return out
         except OSError as exc:  # (a folder of its name, no permission: one line, no traceback)
             raise ConfigError(f"{self.path} cannot be read: {exc.strerror or exc}") from None
         past: set[int] = set()  # (a line written twice is one episode)
-        skipped, top = 0, -1
+        skipped = 0
         for line in lines:
             head, _, tail = line.partition(" ")
-            if not (head.isascii() and head.isdigit() and len(head) < 19):
+            if not _count(head):
                 skipped += 1
                 continue
             if int(head) > received:
                 past.add(int(head))
-            ep = tail[1:].strip()
-            if tail[:1] == "s" and ep.isascii() and ep.isdigit() and len(ep) < 19:
-                top = max(top, int(ep))
+            worker, colon, ep = tail[1:].strip().partition(":")
+            if tail[:1] == "s" and not colon and _count(worker) and int(worker) <= BIG:
+                out.swarm.add(int(worker))
+            elif tail[:1] == "w" and colon and _count(worker) and _count(ep) and \
+                    int(worker) <= MAX_WORKER_ID and int(ep) <= BIG:
+                w = int(worker)
+                out.workers[w] = max(out.workers.get(w, -1), int(ep))
         if skipped:
             log.warning("learner: %d unreadable lines in %s skipped", skipped, self.path)
-        return len(past), top
+        out.count = len(past)
+        return out
 
     def open(self, fresh: bool) -> None:
         """Append (resumed), or start the file again (`fresh`: an earlier learner's lines, one
@@ -67,9 +90,10 @@ class Journal:
         except OSError as exc:
             raise ConfigError(f"{self.path} cannot be written: {exc.strerror or exc}") from None
 
-    def heard(self, n: int, ep: int, swarm: bool) -> None:
+    def heard(self, n: int, ep: int, worker: int | None = None) -> None:
+        """Episode `ep`, the learner's `n`th: a swarm episode, or worker `worker`'s."""
         if self.file is not None:
-            self.file.write(f"{n} {'s' if swarm else 'w'}{ep}\n")
+            self.file.write(f"{n} s{ep}\n" if worker is None else f"{n} w{worker}:{ep}\n")
 
     def clear(self) -> None:
         """After a checkpoint: every line so far is counted there."""

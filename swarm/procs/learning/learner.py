@@ -68,6 +68,11 @@ log = logging.getLogger("swarm.learner")
 
 
 # ------------------------------------------------------------------------------ the learner
+SETTLED_KEPT = 4096
+"""The latest swarm episodes a checkpoint names as settled, beside those still joining: a late
+record of one reaching a resumed learner is late, not a new episode (`Learner._resume_where`)."""
+
+
 @dataclass
 class LearnerCounters:
     episodes: int = 0  # joined or received episodes accepted into a batch
@@ -112,6 +117,9 @@ class Learner:
         self.c = LearnerCounters()
         self.version = self.saved = 0  # saved: the version its checkpoint file holds
         self.worker_next: dict[int, int] = {}  # rollout worker id -> its next episode
+        self.settled: set[int] = set()  # swarm episodes the learner this one resumed settled
+        self.closed_upto = -1  # every swarm episode at or below it is settled (forgotten from
+        # `closed`, below)
         self.held = 0  # episodes unsettled at the resumed checkpoint (lost with its process)
         self.seed: int | None = None  # the run's seed its episodes are joined with (`run`)
         check_learned(lc.policy, "the learner")
@@ -128,11 +136,8 @@ class Learner:
             known = {f.name for f in dataclasses.fields(LearnerCounters)}
             self.c = LearnerCounters(**{k: v for k, v in state["counters"].items() if k in known})
             held = state.get("pending", 0)  # (a checkpoint from before it was kept: 0)
-            top = state.get("swarm_heard", -1)
-            self.heard_upto = top if isinstance(top, int) and -1 <= top <= BIG else -1
             self.held = held if isinstance(held, int) and 0 <= held <= self.c.received else 0
-            self.worker_next = check_worker_next(state.get("workers", {}),
-                                                 f"{self.ckpt} learner workers") or {}
+            self._resume_where(state)
         else:
             if self.ckpt.exists() and not lc.gather_only:
                 raise ConfigError(f"{self.out} already holds a learner; pass --resume")
@@ -142,13 +147,10 @@ class Learner:
         torch.set_num_threads(tc.threads)
         self.tc = tc
         self.pending: dict[int, dict[str, Any]] = {}  # ep -> {"world": rec, "robots": {}, "t": s}
-        self.closed: set[int] = set()  # swarm episodes joined or given up
-        self.last_closed = -1  # the highest of them (a lockstep world waits for it: train_sync)
-        self.closed_upto = -1  # every swarm episode at or below it is settled too (forgotten
-        # from `closed`, or heard of by the learner this one resumed)
-        self.heard_upto = -1  # the highest swarm episode heard of
-        self.resumed_upto = -1  # the highest one the learner this one resumed heard of
-        self.resumed_late = 0  # records of those since (said at the 1st, 2nd, 4th...)
+        self.closed: set[int] = set(self.settled)  # swarm episodes joined or given up
+        self.last_closed = max(self.settled, default=-1)  # the highest of them (a lockstep
+        # world waits for it: train_sync)
+        self.resumed_late = 0  # late records of `settled` episodes (said at the 1st, 2nd...)
         self.ready: list[EpisodeRollout] = []
         self.origin = 1 + secrets.randbelow(BIG)  # this process's weights (Weights.origin)
         self.weights_payload = weights_of(self.policy, self.version, self.origin).pack()
@@ -185,13 +187,17 @@ class Learner:
             self.curves.start()
         if not self.lc.gather_only:  # (one never updates: nothing to lose, nor a checkpoint)
             if self.lc.resume:  # unsettled at the checkpoint, and heard of after it
-                past, top = self.journal.past(self.c.received)
-                self.c.received += past
+                past = self.journal.past(self.c.received)
+                self.c.received += past.count
                 # what the stopped learner heard of is settled (trained, or counted here): a
-                # late record of it is late, not a new episode received a second time
-                self.heard_upto = max(self.heard_upto, top)
-                self.closed_upto = self.last_closed = self.resumed_upto = self.heard_upto
-                if lost := self.held + past:
+                # late record of it is late, not a new episode received a second time, and a
+                # restarted worker goes on after its last episode
+                self.settled |= past.swarm
+                self.closed |= past.swarm
+                self.last_closed = max(self.closed, default=-1)
+                for k, ep in past.workers.items():
+                    self._worker_heard(k, ep)
+                if lost := self.held + past.count:
                     self.c.lost += lost
                     log.warning("learner: %s heard of by the stopped learner after its last "
                                 "update (version %d) never trained on: counted lost",
@@ -248,14 +254,14 @@ class Learner:
                     slot["world"], slot["t"] = wr, time.monotonic()
             else:
                 er = EpisodeRollout.unpack(payload, self.cfg)
-                self._worker_episode(er)
+                worker = self._worker_episode(er)
                 self.c.worker_episodes += 1
-                self._heard(er.ep, swarm=False)
+                self._heard(er.ep, worker)
                 self._accept(er)
         except (BadMessage, ValueError) as exc:
             self._bad(key, str(exc))
 
-    def _worker_episode(self, er: EpisodeRollout) -> None:
+    def _worker_episode(self, er: EpisodeRollout) -> int:
         """A rollout worker's episode: its id is its seed's offset (`rollout_worker`); BadMessage
         for a seed no worker plays or an episode at or before one heard from that worker already
         (a worker's episodes come in order on its one link: an earlier one is a replay)."""
@@ -265,9 +271,32 @@ class Learner:
         nxt = self.worker_next.get(worker)
         if nxt is not None and er.ep < nxt:
             raise BadMessage(f"episode {er.ep} of rollout worker {worker} heard already (a "
-                             f"replay: its next is {nxt})")
-        if nxt is not None or len(self.worker_next) < MAX_WORKERS:  # (further ids: not kept)
-            self.worker_next[worker] = er.ep + 1
+                             f"replay, or a restarted worker's the learner had queued: its "
+                             f"next is {nxt})")
+        self._worker_heard(worker, er.ep)
+        return worker
+
+    def _worker_heard(self, worker: int, ep: int) -> None:
+        """Worker `worker`'s next episode is past `ep` (kept for at most MAX_WORKERS workers)."""
+        if worker in self.worker_next or len(self.worker_next) < MAX_WORKERS:
+            self.worker_next[worker] = max(self.worker_next.get(worker, 0), min(ep + 1, BIG))
+
+    def _resume_where(self, state: dict[str, Any]) -> None:
+        """From a checkpoint's learner state: each worker's next episode and the swarm episodes
+        its learner had settled lately or held (`save`); an entry out of range is dropped and
+        said, never a refusal to resume (a checkpoint from before they were kept has none)."""
+        try:
+            self.worker_next = check_worker_next(state.get("workers", {}), "workers") or {}
+        except ConfigError as exc:
+            log.warning("learner: %s: %s; dropped (restarted workers start from 0)", self.ckpt,
+                        exc)
+        settled = state.get("swarm_settled", [])
+        if isinstance(settled, list):
+            self.settled = {e for e in settled[:2 * SETTLED_KEPT] if isinstance(e, int)
+                            and not isinstance(e, bool) and 0 <= e <= BIG}
+        upto = state.get("swarm_closed_upto", -1)
+        if isinstance(upto, int) and not isinstance(upto, bool) and -1 <= upto <= BIG:
+            self.closed_upto = upto
 
     def _slot(self, ep: int) -> dict[str, Any] | None:
         """The joining slot of swarm episode `ep` (a new episode counts as received); None
@@ -276,20 +305,20 @@ class Learner:
             return self.pending[ep]
         if ep <= self.closed_upto or ep in self.closed:
             self.c.late_records += 1
-            self.resumed_late += ep <= self.resumed_upto
-            if ep <= self.resumed_upto and self.resumed_late & (self.resumed_late - 1) == 0:
+            self.resumed_late += ep in self.settled
+            if ep in self.settled and self.resumed_late & (self.resumed_late - 1) == 0:
                 log.warning("learner: a record of episode %d, which the learner this one resumed "
-                            "had heard of (up to %d), counted late (a world started again? give "
-                            "it --first-episode %d)", ep, self.resumed_upto, self.resumed_upto + 1)
+                            "had settled, counted late (%d so far; a world started again? give "
+                            "it a --first-episode past the episodes it played)", ep,
+                            self.resumed_late)
             return None
-        self._heard(ep, swarm=True)
-        self.heard_upto = max(self.heard_upto, ep)
+        self._heard(ep)
         self.pending[ep] = {"robots": {}, "first": time.monotonic()}
         return self.pending[ep]
 
-    def _heard(self, ep: int, swarm: bool) -> None:
+    def _heard(self, ep: int, worker: int | None = None) -> None:
         self.c.received += 1
-        self.journal.heard(self.c.received, ep, swarm)
+        self.journal.heard(self.c.received, ep, worker)
 
     def _close(self, ep: int) -> None:
         del self.pending[ep]
@@ -395,7 +424,10 @@ class Learner:
                               "counters": dataclasses.asdict(self.c),
                               "pending": self.accounting()["pending"],  # (lost, if it stops)
                               "workers": dict(self.worker_next),
-                              "swarm_heard": self.heard_upto,
+                              # (a late record of these is late for a resumed learner)
+                              "swarm_settled": sorted(self.closed)[-SETTLED_KEPT:]
+                              + sorted(self.pending),
+                              "swarm_closed_upto": self.closed_upto,
                               **({} if self.seed is None else {"seed": self.seed})}
         with stops_held():  # (a Ctrl-C between the file's rename and this line: the stop line
             save_checkpoint(self.ckpt, payload)  # named the version before the file's)
