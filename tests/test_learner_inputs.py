@@ -277,7 +277,7 @@ def test_a_late_record_of_what_the_stopped_learner_held_is_late_not_a_new_episod
         acc = second.accounting()
         assert acc["lost"] == 2 and acc["received"] == first.accounting()["received"], acc
         assert second._slot(7) is None and second.c.late_records == 1
-        assert second.accounting() == acc and second.last_closed == 7
+        assert second.accounting() == acc and second.settled.last == 7
         assert RunRecord.unpack(second.record()).workers == {0: 6, 1: 4}  # (0: the fixture's)
         assert second._slot(8) is not None and second.c.received == acc["received"] + 1
         second.save()  # a checkpoint while 8 is joining: it names 8
@@ -287,7 +287,7 @@ def test_a_late_record_of_what_the_stopped_learner_held_is_late_not_a_new_episod
     try:
         late = third.c.late_records
         assert third._slot(8) is None and third._slot(7) is None
-        assert third.c.late_records == late + 2 and third.last_closed == 8
+        assert third.c.late_records == late + 2 and third.settled.last == 8
         assert RunRecord.unpack(third.record()).workers == {0: 6, 1: 4}
     finally:
         third.journal.close()
@@ -563,13 +563,13 @@ def test_a_learner_keeps_where_each_rollout_worker_is_and_drops_replays(tmp_path
         assert sorted(learner.c.bad_by_key.values()) == [3] and learner.c.worker_episodes == 5
         assert RunRecord.unpack(learner.record()).workers == {0: 4, 5: 8}
         learner.save()
-        learner._worker_heard(9, 2**31 - 1)  # (a last episode number: its next stays in range,
+        learner.workers.heard(9, 2**31 - 1)  # (a last episode number: its next stays in range,
         assert RunRecord.unpack(learner.record()).workers[9] == 2**31 - 1  # or no worker joins)
     finally:
         learner.journal.close()
     resumed = Learner(SMALL, LearnerConfig(run_id="wk", policy="vain", out=str(tmp_path / "l"),
                                            resume=True), tc)
-    assert resumed.worker_next == {0: 4, 5: 8}
+    assert resumed.workers.next == {0: 4, 5: 8}
     for bad, why in (([1, 2], "must be a table"), ({-1: 0}, "worker id -1"),
                      ({0: "3"}, "episode '3'"), ({True: 1}, "worker id True"),
                      ({"x": 1}, "worker id 'x'"), ({0: 2**31}, "episode 2147483648")):

@@ -49,7 +49,7 @@ from policies import check_learned, policy_class
 from policies.checkpoint import load_checkpoint, save_checkpoint
 from swarm.common.report import counted, provenance
 from swarm.common.spawn import stops_held
-from swarm.learn.config import MAX_WORKER_ID, LearnerConfig, TrainConfig, learner_resume_point
+from swarm.learn.config import LearnerConfig, TrainConfig, learner_resume_point
 from swarm.learn.curves import CurveLog, read_curve
 from swarm.learn.join import join, rollout_of
 from swarm.learn.update import update
@@ -60,19 +60,15 @@ from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.learning.journal import Journal
+from swarm.procs.learning.ledger import Settled, Workers
 from swarm.procs.learning.watch import RunWatch
-from swarm.procs.runconfig import MAX_WORKERS, RunConfig, RunRecord, check_worker_next
+from swarm.procs.runconfig import RunConfig, RunRecord
 from world.config import ConfigError, WorldConfig
 
 log = logging.getLogger("swarm.learner")
 
 
 # ------------------------------------------------------------------------------ the learner
-SETTLED_KEPT = 4096
-"""The latest swarm episodes a checkpoint names as settled, beside those still joining: a late
-record of one reaching a resumed learner is late, not a new episode (`Learner._resume_where`)."""
-
-
 @dataclass
 class LearnerCounters:
     episodes: int = 0  # joined or received episodes accepted into a batch
@@ -116,10 +112,8 @@ class Learner:
         self.journal = Journal(self.out / "heard.log")
         self.c = LearnerCounters()
         self.version = self.saved = 0  # saved: the version its checkpoint file holds
-        self.worker_next: dict[int, int] = {}  # rollout worker id -> its next episode
-        self.settled: set[int] = set()  # swarm episodes the learner this one resumed settled
-        self.closed_upto = -1  # every swarm episode at or below it is settled (forgotten from
-        # `closed`, below)
+        self.workers = Workers()  # each rollout worker's next episode
+        self.settled = Settled()  # swarm episodes joined or given up
         self.held = 0  # episodes unsettled at the resumed checkpoint (lost with its process)
         self.seed: int | None = None  # the run's seed its episodes are joined with (`run`)
         check_learned(lc.policy, "the learner")
@@ -137,7 +131,8 @@ class Learner:
             self.c = LearnerCounters(**{k: v for k, v in state["counters"].items() if k in known})
             held = state.get("pending", 0)  # (a checkpoint from before it was kept: 0)
             self.held = held if isinstance(held, int) and 0 <= held <= self.c.received else 0
-            self._resume_where(state)
+            self.workers.resume(state.get("workers", {}), str(self.ckpt))
+            self.settled.resume(state)
         else:
             if self.ckpt.exists() and not lc.gather_only:
                 raise ConfigError(f"{self.out} already holds a learner; pass --resume")
@@ -147,10 +142,6 @@ class Learner:
         torch.set_num_threads(tc.threads)
         self.tc = tc
         self.pending: dict[int, dict[str, Any]] = {}  # ep -> {"world": rec, "robots": {}, "t": s}
-        self.closed: set[int] = set(self.settled)  # swarm episodes joined or given up
-        self.last_closed = max(self.settled, default=-1)  # the highest of them (a lockstep
-        # world waits for it: train_sync)
-        self.resumed_late = 0  # late records of `settled` episodes (said at the 1st, 2nd...)
         self.ready: list[EpisodeRollout] = []
         self.origin = 1 + secrets.randbelow(BIG)  # this process's weights (Weights.origin)
         self.weights_payload = weights_of(self.policy, self.version, self.origin).pack()
@@ -192,11 +183,9 @@ class Learner:
                 # what the stopped learner heard of is settled (trained, or counted here): a
                 # late record of it is late, not a new episode received a second time, and a
                 # restarted worker goes on after its last episode
-                self.settled |= past.swarm
-                self.closed |= past.swarm
-                self.last_closed = max(self.closed, default=-1)
+                self.settled.heard_before(past.swarm)
                 for k, ep in past.workers.items():
-                    self._worker_heard(k, ep)
+                    self.workers.heard(k, ep)
                 if lost := self.held + past.count:
                     self.c.lost += lost
                     log.warning("learner: %s heard of by the stopped learner after its last "
@@ -223,7 +212,7 @@ class Learner:
         return RunRecord(self.cfg, RunConfig(run_id=self.lc.run_id, policy=self.lc.policy),
                          learner=dataclasses.asdict(self.lc), train=dataclasses.asdict(self.tc),
                          model=dataclasses.asdict(self.policy.model_cfg),
-                         version=self.version, workers=self.worker_next).pack()
+                         version=self.version, workers=self.workers.next).pack()
 
     def _bad(self, key: str, why: str) -> None:
         self.c.bad += 1
@@ -254,63 +243,21 @@ class Learner:
                     slot["world"], slot["t"] = wr, time.monotonic()
             else:
                 er = EpisodeRollout.unpack(payload, self.cfg)
-                worker = self._worker_episode(er)
+                worker = self.workers.check(er, self.tc.train_seed_offset + self.tc.seed + 1)
                 self.c.worker_episodes += 1
                 self._heard(er.ep, worker)
                 self._accept(er)
         except (BadMessage, ValueError) as exc:
             self._bad(key, str(exc))
 
-    def _worker_episode(self, er: EpisodeRollout) -> int:
-        """A rollout worker's episode: its id is its seed's offset (`rollout_worker`); BadMessage
-        for a seed no worker plays or an episode at or before one heard from that worker already
-        (a worker's episodes come in order on its one link: an earlier one is a replay)."""
-        worker = er.seed - (self.tc.train_seed_offset + self.tc.seed + 1)
-        if not 0 <= worker <= MAX_WORKER_ID:
-            raise BadMessage(f"seed {er.seed} is no rollout worker's of this run")
-        nxt = self.worker_next.get(worker)
-        if nxt is not None and er.ep < nxt:
-            raise BadMessage(f"episode {er.ep} of rollout worker {worker} heard already (a "
-                             f"replay, or a restarted worker's the learner had queued: its "
-                             f"next is {nxt})")
-        self._worker_heard(worker, er.ep)
-        return worker
-
-    def _worker_heard(self, worker: int, ep: int) -> None:
-        """Worker `worker`'s next episode is past `ep` (kept for at most MAX_WORKERS workers)."""
-        if worker in self.worker_next or len(self.worker_next) < MAX_WORKERS:
-            self.worker_next[worker] = max(self.worker_next.get(worker, 0), min(ep + 1, BIG))
-
-    def _resume_where(self, state: dict[str, Any]) -> None:
-        """From a checkpoint's learner state: each worker's next episode and the swarm episodes
-        its learner had settled lately or held (`save`); an entry out of range is dropped and
-        said, never a refusal to resume (a checkpoint from before they were kept has none)."""
-        try:
-            self.worker_next = check_worker_next(state.get("workers", {}), "workers") or {}
-        except ConfigError as exc:
-            log.warning("learner: %s: %s; dropped (restarted workers start from 0)", self.ckpt,
-                        exc)
-        settled = state.get("swarm_settled", [])
-        if isinstance(settled, list):
-            self.settled = {e for e in settled[:2 * SETTLED_KEPT] if isinstance(e, int)
-                            and not isinstance(e, bool) and 0 <= e <= BIG}
-        upto = state.get("swarm_closed_upto", -1)
-        if isinstance(upto, int) and not isinstance(upto, bool) and -1 <= upto <= BIG:
-            self.closed_upto = upto
-
     def _slot(self, ep: int) -> dict[str, Any] | None:
         """The joining slot of swarm episode `ep` (a new episode counts as received); None
         for an episode already joined or given up (its late record is counted, not kept)."""
         if ep in self.pending:
             return self.pending[ep]
-        if ep <= self.closed_upto or ep in self.closed:
+        if ep in self.settled:
             self.c.late_records += 1
-            self.resumed_late += ep in self.settled
-            if ep in self.settled and self.resumed_late & (self.resumed_late - 1) == 0:
-                log.warning("learner: a record of episode %d, which the learner this one resumed "
-                            "had settled, counted late (%d so far; a world started again? give "
-                            "it a --first-episode past the episodes it played)", ep,
-                            self.resumed_late)
+            self.settled.late(ep)
             return None
         self._heard(ep)
         self.pending[ep] = {"robots": {}, "first": time.monotonic()}
@@ -322,12 +269,7 @@ class Learner:
 
     def _close(self, ep: int) -> None:
         del self.pending[ep]
-        self.closed.add(ep)
-        self.last_closed = max(self.last_closed, ep)
-        if len(self.closed) > 100_000:  # a long run: forget the oldest half
-            old = sorted(self.closed)
-            self.closed_upto = max(self.closed_upto, old[49_999])
-            self.closed = set(old[50_000:])
+        self.settled.add(ep)
 
     def _accept(self, er: EpisodeRollout) -> None:
         if er.actions.shape[0] != self.cfg.horizon:  # a batch stacks whole episodes only
@@ -423,11 +365,8 @@ class Learner:
                               "train": dataclasses.asdict(self.tc),
                               "counters": dataclasses.asdict(self.c),
                               "pending": self.accounting()["pending"],  # (lost, if it stops)
-                              "workers": dict(self.worker_next),
-                              # (a late record of these is late for a resumed learner)
-                              "swarm_settled": sorted(self.closed)[-SETTLED_KEPT:]
-                              + sorted(self.pending),
-                              "swarm_closed_upto": self.closed_upto,
+                              "workers": dict(self.workers.next),
+                              **self.settled.state(self.pending),
                               **({} if self.seed is None else {"seed": self.seed})}
         with stops_held():  # (a Ctrl-C between the file's rename and this line: the stop line
             save_checkpoint(self.ckpt, payload)  # named the version before the file's)
@@ -473,7 +412,7 @@ class Learner:
                **(self.inbox.dropped if self.inbox is not None else {}),
                "accounting": self.accounting(),
                # what a lockstep world (swarm.net.learning.LearnerGate) waits for
-               "last_closed": self.last_closed,
+               "last_closed": self.settled.last,
                "update_due": not self.lc.gather_only and len(self.ready) >= self.tc.batch,
                "worker_episodes": self.c.worker_episodes,
                "rollout_bytes": self.c.rollout_bytes,
