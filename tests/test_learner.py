@@ -333,32 +333,42 @@ def test_weights_hot_swap_only_at_episode_boundaries(tmp_path: Path) -> None:
     assert st["incomplete"] == 0 and st["bad"] == 0, st
 
 
-@pytest.mark.procs
-def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> None:
-    """A learner fed by a rollout worker is SIGKILLed mid-training: every version it had
-    published is in its checkpoint; `--resume` continues from it (curve and versions carry on),
-    the worker keeps going meanwhile and the resumed learner keeps learning. A second worker of
-    the first one's id is refused."""
-    port = free_port()
-    hub = f"tcp/127.0.0.1:{port}"
-    out = tmp_path / "l"
-    cfg = world_toml(tmp_path, SMALL)
-    learner_args = ["learner", "--run-id", "dur", "--config", str(cfg), "--out", str(out),
-                    "--batch", "4", "--zenoh-mode", "router", "--listen", hub, "--policy", "vain"]
+@pytest.fixture(scope="module")
+def worker_learners(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """One rollout worker (`--batch 2`) fed to three learners of its run in turn, for the two
+    tests that judge what each step showed: the first (OUT l) SIGKILLed once it published
+    version 3, a second worker of the first one's id started meanwhile; the same learner again
+    with `--resume` until it published 2 more versions, then stopped by Ctrl-C; a fresh learner
+    (new OUT b) in its place, until it writes a checkpoint. The worker is then stopped by Ctrl-C
+    and started again for one batch. (One run for both tests: each started a learner and a
+    worker of its own.)"""
+    tmp = tmp_path_factory.mktemp("workers")
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    out, fresh = tmp / "l", tmp / "b"
+    cfg = world_toml(tmp, SMALL)
+
+    def learner(to: Path, log: str, *more: str) -> subprocess.Popen[bytes]:
+        return spawn("learner", "--run-id", "dur", "--config", str(cfg), "--out", str(to),
+                     "--batch", "4", "--zenoh-mode", "router", "--listen", hub, "--policy",
+                     "vain", *more, log=tmp / log)
+
+    got: dict[str, Any] = {"tmp": tmp, "out": out, "fresh": fresh}
     seen: list[int] = []
-    learner = spawn(*learner_args, log=tmp_path / "l1.log")
-    worker = None
+    lock = threading.Lock()
+
+    def on_weights(s: zenoh.Sample) -> None:
+        with lock:
+            seen.append(Weights.unpack(s.payload.to_bytes()).version)
+
+    procs: list[subprocess.Popen[Any]] = [learner(out, "l1.log")]
     try:
         _listening(hub)
-        worker = spawn("rollout-worker", "--run-id", "dur", "--connect", hub, "--zenoh-mode",
-                       "client", "--batch", "4", log=tmp_path / "w.log")
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "swarm.cli", "rollout-worker", "--run-id", "dur", "--connect",
+             hub, "--zenoh-mode", "client", "--batch", "2"], cwd=ROOT, stdout=subprocess.PIPE,
+            stderr=open(tmp / "w.log", "w"), text=True)  # noqa: SIM115
+        procs.append(worker)
         opts = ZenohOptions(mode="client", connect=[hub])
-        lock = threading.Lock()
-
-        def on_weights(s: zenoh.Sample) -> None:
-            with lock:
-                seen.append(Weights.unpack(s.payload.to_bytes()).version)
-
         with zenoh.open(opts.to_config()) as session:
             sub = session.declare_subscriber(Keys("dur").weights, on_weights)
             deadline = time.monotonic() + 90
@@ -370,40 +380,72 @@ def test_learner_sigkill_and_resume_with_a_rollout_worker(tmp_path: Path) -> Non
                          "--connect", hub, "--zenoh-mode", "client"], cwd=ROOT,
                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
                 time.sleep(0.05)
-            assert dup is not None
-            err = dup.communicate(timeout=60)[1]
-            assert dup.returncode == 2 and err.strip().splitlines()[-1] == (
-                "swarm: error: rollout worker 0 of run dur is running already (its liveliness "
-                "token is up)"), err
-            os.kill(learner.pid, signal.SIGKILL)
-            learner.wait(timeout=10)
+            if dup is not None:
+                got["dup"] = (dup.communicate(timeout=60)[1], dup.returncode)
+            os.kill(procs[0].pid, signal.SIGKILL)
+            procs[0].wait(timeout=10)
             with lock:
-                published = max(seen)
+                got["published"] = max(seen, default=0)
             sub.undeclare()
-        ck = load_checkpoint(out / "checkpoint.pt")
-        assert ck["learner"]["version"] >= published >= 3  # nothing acknowledged was lost
+        got["killed"] = load_checkpoint(out / "checkpoint.pt")
         time.sleep(1.0)
-        assert worker.poll() is None  # the worker goes on without its learner
-        learner = spawn(*learner_args, "--resume", log=tmp_path / "l2.log")
+        got["worker_on"] = worker.poll() is None  # (the worker without its learner)
+        procs[0] = learner(out, "l2.log", "--resume")
         seen.clear()
         _listening(hub)
-        with zenoh.open(ZenohOptions(mode="client", connect=[hub]).to_config()) as session:
+        with zenoh.open(opts.to_config()) as session:
             sub = session.declare_subscriber(Keys("dur").weights, on_weights)
             deadline = time.monotonic() + 90
-            target = ck["learner"]["version"] + 2
+            got["target"] = target = got["killed"]["learner"]["version"] + 2
             while time.monotonic() < deadline and max(seen, default=0) < target:
                 time.sleep(0.05)
             sub.undeclare()
-        assert max(seen) >= target, (seen, (tmp_path / "l2.log").read_text()[-800:])
+        with lock:
+            got["resumed"] = list(seen)
+        procs[0].send_signal(signal.SIGINT)  # the resumed learner goes; a fresh one replaces it
+        got["stopped"] = procs[0].wait(timeout=30)
+        got["stopped_version"] = load_checkpoint(out / "checkpoint.pt")["learner"]["version"]
+        procs[0] = learner(fresh, "b.log")
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (fresh / "checkpoint.pt").exists():
+            time.sleep(0.05)
+        got["worker_on_fresh"] = worker.poll() is None  # (the worker never stopped)
+        worker.send_signal(signal.SIGINT)
+        got["summary"] = worker.communicate(timeout=60)[0], worker.returncode
+        # the same worker again goes on after the last episode the learner heard from it
+        got["again"] = swarm("rollout-worker", "--run-id", "dur", "--connect", hub,
+                             "--zenoh-mode", "client", "--batch", "2", "--max-batches", "1",
+                             timeout=120)
     finally:
-        for p in (learner, worker):
-            if p is not None and p.poll() is None:
+        for p in procs:
+            if p.poll() is None:
                 p.send_signal(signal.SIGINT)
                 try:
-                    p.wait(timeout=5)
+                    p.wait(timeout=10)
                 except subprocess.TimeoutExpired:
                     p.kill()
-    rows = list(csv.DictReader((out / "curve.csv").open()))
+    return got
+
+
+@pytest.mark.procs
+def test_learner_sigkill_and_resume_with_a_rollout_worker(worker_learners: dict[str, Any]
+                                                          ) -> None:
+    """A learner fed by a rollout worker is SIGKILLed mid-training: every version it had
+    published is in its checkpoint; `--resume` continues from it (curve and versions carry on),
+    the worker keeps going meanwhile and the resumed learner keeps learning. A second worker of
+    the first one's id is refused. (The first two learners of `worker_learners`.)"""
+    w = worker_learners
+    assert "dup" in w  # (the second worker was started)
+    err, code = w["dup"]
+    assert code == 2 and err.strip().splitlines()[-1] == (
+        "swarm: error: rollout worker 0 of run dur is running already (its liveliness "
+        "token is up)"), err
+    ck = w["killed"]
+    assert ck["learner"]["version"] >= w["published"] >= 3  # nothing acknowledged was lost
+    assert w["worker_on"]  # the worker goes on without its learner
+    seen, target = w["resumed"], w["target"]
+    assert max(seen) >= target, (seen, (w["tmp"] / "l2.log").read_text()[-800:])
+    rows = list(csv.DictReader((w["out"] / "curve.csv").open()))
     updates = [int(r["update"]) for r in rows]
     assert updates == sorted(set(updates)) and updates[0] == 1  # no row repeated after resume
     elapsed = [float(r["elapsed_s"]) for r in rows]  # the run's time: it goes on across resume
@@ -669,62 +711,33 @@ def test_no_update_says_what_became_of_the_episodes_that_came() -> None:
 
 
 @pytest.mark.procs
-def test_a_rollout_worker_follows_a_fresh_learner_that_replaced_its_own(tmp_path: Path) -> None:
+def test_a_rollout_worker_follows_a_fresh_learner_that_replaced_its_own(
+        worker_learners: dict[str, Any]) -> None:
     """A learner fed by a rollout worker is stopped and a fresh one (new --out) takes its
     place: the worker kept the old one's weights, the new one rejected every episode played
     with them ("newer than its own v0") and never trained (UA pass). The worker now asks a
     learner that comes up for its weights, so the new learner trains. Both end by Ctrl-C, their
     usual end, and say what they did (they said nothing: the learner where its checkpoint is,
     the worker its summary). The same worker started again goes on where the new learner has
-    it."""
-    hub = f"tcp/127.0.0.1:{free_port()}"
-    cfg = world_toml(tmp_path, SMALL)
-
-    def learner(name: str) -> subprocess.Popen[Any]:
-        return spawn("learner", "--run-id", "swap", "--config", str(cfg), "--out",
-                     str(tmp_path / name), "--batch", "4", "--zenoh-mode", "router", "--listen",
-                     hub, "--policy", "vain", log=tmp_path / f"{name}.log")
-
-    procs: list[subprocess.Popen[Any]] = [learner("a")]
-    try:
-        _listening(hub)
-        procs.append(subprocess.Popen(
-            [sys.executable, "-m", "swarm.cli", "rollout-worker", "--run-id", "swap", "--connect",
-             hub, "--zenoh-mode", "client", "--batch", "2"], cwd=ROOT, stdout=subprocess.PIPE,
-            stderr=open(tmp_path / "w.log", "w"), text=True))  # noqa: SIM115
-        deadline = time.monotonic() + 120
-        a = tmp_path / "a" / "checkpoint.pt"
-        while time.monotonic() < deadline and not a.exists():
-            time.sleep(0.05)
-        assert a.exists(), (tmp_path / "a.log").read_text()
-        procs[0].send_signal(signal.SIGINT)  # the old learner goes, at v1 or later
-        assert procs[0].wait(timeout=30) == 0
-        version = load_checkpoint(a)["learner"]["version"]
-        assert (tmp_path / "a.log").read_text().strip().splitlines()[-1] == (
-            f"swarm learner: stopped; version {version} in {a}")
-        procs.append(learner("b"))
-        while time.monotonic() < deadline and not (tmp_path / "b" / "checkpoint.pt").exists():
-            time.sleep(0.05)
-        # (without the fix: no checkpoint, every worker episode rejected)
-        assert (tmp_path / "b" / "checkpoint.pt").exists(), (tmp_path / "b.log").read_text()
-        assert load_checkpoint(tmp_path / "b" / "checkpoint.pt")["learner"]["version"] >= 1
-        worker = procs[1]
-        assert worker.poll() is None  # the worker never stopped
-        worker.send_signal(signal.SIGINT)
-        summary = json.loads(worker.communicate(timeout=60)[0].strip().splitlines()[-1])
-        assert worker.returncode == 0 and summary["interrupted"] and summary["episodes"] > 0
-        # the same worker again goes on after the last episode the learner heard from it (it
-        # replayed its seed's episodes from 0)
-        again = swarm("rollout-worker", "--run-id", "swap", "--connect", hub, "--zenoh-mode",
-                      "client", "--batch", "2", "--max-batches", "1", timeout=120)
-        assert again.returncode == 0, again.stderr[-1500:]
-        second = json.loads(again.stdout.strip().splitlines()[-1])
-        assert (second["first_episode"], second["episodes"]) == (summary["episodes"], 2), second
-    finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                try:
-                    p.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+    it. (The old learner: the resumed one of `worker_learners`, at version 5 or later.)"""
+    w = worker_learners
+    a = w["out"] / "checkpoint.pt"
+    assert a.exists(), (w["tmp"] / "l2.log").read_text()
+    assert w["stopped"] == 0  # the old learner went by Ctrl-C
+    version = w["stopped_version"]
+    assert (w["tmp"] / "l2.log").read_text().strip().splitlines()[-1] == (
+        f"swarm learner: stopped; version {version} in {a}")
+    b = w["fresh"] / "checkpoint.pt"
+    # (without the fix: no checkpoint, every worker episode rejected)
+    assert b.exists(), (w["tmp"] / "b.log").read_text()
+    assert load_checkpoint(b)["learner"]["version"] >= 1
+    assert w["worker_on_fresh"]  # the worker never stopped
+    out, code = w["summary"]
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert code == 0 and summary["interrupted"] and summary["episodes"] > 0
+    # the same worker again goes on after the last episode the learner heard from it (it
+    # replayed its seed's episodes from 0)
+    again = w["again"]
+    assert again.returncode == 0, again.stderr[-1500:]
+    second = json.loads(again.stdout.strip().splitlines()[-1])
+    assert (second["first_episode"], second["episodes"]) == (summary["episodes"], 2), second

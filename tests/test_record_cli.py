@@ -83,23 +83,51 @@ def _cmdline(pid: int) -> bytes:
 
 
 # ------------------------------------------------------------ a recorder started by hand
+@pytest.fixture(scope="module")
+def hand_recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """One run (2 robots, 3 episodes of 20 ticks at 8 ticks/s: ~7.5 s) and two recorders
+    started by hand as the README shows them (`swarm record --run-id R --out F`, no --connect):
+    `early` started 2 s before the run (whether it was still waiting then is noted), `late`
+    after the run's first tick. (One run for the two tests below; each started its own.)"""
+    tmp = tmp_path_factory.mktemp("hand")
+    early, late = tmp / "early.mcap", tmp / "late.mcap"
+    got: dict[str, Any] = {"early": early, "late": late}
+    rec = subprocess.Popen([sys.executable, "-m", "swarm.cli", "record", "--run-id", "rec15late",
+                            "--out", str(early), "--wait", "60"], cwd=ROOT,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(2.0)  # the recorder is looking for the run
+        got["waiting"] = rec.poll() is None
+        run = swarm_started("run", "--headless", "--robots", "2", "--episodes", "3", "--horizon",
+                            "20", "--pace", "8", "--run-id", "rec15late", "--log-dir",
+                            str(tmp / "logs"))
+        try:
+            got["late_rec"] = swarm("record", "--run-id", "rec15late", "--out", str(late),
+                                    "--wait", "10", timeout=60)
+            _, err = run.communicate(timeout=60)  # (its status lines drained, or it blocks)
+            got["run"] = (run.returncode, err)
+        finally:
+            if run.poll() is None:
+                run.kill()
+        got["early_rec"] = (rec.communicate(timeout=60), rec.returncode)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+    return got
+
+
 @pytest.mark.procs
-def test_swarm_record_joins_a_local_run_by_its_id_late(tmp_path: Path) -> None:
+def test_swarm_record_joins_a_local_run_by_its_id_late(hand_recorded: dict[str, Any],
+                                                       tmp_path: Path) -> None:
     """`swarm record --run-id R --out F` as the README shows it (no --connect) finds the run
     this machine started, here after its first tick: replay names the ticks the file holds,
-    --verify refuses it in one line (it re-steps a run from its start), --from past its end too."""
-    f = tmp_path / "late.mcap"
-    run = swarm_started("run", "--headless", "--robots", "2", "--episodes", "3", "--horizon",
-                        "20", "--pace", "8", "--run-id", "rec15late", "--log-dir",
-                        str(tmp_path / "logs"))
-    try:
-        r = swarm("record", "--run-id", "rec15late", "--out", str(f), "--wait", "10", timeout=60)
-        assert r.returncode == 0, r.stderr[-1500:]
-        _, err = run.communicate(timeout=60)  # (its status lines drained, or it blocks)
-        assert run.returncode == 0, err[-1500:]
-    finally:
-        if run.poll() is None:
-            run.kill()
+    --verify refuses it in one line (it re-steps a run from its start), --from past its end too.
+    (The `late` recorder of `hand_recorded`.)"""
+    f = hand_recorded["late"]
+    r = hand_recorded["late_rec"]
+    assert r.returncode == 0, r.stderr[-1500:]
+    code, err = hand_recorded["run"]
+    assert code == 0, err[-1500:]
     r = swarm("replay", str(f), "--speed", "0")
     first, last = (int(x) for x in r.stdout.split("(ticks ")[1].split(";")[0].split(".."))
     assert r.returncode == 0 and 0 < first < last == 60, r.stdout[-300:]
@@ -125,24 +153,17 @@ def test_swarm_record_joins_a_local_run_by_its_id_late(tmp_path: Path) -> None:
 
 
 @pytest.mark.procs
-def test_swarm_record_started_before_its_run_waits_for_it(tmp_path: Path) -> None:
+def test_swarm_record_started_before_its_run_waits_for_it(hand_recorded: dict[str, Any]
+                                                          ) -> None:
     """UA pass: `swarm record --run-id R` started before the run exited at once ("no running
-    swarm"), though its --wait waits for the world; it now waits for the run to start."""
-    f = tmp_path / "early.mcap"
-    rec = subprocess.Popen([sys.executable, "-m", "swarm.cli", "record", "--run-id", "rec15early",
-                            "--out", str(f), "--wait", "60"], cwd=ROOT, stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
-    try:
-        time.sleep(2.0)  # the recorder is looking for the run
-        assert rec.poll() is None, rec.communicate()
-        r = swarm("run", "--headless", "--robots", "2", "--episodes", "2", "--horizon", "20",
-                  "--run-id", "rec15early", "--log-dir", str(tmp_path / "logs"), timeout=120)
-        assert r.returncode == 0, r.stderr[-1500:]
-        _, err = rec.communicate(timeout=60)
-        assert rec.returncode == 0, err[-1500:]
-    finally:
-        if rec.poll() is None:
-            rec.kill()
+    swarm"), though its --wait waits for the world; it now waits for the run to start. (The
+    `early` recorder of `hand_recorded`.)"""
+    f = hand_recorded["early"]
+    (out, err), code = hand_recorded["early_rec"]
+    assert hand_recorded["waiting"], (out, err)
+    code_run, err_run = hand_recorded["run"]
+    assert code_run == 0, err_run[-1500:]
+    assert code == 0, err[-1500:]
     r = swarm("replay", str(f), "--speed", "0")
     assert r.returncode == 0 and "(ticks " in r.stdout, r.stdout[-300:] + r.stderr[-300:]
 
