@@ -212,10 +212,11 @@ def test_swarm_loss_statistics_and_partition_counts(tmp_path: Path) -> None:
 def test_on_the_real_clock_late_copies_sum_over_kinds_and_stale_messages_are_apart(
         tmp_path: Path) -> None:
     """`late` counts copies (the sum of `by_kind[*].late`); messages that reached the world
-    after their tick are whole messages, counted as `stale` on both clocks."""
-    res = _run(tmp_path, "rlate", "--robots", "3", "--episodes", "1", "--seed", "2", "--clock",
-               "real", "--tick-timeout", "0.5", "--latency", "350ms", "--jitter", "100ms",
-               "--loss", "0.3")
+    after their tick are whole messages, counted as `stale` on both clocks. (10 ticks are plenty:
+    ~40 copies get through the loss, a dozen or more of them late.)"""
+    res = _run(tmp_path, "rlate", "--robots", "3", "--episodes", "1", "--horizon", "10",
+               "--seed", "2", "--clock", "real", "--tick-timeout", "0.5", "--latency", "350ms",
+               "--jitter", "100ms", "--loss", "0.3")
     m = res["messages"]
     assert m["late"] > 0 and m["late"] == sum(k["late"] for k in m["by_kind"].values())
     assert isinstance(m["stale"], int) and m["stale"] >= 0

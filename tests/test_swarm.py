@@ -41,16 +41,52 @@ def run_procs(run_id: str) -> list[int]:
     return pids
 
 
+@pytest.fixture(scope="module")
+def side_by_side(tmp_path_factory: pytest.TempPathFactory
+                 ) -> dict[str, tuple[set[Path], subprocess.CompletedProcess[str], Path]]:
+    """Two nearest-frontier runs of 2 episodes played at once, for two tests (one run fewer
+    than each playing its own): `eqnear` (4 robots, seed 11) is the nearest-frontier case of
+    test_swarm_run_matches_batched_eval_tick_by_tick, `sideB` (3 robots, seed 4) its neighbour
+    for test_two_runs_side_by_side_do_not_cross_talk. Per run id: the run's temp folders before
+    it started, its exit status, stdout and stderr, and its result file."""
+    tmp, temp = tmp_path_factory.mktemp("side"), Path(tempfile.gettempdir())
+    procs: dict[str, tuple[set[Path], subprocess.Popen[str]]] = {}
+    try:
+        for run_id, robots, seed in (("eqnear", 4, 11), ("sideB", 3, 4)):
+            before = set(temp.glob(f"swarm-{run_id}-*"))
+            with open(tmp / f"{run_id}.out", "w") as out, open(tmp / f"{run_id}.err", "w") as err:
+                procs[run_id] = before, subprocess.Popen(
+                    [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots",
+                     str(robots), "--policy", "nearest-frontier", "--episodes", "2", "--seed",
+                     str(seed), "--run-id", run_id, "--json", str(tmp / f"{run_id}.json")],
+                    cwd=ROOT, stdout=out, stderr=err, text=True)
+        runs = {}
+        for run_id, (before, proc) in procs.items():
+            code = proc.wait(timeout=120)
+            runs[run_id] = before, subprocess.CompletedProcess(
+                proc.args, code, (tmp / f"{run_id}.out").read_text(),
+                (tmp / f"{run_id}.err").read_text()), tmp / f"{run_id}.json"
+        return runs
+    finally:
+        for _, proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+
+
 @pytest.mark.procs
 @pytest.mark.parametrize("policy,episodes", [("nearest-frontier", 2), ("team-beam", 2),
                                              ("chain-plan", 1)])  # (chain-plan's are slow)
-def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, policy: str,
-                                                     episodes: int) -> None:
-    out = tmp_path / "run.json"
+def test_swarm_run_matches_batched_eval_tick_by_tick(tmp_path: Path, request: pytest.FixtureRequest,
+                                                     policy: str, episodes: int) -> None:
     temp = Path(tempfile.gettempdir())
-    before = set(temp.glob(f"swarm-eq{policy[:4]}-*"))
-    r = swarm("run", "--headless", "--robots", "4", "--policy", policy, "--episodes",
-              str(episodes), "--seed", "11", "--run-id", "eq" + policy[:4], "--json", str(out))
+    if policy == "nearest-frontier":  # (played beside another run: the `side_by_side` fixture)
+        before, r, out = request.getfixturevalue("side_by_side")["eq" + policy[:4]]
+    else:
+        out = tmp_path / "run.json"
+        before = set(temp.glob(f"swarm-eq{policy[:4]}-*"))
+        r = swarm("run", "--headless", "--robots", "4", "--policy", policy, "--episodes",
+                  str(episodes), "--seed", "11", "--run-id", "eq" + policy[:4], "--json",
+                  str(out))
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
     assert "logs" not in res and set(temp.glob(f"swarm-eq{policy[:4]}-*")) == before  # tidied
@@ -84,15 +120,27 @@ def test_run_json_records_the_run_config_that_made_it(tmp_path: Path) -> None:
     assert (run["policy"], run["episodes"], run["checkpoint"]) == ("nearest-frontier", 1, None)
 
 
+@pytest.fixture(scope="module")
+def range_logdir_run(tmp_path_factory: pytest.TempPathFactory
+                     ) -> tuple[subprocess.CompletedProcess[str], Path, set[Path]]:
+    """One run for two tests (one run instead of two): 3 random robots, one episode, with
+    `--comm-range 0` (the range test) and `--log-dir` (the temp folder test). Its process, its
+    folder (run.json, logs/) and its run id's temp folders before it started."""
+    tmp, temp = tmp_path_factory.mktemp("logdir1"), Path(tempfile.gettempdir())
+    before = set(temp.glob("swarm-logdir1-*"))
+    r = swarm("run", "--headless", "--robots", "3", "--policy", "random", "--episodes", "1",
+              "--comm-range", "0", "--run-id", "logdir1", "--log-dir", str(tmp / "logs"),
+              "--json", str(tmp / "run.json"))
+    return r, tmp, before
+
+
 @pytest.mark.procs
-def test_a_run_with_a_log_dir_leaves_nothing_in_the_temp_folder(tmp_path: Path) -> None:
+def test_a_run_with_a_log_dir_leaves_nothing_in_the_temp_folder(
+        range_logdir_run: tuple[subprocess.CompletedProcess[str], Path, set[Path]]) -> None:
     """--log-dir: the logs and the run's spec are in the log dir; the temp folder the run
     made for its children (the spec, the world's result file) is gone after a clean run."""
-    temp, logs = Path(tempfile.gettempdir()), tmp_path / "logs"
-    before = set(temp.glob("swarm-logdir1-*"))
-    r = swarm("run", "--headless", "--robots", "3", "--episodes", "1", "--policy",
-              "nearest-frontier", "--run-id", "logdir1", "--log-dir", str(logs), "--json",
-              str(tmp_path / "r.json"))
+    r, tmp, before = range_logdir_run
+    temp, logs = Path(tempfile.gettempdir()), tmp / "logs"
     assert r.returncode == 0, r.stderr
     assert set(temp.glob("swarm-logdir1-*")) == before
     spec = json.loads((logs / "spec.json").read_text())
@@ -100,13 +148,12 @@ def test_a_run_with_a_log_dir_leaves_nothing_in_the_temp_folder(tmp_path: Path) 
 
 
 @pytest.mark.procs
-def test_range_limited_delivery_out_of_range_hears_nothing(tmp_path: Path) -> None:
+def test_range_limited_delivery_out_of_range_hears_nothing(
+        range_logdir_run: tuple[subprocess.CompletedProcess[str], Path, set[Path]]) -> None:
     """comm_range 0: every bundle holds exactly the receiver's own message."""
-    out = tmp_path / "run.json"
-    r = swarm("run", "--headless", "--robots", "3", "--policy", "random", "--episodes", "1",
-              "--comm-range", "0", "--run-id", "range0", "--json", str(out))
+    r, tmp, _ = range_logdir_run
     assert r.returncode == 0, r.stderr
-    res = json.loads(out.read_text())
+    res = json.loads((tmp / "run.json").read_text())
     m = res["messages"]
     assert m["traj_delivered"] == m["traj_in"] == 3 * 30
     assert m["out_of_range"] > 0
@@ -155,8 +202,18 @@ def _hub_of(run_id: str) -> str:
     raise AssertionError("no robot process found")
 
 
-def test_killed_robot_is_noticed_and_mission_goes_on(tmp_path: Path) -> None:
-    res = _run_killing_robot("killone", 1, tmp_path / "run.json", "--episodes", "6", timeout=90)
+@pytest.fixture(scope="module")
+def killed_robot(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, str, dict]:
+    """An unpaced 6-episode run of 3 robots whose robot 2 is SIGKILLed by nobody's plan once it
+    plays, for two tests (one run instead of two): its exit status, stderr and result."""
+    return upset_run(tmp_path_factory.mktemp("killone"), "killone", 3, b"--id\x002\x00",
+                     lambda pid: os.kill(pid, signal.SIGKILL), episodes=6, pace=None)
+
+
+def test_killed_robot_is_noticed_and_mission_goes_on(killed_robot: tuple[int, str, dict]
+                                                     ) -> None:
+    code, err, res = killed_robot
+    assert code == 0, err[-2000:]
     assert res["completed"] == 6
     assert res["robots_lost"] == 1
     assert res["robot_crashes"] == 1
@@ -215,18 +272,15 @@ def test_a_ctrl_c_while_the_cli_loads_is_not_lost() -> None:
 
 
 @pytest.mark.procs
-def test_two_runs_side_by_side_do_not_cross_talk(tmp_path: Path) -> None:
-    procs = []
-    for run_id, seed in (("sideA", 3), ("sideB", 4)):
-        procs.append((seed, tmp_path / f"{run_id}.json", subprocess.Popen(
-            [sys.executable, "-m", "swarm.cli", "run", "--headless", "--robots", "3", "--policy",
-             "nearest-frontier", "--episodes", "2", "--seed", str(seed), "--run-id", run_id,
-             "--json", str(tmp_path / f"{run_id}.json")],
-            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)))
-    cfg = WorldConfig(n_robots=3)
-    for seed, path, proc in procs:
-        assert proc.wait(timeout=120) == 0
+def test_two_runs_side_by_side_do_not_cross_talk(
+        side_by_side: dict[str, tuple[set[Path], subprocess.CompletedProcess[str], Path]]
+) -> None:
+    # (the two runs of the `side_by_side` fixture, played at once)
+    for run_id, robots, seed in (("eqnear", 4, 11), ("sideB", 3, 4)):
+        _, r, path = side_by_side[run_id]
+        assert r.returncode == 0, r.stderr[-2000:]
         res = json.loads(path.read_text())
+        cfg = WorldConfig(n_robots=robots)
         ev = evaluate(cfg, make_policy("nearest-frontier", cfg), seed, 2, record_actions=True)
         assert np.array_equal(np.array(res["actions"]), np.stack(ev.actions, 1))
         assert res["messages"]["bad"] == 0 and res["messages"]["late"] == 0
@@ -588,13 +642,16 @@ def test_a_chained_robot_that_cannot_decide_says_so_to_its_successor(tmp_path: P
 
 
 def upset_run(tmp_path: Path, run_id: str, robots: int, mark: bytes,
-              upset: Callable[[int], None]) -> tuple[int, str, dict]:
-    """A paced 3-episode run of `robots` nearest-frontier robots; once it plays, `upset` the
-    pid of its process whose command line holds `mark`. Its exit status, stderr and result."""
+              upset: Callable[[int], None], episodes: int = 3,
+              pace: int | None = 10) -> tuple[int, str, dict]:
+    """A run of `robots` nearest-frontier robots (3 episodes at 10 ticks/s unless told); once
+    it plays, `upset` the pid of its process whose command line holds `mark`. Its exit status,
+    stderr and result."""
     out = tmp_path / "r.json"
     proc = swarm_started("run", "--headless", "--robots", str(robots), "--policy",
-                         "nearest-frontier", "--episodes", "3", "--seed", "1", "--run-id", run_id,
-                         "--pace", "10", "--json", str(out))
+                         "nearest-frontier", "--episodes", str(episodes), "--seed", "1",
+                         "--run-id", run_id, "--json", str(out),
+                         *(["--pace", str(pace)] if pace else []))
     try:
         upset(next(p for p in run_procs(run_id)
                    if mark in Path(f"/proc/{p}/cmdline").read_bytes()))
@@ -606,12 +663,12 @@ def upset_run(tmp_path: Path, run_id: str, robots: int, mark: bytes,
 
 
 @pytest.mark.procs
-def test_a_robot_killed_by_nobody_is_counted_and_said(tmp_path: Path) -> None:
+def test_a_robot_killed_by_nobody_is_counted_and_said(killed_robot: tuple[int, str, dict]
+                                                      ) -> None:
     """A robot process that dies unplanned (SIGKILL, no error line in its log) is a crash and
     a warning line; the run goes on without it. Before, it was counted silently (exit 0, no
-    word): only a death with an error in the log was said."""
-    code, err, res = upset_run(tmp_path, "unplanned", 3, b"--id\x002\x00",
-                               lambda pid: os.kill(pid, signal.SIGKILL))
+    word): only a death with an error in the log was said. (The `killed_robot` fixture's run.)"""
+    code, err, res = killed_robot
     assert code == 0 and "robot 2 failed: killed by SIGKILL" in err, err
     assert res["robot_crashes"] == 1 and res["child_errors"] == {"robot 2": "killed by SIGKILL"}
 
