@@ -335,12 +335,14 @@ def test_a_process_fault_to_a_world_by_hand_is_refused_and_a_link_fault_goes(
     from swarm.net.zconfig import ZenohOptions, free_port
 
     run_id, hub, out = "handpf", f"tcp/127.0.0.1:{free_port()}", tmp_path / "w.json"
+    logs = [tmp_path / f"p{k}.log" for k in range(3)]  # (a failure shows why a process ended)
+    commands = (["world", "--robots", "2", "--policy", "random", "--episodes", "1000", "--pace",
+                 "20", "--listen", hub, "--json", str(out)],
+                ["robot", "--id", "0", "--connect", hub], ["robot", "--id", "1", "--connect", hub])
     procs = [subprocess.Popen([sys.executable, "-m", "swarm.cli", *args, "--run-id", run_id],
-                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-             for args in (["world", "--robots", "2", "--policy", "random", "--episodes", "1000",
-                           "--pace", "20", "--listen", hub, "--json", str(out)],
-                          ["robot", "--id", "0", "--connect", hub],
-                          ["robot", "--id", "1", "--connect", hub])]
+                              cwd=ROOT, stdout=subprocess.DEVNULL,
+                              stderr=log.open("w"))  # noqa: SIM115
+             for log, args in zip(logs, commands, strict=True)]
     try:
         bad = [subprocess.Popen([sys.executable, "-m", "swarm.cli", "fault", "--run", run_id,
                                  "--connect", hub, "--wait", "60", *args], cwd=ROOT,
@@ -355,7 +357,7 @@ def test_a_process_fault_to_a_world_by_hand_is_refused_and_a_link_fault_goes(
         assert r.returncode == 0, r.stderr  # (it returns once a status came after the change)
         with zenoh.open(ZenohOptions(connect=[hub]).to_config()) as s:
             s.put(Keys(run_id).control, pack_record(K_CONTROL, {"stop": True}))
-            assert procs[0].wait(timeout=30) == 3
+            assert procs[0].wait(timeout=30) == 3, logs[0].read_text()[-1500:]
     finally:
         for p in procs:
             if p.poll() is None:
