@@ -385,9 +385,11 @@ def test_on_the_real_clock_direct_delivery_decides_as_the_radio(tmp_path: Path,
                                                                faults: dict[str, str]) -> None:
     """`--clock real` (as `--netns` forces): robots time their copies on their own clocks; with
     latencies far from the deadline (0.4 s of a 0.5 s tick) both modes hear, count and act
-    alike (timing-bound counts, queues and near-deadline lateness, vary run to run in both)."""
+    alike (timing-bound counts, queues and near-deadline lateness, vary run to run in both).
+    (Two 10-tick episodes: an episode's change on the real clock, and copies enough to lose,
+    cut or be late.)"""
     tag = "late" if faults["latency"] == "600ms" else "ok"
-    extra = ("--episodes", "2", "--clock", "real", "--tick-timeout", "0.5")
+    extra = ("--episodes", "2", "--horizon", "10", "--clock", "real", "--tick-timeout", "0.5")
     radio = _run(tmp_path, f"rr{tag}", "nearest-frontier", faults, *extra)
     direct = _run(tmp_path, f"dr{tag}", "nearest-frontier", faults, *extra, "--delivery", "direct")
     assert direct["clock"] == "real" and direct["delivery"] == "direct"

@@ -369,15 +369,29 @@ def test_the_advice_for_a_certificate_tls_would_refuse_works_as_given(
         Secure.load(d, "supervisor", "x", 2, need=need)
 
 
+@pytest.fixture(scope="module")
+def recorded_secure_run(certs: Path, tmp_path_factory: pytest.TempPathFactory
+                        ) -> tuple[subprocess.CompletedProcess[str], Path]:
+    """One short clean secure run for two tests (one run instead of two): 3 random robots, one
+    8-tick episode, `--record` (the recording test) and no --log-dir, under a TMPDIR of its own
+    (the temp folder test). Its process and its folder: sec.mcap, res.json and tmp/ (the
+    TMPDIR it ran under)."""
+    d = tmp_path_factory.mktemp("secrun")
+    (d / "tmp").mkdir()
+    r = swarm("run", "--secure", str(certs), "--robots", "3", "--episodes", "1", "--horizon",
+              "8", "--policy", "random", "--headless", "--record", str(d / "sec.mcap"),
+              "--json", str(d / "res.json"), env={"TMPDIR": str(d / "tmp")}, timeout=120)
+    return r, d
+
+
 @pytest.mark.procs
-def test_a_secure_run_records_and_its_recording_verifies(certs: Path, tmp_path: Path) -> None:
+def test_a_secure_run_records_and_its_recording_verifies(
+        recorded_secure_run: tuple[subprocess.CompletedProcess[str], Path]) -> None:
     """`--secure` with `--record`: the recorder joins on TLS under its own identity (its
     endpoint and config come from the supervisor), and the file verifies."""
-    out = tmp_path / "sec.mcap"
-    r = swarm("run", "--secure", str(certs), "--robots", "3", "--episodes", "1", "--horizon",
-              "8", "--policy", "random", "--headless", "--record", str(out), timeout=120)
+    r, d = recorded_secure_run
     assert r.returncode == 0, r.stderr[-2000:]
-    v = swarm("replay", str(out), "--verify", timeout=60)
+    v = swarm("replay", str(d / "sec.mcap"), "--verify", timeout=60)
     assert v.returncode == 0 and "every one as recorded" in v.stdout, v.stdout + v.stderr
 
 
@@ -462,18 +476,16 @@ def test_foreign_peers_get_nothing_into_a_secure_run(certs: Path, tmp_path: Path
 
 
 @pytest.mark.procs
-def test_a_clean_secure_run_leaves_no_temp_folder(certs: Path, tmp_path: Path) -> None:
+def test_a_clean_secure_run_leaves_no_temp_folder(
+        recorded_secure_run: tuple[subprocess.CompletedProcess[str], Path]) -> None:
     """A clean `--secure` run kept its temp folder (robot logs and the session configs, which
     nothing reads once the run's processes are gone), though `--log-dir` says a clean run's
     is removed; now it goes as a plain run's does, and the result names no folder."""
-    tmp = tmp_path / "tmp"
-    tmp.mkdir()
-    r = swarm("run", "--secure", str(certs), "--robots", "2", "--episodes", "1", "--horizon",
-              "4", "--policy", "random", "--headless", "--json", str(tmp_path / "res.json"),
-              env={"TMPDIR": str(tmp)}, timeout=120)
+    r, d = recorded_secure_run  # (a recording run: its recorder's files go with the folder)
+    tmp = d / "tmp"
     assert r.returncode == 0, r.stderr[-2000:]
     assert [p.name for p in tmp.iterdir() if p.name != "swarm-runs"] == []
-    res = json.loads((tmp_path / "res.json").read_text())
+    res = json.loads((d / "res.json").read_text())
     assert "logs" not in res and res["secure"]["hub"].startswith("tls/127.0.0.1:")
     assert "configs" not in res["secure"]
 
