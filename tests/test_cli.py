@@ -180,25 +180,29 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str],
 
 @pytest.mark.procs
 @pytest.mark.parametrize("policy", [[], ["--policy", "commattn"]], ids=["default", "given"])
-def test_a_checkpoint_for_a_name_that_is_no_policy_says_so(policy: list[str]) -> None:
+def test_a_checkpoint_for_a_name_that_is_no_policy_says_so(
+        policy: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     """`--checkpoint NAME=FILE` with an unknown NAME is refused as no policy (it was taken for a
     file and "not found"); a policy not evaluated is named as not among --policy."""
-    r = swarm("eval", *policy, "--checkpoint", "foo=checkpoints/commattn.pt")
+    r = swarm_here("eval", *policy, "--checkpoint", "foo=checkpoints/commattn.pt", capsys=capsys)
     assert r.returncode == 2 and r.stderr.strip() == (
         "swarm: error: --checkpoint foo=...: 'foo' is not a policy (learned ones: bicnet, "
         "commattn, commnet, vain)"), r.stderr
-    r = swarm("eval", *policy, "--checkpoint", "commnet=checkpoints/commnet.pt")
+    r = swarm_here("eval", *policy, "--checkpoint", "commnet=checkpoints/commnet.pt",
+                   capsys=capsys)
     assert r.returncode == 2 and "'commnet' is not among --policy" in r.stderr, r.stderr
 
 
 @pytest.mark.procs
-def test_config_file_unknown_key_and_table_rejected(tmp_path: Path) -> None:
+def test_config_file_unknown_key_and_table_rejected(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
     for body, word in [("[world]\nn_robotz = 3\n", "n_robotz"),
                        ("[eval]\nepisodez = 3\n", "episodez"),
                        ("[wrold]\nn_robots = 3\n", "wrold")]:
         cfg = tmp_path / "exp.toml"
         cfg.write_text(body)
-        r = swarm("eval", "--policy", "random", "--episodes", "2", "--config", str(cfg))
+        r = swarm_here("eval", "--policy", "random", "--episodes", "2", "--config", str(cfg),
+                       capsys=capsys)
         assert r.returncode == 2
         assert len(r.stderr.strip().splitlines()) == 1 and word in r.stderr
 
@@ -435,7 +439,7 @@ def _render(table: object) -> str:
     return console.export_text()
 
 
-def test_renderers_show_the_figures() -> None:
+def test_renderers_show_the_figures(capsys: pytest.CaptureFixture[str]) -> None:
     s = {"policy": "nearest-frontier", "elratio_mean": 0.8531, "elratio_std": 0.0412,
          "reward_mean": -71.25, "reward_std": 20.0, "collisions_mean": 4.5,
          "block_collisions_mean": 0.25, "success_rate": 0.375, "planning_ms_per_decision": 0.1234}
@@ -444,7 +448,7 @@ def test_renderers_show_the_figures() -> None:
         assert x in text
     for bad, why in ((["certs", "--out", str(Path(__file__)) + "/x", "--robots", "1"],
                       "which is not a directory"),):  # (a path under a file: errno, exit 1)
-        r = swarm(*bad)
+        r = swarm_here(*bad, capsys=capsys)
         assert r.returncode == 2 and why in r.stderr and r.stderr.count("\n") == 1, r.stderr
     # on an 80-column terminal every figure stays whole (it was `0.…`), the sd left out
     t = {**s, "policy": "coordinated-frontier", "reward_mean": -295.67, "collisions_mean": 87.0,
@@ -496,7 +500,8 @@ def test_renderers_show_the_figures() -> None:
 
 
 @pytest.mark.procs
-def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
+def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
     """A real (tiny) training run's checkpoint and curve feed Table 2 and Fig. 8."""
     run = tmp_path / "run"
     r = swarm("train", "--policy", "vain", "--out", str(run), "--epochs", "1", "--updates", "3",
@@ -526,8 +531,8 @@ def test_repro_table2_and_fig8_with_a_learned_policy(tmp_path: Path) -> None:
     fig8 = list(csv.DictReader((out / "fig8.csv").open()))
     assert [int(row["update"]) for row in fig8] == [3] and fig8[0]["policy"] == "vain"
     assert (out / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    bad = swarm("repro", "fig8", "--out", str(out), "--policies", "vain", "--curve",
-                f"vain={tmp_path / 'missing.csv'}")
+    bad = swarm_here("repro", "fig8", "--out", str(out), "--policies", "vain", "--curve",
+                     f"vain={tmp_path / 'missing.csv'}", capsys=capsys)
     assert bad.returncode == 2 and "no training curve" in bad.stderr
 
 
@@ -621,7 +626,8 @@ def test_repro_comm_compares_learned_frontier_and_a_perfect_radio(tmp_path: Path
 
 
 @pytest.mark.procs
-def test_a_killed_repro_comm_resumes_to_the_same_files(tmp_path: Path) -> None:
+def test_a_killed_repro_comm_resumes_to_the_same_files(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`swarm repro comm` SIGKILLed mid-study, then `--resume`d: the cells it had made are kept
     (not played again) and the study's CSV equals an uninterrupted run's; a resume with other
     settings, or with nothing to resume, is one line, exit 2."""
@@ -629,7 +635,21 @@ def test_a_killed_repro_comm_resumes_to_the_same_files(tmp_path: Path) -> None:
     cfg.write_text("[repro]\ncomm_episodes = 2\n")
     args = ["repro", "comm", "--config", str(cfg), "--seed", "2", "--batch", "2",
             "--comm-policies", "nearest-frontier,random"]
-    assert swarm(*args, "--out", str(tmp_path / "whole")).returncode == 0
+    whole = subprocess.Popen([sys.executable, "-m", "swarm.cli", *args, "--out",
+                              str(tmp_path / "whole")], cwd=ROOT, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    kept: dict = {}  # the uninterrupted run's cells, its partial file as last seen (for the end)
+    try:
+        while whole.poll() is None:
+            try:
+                kept = json.loads((tmp_path / "whole" / "comm.partial.json").read_text())["cells"]
+            except (OSError, ValueError):
+                pass
+            time.sleep(0.05)
+    finally:
+        if whole.poll() is None:
+            whole.kill()
+    assert whole.wait(timeout=300) == 0
     partial = tmp_path / "cut" / "comm.partial.json"
     proc = subprocess.Popen([sys.executable, "-m", "swarm.cli", *args, "--out",
                              str(tmp_path / "cut")], cwd=ROOT, stdout=subprocess.DEVNULL,
@@ -643,22 +663,24 @@ def test_a_killed_repro_comm_resumes_to_the_same_files(tmp_path: Path) -> None:
         proc.wait(timeout=30)
     made = json.loads(partial.read_text())["cells"]
     assert 1 <= len(made) < 24 and not (tmp_path / "cut" / "comm.csv").exists()
-    other = swarm(*args[:-2], "--comm-policies", "nearest-frontier", "--out",
-                  str(tmp_path / "cut"), "--resume")
+    other = swarm_here(*args[:-2], "--comm-policies", "nearest-frontier", "--out",
+                       str(tmp_path / "cut"), "--resume", capsys=capsys)
     assert other.returncode == 2 and other.stderr.strip().splitlines() == [
         f"swarm: error: --resume: the interrupted comm in {tmp_path / 'cut'} was made with "
         "other policies; give its settings, or drop --resume to start again"], other.stderr
-    more = swarm(*args, "--comm-episodes", "3", "--out", str(tmp_path / "cut"), "--resume")
+    more = swarm_here(*args, "--comm-episodes", "3", "--out", str(tmp_path / "cut"), "--resume",
+                      capsys=capsys)
     assert more.returncode == 2 and "was made with other episodes;" in more.stderr, more.stderr
-    every = swarm("repro", "all", *args[2:], "--out", str(tmp_path / "cut"), "--resume")
+    every = swarm_here("repro", "all", *args[2:], "--out", str(tmp_path / "cut"), "--resume",
+                       capsys=capsys)
     assert every.returncode == 2 and "goes on with an interrupted comm, alone" in every.stderr
-    none = swarm(*args, "--out", str(tmp_path / "none"), "--resume")
+    none = swarm_here(*args, "--out", str(tmp_path / "none"), "--resume", capsys=capsys)
     assert none.returncode == 2 and "no interrupted comm" in none.stderr, none.stderr
     held = json.loads(partial.read_text())  # a cell cut short (hand-edited, or not ours)
     next(iter(held["cells"].values()))["elratio"].pop()
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "comm.partial.json").write_text(json.dumps(held))
-    bad = swarm(*args, "--out", str(tmp_path / "bad"), "--resume")
+    bad = swarm_here(*args, "--out", str(tmp_path / "bad"), "--resume", capsys=capsys)
     assert bad.returncode == 2 and bad.stderr.strip().splitlines() == [
         f"swarm: error: --resume: {tmp_path / 'bad' / 'comm.partial.json'} is not a comm "
         "study's cells"], bad.stderr
@@ -668,9 +690,11 @@ def test_a_killed_repro_comm_resumes_to_the_same_files(tmp_path: Path) -> None:
     assert not partial.exists()  # the item's files hold every cell now
     assert (tmp_path / "cut" / "comm.csv").read_text() == \
         (tmp_path / "whole" / "comm.csv").read_text()
-    cell = next(iter(made))  # a kept cell is read, not played again: one kept, marked
-    held["cells"] = {cell: {**made[cell], "summary": {**made[cell]["summary"],
-                                                      "elratio_mean": 0.123456}}}
+    # a kept cell is read, not played again: the uninterrupted run's cells kept (any missing
+    # from its last partial seen are played), one of them marked
+    cell = next(iter(made))
+    held["cells"] = {**kept, cell: {**made[cell], "summary": {**made[cell]["summary"],
+                                                              "elratio_mean": 0.123456}}}
     (tmp_path / "bad" / "comm.partial.json").write_text(json.dumps(held))
     assert swarm(*args, "--out", str(tmp_path / "bad"), "--resume").returncode == 0
     rows = list(csv.DictReader((tmp_path / "bad" / "comm.csv").open()))
@@ -695,13 +719,14 @@ def test_repro_comm_without_commattn_needs_no_commattn_checkpoint(tmp_path: Path
 
 
 @pytest.mark.procs
-def test_repro_comm_takes_the_policies_and_checkpoints_it_is_given(tmp_path: Path) -> None:
+def test_repro_comm_takes_the_policies_and_checkpoints_it_is_given(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`--comm-policies` chooses the study's policies (the first paired against the others) and a
     given checkpoint runs on both map sizes; a bad name is a one-line error."""
     cfg = tmp_path / "c.toml"
     cfg.write_text("[repro]\ncomm_episodes = 1\n")  # (one: the columns, not the figures)
-    bad = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg),
-                "--comm-policies", "nearest-frontier,nope")
+    bad = swarm_here("repro", "comm", "--out", str(tmp_path), "--config", str(cfg),
+                     "--comm-policies", "nearest-frontier,nope", capsys=capsys)
     assert bad.returncode != 0 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
     mine = "checkpoints/commattn_nomemory.pt"
     r = swarm("repro", "comm", "--out", str(tmp_path), "--config", str(cfg), "--seed", "2",

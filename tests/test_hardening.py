@@ -347,7 +347,8 @@ def test_a_hung_robot_holds_no_other_robot_back_in_virtual_time(tmp_path: Path) 
 
 @pytest.mark.procs
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
-def test_the_supervisors_death_ends_every_process_of_its_run(tmp_path: Path, sig: int) -> None:
+def test_the_supervisors_death_ends_every_process_of_its_run(
+        tmp_path: Path, sig: int, capsys: pytest.CaptureFixture[str]) -> None:
     run_id = f"die{int(sig)}"
     proc = start_run(tmp_path, run_id, "--policy", "commattn", "--train", "--train-batch", "2",
                      "--episodes", "100000", "--pace", "10")
@@ -368,7 +369,7 @@ def test_the_supervisors_death_ends_every_process_of_its_run(tmp_path: Path, sig
             os.kill(pid, signal.SIGKILL)
         if proc.poll() is None:
             proc.kill()
-    r = swarm("fault", "--run", run_id, "--loss", "0.1", timeout=30)  # registry gone or stale
+    r = swarm_here("fault", "--run", run_id, "--loss", "0.1", capsys=capsys)  # registry gone/stale
     assert r.returncode == 2 and "swarm: error:" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -622,13 +623,15 @@ def test_a_name_too_long_is_one_line_and_nothing_is_made(
     (["--policy", "abc"], "unknown policy 'abc'"),
     (["--policy", "commattn", "--checkpoint", "checkpoints/vain.pt"], "holds policy 'vain'"),
 ], ids=["policy", "checkpoint"])
-def test_a_hand_world_checks_its_policy_before_it_starts(policy: list[str], says: str) -> None:
+def test_a_hand_world_checks_its_policy_before_it_starts(
+        policy: list[str], says: str, capsys: pytest.CaptureFixture[str]) -> None:
     """`swarm world` started and waited for robots with a policy `swarm run` refuses: it now
     refuses it in the same line (swarm.cli.checks.check_policy), exit 2, before listening."""
     from swarm.net.zconfig import free_port
 
-    r = swarm("world", "--robots", "1", "--episodes", "1", "--start-timeout", "10", "--run-id",
-              "w1", *policy, "--listen", f"tcp/127.0.0.1:{free_port()}", timeout=60)
+    r = swarm_here("world", "--robots", "1", "--episodes", "1", "--start-timeout", "10",
+                   "--run-id", "w1", *policy, "--listen", f"tcp/127.0.0.1:{free_port()}",
+                   capsys=capsys)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and says in r.stderr, r.stderr
 
 
@@ -745,12 +748,13 @@ def test_a_world_status_must_fit_the_run_before_a_process_fault_fires_on_it() ->
             check_world_status({**ok, **change}, cfg, first_episode=2, episodes=4)
 
 
-def test_swarm_version_names_the_package_and_the_commit() -> None:
+def test_swarm_version_names_the_package_and_the_commit(
+        capsys: pytest.CaptureFixture[str]) -> None:
     """`swarm --version` (there was none): the installed version and the source tree's commit,
     as a result's `provenance` names them."""
     from swarm.common.report import provenance
 
-    r = swarm("--version")
+    r = swarm_here("--version", capsys=capsys)
     assert r.returncode == 0, r.stderr
     git = provenance()["git"]
     assert r.stdout.startswith("swarm 0.1.0") and (git is None or git in r.stdout), r.stdout
