@@ -356,6 +356,7 @@ class Supervisor:
                     if self.world is not None and self.world.poll() is not None and \
                             inbox.q.empty():
                         break
+                self._sample_rss(every=0.0)  # (robots whole: a short run's may all be early)
                 held, dropped = self.order.end((self.result or {}).get("ticks"))
                 if held is not None:  # (the last status, after a skip: `StatusOrder.end`)
                     self.view.apply_status(held)
@@ -466,9 +467,9 @@ class Supervisor:
         while self.inbox is not None and (ev := self.inbox.next(end - time.monotonic())):
             self._handle(*ev)
 
-    def _sample_rss(self) -> None:
+    def _sample_rss(self, every: float = 0.5) -> None:
         procs = {"world": self.world, **{f"robot{i}": p for i, p in self.robots.items()}}
-        self.procstat.sample(procs, self.view.ticks_done, every=0.5)
+        self.procstat.sample(procs, self.view.ticks_done, every=every)
 
     def _check_children(self) -> None:
         """Robots that died are counted, said and restarted with --restart-crashed
