@@ -576,6 +576,13 @@ def test_a_learner_keeps_where_each_rollout_worker_is_and_drops_replays(tmp_path
         rec = {"world": dataclasses.asdict(SMALL), "workers": bad}
         with pytest.raises(ConfigError, match=f"run record workers: .*{why}"):
             RunRecord.from_record(rec)
+    from swarm.procs.learning.rollout_worker import batch_episodes
+
+    assert batch_episodes(0, 4, 2, 3).tolist() == [10, 11, 12]  # a restarted worker's 3rd batch
+    assert batch_episodes(0, 2**31 - 3, 0, 3).tolist() == [2**31 - 3, 2**31 - 2, 2**31 - 1]
+    with pytest.raises(ConfigError, match=r"rollout worker 7: its next episodes \(2147483646\.\.\) "
+                       "pass 2147483647"):  # (a learner that served a next episode near the top)
+        batch_episodes(7, 2**31 - 2, 0, 3)
     spec = tmp_path / "spec.json"  # a record as JSON: its worker ids become strings, read back
     RunRecord(SMALL, workers={0: 4, 5: 8}).write(spec)
     assert RunRecord.read(spec).workers == {0: 4, 5: 8}

@@ -31,13 +31,26 @@ from swarm.learn.weights import adopt
 from swarm.net.inbox import Event, Inbox, check_free, publisher, query, replies
 from swarm.net.keys import Keys
 from swarm.net.learning import Weights
-from swarm.net.messages import BadMessage
+from swarm.net.messages import BIG, BadMessage
 from swarm.net.zconfig import ZenohOptions, open_session
 from swarm.procs.robot_status import CLAIM_SETTLE_S
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError, from_dict
 
 log = logging.getLogger("swarm.worker")
+
+
+def batch_episodes(worker: int, first: int, batches: int, batch: int) -> np.ndarray:
+    """The episodes of a worker's next batch, from `first` (where its learner has it); a
+    ConfigError (one line) once they would pass BIG, the highest a learner takes: a worker whose
+    learner served a next episode near it would otherwise send batch after batch of episodes
+    every learner drops."""
+    start = first + batches * batch
+    if start + batch - 1 > BIG:
+        raise ConfigError(f"rollout worker {worker}: its next episodes ({start}..) pass {BIG}, "
+                          "the highest a learner takes (its learner's record says it is at "
+                          f"episode {first}); start it with another --worker-id")
+    return start + np.arange(batch)
 
 
 def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
@@ -94,7 +107,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
                     if time.monotonic() - t0 > wait:
                         raise TimeoutError("no weights from the learner")
                     continue
-                episodes = first + batches * batch + np.arange(batch)
+                episodes = batch_episodes(worker_id, first, batches, batch)
                 roll = collect(policy, cfg, seed, episodes)
                 for er in episodes_of(roll, version):
                     payload = er.pack()
