@@ -142,7 +142,7 @@ def hostile_payloads(keys: Keys) -> list[tuple[str, bytes]]:
             (keys.end, b"\x00"),
             (keys.episode, EpisodeRecord(0, np.full((2, 3), np.inf, np.float32),
                                          np.ones((2, 3), bool), {"reward": 0.0}).pack()),
-            (keys.worker_episodes, msgpack.packb([1, 12, 0, 0, 0, 1, {}, {}])),
+            (keys.worker_episodes(0), msgpack.packb([1, 12, 0, 0, 0, 1, {}, {}])),
             (keys.weights, Weights("commattn", 2**40, {}, {"x": np.full(3, np.nan, "<f4")})
              .pack()),
             (keys.weights, b"\x00" * 5000),

@@ -130,7 +130,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
             for u in range(3):
                 roll = collect(learner.policy, SMALL, WORKER0, np.arange(2 * u, 2 * u + 2))
                 for ep in episodes_of(roll, learner.version):  # (as a rollout worker's)
-                    learner.handle("worker", "w", ep.pack())
+                    learner.handle("worker", Keys("resumed").worker_episodes(0), ep.pack())
                 assert learner.maybe_update()
         finally:
             inbox.close()
@@ -269,7 +269,7 @@ def test_a_late_record_of_what_the_stopped_learner_held_is_late_not_a_new_episod
     try:
         assert first._slot(7) is not None and first.accounting()["pending"] == 1
         er = episodes_of(collect(first.policy, SMALL, WORKER0 + 1, np.arange(3, 4)), 0)[0]
-        first.handle("worker", Keys("resumed").worker_episodes, er.pack())  # worker 1's ep 3
+        first.handle("worker", Keys("resumed").worker_episodes(1), er.pack())  # worker 1's ep 3
     finally:  # (then SIGKILL: nothing more is written)
         first.journal.close()
     second = resumed()
@@ -323,9 +323,9 @@ def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> N
         assert before["lost"] == 0 and sums(before) == 0
         eps = episodes_of(collect(made[0].policy, SMALL, WORKER0, np.arange(6, 10)),
                           made[0].version)
-        made[0].handle("worker", "w", eps[0].pack())  # half a batch, then SIGKILL (nothing more
-        assert made[0].accounting()["pending"] == before["pending"] + 1  # is written: its
-        # line is the OS's)
+        made[0].handle("worker", Keys("resumed").worker_episodes(0), eps[0].pack())
+        # half a batch, then SIGKILL (nothing more is written: its line is the OS's)
+        assert made[0].accounting()["pending"] == before["pending"] + 1
         acc = resumed()
         assert acc["lost"] == 1 and acc["received"] == before["received"] + 1, acc
         assert sums(acc) == sums(before) and acc["trained"] == before["trained"]
@@ -334,7 +334,7 @@ def test_a_resumed_learner_counts_what_its_stopped_self_held(trained: Path) -> N
             inbox = made[-1]._declare(session)
             try:
                 for ep in eps[1:]:
-                    made[-1].handle("worker", "w", ep.pack())
+                    made[-1].handle("worker", Keys("resumed").worker_episodes(0), ep.pack())
                 assert made[-1].maybe_update()  # its checkpoint now holds the lost one, and
             finally:  # one episode of the three waiting for the next batch (UA 83: it was in
                 inbox.close()  # no counter once resumed)
@@ -546,12 +546,13 @@ def test_a_learner_keeps_where_each_rollout_worker_is_and_drops_replays(tmp_path
     lc = LearnerConfig(run_id="wk", policy="vain", out=str(tmp_path / "l"))
     learner = Learner(SMALL, lc, tc)
     learner.open_out()
-    key = Keys("wk").worker_episodes
+    keys = Keys("wk")
 
-    def play(worker: int, episodes: list[int], seed: int | None = None) -> None:
+    def play(worker: int, episodes: list[int], seed: int | None = None,
+             key: str | None = None) -> None:
         seed = tc.train_seed_offset + tc.seed + worker + 1 if seed is None else seed
         for er in episodes_of(collect(learner.policy, SMALL, seed, np.array(episodes)), 0):
-            learner.handle("worker", key, er.pack())
+            learner.handle("worker", key or keys.worker_episodes(worker), er.pack())
 
     try:
         play(0, [0, 1, 2])
@@ -559,8 +560,10 @@ def test_a_learner_keeps_where_each_rollout_worker_is_and_drops_replays(tmp_path
         assert RunRecord.unpack(learner.record()).workers == {0: 3, 5: 8}
         play(0, [1, 2, 3])  # a worker restarted from 0 would send 1 and 2 again
         play(0, [0], seed=tc.train_seed_offset + tc.seed)  # (worker -1: nobody's seed)
-        assert learner.c.bad == 3 and learner.c.received == 5, learner.c
-        assert sorted(learner.c.bad_by_key.values()) == [3] and learner.c.worker_episodes == 5
+        play(5, [100], key=keys.worker_episodes(0))  # worker 5's seed on worker 0's key
+        assert learner.c.bad == 4 and learner.c.received == 5, learner.c
+        assert learner.c.bad_by_key == {keys.worker_episodes(0): 4}
+        assert learner.c.worker_episodes == 5
         assert RunRecord.unpack(learner.record()).workers == {0: 4, 5: 8}
         learner.save()
         learner.workers.heard(9, 2**31 - 1)  # (a last episode number: its next stays in range,

@@ -564,7 +564,7 @@ def test_every_kind_has_a_json_form_that_fits_its_schema() -> None:
     assert set(msgjson.SCHEMAS) >= {Keys("r").kind_of(k)[0] for k in (
         Keys("r").status, Keys("r").result, Keys("r").end, Keys("r").control,
         Keys("r").weights, Keys("r").learner_status, Keys("r").episode,
-        Keys("r").worker_episodes, Keys("r").rollout(0))}
+        Keys("r").worker_episodes(3), Keys("r").rollout(0))}
 
 
 def test_the_attention_field_is_range_checked() -> None:
@@ -590,7 +590,10 @@ def test_keys_know_which_run_and_kind_a_key_belongs_to() -> None:
     k = Keys("r1")
     assert k.kind_of(k.inbox(2)) == ("bundle", 2) and k.kind_of(k.status) == ("status", None)
     assert k.kind_of(k.inbox_hidden(0)) == ("radio_hidden", 0)
-    for key in ("swarm/r2/world/status", "swarm/r1/robot/x/traj", "swarm/r1/robot/1/foo",
+    assert k.kind_of(k.worker_episodes(12)) == ("worker_episodes", None)  # (no robot's key)
+    assert Keys.worker_of(k.worker_episodes(12)) == 12 and Keys.worker_of(k.episode) is None
+    for key in ("swarm/r2/world/status", "swarm/r1/worker/x/episodes", "swarm/r1/worker/1/eps",
+                "swarm/r1/rollout/episode", "swarm/r1/robot/x/traj", "swarm/r1/robot/1/foo",
                 "swarm/r1/world/obs/1/2", "swarm/r1/robot/9999999/traj", "swarm/r1"):
         assert k.kind_of(key) == ("", None), key
 

@@ -28,7 +28,7 @@ pytest.importorskip("cryptography")
 @pytest.fixture(scope="module")
 def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("secure") / "certs"
-    make_certs(d, robots=5, workers=1, routers=1)
+    make_certs(d, robots=5, workers=2, routers=1)
     return d
 
 
@@ -169,15 +169,18 @@ def test_the_router_checks_the_originator_and_each_client_what_it_receives(certs
         r3 = _session(sec, "robot-3", "client", [], [hub], access=False)  # only the router's ACL
         sup = _session(sec, "supervisor", "client", [], [hub])
         learner = _session(sec, "learner", "client", [], [hub])
+        w1 = _session(sec, "worker-1", "client", [], [hub], access=False)
         time.sleep(0.5)
         for key in (k.action(3), k.action(4), k.weights, k.control, "elsewhere/x"):
             r3.put(key, b"x")
         sup.put(k.control, b"x")
         learner.put(k.weights, b"x")
+        for key in (k.worker_episodes(1), k.worker_episodes(0)):  # its own key, not worker 0's
+            w1.put(key, b"x")
         time.sleep(0.5)
-        for s in (r3, sup, learner):
+        for s in (r3, sup, learner, w1):
             s.close()
-    assert sorted(got) == sorted([k.action(3), k.control, k.weights])
+    assert sorted(got) == sorted([k.action(3), k.control, k.weights, k.worker_episodes(1)])
 
     # A router without an ACL: each client's own ACL still holds. Robot 3 sends only its own
     # keys, and takes observations only from the world's identity, not from another of the run.

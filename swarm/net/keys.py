@@ -94,10 +94,10 @@ class Keys:
         """World -> learner: rewards and metrics of an episode (at its end)."""
         return f"{self.base}/world/episode"
 
-    @property
-    def worker_episodes(self) -> str:
-        """Rollout workers -> learner: whole episodes in the trainer's terms."""
-        return f"{self.base}/rollout/episode"
+    def worker_episodes(self, worker: int | str) -> str:
+        """Rollout worker -> learner: whole episodes in the trainer's terms. One key a worker,
+        so a secure run's ACL lets each worker's certificate put only its own."""
+        return f"{self.base}/worker/{worker}/episodes"
 
     @property
     def weights(self) -> str:
@@ -154,7 +154,8 @@ class Keys:
         return f"{self.base}/control"
 
     def kind_of(self, key: str) -> tuple[str, int | None]:
-        """What a key of this run carries: (kind, robot id or None); ("", None) for a key that
+        """What a key of this run carries: (kind, robot id or None: a rollout worker's key names
+        no robot, see `worker_of`); ("", None) for a key that
         is not one of this run's (another run's, or made up). Kinds: obs, status, end, result,
         episode, traj, hidden, action, rstatus, rollout, direct, bundle, radio_hidden, control,
         weights, lstatus, worker_episodes (the names `swarm.net.record.msgjson` maps to schemas)."""
@@ -165,7 +166,7 @@ class Keys:
         fixed = {("world", "status"): "status", ("world", "end"): "end",
                  ("world", "result"): "result", ("world", "episode"): "episode",
                  ("control",): "control", ("learner", "weights"): "weights",
-                 ("learner", "status"): "lstatus", ("rollout", "episode"): "worker_episodes"}
+                 ("learner", "status"): "lstatus"}
         kind = fixed.get(tuple(parts))
         if kind is not None:
             return kind, None
@@ -176,6 +177,9 @@ class Keys:
             kind = {"traj": "traj", "hidden": "hidden", "action": "action", "status": "rstatus",
                     "rollout": "rollout", "dtraj": "direct", "dhidden": "direct"}.get(parts[2], "")
             robot = _id(parts[1])
+        elif len(parts) == 3 and parts[0] == "worker" and parts[2] == "episodes":
+            ok = _id(parts[1]) is not None  # (a worker's id, not a robot's: None)
+            return ("worker_episodes", None) if ok else ("", None)
         elif len(parts) == 3 and parts[0] == "radio":
             kind = {"inbox": "bundle", "hidden": "radio_hidden"}.get(parts[1], "")
             robot = _id(parts[2])
@@ -193,6 +197,13 @@ class Keys:
         if parts and parts[-1].isdigit():
             return int(parts[-1])
         raise ValueError(f"no robot id in key {key!r}")
+
+
+    @staticmethod
+    def worker_of(key: str) -> int | None:
+        """The rollout worker id in a `.../worker/<id>/episodes` key, else None."""
+        parts = str(key).split("/")
+        return _id(parts[-2]) if len(parts) >= 3 and parts[-3] == "worker" else None
 
 
 def _id(text: str) -> int | None:

@@ -109,7 +109,7 @@ def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[s
                                       k.learner_status)),
         "learner": Role(put=(k.weights, k.learner_status), serve=(k.weights, k.learner_config),
                         token=(k.alive_learner,),
-                        subscribe=(k.rollout("*"), k.episode, k.worker_episodes)),
+                        subscribe=(k.rollout("*"), k.episode, k.worker_episodes("*"))),
         # (checks a fault fits the run, and that its --at-tick is still ahead)
         "operator": Role(put=(k.control,), query=(k.config,), subscribe=(k.status,)),
         "recorder": Role(subscribe=(k.everything,), watch=(k.alive_all,),
@@ -125,7 +125,7 @@ def roles(keys: Keys, robots: int, workers: int = 0, routers: int = 0) -> dict[s
             subscribe=(k.obs(i), k.inbox(i), k.inbox_hidden(i), k.direct("*"),
                        k.direct("*", hidden=True), k.end, k.weights))
     for w in range(workers):
-        out[f"worker-{w}"] = Role(put=(k.worker_episodes,), query=(k.learner_config, k.weights),
+        out[f"worker-{w}"] = Role(put=(k.worker_episodes(w),), query=(k.learner_config, k.weights),
                                   subscribe=(k.weights,), watch=(k.alive_learner,),
                                   token=(k.alive_worker(w),))
     for h in range(1, routers + 1):  # what it originates itself: its liveliness token

@@ -11,7 +11,7 @@ Data flow of one episode (keys in swarm.net.keys):
   arrived, its action, log-probability, last reward and the weights version it acted with;
 - the world puts an `EpisodeRecord` on `world/episode`: every robot's reward per tick, which
   robots acted in time, the episode's metrics;
-- a rollout worker instead puts whole `EpisodeRollout`s on `rollout/episode`.
+- a rollout worker instead puts whole `EpisodeRollout`s on `worker/<k>/episodes`.
 
 The learner joins the first two into an `EpisodeRollout` (the robots' own trajectory messages
 are exactly what their receivers heard, so the tick's `View` is rebuilt bit for bit), stacks
@@ -201,7 +201,7 @@ class Learner:
         self.status_pub = publisher(s, k.learner_status)
         self.inbox = Inbox(s)
         return (self.inbox.subscribe(k.rollout("*"), "robot").subscribe(k.episode, "world")
-                .subscribe(k.worker_episodes, "worker")
+                .subscribe(k.worker_episodes("*"), "worker")
                 .queryable(k.weights, lambda: self.weights_payload)
                 .queryable(k.learner_config, self.record)
                 .subscribe(k.end, "end").liveliness(k.alive_world, "world")
@@ -243,7 +243,8 @@ class Learner:
                     slot["world"], slot["t"] = wr, time.monotonic()
             else:
                 er = EpisodeRollout.unpack(payload, self.cfg)
-                worker = self.workers.check(er, self.tc.train_seed_offset + self.tc.seed + 1)
+                worker = self.workers.check(er, self.tc.train_seed_offset + self.tc.seed + 1,
+                                            Keys.worker_of(key))
                 self.c.worker_episodes += 1
                 self._heard(er.ep, worker)
                 self._accept(er)

@@ -99,14 +99,19 @@ class Workers:
     def __init__(self) -> None:
         self.next: dict[int, int] = {}
 
-    def check(self, er: EpisodeRollout, base: int) -> int:
+    def check(self, er: EpisodeRollout, base: int, sender: int | None) -> int:
         """The worker of episode `er` (its seed minus `base`, the seed worker 0 plays), noted as
-        heard; BadMessage for a seed no worker plays or an episode at or before one heard from
+        heard; BadMessage for a seed no worker plays, one not the worker `sender`'s (the id in
+        the key it came on: a secure run's ACL lets only that worker's certificate put there),
+        or an episode at or before one heard from
         that worker already (a worker's episodes come in order on its one link: an earlier one
         is a replay, or a restarted worker's the learner had still queued)."""
         worker = er.seed - base
         if not 0 <= worker <= MAX_WORKER_ID:
             raise BadMessage(f"seed {er.seed} is no rollout worker's of this run")
+        if worker != sender:
+            raise BadMessage(f"seed {er.seed} is rollout worker {worker}'s, sent on worker "
+                             f"{sender}'s key")
         nxt = self.next.get(worker)
         if nxt is not None and er.ep < nxt:
             raise BadMessage(f"episode {er.ep} of rollout worker {worker} heard already (a "

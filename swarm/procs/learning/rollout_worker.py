@@ -3,7 +3,7 @@
 `swarm rollout-worker --run-id R --connect tcp/HOST:PORT --worker-id K` asks the learner for the
 run's configuration and current weights, then loops: collect `batch` episodes with sampled
 actions (the batched trainer's `collect`, one process, `threads` torch threads), put each as an
-`EpisodeRollout` on `rollout/episode`, adopt any newer weights between batches. Worker K plays
+`EpisodeRollout` on `worker/<K>/episodes`, adopt any newer weights between batches. Worker K plays
 episodes of its own seed (the train offset + run seed + K + 1, never an evaluation seed), so
 workers on several hosts never repeat each other's episodes; restarted, it goes on after the last
 episode its learner heard from it (`RunRecord.workers`), so it does not repeat its own either.
@@ -75,7 +75,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
                    settle=0.0 if supervised() else CLAIM_SETTLE_S)
         inbox = Inbox(session).subscribe(keys.weights, "w").liveliness(
             keys.alive_learner, "learner").token(keys.alive_worker(worker_id))
-        pub = publisher(session, keys.worker_episodes)
+        pub = publisher(session, keys.worker_episodes(worker_id))
         version, origin, sent, bad, batches, sent_bytes = -1, -1, 0, 0, 0, 0
         seed = tc.train_seed_offset + tc.seed + worker_id + 1
         first = (rec.workers or {}).get(worker_id, 0)  # restarted: where the learner has it
