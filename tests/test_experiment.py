@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import re
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -312,6 +313,28 @@ def test_resume_refuses_a_csv_of_another_world_faults_or_run_and_extends_values(
     assert (out / "r.csv").read_text().startswith(before)
 
 
+@pytest.mark.parametrize("head, exp, says", [
+    ('[world]\nhorizon = 10\n[run]\nepisodes = 1\n[faults]\ncrash = ["1@500"]\n', BASE,
+     r'\[faults\] crash "1@500" is beyond the run\'s last tick 9'),
+    ('[run]\nepisodes = 1\n[faults]\ncrash = ["1@0"]\nrestart = ["1@0"]\n', BASE,
+     "a robot restarted at tick 0 is one that never crashed"),
+    ('[run]\nclock = "real"\nwatchdog = 5\n', BASE,
+     r'\[run\] watchdog is a virtual-clock setting .*not with \[run\] clock = "real"'),
+    ('[run]\nclock = "real"\n', 'name = "t"\nparameter = "compute"\nvalues = ["0ms", "5ms"]\n'
+     'seeds = [0]\n', r"compute = '5ms': --compute-ms .* with \[run\] clock = \"real\""),
+    ("[run]\nepisodes = 1\n", 'name = "t"\nparameter = "overflow"\nvalues = ["queue", '
+     '"drop"]\nseeds = [0]\n', "overflow = 'queue': it says what a bandwidth cap does; the "
+     "sweep has no cap"),
+])
+def test_a_sweep_is_checked_as_swarm_run_checks_each_of_its_runs(
+        tmp_path: Path, head: str, exp: str, says: str) -> None:
+    """Each was refused by `swarm run` and swept anyway: a crash after the last tick (never
+    fired, its twin column n/a), a crash and restart at tick 0 (the world waited a minute),
+    virtual-clock settings on the real clock, overflow swept with no cap (every point one run)."""
+    with pytest.raises(ConfigError, match=says):
+        plan(sweep_file(tmp_path, exp + 'policies = ["random"]\n', head=head))
+
+
 def test_resume_refuses_a_csv_made_with_another_checkpoint(tmp_path: Path) -> None:
     """A policy's checkpoint is part of its rows: another file for it is refused (the rows
     are checked against a real plan of each file, no process run)."""
@@ -332,6 +355,15 @@ def test_resume_refuses_a_csv_made_with_another_checkpoint(tmp_path: Path) -> No
     (tmp_path / "c.json").unlink()
     with pytest.raises(ConfigError, match="no readable sweep record"):
         check_resume(rows, made, tmp_path / "c.csv")
+    # the same path, other weights (retrained or replaced in place): its bytes differ
+    mine = tmp_path / "mine.pt"
+    shutil.copyfile(ROOT / "checkpoints/commattn_loss30.pt", mine)
+    write_record(plan(sweep_file(tmp_path, exp + f'checkpoints = {{commattn = "{mine}"}}\n')),
+                 tmp_path)
+    shutil.copyfile(ROOT / "checkpoints/commattn.pt", mine)
+    with pytest.raises(ConfigError, match="SHA-256 of the checkpoint of commattn is '"):
+        check_resume(rows, plan(sweep_file(tmp_path, exp + f'checkpoints = {{commattn = '
+                                           f'"{mine}"}}\n')), tmp_path / "c.csv")
 
 
 def test_the_sd_over_seeds_is_the_sample_sd() -> None:

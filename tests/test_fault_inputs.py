@@ -102,6 +102,12 @@ def test_a_zero_kernel_bandwidth_or_lease_is_refused_not_read_as_the_default() -
     ("burst = false\nbandwidth = \"1kB/s\"", "bad burst False"),
     ("[faults.robot.1]\nloss = true", "bad loss True"),
     ("[faults.link.\"0-0\"]\nloss = 0.5", "bad link '0-0': a robot's link to itself"),
+    # a sender's token bucket and compute time are not a link's (they were shown, then ignored)
+    ("[faults.link.\"0-1\"]\nbandwidth = \"1B/s\"", "bad link '0-1': bandwidth belong(s) to "
+     "the sender"),
+    ("[faults.link.\"2-1\"]\ncompute = \"5ms\"\nburst = 9", "bad link '2-1': burst, compute"),
+    ("overflow = \"drop\"", "[faults] overflow says what a bandwidth cap does; there is no cap"),
+    ("burst = 500\n[faults.robot.1]\nbandwidth = \"none\"", "[faults] burst says what"),
 ])
 def test_nonsense_in_a_faults_table_is_refused(tmp_path: Path, table: str, why: str) -> None:
     """A bool where a number is expected (`loss = true` was loss 1.0) and a link from a robot

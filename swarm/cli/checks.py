@@ -10,7 +10,6 @@ import dataclasses
 import os
 import re
 import sys
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +17,7 @@ from swarm.cli.common import _checkpoint_pairs, file_tables
 from swarm.common.atomic import in_place
 from swarm.common.policy_spec import build_inference
 from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from here)
-from swarm.procs.runconfig import RunConfig
+from swarm.procs.runconfig import RunConfig, check_fault_ticks, check_real_clock  # noqa: F401
 from world.config import ConfigError, WorldConfig
 
 INPUT_FLAGS = {"file": "the input file", "config": "--config", "spec": "--spec",
@@ -118,52 +117,14 @@ def check_clock(args: argparse.Namespace, tables: dict[str, Any], run: RunConfig
                 faults: dict[str, Any]) -> None:
     """A setting of one clock given with the other is refused, never silently dropped: --netns
     runs on the real clock; --watchdog and compute times model the virtual one."""
-    from swarm.net.faults import plan_from_table
-
     netns, file_run = bool(getattr(args, "netns", False)), tables.get("run", {})
     if netns and (getattr(args, "clock", None) or file_run.get("clock")) == "virtual":
         raise ConfigError("--netns runs on the real clock (the kernel decides when a packet "
                           "arrives): drop --clock virtual")
-    if not netns and run.clock != "real":
-        return
-    why = "--netns (the real clock)" if netns else "--clock real"
-    if getattr(args, "watchdog", None) is not None or "watchdog" in file_run:
-        raise ConfigError(f"--watchdog is a virtual-clock setting (the real clock waits "
-                          f"--tick-timeout for a tick's actions): not with {why}")
-    plan = plan_from_table(faults, run.seed)
-    if any(f.compute_ms for f in (plan.default, *plan.per_robot.values(),
-                                  *plan.per_link.values())):
-        raise ConfigError(f"--compute-ms (faults compute) models compute time on the virtual "
-                          f"clock; with {why} the robots' own compute time counts: drop it")
-
-
-def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig,
-                      at_tick: int | None = None,
-                      flags: Iterable[str] = ("crash", "hang", "restart")) -> None:
-    """A fault for a run tick the run never reaches is refused: its ticks are 0 .. episodes x
-    horizon - 1. The refusal names a process fault as given: its flag for the kinds in
-    `flags`, else its `[faults]` key."""
-    from swarm.net.faults import plan_from_table
-
-    flags = set(flags)
-
-    def named(kind: str, robot: int, tick: int) -> str:
-        return f"--{kind} {robot}@{tick}" if kind in flags else \
-            f'[faults] {kind} "{robot}@{tick}"'
-
-    last = run.episodes * world.horizon - 1
-    process = plan_from_table(faults, at_once=True).process  # (a live change's may strike now)
-    late = [named(p.kind, p.robot, p.tick) for p in process
-            if p.tick > last] + ([f"--at-tick {at_tick}"] if (at_tick or 0) > last else [])
-    if late:
-        raise ConfigError(f"{late[0]} is beyond the run's last tick {last} ({run.episodes} "
-                          f"episode(s) x {world.horizon} ticks)")
-    at0 = {(p.kind, p.robot) for p in process if p.tick == 0}
-    both = sorted(r for k, r in at0 if k == "crash" and ("restart", r) in at0)
-    if both:  # (the world waits at tick 0 for a new process the supervisor only starts later)
-        raise ConfigError(f"{named('crash', both[0], 0)} {named('restart', both[0], 0)}: a "
-                          "robot restarted at tick 0 is one that never crashed; give the crash "
-                          "or the restart a later tick")
+    if netns or run.clock == "real":
+        check_real_clock("--netns (the real clock)" if netns else "--clock real",
+                         getattr(args, "watchdog", None) is not None or "watchdog" in file_run,
+                         faults, run.seed)
 
 
 def check_by_hand(faults: dict[str, Any]) -> None:

@@ -415,10 +415,14 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
             table[kind] = list(getattr(args, kind))
     if getattr(args, "fault_seed", None) is not None:
         table["seed"] = args.fault_seed
-    plan_from_table(table, n_robots=n_robots, at_once=not whole)  # one line before any run
-    if whole and getattr(args, "overflow", None) is not None and not _has_key(table, "bandwidth"):
-        raise ConfigError("--overflow says what a bandwidth cap does with excess messages; "
-                          "there is no cap (give --bandwidth, or a bandwidth in [faults])")
+    plan = plan_from_table(table, n_robots=n_robots, at_once=not whole)  # one line before any run
+    capped = any(f.bandwidth for f in (plan.default, *plan.per_robot.values()))
+    given = [w for w, there in (("--overflow", getattr(args, "overflow", None) is not None),
+                                ("[faults] overflow", _has_key(table, "overflow")),
+                                ("[faults] burst", _has_key(table, "burst"))) if there]
+    if whole and given and not capped:  # (accepted, and every run the same as without it)
+        raise ConfigError(f"{given[0]} says what a bandwidth cap does; there is no cap (give "
+                          "--bandwidth, or a bandwidth in [faults])")
     return table
 
 

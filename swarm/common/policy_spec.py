@@ -92,6 +92,14 @@ def shown(path: str | None) -> str | None:
     return str(p.relative_to(ROOT)) if p.is_relative_to(ROOT) else path
 
 
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes: what a resumed study compares, so that a checkpoint
+    retrained or replaced in place is not taken for the one its rows were made with."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def effective_checkpoint(name: str, checkpoint: str | None) -> str | None:
     """The checkpoint a policy runs with: the one given, else for a learned policy the one
     shipped as checkpoints/NAME.pt (a learned policy never runs on untrained weights by

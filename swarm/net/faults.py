@@ -257,6 +257,10 @@ def _number(v: Any, name: str) -> float:
         raise ConfigError(f"bad {name} {v!r}: a number is expected") from None
 
 
+SENDER_KEYS = ("bandwidth", "burst", "overflow", "compute")
+"""Fault keys of a sender's radio, not of one link: set per run or per robot."""
+
+
 def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFault:
     """A LinkFault from a TOML/CLI mapping with human units (latency = "50ms", ...)."""
     if not isinstance(d, dict):
@@ -325,6 +329,11 @@ def _plan(t: dict[str, Any], seed: int, at_once: bool) -> FaultPlan:
         if int(a) == int(b):
             raise ConfigError(f"bad link {k!r}: a robot's link to itself (its own message is "
                               "always delivered)")
+        owned = [key for key in SENDER_KEYS if isinstance(v, dict) and key in v]
+        if owned:  # (accepted and shown, then ignored: the radio reads them per sender)
+            raise ConfigError(f"bad link {k!r}: {', '.join(owned)} belong(s) to the sender (one "
+                              f"radio, one token bucket, one compute time for all its links): "
+                              f"set it in [faults.robot.{a}]")
         per_link[(int(a), int(b))] = link_fault_from(v, default)
     return FaultPlan(default, per_robot, per_link, partition, tuple(process), fseed)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -110,6 +111,51 @@ class RunConfig:
                               "rollout_loss needs train)")
         if not isinstance(self.policy, str) or not self.policy:
             raise ConfigError("policy must be a registry name")
+
+
+def check_real_clock(why: str, watchdog_given: bool, faults: dict[str, Any], seed: int,
+                     watchdog: str = "--watchdog") -> None:
+    """A run on the real clock (`why`: what puts it there, as the refusal names it) given a
+    virtual-clock setting is refused: the watchdog (named `watchdog`), a compute time."""
+    from swarm.net.faults import plan_from_table
+
+    if watchdog_given:
+        raise ConfigError(f"{watchdog} is a virtual-clock setting (the real clock waits "
+                          f"--tick-timeout for a tick's actions): not with {why}")
+    plan = plan_from_table(faults, seed)
+    if any(f.compute_ms for f in (plan.default, *plan.per_robot.values(),
+                                  *plan.per_link.values())):
+        raise ConfigError(f"--compute-ms (faults compute) models compute time on the virtual "
+                          f"clock; with {why} the robots' own compute time counts: drop it")
+
+
+def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig,
+                      at_tick: int | None = None,
+                      flags: Iterable[str] = ("crash", "hang", "restart")) -> None:
+    """A fault for a run tick the run never reaches is refused: its ticks are 0 .. episodes x
+    horizon - 1. The refusal names a process fault as given: its flag for the kinds in
+    `flags`, else its `[faults]` key."""
+    from swarm.net.faults import plan_from_table
+
+    flags = set(flags)
+
+    def named(kind: str, robot: int, tick: int) -> str:
+        return f"--{kind} {robot}@{tick}" if kind in flags else \
+            f'[faults] {kind} "{robot}@{tick}"'
+
+    last = run.episodes * world.horizon - 1
+    process = plan_from_table(faults, at_once=True).process  # (a live change's may strike now)
+    late = [named(p.kind, p.robot, p.tick) for p in process
+            if p.tick > last] + ([f"--at-tick {at_tick}"] if (at_tick or 0) > last else [])
+    if late:
+        raise ConfigError(f"{late[0]} is beyond the run's last tick {last} ({run.episodes} "
+                          f"episode(s) x {world.horizon} ticks)")
+    at0 = {(p.kind, p.robot) for p in process if p.tick == 0}
+    both = sorted(r for k, r in at0 if k == "crash" and ("restart", r) in at0)
+    if both:  # (the world waits at tick 0 for a new process the supervisor only starts later)
+        raise ConfigError(f"{named('crash', both[0], 0)} {named('restart', both[0], 0)}: a "
+                          "robot restarted at tick 0 is one that never crashed; give the crash "
+                          "or the restart a later tick")
 
 
 MAX_WORKERS = 4096

@@ -182,9 +182,8 @@ def comm_key(world: WorldConfig, seed: int, episodes: int, policies: Sequence[st
              ) -> dict[str, Any]:
     """What makes a `comm` study's cells: a resumed one must have the same (the checkpoints it
     runs by their bytes' SHA-256, so a file retrained in place is not taken for the old)."""
-    import hashlib
-
     from swarm.common.atomic import json_safe
+    from swarm.common.policy_spec import file_sha256
 
     base = comm_base(world)
     files = sorted({c for _, changes, _ in CONDITIONS for name in policies
@@ -192,8 +191,7 @@ def comm_key(world: WorldConfig, seed: int, episodes: int, policies: Sequence[st
                                             checkpoints.get(name)))})
     return json_safe({"seed": seed, "episodes": episodes, "policies": list(policies),
                       "batch": batch, "tick_s": tick_s, "world": to_dict(base),
-                      "checkpoints": {shown(f): hashlib.sha256(Path(f).read_bytes()).hexdigest()
-                                      for f in files}})
+                      "checkpoints": {shown(f): file_sha256(f) for f in files}})
 
 
 def repro_key(world: WorldConfig, cfg: Any) -> dict[str, Any]:

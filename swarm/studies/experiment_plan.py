@@ -15,7 +15,7 @@ from typing import Any
 from swarm.common.policy_spec import build_inference
 from swarm.net.faults import LINK_KEYS, parse_rate, plan_from_table
 from swarm.net.kernel.netns import NetnsConfig, check_tools
-from swarm.procs.runconfig import RunConfig
+from swarm.procs.runconfig import RunConfig, check_fault_ticks, check_real_clock
 from world.config import (
     ConfigError,
     WorldConfig,
@@ -233,6 +233,9 @@ def plan(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
     it spawns anything: its config, its fault plan on this team, its policy and checkpoint."""
     world, run, base_faults, exp = load(path, episodes, seeds)
     plan_from_table(base_faults, n_robots=world.n_robots)
+    real = ("[experiment] kernel (the real clock)" if exp.kernel
+            else '[run] clock = "real"' if run.clock == "real" else None)
+    watchdog = "watchdog" in read_file(path).get("run", {})
     for policy in exp.policies:  # unknown, unreadable or the wrong shapes: one line now
         try:
             build_inference(policy.split(":")[0], world, exp.checkpoint(policy))
@@ -241,8 +244,16 @@ def plan(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
     faults_of: dict[str, dict[str, Any]] = {}
     for value in exp.values:
         faults = {**base_faults, exp.parameter: value}
-        try:
-            plan_from_table(faults, n_robots=world.n_robots)
+        try:  # as `swarm run` checks a run: its team, ticks and clock
+            plan = plan_from_table(faults, n_robots=world.n_robots)
+            check_fault_ticks(faults, run, world, flags=())
+            if real is not None:
+                check_real_clock(real, watchdog, faults, run.seed, "[run] watchdog")
+            if exp.parameter in ("overflow", "burst") and not any(
+                    f.bandwidth for f in (plan.default, *plan.per_robot.values())):
+                raise ConfigError("it says what a bandwidth cap does; the sweep has no cap "
+                                  "(every point would be the same run): give a bandwidth in "
+                                  "[faults]")
         except ConfigError as exc:
             raise ConfigError(f"[experiment] {exp.parameter} = {value!r}: {exc}") from None
         if exp.kernel:  # the kernel does the damage; the radio's fault stays zero
@@ -280,25 +291,28 @@ def point_run_id(name: str, k: int) -> str:
     return f"exp-{name[:64 - len('exp-') - len(tail)]}{tail}"
 
 
-def checkpoints_of(sweep: Sweep) -> dict[str, str | None]:
-    """The checkpoint each policy of the sweep ran with (a shipped one named as such)."""
-    from swarm.common.policy_spec import effective_checkpoint, shown
+def checkpoints_of(sweep: Sweep, digest: bool = False) -> dict[str, str | None]:
+    """The checkpoint each policy of the sweep ran with (a shipped one named as such), or with
+    `digest` the SHA-256 of its bytes (None: a policy without weights)."""
+    from swarm.common.policy_spec import effective_checkpoint, file_sha256, shown
 
-    return {pt.policy: shown(effective_checkpoint(pt.run.policy, pt.run.checkpoint))
-            for pt in sweep.points}
+    files = {pt.policy: effective_checkpoint(pt.run.policy, pt.run.checkpoint)
+             for pt in sweep.points}
+    return {p: (f and file_sha256(f)) if digest else shown(f) for p, f in files.items()}
 
 
 def sweep_record(sweep: Sweep) -> dict[str, Any]:
     """What makes a row of the sweep, as `<name>.json` holds it (`write_record`) and
     `check_resume` compares it: the world, `[run]`, the parameter, the kernel switch, each
-    value's `[faults]` table and each policy's checkpoint."""
+    value's `[faults]` table and each policy's checkpoint (its path and its bytes' SHA-256)."""
     from world.config import to_dict
 
     run = {k: v for k, v in to_dict(sweep.run).items() if k not in RUN_PER_POINT}
     return {"world": to_dict(sweep.world), "run": run,
             "experiment": to_dict(sweep.exp),
             "faults": {str(pt.value): pt.faults for pt in sweep.points},
-            "checkpoints": checkpoints_of(sweep)}
+            "checkpoints": checkpoints_of(sweep),
+            "checkpoint_sha256": checkpoints_of(sweep, digest=True)}
 
 
 def _differs(old: dict[str, Any], new: dict[str, Any], where: str,
@@ -357,7 +371,10 @@ def check_resume(rows: list[dict[str, Any]], sweep: Sweep, csv_path: Path) -> No
                         ("parameter", "kernel"))
             or next((d for v in values if (d := _differs(
                 old["faults"].get(v, {}), new["faults"][v], f"[faults] at {v}: "))), None)
-            or _differs(old["checkpoints"], new["checkpoints"], "checkpoint of ", policies))
+            or _differs(old["checkpoints"], new["checkpoints"], "checkpoint of ", policies)
+            or ("checkpoint_sha256" in old  # (a record made before it was kept: paths only)
+                and _differs(old["checkpoint_sha256"], new["checkpoint_sha256"],
+                             "SHA-256 of the checkpoint of ", policies)))
     if diff:
         raise ConfigError(f"--resume: {csv_path} was made by another sweep ({diff}); give "
                           f"another --out, or the sweep that made it")
