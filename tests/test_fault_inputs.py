@@ -4,6 +4,7 @@ at its own tick; a control record is checked whole, and a run stopped by one say
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -14,7 +15,7 @@ from pathlib import Path
 import msgpack
 import pytest
 import zenoh
-from conftest import ROOT, swarm
+from conftest import ROOT, swarm, swarm_here
 
 from swarm.common.spawn import lookup_run
 from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control
@@ -81,6 +82,26 @@ def test_a_refused_process_fault_is_named_as_the_user_gave_it(tmp_path: Path) ->
     conf.write_text('[faults]\nrestart = ["1@0"]\n')
     _refused("run", "--headless", "--episodes", "1", "--config", str(conf), "--crash", "1@0",
              why='--crash 1@0 [faults] restart "1@0": a robot restarted at tick 0')
+
+
+@pytest.mark.parametrize("value, why", [
+    ("nan", "--compute-ms must be a number of milliseconds >= 0, got nan"),
+    ("-3", "got -3.0"), ("inf", "got inf"),
+    ("1e20", "compute_ms must lie in [0, 3.6e+06], got 1e+20"),
+])
+def test_a_compute_time_is_said_as_given(value: str, why: str,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """`--compute-ms 1e-05` was refused as "bad duration '1e-05ms'" (the flag's float written
+    back as text), NaN as 'nanms': a value the user never typed."""
+    r = swarm_here("eval", "--episodes", "1", "--policy", "random", "--compute-ms", value,
+                   capsys=capsys)
+    assert r.returncode == 2 and why in r.stderr and len(r.stderr.strip().splitlines()) == 1, \
+        r.stderr
+    from swarm.cli.common import fault_table
+    from swarm.net.faults import plan_from_table
+
+    args = argparse.Namespace(compute_ms=1e-05)
+    assert plan_from_table(fault_table(args, {})).default.compute_ms == pytest.approx(1e-05)
 
 
 def test_a_zero_kernel_bandwidth_or_lease_is_refused_not_read_as_the_default() -> None:
@@ -196,6 +217,18 @@ def test_queued_changes_apply_each_at_its_own_tick_onto_the_table_in_force() -> 
                      90)
     assert not s.add(check_control({"faults_table": {"loss": 0.3}}, 0, 3), 90)
     assert s.summary()["dropped"] == 1 and len(s.summary()["pending"]) == MAX_PENDING
+
+
+def test_a_replacing_change_keeps_the_runs_fault_seed_unless_it_gives_one() -> None:
+    """`swarm run --fault-seed 7` then `swarm fault --replace --loss 0.3` (or `--clear`): the
+    replace dropped the seed, and the draws went back to the run's seed (a merge kept it)."""
+    s = FaultSchedule({"loss": 0.1, "seed": 7}, 0, 4)
+    for k, (table, replace) in enumerate((({"loss": 0.3}, True), ({}, True),
+                                          ({"loss": 0.2}, False))):
+        s.add(check_control({"faults_table": table, "replace": replace}, 0, 4), k)
+        assert s.due(k).seed == 7
+    s.add(check_control({"faults_table": {"loss": 0.3, "seed": 9}, "replace": True}, 0, 4), 5)
+    assert s.due(5).seed == 9
 
 
 # ------------------------------------------------------------------ the real swarm, live

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -323,3 +324,31 @@ def test_a_live_restart_without_a_tick_releases_a_robot_a_planned_crash_holds() 
     assert p.due(13) == [] and p.due(14) == [2]  # restarted at 14: the world waits for it
     p.token(2, True)  # the new process
     assert 2 in p.live and p.alive[2]
+
+
+def test_the_world_drops_a_process_fault_change_as_its_supervisor_does() -> None:
+    """With MAX_PENDING signals queued the supervisor drops a change whole (counted in
+    process_faults_dropped) and never sends it; the world took it anyway and held the robot
+    down for the rest of the run. Both queues fed the same control records agree now."""
+    from swarm.net.faults import MAX_PENDING, check_control
+    from swarm.net.messages import K_CONTROL, pack_record
+    from swarm.net.presence import Presence
+    from swarm.procs.runconfig import RunConfig
+    from swarm.procs.supervisor import SuperviseOptions, Supervisor
+
+    sup = Supervisor(WorldConfig(n_robots=3, horizon=100), RunConfig(run_id="qdrop", episodes=1),
+                     SuperviseOptions(headless=True))
+    world = Presence(3, (), gated=True)  # the world's, as WorldProcess._handle feeds it
+    try:
+        recs = [{"process": [f"restart:0@{50 + k}"]} for k in range(MAX_PENDING)]
+        for rec in [*recs, {"process": ["hang:2@40"]}, {"process": ["crash:1"]}]:
+            sup._handle("control", sup.keys.control, pack_record(K_CONTROL, rec))
+            world.add(check_control(rec, 0, 3).process, now=10, limit=MAX_PENDING)
+    finally:
+        shutil.rmtree(sup.tmp, ignore_errors=True)
+    assert sup.process_faults_dropped == 2 and len(sup.process_faults) == MAX_PENDING
+    assert world.queued == MAX_PENDING
+    for r in range(3):
+        world.token(r, True)
+    world.due(40)
+    assert not world.held(2) and not world.held(1)

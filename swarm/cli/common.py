@@ -409,7 +409,10 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
         if value is not None:
             table[key] = value
     if getattr(args, "compute_ms", None) is not None:
-        table["compute"] = f"{args.compute_ms}ms"
+        ms = args.compute_ms
+        if not 0 <= ms < float("inf"):  # (NaN too; said as given, not as 'nanms')
+            raise ConfigError(f"--compute-ms must be a number of milliseconds >= 0, got {ms}")
+        table["compute"] = f"{ms:.12f}".rstrip("0").rstrip(".") + "ms"  # (1e-05 is no duration)
     for kind in ("crash", "hang", "restart"):
         if getattr(args, kind, None):
             table[kind] = list(getattr(args, kind))

@@ -419,6 +419,18 @@ def link_table(t: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in t.items() if k not in PROCESS_KINDS}
 
 
+def changed_table(in_force: dict[str, Any], c: Control) -> dict[str, Any]:
+    """The link-fault table after live change `c`: merged onto the one in force, or replacing
+    it (`--replace`, `--clear`), which keeps the run's fault seed unless the change gives one
+    (the seed is the run's draws, not a link fault: a replace dropped it, and the draws went
+    back to the run's seed)."""
+    assert c.table is not None
+    if not c.replace:
+        return link_table({**in_force, **c.table})
+    seed = {"seed": in_force["seed"]} if "seed" in in_force else {}
+    return link_table({**seed, **c.table})
+
+
 def check_control(rec: dict[str, Any], seed: int, n_robots: int) -> Control:
     """Every field of a control record checked before any is acted on: a one-line ConfigError
     naming the first bad one (the world and the supervisor drop and count the whole record)."""
@@ -484,8 +496,7 @@ class FaultSchedule:
         plan = None
         while self.pending and self.pending[0][0] <= run_tick:
             c = heapq.heappop(self.pending)[2]
-            assert c.table is not None
-            table = link_table(c.table if c.replace else {**self.table, **c.table})
+            table = changed_table(self.table, c)
             try:
                 plan = plan_from_table(table, self.seed, self.n_robots)
             except ConfigError as exc:  # fit alone, but not merged onto the table in force

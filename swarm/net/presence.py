@@ -36,16 +36,28 @@ class Presence:
         self.down: set[int] = set()  # robots a crash or hang of the plan holds down
         self.gated = gated
         self.restart_crashed = restart_crashed  # a crash at t: a restart at t + 1
-        self.pending: list[ProcessFault] = []
-        self.add(process)
+        self.pending: list[tuple[ProcessFault, bool]] = []  # (fault, queued as the supervisor
+        self.add(process)  # queues it: it named its tick), in order of tick
 
-    def add(self, faults: Iterable[ProcessFault], now: int = 0) -> None:
+    @property
+    def queued(self) -> int:
+        """Pending faults that named their tick: the supervisor's queue of signals to send."""
+        return sum(timed for _, timed in self.pending)
+
+    def add(self, faults: Iterable[ProcessFault], now: int = 0, limit: int | None = None) -> bool:
         """Process faults for their run tick; a live one without a tick (`swarm fault --crash
         2`) for `now`, the next tick to play (a restart without one released nothing: a robot a
-        planned crash held down stayed down for good)."""
+        planned crash held down stayed down for good). False, and nothing added, when more than
+        `limit` would then be queued: the supervisor drops (and counts) such a change as a whole
+        and never signals it, so the world must not hold its robots down either."""
+        faults = list(faults)
+        if limit is not None and self.queued + len(faults) > limit:
+            return False
         if self.gated:
-            due = (f if f.tick >= 0 else ProcessFault(f.kind, f.robot, now) for f in faults)
-            self.pending = sorted([*self.pending, *due], key=lambda f: f.tick)
+            due = ((f, True) if f.tick >= 0 else (ProcessFault(f.kind, f.robot, now), False)
+                   for f in faults)
+            self.pending = sorted([*self.pending, *due], key=lambda e: e[0].tick)
+        return True
 
     def token(self, robot: int, up: bool) -> None:
         """A liveliness event of robot `robot`."""
@@ -60,8 +72,8 @@ class Presence:
         """Apply the faults of run tick `tick`; the robots restarted now whose token is not up
         yet (the world waits for them before the tick starts)."""
         waiting = []
-        while self.pending and self.pending[0].tick <= tick:
-            f = self.pending.pop(0)
+        while self.pending and self.pending[0][0].tick <= tick:
+            f = self.pending.pop(0)[0]
             if f.kind in ("crash", "hang"):
                 self.down.add(f.robot)
                 self._set(f.robot, False)
@@ -69,7 +81,8 @@ class Presence:
                     self.tokens.discard(f.robot)  # new one's token, not the old one's last
                     # moments (a crash and restart of one tick set it alive, then lost it)
                     if self.restart_crashed:  # (the supervisor respawns it at once)
-                        self.add([ProcessFault("restart", f.robot, tick + 1)])
+                        self.pending.append((ProcessFault("restart", f.robot, tick + 1), False))
+                        self.pending.sort(key=lambda e: e[0].tick)  # (stable: after its tick's)
             elif f.robot in self.down:  # restart: up again from this tick
                 self.down.discard(f.robot)
                 if f.robot in self.tokens:

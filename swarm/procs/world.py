@@ -208,7 +208,8 @@ class WorldProcess:
                 return True
             if ctl.stop and not self.stop:
                 self.stop, self.stopped = True, ctl.why
-            self.presence.add(ctl.process, self.run_tick)
+            # (as the supervisor decides: a change its full queue drops is never signalled)
+            self.presence.add(ctl.process, self.run_tick, limit=MAX_PENDING)
             if ctl.table is not None and not self.faults.add(ctl, self.run_tick) and \
                     (n := self.faults.counts["dropped"]) & (n - 1) == 0:  # (in fault_changes)
                 log.warning("dropped a fault change (%d so far): %d wait already", n, MAX_PENDING)

@@ -333,7 +333,8 @@ def write_summary(rows: list[dict[str, Any]], sweep: Sweep, out_dir: Path) -> li
               "receiver): `delivered` trajectory copies that reached another robot in time (a "
               "robot's own message is not counted); `lost`, `cut`, `late`, `dropped_bw` copies "
               "of either kind (trajectory or hidden state) that did not; `queued` copies that "
-              "waited for bandwidth tokens (then delivered or late); `stale` whole messages "
+              "waited for bandwidth tokens (a hidden-state copy then delivered or late, a "
+              "trajectory copy whatever became of it); `stale` whole messages "
               "that reached the world after their tick."]
     cut = [f"`{Path(r['recording']).name}` (logs in `{point_logs(out_dir, exp.name, k).name}/`)"
            for k, r in enumerate(rows) if partial(r)]

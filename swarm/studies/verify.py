@@ -32,7 +32,13 @@ from typing import Any
 import numpy as np
 
 from swarm.learn.evaluate import EvalResult
-from swarm.net.faults import MAX_PENDING, Control, check_control, link_table, plan_from_table
+from swarm.net.faults import (
+    MAX_PENDING,
+    Control,
+    changed_table,
+    check_control,
+    plan_from_table,
+)
 from swarm.net.messages import (
     K_CONTROL,
     K_STATUS,
@@ -256,8 +262,7 @@ class Auditor:
         st = self.status.get((ep, t + 1), (0, {}))[1]
         for item in list(self.pending):
             _, ctl = item
-            assert ctl.table is not None
-            table = link_table(ctl.table if ctl.replace else {**self.table, **ctl.table})
+            table = changed_table(self.table, ctl)
             try:
                 plan = plan_from_table(table, self.run.seed, self.cfg.n_robots)
             except ConfigError:
