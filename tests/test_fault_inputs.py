@@ -18,7 +18,7 @@ import zenoh
 from conftest import ROOT, swarm, swarm_here
 
 from swarm.common.spawn import lookup_run
-from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control
+from swarm.net.faults.control import MAX_PENDING, FaultSchedule, check_control
 from swarm.net.keys import Keys
 from swarm.net.messages import K_CONTROL, pack_record
 from swarm.net.zconfig import ZenohOptions

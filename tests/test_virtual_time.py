@@ -330,7 +330,7 @@ def test_the_world_drops_a_process_fault_change_as_its_supervisor_does() -> None
     """With MAX_PENDING signals queued the supervisor drops a change whole (counted in
     process_faults_dropped) and never sends it; the world took it anyway and held the robot
     down for the rest of the run. Both queues fed the same control records agree now."""
-    from swarm.net.faults import MAX_PENDING, check_control
+    from swarm.net.faults.control import MAX_PENDING, check_control
     from swarm.net.messages import K_CONTROL, pack_record
     from swarm.net.presence import Presence
     from swarm.procs.runconfig import RunConfig

@@ -433,7 +433,8 @@ def batched_faults(table: dict[str, Any], what: str) -> dict[str, Any]:
     """`table` without its process faults (crash, hang, restart: the swarm's supervisor kills
     and stops processes; a batched evaluation or training has none), with one warning line on
     stderr when it had any (a config file shared with `swarm run` is a normal use)."""
-    from swarm.net.faults import PROCESS_KINDS, link_table
+    from swarm.net.faults import PROCESS_KINDS
+    from swarm.net.faults.control import link_table
 
     given = [k for k in PROCESS_KINDS if table.get(k)]
     if given:

@@ -1,6 +1,6 @@
 """The msgpack schemas of every message of a run (the learning ones in swarm.net.learning);
 nothing else knows a payload's fields: readers that need only a message's tick ask `peek_tick`,
-and a control record's contents are checked by `swarm.net.faults.check_control`.
+and a control record's contents are checked by `swarm.net.faults.control.check_control`.
 
 Each payload is a msgpack array `[SCHEMA, kind, ...fields]`. `unpack` validates types, ranges
 and sizes against the run's world config and raises `BadMessage` (a one-line reason); the

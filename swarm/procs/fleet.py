@@ -16,7 +16,8 @@ from typing import Any
 
 from swarm.common.procstat import stopped
 from swarm.common.spawn import EXIT_INCOMPLETE, last_error
-from swarm.net.faults import MAX_PENDING, ProcessFault
+from swarm.net.faults import ProcessFault
+from swarm.net.faults.control import MAX_PENDING
 from swarm.procs.dashboard import SwarmView
 
 Proc = subprocess.Popen[bytes]

@@ -43,7 +43,7 @@ from swarm.common.spawn import (
     wait_port,
 )
 from swarm.learn.weights import fresh_checkpoint
-from swarm.net.faults import MAX_PENDING, ProcessFault, check_control, plan_from_table
+from swarm.net.faults import ProcessFault, control, plan_from_table
 from swarm.net.inbox import Inbox, put_once, tally
 from swarm.net.kernel.hosts import topology
 from swarm.net.keys import Keys
@@ -231,13 +231,13 @@ class Supervisor:
                 self.learner_status = check_learner_status(unpack_record(payload or b"", K_LSTATUS))
                 v.learner = self.learner_status
             elif kind == "control":
-                faults = check_control(unpack_record(payload or b"", K_CONTROL),
-                                       self.run_cfg.seed, self.cfg.n_robots).process
-                if len(self.process_faults) + len(faults) > MAX_PENDING:  # well-formed: not bad
+                faults = control.check_control(unpack_record(payload or b"", K_CONTROL),
+                                               self.run_cfg.seed, self.cfg.n_robots).process
+                if len(self.process_faults) + len(faults) > control.MAX_PENDING:  # (not bad)
                     self.process_faults_dropped += 1
                     if self.process_faults_dropped & (self.process_faults_dropped - 1) == 0:
                         log.warning("dropped a process-fault change (%d so far): %d wait "
-                                    "already", self.process_faults_dropped, MAX_PENDING)
+                                    "already", self.process_faults_dropped, control.MAX_PENDING)
                     return
                 for f in faults:  # ROBOT@TICK waits for run tick TICK, ROBOT alone is now
                     if f.tick < 0:

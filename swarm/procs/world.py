@@ -25,7 +25,8 @@ import zenoh
 from policies import is_chained
 from swarm.learn.evaluate import EvalResult
 from swarm.net.direct import DirectTally
-from swarm.net.faults import MAX_PENDING, FaultSchedule, check_control, plan_from_table
+from swarm.net.faults import plan_from_table
+from swarm.net.faults.control import MAX_PENDING, FaultSchedule, check_control
 from swarm.net.inbox import Event, Inbox, Outbox, check_free, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, LearnerGate
@@ -52,8 +53,6 @@ from world.config import ConfigError, WorldConfig
 
 log = logging.getLogger("swarm.world")
 PHASES = ("obs", "collect", "radio", "decide", "step")  # see WorldProcess.phase_ms
-
-
 SCHEMA = {"traj": Traj, "hidden": Hidden, "action": Action}  # subscription kind -> schema
 
 

@@ -32,13 +32,8 @@ from typing import Any
 import numpy as np
 
 from swarm.learn.evaluate import EvalResult
-from swarm.net.faults import (
-    MAX_PENDING,
-    Control,
-    changed_table,
-    check_control,
-    plan_from_table,
-)
+from swarm.net.faults import plan_from_table
+from swarm.net.faults.control import MAX_PENDING, Control, changed_table, check_control
 from swarm.net.messages import (
     K_CONTROL,
     K_STATUS,
