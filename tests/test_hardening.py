@@ -743,9 +743,22 @@ def test_a_world_status_must_fit_the_run_before_a_process_fault_fires_on_it() ->
     for change, words in (({"run_tick": 110}, "not episode 3 tick 5"),
                           ({"ep": 9}, "status ep"), ({"pos": [[0, 0]] * 500}, "at most 3"),
                           ({"alive": [True] * 500}, "3 booleans"), ({"elratio": 7.5}, "elratio"),
-                          ({"timeouts": list(range(1000))}, "timeouts")):
+                          ({"timeouts": list(range(1000))}, "timeouts"),
+                          # what the dashboard and `swarm trace` index: a short link crashed
+                          # the supervisor's display and `swarm replay`, a number in the
+                          # fault lines their join
+                          ({"links": {"0-1": [1]}}, 'status links: .0-1. is no "SENDER-'),
+                          ({"links": {"0-7": [1, 2, 3, 4]}}, "no \"SENDER-RECEIVER\""),
+                          ({"links": {"0-1": [1, -2, 3, 4]}}, "status links 0-1"),
+                          ({"links": [1, 2]}, "at most 9 links"),
+                          ({"faults": [1, 2]}, "64 lines of text"),
+                          ({"radio": {"lost": "many"}}, "status radio"),
+                          ({"radio": {"lost": float("nan")}}, "status radio")):
         with pytest.raises(BadMessage, match=words):
             check_world_status({**ok, **change}, cfg, first_episode=2, episodes=4)
+    panels = {"faults": ["all: loss 0.3"], "links": {"0-1": [5, 1, 0, 2]},
+              "radio": {"lost": 3, "by_kind": {"traj": {"lost": 3}}, "reported": [0, 2]}}
+    assert check_world_status({**ok, **panels}, cfg, first_episode=2, episodes=4)
 
 
 def test_swarm_version_names_the_package_and_the_commit(

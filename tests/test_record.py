@@ -22,6 +22,7 @@ from swarm.net.keys import Keys  # noqa: E402
 from swarm.net.messages import (  # noqa: E402
     K_RESULT,
     K_RSTATUS,
+    K_STATUS,
     Action,
     BadMessage,
     Bundle,
@@ -534,7 +535,7 @@ def test_trace_writes_tables_and_figures(recorded: dict[str, Any]) -> None:
     made = json.loads((out / "trace.json").read_text())  # what the figures were made from
     assert made["attention_samples"] == per_robot * ROBOTS and made["source"] == {
         "recording": str(recorded["file"]), "run_id": "rec15", "policy": "commattn",
-        "checkpoint": CKPT, "seed": 7, "episodes": 1, "partial": False}
+        "checkpoint": CKPT, "seed": 7, "episodes": 1, "partial": False, "damaged": None}
     assert made["command"].startswith("swarm trace ") and made["provenance"]["git"]
     # a trace of a recording without attention into the same folder leaves no stale figure
     synthetic(recorded["dir"] / "syn.mcap")
@@ -654,3 +655,89 @@ def test_the_tick_of_every_message_kind_is_read_in_one_place() -> None:
     stray = Traj(3, 16, 1, 2, 2, visited, [], patch).pack()  # another tick's message
     with pytest.raises(BadMessage):
         msgjson.to_json("bundle", Bundle(3, 17, 1, [trajs[0], stray]).pack(), cfg)
+
+
+def _inject(src: Path, dst: Path, extra: dict[int, list[tuple[str, str, bytes, int | None]]]
+            ) -> None:
+    """`src` rewritten by the recorder's writer with messages (key, kind, payload, tick: None,
+    that of the message there) filed before the message at each index (-1: after the last)."""
+    from swarm.net.record.recording import RUN_RECORD
+    from swarm.studies.replay import load
+
+    r = load(str(src))
+    w = RecordingWriter(dst, r.record.run.run_id, r.raw.attachment(RUN_RECORD), r.record.world,
+                        r.record.run.clock, r.record.run.tick_timeout)
+    msgs = list(r.messages)
+    for i, m in [*enumerate(msgs), (-1, msgs[-1])]:
+        mine = [(m.key, m.kind, m.payload, m.tick)] if i >= 0 else []
+        for key, kind, payload, tick in [*extra.get(i, []), *mine]:
+            form = w.decode(key, kind, payload)
+            w.message(key, kind, payload, None if form is None else form[1], m.wall_ns,
+                      m.tick if tick is None else tick, m.vtime_ns)
+    w.finish(r.result, {"ended": "end"})
+
+
+def test_strays_the_world_dropped_are_no_divergence_and_crash_no_reader(
+        recorded: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Review helper 92: a readable action for the next tick filed before that tick's
+    observation, and a status of a later tick filed early (both dropped by the world and the
+    supervisor), made `--verify` report a divergence and `replay --until` stop there; a status
+    whose link or fault entries had another shape crashed `replay` and `trace` (and the live
+    dashboard, which reads them the same way); the supervisor's check now drops it."""
+    from conftest import swarm_here
+
+    from swarm.studies.replay import load
+
+    cfg = WorldConfig(n_robots=ROBOTS, horizon=HORIZON)
+    r = load(str(recorded["file"]))
+    msgs = r.messages
+    at = next(k for k, m in enumerate(msgs) if m.kind == "action" and m.robot == 0 and
+              Action.unpack(m.payload, cfg).t == 3)  # robot 0's action of tick 3, then a stray
+    real = next(Action.unpack(m.payload, cfg) for m in msgs if m.kind == "action"  # of tick 4
+                and m.robot == 0 and Action.unpack(m.payload, cfg).t == 4)
+    stray = Action(real.ep, real.t, 0, real.action % 8 + 1, real.planning_ms).pack()
+    st = unpack_record(r.of("status")[1].payload, K_STATUS)
+    ahead = pack_record(K_STATUS, {**st, "t": 7, "run_tick": 7})
+    key = Keys(r.record.run.run_id)
+    odd = [pack_record(K_STATUS, {**unpack_record(r.of("status")[-1].payload, K_STATUS),
+                                  **change}) for change in ({"links": {"0-1": [1]}},
+                                                            {"faults": [1]})]
+    strays = tmp_path / "strays.mcap"
+    _inject(recorded["file"], strays, {at + 1: [(msgs[at].key, "action", stray, None)],
+                                       10: [(key.status, "status", ahead, 7)],
+                                       -1: [(key.status, "status", p, None) for p in odd]})
+    out = tmp_path / "v.json"
+    got = swarm_here("replay", str(strays), "--verify", "--json", str(out), capsys=capsys)
+    assert got.returncode == 0, got.stderr
+    assert json.loads(out.read_text())["checked"]["statuses"] == HORIZON
+    got = swarm_here("replay", str(strays), "--speed", "0", "--until", "6", capsys=capsys)
+    assert got.returncode == 0 and "(ticks 0..6" in got.stdout + got.stderr, got.stderr
+    got = swarm_here("trace", str(strays), "--out", str(tmp_path / "t"), capsys=capsys)
+    assert got.returncode == 0, got.stderr
+
+
+def test_a_recorder_stopped_before_any_tick_writes_what_it_held(
+        recorded: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Messages that name no tick are held until one does; a recorder that ended first (a run
+    stopped while starting) left them unwritten and in no counter (review helper 92). And
+    `swarm trace --partial` says the file is cut, as `swarm replay` does."""
+    from conftest import swarm_here
+
+    from swarm.net.record.recording import RUN_RECORD, read
+    from swarm.procs.recorder import Recorder
+    from swarm.studies.replay import load
+
+    r = load(str(recorded["file"]))
+    rec, held = r.record, tmp_path / "held.mcap"
+    recorder = Recorder(rec.run.run_id, str(held), None)  # (no session: fed by hand)
+    w = RecordingWriter(held, rec.run.run_id, r.raw.attachment(RUN_RECORD), rec.world,
+                        rec.run.clock, rec.run.tick_timeout)
+    for m in r.of("rstatus")[:3]:  # robots' statuses before the world's first
+        recorder.q.put_nowait((m.wall_ns, m.key, m.payload))
+    recorder._drain(w, rec)  # (what the recorder does on its way out)
+    w.finish(None, {"ended": "interrupted", "received": recorder.c.received})
+    assert len(read(held).messages) == recorder.c.received == 3 and not recorder.held
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(recorded["file"].read_bytes()[:-20])
+    got = swarm_here("trace", str(cut), "--partial", "--out", str(tmp_path / "t"), capsys=capsys)
+    assert got.returncode == 0 and "partial recording" in got.stderr, got.stderr

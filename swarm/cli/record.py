@@ -146,14 +146,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise ConfigError(f"--until {args.until} is before the start of {args.file} (run ticks "
                           f"{first}..{last})")
     out, err = _consoles()
-    if rec.raw.damaged:  # (the recorder may well have finished it: say only what is known)
-        err.print(f"[yellow]damaged recording[/]: unreadable at {rec.raw.where_bad()}; using "
-                  f"the {len(rec.messages)} messages before it (up to run "
-                  f"tick {rec.last_tick})", soft_wrap=True)
-    elif not rec.raw.complete:
-        err.print(f"[yellow]partial recording[/]: the recorder stopped at run tick "
-                  f"{rec.last_tick}; using the {len(rec.messages)} messages before the cut",
-                  soft_wrap=True)
+    _say_cut(rec, err)
     if first > 0:
         err.print(f"[yellow]recording starts mid-run[/]: at run tick {first} (the recorder "
                   "joined late)", soft_wrap=True)
@@ -225,6 +218,18 @@ def _new_dirs(path: str) -> Path | None:
     return target
 
 
+def _say_cut(rec: Any, err: Any) -> None:
+    """One line on stderr for a damaged or partial recording (what `--partial` let through)."""
+    if rec.raw.damaged:  # (the recorder may well have finished it: say only what is known)
+        err.print(f"[yellow]damaged recording[/]: unreadable at {rec.raw.where_bad()}; using "
+                  f"the {len(rec.messages)} messages before it (up to run "
+                  f"tick {rec.last_tick})", soft_wrap=True)
+    elif not rec.raw.complete:
+        err.print(f"[yellow]partial recording[/]: the recorder stopped at run tick "
+                  f"{rec.last_tick}; using the {len(rec.messages)} messages before the cut",
+                  soft_wrap=True)
+
+
 def cmd_trace(args: argparse.Namespace) -> int:
     import shutil
 
@@ -252,6 +257,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
         raise
     _output_json(args.json, res)
     out, err = _consoles()
+    _say_cut(rec, err)  # (said by replay, not by trace: the README said both)
     for f in res["files"]:
         out.print(f"wrote {f}")
     for note in res["notes"]:

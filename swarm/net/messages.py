@@ -464,11 +464,33 @@ def check_world_status(rec: dict[str, Any], cfg: WorldConfig, first_episode: int
     _float(rec.get("vtime", 0.0), "status vtime", 0.0, 1e12)
     if rec.get("clock", "virtual") not in ("virtual", "real"):
         raise BadMessage("status clock must be virtual or real")
-    for k, most in (("faults", 64), ("radio", 64), ("links", 4 * n * n + 64)):
-        v = rec.get(k, [] if k == "faults" else {})
-        if not isinstance(v, list | dict) or len(v) > most:
-            raise BadMessage(f"status {k} must hold at most {most} entries")
+    _status_panels(rec, n)
     return rec
+
+
+def _status_panels(rec: dict[str, Any], n: int) -> None:
+    """A status's fault lines, radio counts and faulted links as the dashboard and `swarm
+    trace` read them (a list of ints for a link, a string for a fault line: one of another
+    shape crashed the supervisor's display and `swarm replay`)."""
+    faults, radio, links = rec.get("faults", []), rec.get("radio", {}), rec.get("links", {})
+    if not isinstance(faults, list) or len(faults) > 64 or \
+            not all(isinstance(f, str) and len(f) <= 400 for f in faults):
+        raise BadMessage("status faults must be at most 64 lines of text")
+    if not isinstance(radio, dict) or len(radio) > 64 or not all(
+            isinstance(k, str) and (isinstance(v, dict) and len(v) <= 16  # (by_kind)
+                                    or isinstance(v, list) and len(v) <= n  # (reported)
+                                    or type(v) in (int, float) and 0 <= v <= 1e18)
+            for k, v in radio.items()):
+        raise BadMessage("status radio must be at most 64 counts (numbers >= 0) by name")
+    if not isinstance(links, dict) or len(links) > n * n:
+        raise BadMessage(f"status links must hold at most {n * n} links")
+    for k, v in links.items():
+        j, sep, i = str(k).partition("-")
+        if not (sep and j.isdigit() and i.isdigit() and int(j) < n and int(i) < n) or \
+                not isinstance(v, list) or len(v) != 4:
+            raise BadMessage(f'status links: {str(k)[:20]!r} is no "SENDER-RECEIVER" of 4 '
+                             "counts")
+        _ints(v, f"status links {k}", 0, BIG)
 
 
 RESULT_COUNTS = ("elratio_std", "reward_std", "collisions_mean", "block_collisions_mean",

@@ -142,7 +142,7 @@ class Recorder:
             try:
                 item = self.q.get_nowait()
             except queue.Empty:
-                return
+                break  # (a return left the held messages unwritten, in no counter)
             self._write(w, rec, *item)
         self._release(w, rec, 0)  # (no message named its tick: the run's tick is unknown)
 
@@ -203,6 +203,8 @@ class Recorder:
         if given; returns how many were left without one."""
         done = 0
         for key, kind, payload, wall_ns, tick, vtime in self.backlog:
+            if self.stop and deadline is None:  # stopped meanwhile (SIGKILL follows in 2 s):
+                deadline = time.monotonic() + INTERRUPT_JSON_S  # the footer comes first
             if deadline is not None and time.monotonic() > deadline:
                 break
             decoded = w.decode(key, kind, payload)

@@ -49,3 +49,24 @@ class StatusOrder:
             return held, None
         return None, (f"status of tick {held['run_tick']} skipped ahead of {self.tick}, and "
                       f"none followed it")
+
+
+def in_order(statuses: list[tuple[int, dict[str, Any]]]) -> list[tuple[int, dict[str, Any]]]:
+    """Of (index, status) pairs in the order they came, those a supervisor reading them so
+    takes (`swarm replay --verify` of a recording that holds a stray): a replay of a passed
+    tick and one that skipped ahead with no status following it are left out; one held at the
+    end is kept (the last tick's, or a stray past the run, which nothing reads)."""
+    order, out, held = StatusOrder(), [], None
+    for idx, rec in statuses:
+        if not isinstance(rec.get("run_tick"), int):
+            continue
+        try:
+            apply, _ = order.offer(rec)
+        except BadMessage:
+            continue
+        if apply and held is not None and rec["run_tick"] == held[1]["run_tick"] + 1:
+            out.append(held)
+        if apply:
+            out.append((idx, rec))
+        held = None if apply else (idx, rec)
+    return out + ([held] if held is not None else [])

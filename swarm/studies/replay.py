@@ -242,13 +242,16 @@ def replay(rec: Recording, console: Console | None = None, speed: float = 1.0,
     try:
         for m in rec.messages:
             if until_tick is not None and m.tick > until_tick:
-                break
+                continue  # (not break: one stray filed at a later tick ended the replay there)
             if m.tick >= from_tick and speed > 0:
                 if t0 is None:
                     t0, w0 = m.wall_ns, time.monotonic()
                 wait = w0 + (m.wall_ns - t0) / 1e9 / speed - time.monotonic()
+                if wait > 5.0:  # a long silence in the recording is cut short to 5 s
+                    w0 -= wait - 5.0  # (and the messages after it keep their pace from there)
+                    wait = 5.0
                 if wait > 1e-3:
-                    sleep(min(wait, 5.0))  # a long silence in the recording is cut short
+                    sleep(wait)
             apply(v, m, stats, rec)
             v.elapsed_s = m.wall_ns / 1e9 - (v.first_status if v.first_status is not None
                                              else rec.messages[0].wall_ns / 1e9)

@@ -56,6 +56,7 @@ from swarm.net.messages import (
     Obs,
     Traj,
     check_robot_status,
+    check_world_status,
     unpack_record,
 )
 from swarm.studies.replay import Recording
@@ -155,7 +156,9 @@ class Trace:
                 self.delivered[1, h.robot, m.robot] += 1
             return h.is_miss
         elif m.kind == "status":
-            st = unpack_record(m.payload, K_STATUS)
+            run = self.rec.record.run  # (checked as the supervisor checks it: a malformed
+            st = check_world_status(unpack_record(m.payload, K_STATUS), cfg,  # one is skipped)
+                                    run.first_episode, run.episodes)
             self.elratio.append((int(st["run_tick"]), int(st["ep"]), int(st["t"]),
                                  float(st["elratio"])))
             if isinstance(st.get("links"), dict):
@@ -366,7 +369,8 @@ def trace(rec: Recording, out: str | Path, command: str | None = None) -> dict[s
            "bad": tr.bad, "messages": len(rec.messages), "notes": notes,
            "source": {"recording": str(rec.raw.path), "run_id": run.run_id,
                       "policy": run.policy, "checkpoint": run.checkpoint, "seed": run.seed,
-                      "episodes": run.episodes, "partial": not rec.raw.complete},
+                      "episodes": run.episodes, "partial": not rec.raw.complete,
+                      "damaged": rec.raw.where_bad() if rec.raw.damaged else None},
            "command": command, "provenance": provenance()}
     atomic.write_json(out / "trace.json", res)
     return res

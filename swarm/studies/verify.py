@@ -18,9 +18,9 @@ of tick t from a robot that its status does not list as timed out (the status is
 list exactly the live robots without one); its radio saw the trajectory message of every robot
 it sent a bundle to (it always hands a sender its own message back) and the hidden-state
 message of every robot that did not time out. Unreadable payloads (a foreign peer's garbage)
-are skipped and counted, not divergences: every live process dropped them. A partial recording
-(`--partial`) is checked up to the tick before its last status: the cut may have lost messages
-of that last tick.
+are skipped and counted, not divergences: every live process dropped them; so are strays the
+world dropped (an action before its robot's observation, a status out of order). A partial
+recording (`--partial`) is checked up to the tick before its last status.
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from swarm.net.messages import (
 )
 from swarm.net.radio import Radio
 from swarm.net.record.recording import check_json_forms
+from swarm.procs.status_order import in_order
 from swarm.studies.replay import Recording, recorded_result
 from swarm.studies.verify_direct import DirectAudit, hidden_label, senders_of, stamped_of
 from world import core
@@ -114,12 +115,11 @@ def _index(rec: Recording, report: VerifyReport) -> tuple[dict[tuple[int, int], 
     ticks: dict[tuple[int, int], _Tick] = {}
     status: dict[tuple[int, int], tuple[int, dict]] = {}
     control: list[tuple[int, dict]] = []
+    statuses: list[tuple[int, dict]] = []  # (taken in order at the end)
     for idx, m in enumerate(rec.messages):
         try:
             if m.kind == "status":
-                st = unpack_record(m.payload, K_STATUS)
-                key = (int(st["ep"]), int(st["t"]))
-                status.setdefault(key, (idx, st))
+                statuses.append((idx, unpack_record(m.payload, K_STATUS)))
                 continue
             if m.kind == "control":
                 control.append((idx, unpack_record(m.payload, K_CONTROL)))
@@ -145,6 +145,8 @@ def _index(rec: Recording, report: VerifyReport) -> tuple[dict[tuple[int, int], 
             bucket.obs.append((idx, msg))
         elif m.kind == "action":
             bucket.action.append((idx, msg))
+    for idx, st in in_order(statuses):  # as the supervisor takes them (a stray: not)
+        status.setdefault((int(st["ep"]), int(st["t"])), (idx, st))
     return ticks, status, control
 
 
@@ -310,9 +312,10 @@ class Auditor:
             self.fail("status.alive", rec_alive, f"{cfg.n_robots} flags")
         alive[:] = [bool(a) for a in rec_alive]
         acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
-        got = set()
+        got, seen = set(), {o.robot: i for i, o in bucket.obs}  # (a stray came before it)
         for idx, a in bucket.action:  # a timed-out robot's action came after the deadline
-            if a.robot not in late and a.robot not in got and idx > self.acted.get(a.robot, -1):
+            if a.robot not in late and a.robot not in got and \
+                    idx > max(self.acted.get(a.robot, -1), seen.get(a.robot, -1)):
                 acts[0, a.robot] = a.action
                 got.add(a.robot)
                 self.acted[a.robot] = idx
@@ -481,8 +484,7 @@ class Auditor:
         self.report.count("results")
 
     def _json_forms(self) -> None:
-        """Every `/json` channel's message is the JSON form of the raw payload it stands beside
-        (what MCAP tools and Foxglove show must be what was on the wire)."""
+        """Every `/json` message is the JSON form of the raw payload beside it (Foxglove's)."""
         checked, bad = check_json_forms(self.rec.raw, self.cfg)
         if bad is not None:
             what, tick, (ep, t), recorded, expected = bad

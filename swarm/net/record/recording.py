@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import os
 import struct
 import time
 from dataclasses import dataclass, field
@@ -172,6 +173,8 @@ class RecordingWriter:
             "bytes": s.bytes, "finished": dt.datetime.now(dt.UTC).isoformat(),
             **extra}.items()})
         self.w.finish()
+        self.fh.flush()
+        os.fsync(self.fh.fileno())  # (the footer on disk before the recorder says it is done)
         self.fh.close()
 
 
