@@ -23,10 +23,10 @@ from swarm.net.messages import (
     Action,
     BadMessage,
     Obs,
-    check_world_result,
     pack_record,
     unpack_record,
 )
+from swarm.net.records import check_world_result
 from swarm.net.zconfig import ZenohOptions
 from swarm.procs.robot_status import TickGuard
 from swarm.procs.status_order import StatusOrder

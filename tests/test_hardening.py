@@ -733,7 +733,8 @@ def test_a_robot_takes_only_observations_and_ticks_that_fit_its_run() -> None:
 def test_a_world_status_must_fit_the_run_before_a_process_fault_fires_on_it() -> None:
     """The supervisor fires planned process faults on the status's run tick: a status must be
     of the run's episodes and team, and its run tick that of its episode and tick."""
-    from swarm.net.messages import BadMessage, check_world_status
+    from swarm.net.messages import BadMessage
+    from swarm.net.records import check_world_status
     from world.config import WorldConfig
 
     cfg = WorldConfig(n_robots=3)

@@ -29,12 +29,12 @@ from swarm.net.messages import (  # noqa: E402
     Hidden,
     Obs,
     Traj,
-    check_robot_status,
     pack_record,
     unpack_record,
 )
 from swarm.net.record import msgjson  # noqa: E402
 from swarm.net.record.recording import RecordingWriter  # noqa: E402
+from swarm.net.records import check_robot_status  # noqa: E402
 from swarm.procs.dashboard import SwarmView, render  # noqa: E402
 from swarm.procs.runconfig import RunConfig, RunRecord  # noqa: E402
 from world.config import WorldConfig  # noqa: E402
@@ -463,6 +463,23 @@ def test_a_robot_restarted_under_direct_delivery_verifies(tmp_path: Path) -> Non
 
     view, _ = replay(load(f), Console(file=io.StringIO()), speed=0)  # the run's own process
     assert view.events == res["process_faults"]  # faults, as the live dashboard showed them
+
+
+@pytest.mark.procs
+def test_a_robot_hung_to_the_end_under_direct_delivery_verifies(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The world sums a hung robot's counts to its last report, which came before its last
+    tick; the audit summed its link to that tick, a false divergence of result.messages
+    (review helper 92; a crash without a restart the same). It counts to the report now."""
+    from conftest import swarm_here
+
+    f = tmp_path / "hang.mcap"
+    r = swarm("run", "--headless", "--robots", "4", "--policy", "commattn", "--episodes", "2",
+              "--horizon", "10", "--size", "10x10", "--loss", "0.2", "--delivery", "direct",
+              "--hang", "2@12", "--record", str(f), timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    r = swarm_here("replay", str(f), "--verify", capsys=capsys)
+    assert r.returncode == 0, r.stderr
 
 
 @pytest.mark.procs

@@ -156,7 +156,7 @@ class SwarmView:
         row.final = rec.get("final") is True
         if row.final:  # its last status: it is leaving the ended run (its token may go
             row.state = "done"  # before or after this comes, or not be seen going at all)
-        if isinstance(rec.get("attn"), list):  # range-checked by messages.check_robot_status
+        if isinstance(rec.get("attn"), list):  # range-checked by records.check_robot_status
             self.attention[int(rec["robot"])] = (int(rec.get("attn_t", 0)),
                                                  [float(x) for x in rec["attn"]])
 

@@ -54,12 +54,10 @@ from swarm.net.messages import (
     K_RESULT,
     K_RSTATUS,
     K_STATUS,
-    check_robot_status,
-    check_world_result,
-    check_world_status,
     pack_record,
     unpack_record,
 )
+from swarm.net.records import check_robot_status, check_world_result, check_world_status
 from swarm.net.security.tls import identity_of, run_configs, topology_configs, topology_secure
 from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render

@@ -32,13 +32,11 @@ from swarm.net.messages import (
     K_RSTATUS,
     K_STATUS,
     BadMessage,
-    check_robot_status,
-    check_world_result,
-    check_world_status,
     unpack_record,
 )
 from swarm.net.record.recording import JSON_SUFFIX, RESULT, RUN_RECORD, RawRecording, RecordingError
 from swarm.net.record.recording import read as read_file
+from swarm.net.records import check_robot_status, check_world_result, check_world_status
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.runconfig import RunRecord
 from world.config import ConfigError

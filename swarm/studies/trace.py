@@ -55,10 +55,9 @@ from swarm.net.messages import (
     Hidden,
     Obs,
     Traj,
-    check_robot_status,
-    check_world_status,
     unpack_record,
 )
+from swarm.net.records import check_robot_status, check_world_status
 from swarm.studies.replay import Recording
 
 WRITES = ("links.csv", "robots.csv", "kinds.csv", "elratio.csv", "attention.csv", "links.png",

@@ -50,7 +50,7 @@ from swarm.net.radio import Radio
 from swarm.net.record.recording import check_json_forms
 from swarm.procs.status_order import in_order
 from swarm.studies.replay import Recording, recorded_result
-from swarm.studies.verify_direct import DirectAudit, hidden_label, senders_of, stamped_of
+from swarm.studies.verify_direct import DirectAudit, hidden_label, reported, senders_of, stamped_of
 from world import core
 from world.config import ConfigError
 
@@ -474,8 +474,8 @@ class Auditor:
                 self.same(f"result.{k}", res.get(k), float(summ[k]))  # type: ignore[arg-type]
         msgs = res.get("messages") if isinstance(res.get("messages"), dict) else {}
         try:
-            mine = self._radio_totals() if self.radio_run else \
-                self.direct.totals(msgs.get("restarted")) if self.direct is not None else {}
+            mine = self._radio_totals() if self.radio_run else self.direct.totals(
+                msgs.get("restarted"), reported(self.rec)) if self.direct is not None else {}
         except BadMessage as exc:  # a crashed robot's report the recording cannot place
             self.fail("result.messages.restarted", msgs.get("restarted"), str(exc))
             return

@@ -15,6 +15,7 @@ reported to; the audit keeps each robot's last few ticks of counts to take that 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 from collections import deque
 from collections.abc import Callable
@@ -118,12 +119,17 @@ class DirectAudit:
                                  "the recording has it vanish")
         return out
 
-    def totals(self, restarted: Any = None) -> dict[str, Any]:
+    def totals(self, restarted: Any = None, reported: dict[int, Any] | None = None
+               ) -> dict[str, Any]:
         """The counters the links end with, summed as the world sums the robots' reports, less
-        what crashed incarnations counted after their last report (`lost_in_crashes`)."""
+        what crashed incarnations counted after their last report (`lost_in_crashes`); a robot
+        whose last report (`reported`: robot -> the [ep, t] it reports to) came before its
+        last tick (crashed for good, hung to the end) counts to that report, as in the world."""
         tally = DirectTally(self.cfg.n_robots)
         for i, link in enumerate(self.links):
-            tally.offer({"robot": i, "direct": link.record()})
+            at = (reported or {}).get(i)
+            mine = next((rec for k, rec in self.recent[i] if list(k) == at), link.record())
+            tally.offer({"robot": i, "direct": mine})
         tot = tally.totals()
         out = {k: tot[k] for k in COUNT_KEYS} | {
             "by_kind": {kind: {k: tot["by_kind"][kind][k] for k in KIND_KEYS}
@@ -134,6 +140,20 @@ class DirectAudit:
 
 
 KEEP = 8  # ticks of counts kept per robot: a robot reports at least every 5 ticks
+
+
+def reported(rec: Any) -> dict[int, Any]:
+    """Each robot's last recorded direct-delivery report in recording `rec`: the [ep, t] it
+    counts to (what the world summed of that robot)."""
+    from swarm.net.messages import K_RSTATUS, unpack_record
+    from swarm.net.records import check_robot_status
+
+    cfg, tally = rec.record.world, DirectTally(rec.record.world.n_robots)
+    for m in rec.of("rstatus"):
+        with contextlib.suppress(BadMessage, ValueError, TypeError, KeyError):
+            tally.offer(check_robot_status(unpack_record(m.payload, K_RSTATUS), cfg.n_robots,
+                                           cfg.horizon))
+    return {r: rec_["at"] for r, rec_ in tally.latest.items()}
 
 
 def _minus(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:

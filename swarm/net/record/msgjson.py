@@ -20,6 +20,7 @@ import numpy as np
 
 from swarm.net import learning
 from swarm.net import messages as m
+from swarm.net.records import check_robot_status
 from world.config import WorldConfig
 
 INT = {"type": "integer"}
@@ -168,7 +169,7 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
     if kind in RECORD_KINDS:
         rec = m.unpack_record(payload, RECORD_KINDS[kind])
         if kind == "rstatus":
-            m.check_robot_status(rec, cfg.n_robots, cfg.horizon)
+            check_robot_status(rec, cfg.n_robots, cfg.horizon)
         return safe(rec)
     if kind == "weights":
         w = learning.Weights.unpack(payload)
