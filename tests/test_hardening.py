@@ -682,10 +682,14 @@ def test_stop_children_ends_every_child_even_when_popens_lock_was_lost() -> None
     raised only once every child is down."""
     from swarm.common.spawn import stop_children
 
-    code = "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(60)"
-    stubborn = subprocess.Popen([sys.executable, "-c", code])
-    polite = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    time.sleep(0.5)  # both running their sleep (the stubborn one ignores SIGINT)
+    code = "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); print(1, " \
+        "flush=True); time.sleep(60)"
+    stubborn = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE)
+    polite = subprocess.Popen([sys.executable, "-c", "import time; print(1, flush=True); "
+                               "time.sleep(60)"], stdout=subprocess.PIPE)
+    for p in (stubborn, polite):  # both running their sleep, the stubborn one ignoring SIGINT
+        assert p.stdout is not None and p.stdout.readline()  # (a fixed 0.5 s was not enough
+        # on a loaded machine: a SIGINT during the interpreter's start ended it with exit 1)
     assert stubborn._waitpid_lock.acquire(False)  # the lost lock: held, never released
     t0 = time.monotonic()
     stop_children([stubborn, polite], grace=0.5)

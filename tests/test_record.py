@@ -754,6 +754,19 @@ def test_a_recorder_stopped_before_any_tick_writes_what_it_held(
     recorder._drain(w, rec)  # (what the recorder does on its way out)
     w.finish(None, {"ended": "interrupted", "received": recorder.c.received})
     assert len(read(held).messages) == recorder.c.received == 3 and not recorder.held
+    # a status far ahead (a stray) does not move the clock the robots' statuses are filed by
+    st = [unpack_record(m.payload, K_STATUS) for m in r.of("status")[:2]]
+    stray = pack_record(K_STATUS, {**st[0], "t": 6, "run_tick": 6})
+    w = RecordingWriter(tmp_path / "clock.mcap", rec.run.run_id, r.raw.attachment(RUN_RECORD),
+                        rec.world, rec.run.clock, rec.run.tick_timeout)
+    m = r.of("rstatus")[0]
+    for key, payload in ((r.of("status")[0].key, pack_record(K_STATUS, st[0])),
+                         (r.of("status")[0].key, stray), (m.key, m.payload)):
+        recorder._write(w, rec, 0, key, payload)
+    assert recorder.tick == st[0]["run_tick"]  # (the stray was filed, at its own tick)
+    recorder._write(w, rec, 0, r.of("status")[1].key, pack_record(K_STATUS, st[1]))
+    assert recorder.tick == st[1]["run_tick"]
+    w.finish(None, {"ended": "end"})
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(recorded["file"].read_bytes()[:-20])
     got = swarm_here("trace", str(cut), "--partial", "--out", str(tmp_path / "t"), capsys=capsys)

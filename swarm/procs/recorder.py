@@ -64,6 +64,7 @@ class Recorder:
         self.stop = False
         self.result: dict[str, Any] | None = None
         self.tick: int | None = None  # the run tick of the world's last status
+        self.ahead = -2  # the run tick of the last status, taken or not
         # what came before any message naming its tick (a recorder that joined late): filed
         # at the first tick named, the run's tick then as well as the recorder can know it
         self.held: list[tuple[str, str, bytes, int]] = []
@@ -176,8 +177,12 @@ class Recorder:
             if len(self.held) >= HELD:
                 self._release(w, rec, 0)
             return is_end
-        if kind == "status":  # (the clock of messages that name no tick: a stale or stray
-            self.tick = tick  # message's own tick does not move it back or ahead)
+        if kind == "status":  # the clock of messages that name no tick (a stale or stray
+            # message's own tick does not move it back or ahead; nor does a status that skips
+            # ahead, as the supervisor's StatusOrder has it, until the next one follows it)
+            if self.tick is None or self.tick <= tick <= self.tick + 1 or tick == self.ahead + 1:
+                self.tick = tick
+            self.ahead = tick
         self._release(w, rec, tick)
         self._file(w, rec, key, kind, payload, wall_ns, tick)
         return is_end
