@@ -762,8 +762,22 @@ def test_a_world_status_must_fit_the_run_before_a_process_fault_fires_on_it() ->
         with pytest.raises(BadMessage, match=words):
             check_world_status({**ok, **change}, cfg, first_episode=2, episodes=4)
     panels = {"faults": ["all: loss 0.3"], "links": {"0-1": [5, 1, 0, 2]},
-              "radio": {"lost": 3, "by_kind": {"traj": {"lost": 3}}, "reported": [0, 2]}}
+              "radio": {"lost": 3, "by_kind": {"traj": {"lost": 3}}, "reported": [0, 2],
+                        "restarted": [{"robot": 0, "reported_to": [2, 3]}] * 5}}  # (> n)
     assert check_world_status({**ok, **panels}, cfg, first_episode=2, episodes=4)
+    # what the world sends of its fault plan fits, however large (a partition of 128 robots
+    # or 64 robots' own faults made every status too big for its readers)
+    from swarm.net.faults import plan_from_table
+
+    big = WorldConfig(n_robots=200)
+    plan = plan_from_table({"partition": "0-99/100-199", "crash": [f"{r}@9" for r in range(80)],
+                            "robot": {str(r): {"loss": 0.1} for r in range(30)}}, 0, 200)
+    lines = plan.panel()
+    assert len(lines) == 64 and lines[-1] == f"... {len(plan.describe()) - 63} more"
+    assert any(x.startswith("partition 0,1,") and x.endswith("...") for x in lines)
+    pos = [[0, r % 20] for r in range(200)]
+    assert check_world_status({**ok, "pos": pos, "alive": [True] * 200, "timeouts": [],
+                               "faults": lines}, big, first_episode=2, episodes=4)
 
 
 def test_swarm_version_names_the_package_and_the_commit(

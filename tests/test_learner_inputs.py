@@ -54,6 +54,8 @@ BAD = [  # (argv, what the one line must say); {tmp}/o must not exist afterwards
      "is a directory"),
     (["rollout-worker", "--run-id", "x", "--worker-id", "99999999999999999999"], "--worker-id"),
     (["rollout-worker", "--run-id", "x", "--worker-id", "-1"], "--worker-id"),
+    # (its key names it, as six digits at most: a larger id's episodes were all dropped)
+    (["rollout-worker", "--run-id", "x", "--worker-id", "1000000"], "in [0, 999999]"),
     (["rollout-worker", "--run-id", "x", "--wait", "nan"], "--wait"),
     (["rollout-worker", "--run-id", "x", "--wait", "-1"], "--wait"),
     (["rollout-worker", "--run-id", "x", "--max-batches", "-1"], "--max-batches"),

@@ -721,7 +721,9 @@ def test_strays_the_world_dropped_are_no_divergence_and_crash_no_reader(
                                                             {"faults": [1]})]
     strays = tmp_path / "strays.mcap"
     _inject(recorded["file"], strays, {at + 1: [(msgs[at].key, "action", stray, None)],
-                                       10: [(key.status, "status", ahead, 7)],
+                                       10: [(key.status, "status", ahead, 7),  # and one
+                                            (key.status, "status",  # of no episode
+                                             pack_record(K_STATUS, {"run_tick": 0}), 0)],
                                        -1: [(key.status, "status", p, None) for p in odd]})
     out = tmp_path / "v.json"
     got = swarm_here("replay", str(strays), "--verify", "--json", str(out), capsys=capsys)

@@ -359,8 +359,9 @@ def held_seed(state: Any, asked: int | None, out: Path) -> int:
 
 
 # ---------------------------------------------------------------------------- rollout worker
-MAX_WORKER_ID = 2**31 - 1
-"""Worker ids are seeds (and go on the wire as msgpack ints): [0, MAX_WORKER_ID]."""
+MAX_WORKER_ID = 999_999
+"""Worker ids are seeds and name their worker's key (`worker/<k>/episodes`, an id of at most
+six digits as every id in a key): [0, MAX_WORKER_ID]."""
 MAX_WORKER_BATCH = 4096
 """Episodes a rollout worker collects at once, all in its memory (the paper's batch is 288)."""
 

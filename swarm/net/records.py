@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm.net.direct import MAX_RESTARTS
+from swarm.net.faults import PANEL_LINES, PANEL_WIDTH
 from swarm.net.messages import BIG, MAX_MS, BadMessage, _float, _int, _ints
 from world.config import WorldConfig
 
@@ -101,12 +103,13 @@ def _status_panels(rec: dict[str, Any], n: int) -> None:
     trace` read them (a list of ints for a link, a string for a fault line: one of another
     shape crashed the supervisor's display and `swarm replay`)."""
     faults, radio, links = rec.get("faults", []), rec.get("radio", {}), rec.get("links", {})
-    if not isinstance(faults, list) or len(faults) > 64 or \
-            not all(isinstance(f, str) and len(f) <= 400 for f in faults):
-        raise BadMessage("status faults must be at most 64 lines of text")
+    if not isinstance(faults, list) or len(faults) > PANEL_LINES or \
+            not all(isinstance(f, str) and len(f) <= PANEL_WIDTH for f in faults):
+        raise BadMessage(f"status faults must be at most {PANEL_LINES} lines of text")
     if not isinstance(radio, dict) or len(radio) > 64 or not all(
             isinstance(k, str) and (isinstance(v, dict) and len(v) <= 16  # (by_kind)
-                                    or isinstance(v, list) and len(v) <= n  # (reported)
+                                    or isinstance(v, list)  # (reported, restarted)
+                                    and len(v) <= (MAX_RESTARTS + 1) * n
                                     or type(v) in (int, float) and 0 <= v <= 1e18)
             for k, v in radio.items()):
         raise BadMessage("status radio must be at most 64 counts (numbers >= 0) by name")

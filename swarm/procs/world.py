@@ -402,7 +402,7 @@ class WorldProcess:
             "run_tick": self.run_tick, "wall": time.time(),
             "radio": (self.direct or self.radio.counters).totals(),
             "clock": self.run_cfg.clock, "vtime": self.run_tick * self.run_cfg.tick_timeout,
-            "faults": self.radio.plan.describe(), "heard_links": self.radio.heard_links(),
+            "faults": self.radio.plan.panel(), "heard_links": self.radio.heard_links(),
             "links": (self.direct or self.radio.counters).faulted_links(),
         }
         if state.t == 1:

@@ -48,6 +48,7 @@ from swarm.net.messages import (
 )
 from swarm.net.radio import Radio
 from swarm.net.record.recording import check_json_forms
+from swarm.net.records import check_world_status
 from swarm.procs.status_order import in_order
 from swarm.studies.replay import Recording, recorded_result
 from swarm.studies.verify_direct import DirectAudit, hidden_label, reported, senders_of, stamped_of
@@ -111,15 +112,16 @@ class _Tick:
 def _index(rec: Recording, report: VerifyReport) -> tuple[dict[tuple[int, int], _Tick],
                                                            dict[tuple[int, int], tuple[int, dict]],
                                                            list[tuple[int, dict]]]:
-    cfg = rec.record.world
+    cfg, run = rec.record.world, rec.record.run
     ticks: dict[tuple[int, int], _Tick] = {}
     status: dict[tuple[int, int], tuple[int, dict]] = {}
     control: list[tuple[int, dict]] = []
     statuses: list[tuple[int, dict]] = []  # (taken in order at the end)
     for idx, m in enumerate(rec.messages):
         try:
-            if m.kind == "status":
-                statuses.append((idx, unpack_record(m.payload, K_STATUS)))
+            if m.kind == "status":  # (checked as the supervisor checks it)
+                statuses.append((idx, check_world_status(unpack_record(
+                    m.payload, K_STATUS), cfg, run.first_episode, run.episodes)))
                 continue
             if m.kind == "control":
                 control.append((idx, unpack_record(m.payload, K_CONTROL)))
@@ -254,8 +256,7 @@ class Auditor:
                 self.actions.append(acts_log)
 
     def _apply_fault_changes(self, run_tick: int, ep: int, t: int) -> None:
-        """Live `swarm fault` changes: from their `at_tick`, or (without one) from the tick whose
-        recorded status first shows the new plan, as the world applied it."""
+        """Live `swarm fault` changes: from their `at_tick`, else the tick whose status shows it."""
         st = self.status.get((ep, t + 1), (0, {}))[1]
         for item in list(self.pending):
             _, ctl = item
@@ -267,7 +268,7 @@ class Auditor:
                     self.pending.remove(item)  # unfit merged onto the table in force: dropped
                 continue
             due = run_tick >= ctl.at_tick if ctl.at_tick >= 0 else \
-                st.get("faults") == plan.describe()
+                st.get("faults") == plan.panel()
             if due:
                 self.pending.remove(item)
                 self.table = table
@@ -312,7 +313,7 @@ class Auditor:
             self.fail("status.alive", rec_alive, f"{cfg.n_robots} flags")
         alive[:] = [bool(a) for a in rec_alive]
         acts = np.zeros((1, cfg.n_robots), dtype=np.int64)
-        got, seen = set(), {o.robot: i for i, o in bucket.obs}  # (a stray came before it)
+        got, seen = set(), {o.robot: i for i, o in reversed(bucket.obs)}  # (a stray: before)
         for idx, a in bucket.action:  # a timed-out robot's action came after the deadline
             if a.robot not in late and a.robot not in got and \
                     idx > max(self.acted.get(a.robot, -1), seen.get(a.robot, -1)):
@@ -333,8 +334,7 @@ class Auditor:
         return acts[0].tolist()
 
     def _heard(self, bucket: _Tick, late: set[int]) -> None:
-        """Direct delivery: whom each robot says it heard (`Action.heard`) is whom its re-run
-        link hears, and the dashboard's links are the world's count of those rows."""
+        """Direct delivery: whom a robot says it heard (`Action.heard`) its re-run link hears."""
         n = self.cfg.n_robots
         rows = np.zeros((n, n), dtype=bool)
         for _, a in bucket.action:

@@ -116,6 +116,16 @@ class FaultPlan:
                     g[r] = k
         return g
 
+    def panel(self) -> list[str]:
+        """`describe()` as a world status carries it (what every reader of one accepts): at
+        most PANEL_LINES lines of at most PANEL_WIDTH characters, the rest counted in the last
+        (a partition of 128 robots, or 64 robots' own faults, dropped every status)."""
+        lines = [x if len(x) <= PANEL_WIDTH else x[:PANEL_WIDTH - 3] + "..."
+                 for x in self.describe()]
+        if len(lines) > PANEL_LINES:
+            lines = [*lines[:PANEL_LINES - 1], f"... {len(lines) - PANEL_LINES + 1} more"]
+        return lines
+
     def describe(self) -> list[str]:
         """Short human-readable lines of the faults in force (dashboard, logs)."""
         out = []
@@ -172,6 +182,7 @@ class FaultPlan:
 
 # --------------------------------------------------------------------- parsing of CLI values
 
+PANEL_LINES, PANEL_WIDTH = 64, 240  # a status's fault lines (`FaultPlan.panel`)
 MAX_MS = 3.6e6  # an hour: the longest latency or jitter a plan may hold
 MAX_ROBOTS = 100_000  # robot ids a plan may name (bounds a hostile partition list)
 _UNITS_TIME = {"us": 1e-3, "ms": 1.0, "s": 1000.0, "": 1.0}
