@@ -332,8 +332,7 @@ def trace(rec: Recording, out: str | Path, command: str | None = None) -> dict[s
             mat = np.full((n, dmax + 1), np.nan)
             for r in attn:
                 mat[r["receiver"], r["distance"]] = max(r["mean_attention"], ATTN_FLOOR)
-            cmap = colormaps["magma"].copy()
-            cmap.set_bad("lightgrey")  # no member heard at that distance
+            cmap = colormaps["magma"].with_extremes(bad="lightgrey")  # (none heard there)
             im = axes[0].imshow(mat, aspect="auto", cmap=cmap, norm=LogNorm(ATTN_FLOOR, 1.0))
             axes[0].set_xlabel("distance to the sender (cells; 0: itself)")
             axes[0].set_ylabel("receiver")
