@@ -731,6 +731,11 @@ def test_strays_the_world_dropped_are_no_divergence_and_crash_no_reader(
     assert json.loads(out.read_text())["checked"]["statuses"] == HORIZON
     got = swarm_here("replay", str(strays), "--speed", "0", "--until", "6", capsys=capsys)
     assert got.returncode == 0 and "(ticks 0..6" in got.stdout + got.stderr, got.stderr
+    # the dashboard shows the statuses the supervisor took, not the one of tick 7 filed early
+    from swarm.studies.replay import replay
+
+    _, stats = replay(load(str(strays)), speed=0, live=False)
+    assert (stats.statuses, stats.bad) == (HORIZON, 4), stats  # (ahead, no episode, odd x2)
     got = swarm_here("trace", str(strays), "--out", str(tmp_path / "t"), capsys=capsys)
     assert got.returncode == 0, got.stderr
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from swarm.net.record.recording import read as read_file
 from swarm.net.records import check_robot_status, check_world_result, check_world_status
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.runconfig import RunRecord
+from swarm.procs.status_order import StatusOrder
 from world.config import ConfigError
 
 
@@ -157,6 +158,7 @@ class ReplayStats:
     last_tick: int = 0
     process_shown: int = 0  # the run's own process faults (its flags) put on the view so far
     planned: list[ProcessFault] | None = None  # those faults (read once from the run record)
+    order: StatusOrder = field(default_factory=StatusOrder)  # a stray status is not shown
 
 
 def run_process_faults(rec: Recording) -> list[ProcessFault]:
@@ -185,20 +187,11 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
             w, r = rec.record.world, rec.record.run
             st = check_world_status(unpack_record(m.payload, K_STATUS), w, r.first_episode,
                                     r.episodes)
-            v.apply_status(st, now=m.wall_ns / 1e9)
-            for i, alive in enumerate(st.get("alive", [])[: v.n_robots]):
-                v.robots[i].alive = bool(alive)
-                v.robots[i].state = "acting" if alive else "lost"
-            v.world_alive = True
-            stats.statuses += 1
-            if stats.planned is None:  # `swarm run --crash 2@10`: at its tick, as live
-                stats.planned = run_process_faults(rec)
-            planned = stats.planned
-            while stats.process_shown < len(planned) and \
-                    planned[stats.process_shown].tick <= int(st.get("run_tick", 0)):
-                f = planned[stats.process_shown]
-                v.events = v.events[-5:] + [f"{f.kind} {f.robot}@{f.tick}"]
-                stats.process_shown += 1
+            take, dropped = stats.order.offer(st)  # as the supervisor takes them (a stray: not)
+            if dropped is not None:
+                _bad(stats, v, m)
+            if take:
+                _show_status(v, st, m, stats, rec)
         elif m.kind == "rstatus":
             w = rec.record.world
             v.apply_robot(check_robot_status(unpack_record(m.payload, K_RSTATUS), w.n_robots,
@@ -212,14 +205,44 @@ def apply(v: SwarmView, m: Msg, stats: ReplayStats, rec: Recording) -> None:
         elif m.kind == "lstatus":  # a --train run's learner panel, as live
             v.learner = check_learner_status(unpack_record(m.payload, K_LSTATUS))
         elif m.kind == "result":
-            v.apply_result(check_result(rec, unpack_record(m.payload, K_RESULT)))
+            result = check_result(rec, unpack_record(m.payload, K_RESULT))
+            held, dropped = stats.order.end(result.get("ticks"))
+            if held is not None:  # (the last tick's status, after a skip, as live)
+                _show_status(v, held, m, stats, rec)
+            elif dropped is not None:
+                _bad(stats, v, m)
+            v.apply_result(result)
         elif m.kind == "end":
             v.world_alive = False
     except (BadMessage, TypeError, ValueError, KeyError, AttributeError, IndexError,
             OverflowError):
-        if m.tick >= stats.first_tick:  # (those fast-forwarded through are not replayed)
-            stats.bad += 1
-            v.bad_records = stats.bad
+        _bad(stats, v, m)
+
+
+def _bad(stats: ReplayStats, v: SwarmView, m: Msg) -> None:
+    if m.tick >= stats.first_tick:  # (those fast-forwarded through are not replayed)
+        stats.bad += 1
+        v.bad_records = stats.bad
+
+
+def _show_status(v: SwarmView, st: dict[str, Any], m: Msg, stats: ReplayStats,
+                 rec: Recording) -> None:
+    """A world status the supervisor would have applied, onto the view (with the run's own
+    process faults due by its tick, as live)."""
+    v.apply_status(st, now=m.wall_ns / 1e9)
+    for i, alive in enumerate(st.get("alive", [])[: v.n_robots]):
+        v.robots[i].alive = bool(alive)
+        v.robots[i].state = "acting" if alive else "lost"
+    v.world_alive = True
+    stats.statuses += 1
+    if stats.planned is None:  # `swarm run --crash 2@10`: at its tick, as live
+        stats.planned = run_process_faults(rec)
+    planned = stats.planned
+    while stats.process_shown < len(planned) and \
+            planned[stats.process_shown].tick <= int(st.get("run_tick", 0)):
+        f = planned[stats.process_shown]
+        v.events = v.events[-5:] + [f"{f.kind} {f.robot}@{f.tick}"]
+        stats.process_shown += 1
 
 
 def replay(rec: Recording, console: Console | None = None, speed: float = 1.0,
