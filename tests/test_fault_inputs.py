@@ -231,6 +231,22 @@ def test_a_replacing_change_keeps_the_runs_fault_seed_unless_it_gives_one() -> N
     assert s.due(5).seed == 9
 
 
+def test_a_live_overflow_or_burst_with_no_cap_in_force_is_dropped_a_lifted_cap_is_not() -> None:
+    """`swarm fault --overflow drop` on a run with no bandwidth cap was applied and changed
+    nothing (the command does not know the faults in force; `swarm run` refuses it): the world
+    now drops it as unfit, and a change that lifts the cap of a run with an overflow goes."""
+    s = FaultSchedule({"loss": 0.1}, 0, 3)
+    for table in ({"overflow": "drop"}, {"robot": {"1": {"burst": 2000}}}):
+        s.add(check_control({"faults_table": table}, 0, 3), 4)
+        assert s.due(4) is None
+    assert s.summary()["unfit"] == 2 and s.summary()["applied"] == 0
+    s.add(check_control({"faults_table": {"bandwidth": "60B/s", "overflow": "drop"}}, 0, 3), 5)
+    assert s.due(5).capped and s.summary()["applied"] == 1
+    s.add(check_control({"faults_table": {"overflow": "expire"}}, 0, 3), 6)  # (capped: goes)
+    s.add(check_control({"faults_table": {"bandwidth": "none"}}, 0, 3), 7)
+    assert s.due(6) is not None and not s.due(7).capped and s.summary()["applied"] == 3
+
+
 # ------------------------------------------------------------------ the real swarm, live
 
 

@@ -395,7 +395,7 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
                 n_robots: int | None = None, whole: bool = True) -> dict[str, Any]:
     """The `[faults]` table of the file overridden by the fault flags given, checked (`whole`:
     the run's faults, not a live change merged onto the ones in force)."""
-    from swarm.net.faults import plan_from_table
+    from swarm.net.faults import cap_keys, plan_from_table
 
     table = dict(tables.get("faults", {}))
     if whole:  # (a live change's empty partition lifts the one in force)
@@ -419,11 +419,9 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
     if getattr(args, "fault_seed", None) is not None:
         table["seed"] = args.fault_seed
     plan = plan_from_table(table, n_robots=n_robots, at_once=not whole)  # one line before any run
-    capped = any(f.bandwidth for f in (plan.default, *plan.per_robot.values()))
-    given = [w for w, there in (("--overflow", getattr(args, "overflow", None) is not None),
-                                ("[faults] overflow", _has_key(table, "overflow")),
-                                ("[faults] burst", _has_key(table, "burst"))) if there]
-    if whole and given and not capped:  # (accepted, and every run the same as without it)
+    given = ["--overflow"] * (getattr(args, "overflow", None) is not None) + \
+        [f"[faults] {k}" for k in cap_keys(table)]
+    if whole and given and not plan.capped:  # (accepted, and every run the same as without it)
         raise ConfigError(f"{given[0]} says what a bandwidth cap does; there is no cap (give "
                           "--bandwidth, or a bandwidth in [faults])")
     return table
@@ -452,9 +450,3 @@ def batched_fault_plan(args: argparse.Namespace, tables: dict[str, Any], world: 
 
     table = batched_faults(fault_table(args, tables, world.n_robots), "evaluation")
     return plan_from_table(table, seed, world.n_robots) if table else None
-
-
-def _has_key(table: Any, key: str) -> bool:
-    """Whether `key` is set anywhere in a (nested) faults table (per robot, per link too)."""
-    return isinstance(table, dict) and (key in table or any(_has_key(v, key)
-                                                            for v in table.values()))

@@ -107,6 +107,11 @@ class FaultPlan:
         return (self.default.zero and all(f.zero for f in self.per_robot.values())
                 and all(f.zero for f in self.per_link.values()) and not self.partition)
 
+    @property
+    def capped(self) -> bool:
+        """Whether any sender has a bandwidth cap (what `overflow` and `burst` are about)."""
+        return any(f.bandwidth for f in (self.default, *self.per_robot.values()))
+
     def group_of(self, n: int) -> np.ndarray:
         """Partition group id per robot [n]; robots in no listed group form one more group."""
         g = np.full(n, len(self.partition), dtype=np.int64)
@@ -296,6 +301,15 @@ def link_fault_from(d: dict[str, Any], base: LinkFault | None = None) -> LinkFau
     if "overflow" in d:
         ch["overflow"] = str(d["overflow"])
     return replace(base, **ch)
+
+
+def cap_keys(table: Any) -> list[str]:
+    """Of `overflow` and `burst` (what a bandwidth cap does), those a (nested) faults table
+    sets anywhere, per robot too: with no cap in force they change nothing, so a run or a live
+    change that gives one is refused rather than run as if without it."""
+    def has(t: Any, key: str) -> bool:
+        return isinstance(t, dict) and (key in t or any(has(v, key) for v in t.values()))
+    return [k for k in ("overflow", "burst") if has(table, k)]
 
 
 def plan_from_table(t: dict[str, Any], seed: int = 0, n_robots: int | None = None,

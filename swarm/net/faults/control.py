@@ -15,6 +15,7 @@ from swarm.net.faults import (
     PROCESS_KINDS,
     FaultPlan,
     ProcessFault,
+    cap_keys,
     parse_process,
     plan_from_table,
 )
@@ -125,12 +126,15 @@ class FaultSchedule:
             c = heapq.heappop(self.pending)[2]
             table = changed_table(self.table, c)
             try:
-                plan = plan_from_table(table, self.seed, self.n_robots)
+                merged = plan_from_table(table, self.seed, self.n_robots)
+                if cap_keys(c.table) and not merged.capped:  # (`swarm fault` knows not the cap)
+                    raise ConfigError(f"{cap_keys(c.table)[0]} says what a bandwidth cap does; "
+                                      "there is no cap in force")
             except ConfigError as exc:  # fit alone, but not merged onto the table in force
                 self.counts["unfit"] += 1
                 log.warning("fault change dropped at run tick %d: %s", run_tick, exc)
                 continue
-            self.table = table
+            self.table, plan = table, merged
             self.counts["applied"] += 1
             if 0 <= c.at_tick < run_tick:
                 self.counts["late"] += 1
