@@ -191,7 +191,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return 130
     stats.first_tick = max(stats.first_tick, first)  # the ticks present, not asked for
     res = rec.result or {}
-    _output_json(args.json, {"file": args.file, **vars(stats), "elratio": view.elratio,
+    shown = {k: v for k, v in vars(stats).items() if k != "order"}  # (the replay's own state)
+    _output_json(args.json, {"file": args.file, **shown, "elratio": view.elratio,
                              "result": {k: res.get(k) for k in ("elratio_mean", "ticks",
                                                                 "completed")}})
     out.print()
