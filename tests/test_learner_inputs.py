@@ -591,3 +591,124 @@ def test_a_learner_keeps_where_each_rollout_worker_is_and_drops_replays(tmp_path
     spec = tmp_path / "spec.json"  # a record as JSON: its worker ids become strings, read back
     RunRecord(SMALL, workers={0: 4, 5: 8}).write(spec)
     assert RunRecord.read(spec).workers == {0: 4, 5: 8}
+
+
+def _records(e: object, n: int) -> tuple[object, dict[int, object]]:
+    """The swarm's records of batched episode `e` (an `EpisodeRollout`): the world's rewards
+    and who acted, each robot's trajectory message, whom it heard and what it did, per tick."""
+    from swarm.net.learning import EpisodeRecord, RobotRollout, RolloutTick
+    from swarm.net.messages import Traj
+
+    robots = {}
+    for i in range(n):
+        ticks = []
+        for t in range(e.actions.shape[0]):
+            rec = [int(c) for c in e.recent[t, i] if c >= 0]
+            traj = Traj(e.ep, t, i, int(e.pos[t, i, 0]), int(e.pos[t, i, 1]),
+                        np.packbits(e.visited[t, i]).tobytes(), rec, e.patch[t, i].tobytes())
+            ticks.append(RolloutTick(traj.pack(), np.packbits(e.hears[t, i]).tobytes(),
+                                     bool(e.chain_ok[t, i]), int(e.actions[t, i]),
+                                     float(e.logp[t, i]), float(e.last_reward[t, i]), 0))
+        robots[i] = RobotRollout(e.ep, i, ticks)
+    return EpisodeRecord(e.ep, e.reward, e.receivers.copy(), e.metrics), robots
+
+
+def test_an_episode_the_update_cannot_take_is_refused_not_a_crash(tmp_path: Path) -> None:
+    """Review helper 96: a robot record or worker episode in which a robot acted without its
+    own message (the features read its row: the learner died of an IndexError at its next
+    update), a tick at which no robot acted (a batch of one such episode: a ValueError), a
+    worker episode without its log-probabilities (a PPO learner's ValueError) or with rewards of
+    3e38 (every loss and the learner's status infinite): each is dropped and counted; and the
+    swarm's records join back into the very episode they were made of."""
+    from swarm.learn.config import LearnerConfig
+    from swarm.learn.join import episodes_of, join
+    from swarm.learn.rollout import collect
+    from swarm.net.learning import EpisodeRollout
+    from swarm.procs.learning.learner import Learner
+
+    lc = LearnerConfig(run_id="refuse", policy="vain", out=str(tmp_path / "l"))
+    learner = Learner(SMALL, lc, TrainConfig(batch=1, threads=1))
+    eps = episodes_of(collect(learner.policy, SMALL, WORKER0, np.arange(6)), 0)
+    world, robots = _records(eps[0], SMALL.n_robots)
+    joined = join(SMALL, WORKER0, world, robots)
+    for name in ("pos", "visited", "recent", "patch", "present", "hears", "receivers",
+                 "chain_ok", "actions", "reward", "last_reward", "logp"):
+        assert np.array_equal(getattr(joined, name), getattr(eps[0], name)), name
+    deaf = dict(robots)
+    t2 = deaf[0].ticks[2]
+    own = np.packbits(eps[0].hears[2, 0] & (np.arange(SMALL.n_robots) != 0)).tobytes()
+    deaf[0] = type(deaf[0])(deaf[0].ep, 0, [*deaf[0].ticks[:2], t2._replace(heard=own),
+                                           *deaf[0].ticks[3:]])
+    with pytest.raises(BadMessage, match="robot 0 acted at tick 2 without its own message"):
+        join(SMALL, WORKER0, world, deaf)
+    world.acted[4] = False  # every robot late at tick 4: joined, batched only if covered
+    quiet = join(SMALL, WORKER0, world, robots)
+    learner.open_out()
+    with open_session(ZenohOptions()) as session:
+        learner._declare(session)
+        learner.ready = [quiet]  # (a batch of 1: nothing covers tick 4)
+        assert not learner.maybe_update() and learner.c.rejected == 1 and not learner.ready
+        learner.tc = dataclasses.replace(learner.tc, batch=2)
+        learner.ready = [quiet, eps[0]]
+        assert learner.maybe_update() and learner.c.trained == 2 and learner.version == 1
+        learner.tc = dataclasses.replace(learner.tc, batch=1)
+
+        def worker(e: EpisodeRollout) -> None:
+            learner.handle("worker", Keys("refuse").worker_episodes(0), e.pack())
+
+        e1, e2, e3, e4 = eps[1:5]
+        e1.hears[3, 1, 1] = False
+        e2.logp = None
+        e3.reward[:] = 3e38
+        e4.receivers[5] = False  # (a batched episode: every robot acts at every tick)
+        for e in (e1, e2, e3, e4):
+            worker(e)
+        assert learner.c.bad == 4 and learner.c.worker_episodes == 0 and not learner.ready
+        worker(eps[5])
+        assert learner.c.worker_episodes == 1 and len(learner.ready) == 1
+    learner.journal.close()
+
+
+def test_a_learner_batches_one_seed_at_a_time(tmp_path: Path) -> None:
+    """A batch's views share one seed, which hint features draw their noise from: a worker's
+    episodes batched behind a swarm episode were trained on the swarm seed's features (review
+    helper 96). The learner takes the first seed with a whole batch; `update_due` says so."""
+    from swarm.learn.config import LearnerConfig
+    from swarm.learn.join import episodes_of
+    from swarm.learn.rollout import collect
+    from swarm.procs.learning.learner import Learner
+
+    tc = TrainConfig(batch=2, threads=1)
+    learner = Learner(SMALL, LearnerConfig(run_id="seeds", policy="vain",
+                                           out=str(tmp_path / "l")), tc)
+    swarm_ep = episodes_of(collect(learner.policy, SMALL, tc.seed, np.arange(1)), 0)
+    worker = episodes_of(collect(learner.policy, SMALL, WORKER0, np.arange(3)), 0)
+    learner.ready = [swarm_ep[0], *worker]
+    assert learner._next_batch() == [1, 2]
+    learner.ready = [swarm_ep[0], worker[0]]
+    assert learner._next_batch() is None
+
+
+def test_heard_ids_fit_any_team_and_a_lockstep_world_follows_a_fresh_learner() -> None:
+    """Whom a robot heard was an int mask: past 64 robots msgpack refused it (the robot died at
+    its episode's end) and at 64 the learner's numpy shift overflowed; it is packed bits now.
+    A lockstep world kept the replaced learner's version and ignored a fresh learner's lower
+    ones, so every episode waited out its start timeout (review helper 96)."""
+    from swarm.net.learning import LearnerGate, RobotRollout, RolloutTick, heard_of
+
+    big = dataclasses.replace(SMALL, height=20, width=20, n_robots=130)
+    ids = [0, 63, 64, 129]
+    mask = np.zeros(130, bool)
+    mask[ids] = True
+    tick = RolloutTick(b"t", np.packbits(mask).tobytes(), True, 1, -0.5, 0.0, 0)
+    back = RobotRollout.unpack(RobotRollout(0, 129, [tick]).pack(), big)
+    assert np.flatnonzero(heard_of(back.ticks[0].heard, 130)).tolist() == ids
+    with pytest.raises(BadMessage, match="heard"):
+        RobotRollout.unpack(RobotRollout(0, 1, [tick._replace(heard=b"\x01")]).pack(), big)
+    gate = LearnerGate(0)
+    status = {"pending": 0, "update_due": False}
+    gate.offer({**status, "version": 7, "last_closed": 20, "origin": 5})
+    gate.offer({**status, "version": 3, "last_closed": 21, "origin": 5})  # (older: ignored)
+    assert (gate.version, gate.last_closed) == (7, 20)
+    gate.offer({**status, "version": 0, "last_closed": 22, "origin": 9})  # a fresh learner
+    assert gate.version_for(23) == 0

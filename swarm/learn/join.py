@@ -13,7 +13,13 @@ import torch
 
 from policies.learned import LearnedPolicy
 from swarm.learn.rollout import Rollout
-from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
+from swarm.net.learning import (
+    EpisodeRecord,
+    EpisodeRollout,
+    RobotRollout,
+    check_decisions,
+    heard_of,
+)
 from swarm.net.messages import BadMessage, Traj
 from world import core
 from world.config import WorldConfig
@@ -85,8 +91,8 @@ def rollout_of(eps: list[EpisodeRollout], policy: LearnedPolicy,
 def join(cfg: WorldConfig, seed: int, world: EpisodeRecord,
          robots: dict[int, RobotRollout]) -> EpisodeRollout:
     """The swarm's records of one episode as an `EpisodeRollout`; BadMessage when incomplete
-    (a robot that acted sent no record, or a heard message is missing) or when no robot acted
-    (every robot down: nothing to learn from, and a batch of such episodes has no decision)."""
+    (a robot that acted sent no record, or a heard message is missing), when no robot acted
+    (every robot down: nothing to learn from) or a robot acted without its own message."""
     if not world.acted.any():
         raise BadMessage(f"episode {world.ep}: no robot acted")
     ticks, n = world.reward.shape
@@ -101,7 +107,6 @@ def join(cfg: WorldConfig, seed: int, world: EpisodeRecord,
         reward=world.reward.astype(np.float32), metrics=dict(world.metrics),
         logp=np.zeros((ticks, n), np.float32))
     versions = []
-    bit = 1 << np.arange(n)
     for i, rr in robots.items():
         if rr.ep != world.ep or len(rr.ticks) > ticks:
             raise BadMessage(f"robot {i}'s record does not fit episode {world.ep}")
@@ -116,7 +121,7 @@ def join(cfg: WorldConfig, seed: int, world: EpisodeRecord,
             out.recent[t, i, cfg.recent_len - len(rec):] = rec
             out.patch[t, i] = np.frombuffer(tr.patch, np.uint8).reshape(cfg.vision, -1)
             out.present[t, i] = True
-            out.hears[t, i] = (heard & bit) != 0
+            out.hears[t, i] = heard_of(heard, n)
             out.chain_ok[t, i] = chain_ok
             out.actions[t, i] = action
             out.logp[t, i] = min(logp, 0.0)  # type: ignore[index]
@@ -131,4 +136,4 @@ def join(cfg: WorldConfig, seed: int, world: EpisodeRecord,
         raise BadMessage(f"episode {world.ep}: a heard trajectory message is missing")
     out.receivers &= out.present
     out.version = min(versions) if versions else 0
-    return out
+    return check_decisions(out, every_tick=False)

@@ -59,6 +59,26 @@ def _metrics(v: Any) -> dict[str, float]:
     return {k: _float(v[k], f"metrics.{k}") for k in METRIC_NAMES}
 
 
+def reward_limit(cfg: WorldConfig) -> float:
+    """The largest |reward| a robot can get in one step of `cfg` (`world.core.step`: one
+    step back, a collision with each other robot, the end's success or failure), plus one: a
+    reward past it is no reward of this world (3e38 made every loss and its status infinite)."""
+    return (abs(cfg.r_back) + cfg.n_robots * abs(cfg.r_coll) + max(abs(cfg.r_succ),
+                                                                   abs(cfg.r_fail)) + 1.0)
+
+
+def _rewards(a: np.ndarray, name: str, cfg: WorldConfig) -> np.ndarray:
+    lim = reward_limit(cfg)
+    if not (np.isfinite(a).all() and (np.abs(a) <= lim).all()):
+        raise BadMessage(f"{name} must be finite rewards within +-{lim:g} (this world's)")
+    return a
+
+
+def heard_of(heard: bytes, n: int) -> np.ndarray:
+    """A robot's heard ids ([n] bool) from its packed record (`RolloutTick.heard`)."""
+    return np.unpackbits(np.frombuffer(heard, np.uint8), count=n).astype(bool)
+
+
 @dataclass
 class Weights:
     """Learner -> robots and workers: version `version` of the shared weights of `policy`."""
@@ -100,7 +120,8 @@ class RolloutTick(NamedTuple):
     """One tick of a robot's episode record (see RobotRollout)."""
 
     traj: bytes  # the trajectory payload it published (as every receiver got it)
-    heard: int  # bit mask of the ids whose messages it heard
+    heard: bytes  # the ids whose messages it heard, np.packbits of [N] bool (`heard_of`; an
+    # int mask overflowed msgpack past 64 robots and numpy's int64 at 64)
     chain_ok: bool  # its predecessor's hidden-state message arrived
     action: int
     logp: float  # log-probability of the action under the weights that acted
@@ -114,8 +135,9 @@ class RobotRollout:
 
     Each tick is `[traj, heard, chain_ok, action, logp, last_reward, version]`: the trajectory
     payload it published (its own message, as every receiver got it), the ids whose messages it
-    heard as a bit mask, whether its predecessor's hidden-state message arrived, the action it
-    sent, its log-probability, the reward of the previous step and the weights version used."""
+    heard (packed bits, its own among them), whether its predecessor's hidden-state message
+    arrived, the action it sent, its log-probability, the reward of the previous step and the
+    weights version used."""
 
     ep: int
     robot: int
@@ -136,10 +158,11 @@ class RobotRollout:
                                  "last_reward, version]")
             if not isinstance(rec[0], bytes):
                 raise BadMessage("traj must be bytes")
+            lim = reward_limit(cfg)
             out.append(RolloutTick(
-                rec[0], _int(rec[1], "heard", 0, 2 ** cfg.n_robots - 1), rec[2],
+                rec[0], _bytes(rec[1], "heard", (cfg.n_robots + 7) // 8), rec[2],
                 _int(rec[3], "action", 0, 8), _float(rec[4], "logp", -1e4, 0.0),
-                _float(rec[5], "last_reward"), _int(rec[6], "version", 0, BIG)))
+                _float(rec[5], "last_reward", -lim, lim), _int(rec[6], "version", 0, BIG)))
         return cls(_int(ep, "ep", 0, BIG), _int(robot, "robot", 0, cfg.n_robots - 1), out)
 
 
@@ -163,7 +186,8 @@ class EpisodeRecord:
         ep, t, reward, acted, metrics = _unpack(payload, K_EPISODE, 5)
         t = _int(t, "ticks", 1, cfg.horizon)
         n = cfg.n_robots
-        return cls(_int(ep, "ep", 0, BIG), _array(reward, "reward", "<f4", (t, n), finite=True),
+        return cls(_int(ep, "ep", 0, BIG),
+                   _rewards(_array(reward, "reward", "<f4", (t, n)), "reward", cfg),
                    _bits(acted, "acted", (t, n)), _metrics(metrics))
 
 
@@ -231,7 +255,7 @@ class EpisodeRollout:
             actions=_array(get("actions"), "actions", "u1", (t, n)).astype(np.int64),
             reward=_array(get("reward"), "reward", "<f4", (t, n)),
             metrics=_metrics(metrics),
-            logp=None if get("logp") is None else _array(get("logp"), "logp", "<f4", (t, n)),
+            logp=_array(get("logp"), "logp", "<f4", (t, n)),  # (needed: PPO, stale episodes)
         )
         lim = np.array([cfg.height, cfg.width])
         if (out.pos < 0).any() or (out.pos >= lim).any():
@@ -242,11 +266,27 @@ class EpisodeRollout:
             raise BadMessage("action outside 0..8")
         if (out.receivers & ~out.present).any() or (out.hears & ~out.present[:, None, :]).any():
             raise BadMessage("a receiver or a heard member has no message")
-        if not (np.isfinite(out.reward).all() and np.isfinite(out.last_reward).all()):
-            raise BadMessage("rewards must be finite")
-        if out.logp is not None and not (np.isfinite(out.logp).all() and (out.logp <= 0).all()):
+        _rewards(out.reward, "reward", cfg)
+        _rewards(out.last_reward, "last_reward", cfg)
+        if not (np.isfinite(out.logp).all() and (out.logp <= 0).all()):
             raise BadMessage("log-probabilities must be finite and <= 0")
-        return out
+        return check_decisions(out, every_tick=True)  # (a batched episode: every robot acts)
+
+
+def check_decisions(e: EpisodeRollout, every_tick: bool) -> EpisodeRollout:
+    """An episode the update can take: every robot that acted heard its own message (the
+    features read its own row of what it heard: without it the learner crashed), and with
+    `every_tick` some robot acted at every tick (a swarm's episode may have a tick where every
+    robot was late or down: the learner keeps it out of a batch no other episode covers)."""
+    n = e.hears.shape[-1]
+    quiet = ~e.receivers.any(1)
+    if every_tick and quiet.any():
+        raise BadMessage(f"episode {e.ep}: no robot acted at tick {int(np.argmax(quiet))}")
+    own = e.hears[:, np.arange(n), np.arange(n)]
+    if (e.receivers & ~own).any():
+        t, i = map(int, np.argwhere(e.receivers & ~own)[0])
+        raise BadMessage(f"episode {e.ep}: robot {i} acted at tick {t} without its own message")
+    return e
 
 
 # ------------------------------------------------------------------- the learner's status
@@ -265,6 +305,7 @@ def check_learner_status(rec: dict[str, Any]) -> dict[str, Any]:
     for name in LSTATUS_COUNTS:
         _int(rec.get(name, 0), f"learner status {name}", 0, MAX_COUNT)
     _int(rec.get("last_closed", -1), "learner status last_closed", -1, MAX_COUNT)
+    _int(rec.get("origin", 0), "learner status origin", 0, BIG)
     if not isinstance(rec.get("update_due", False), bool):
         raise BadMessage("learner status update_due must be a bool")
     _float(rec.get("rollout_bytes_per_s", 0.0), "learner status rollout_bytes_per_s", 0.0, 1e15)
@@ -305,6 +346,7 @@ class LearnerGate:
 
     first_episode: int
     version: int | None = None  # None until a status record came
+    origin: int = 0  # the learner process it came from (a fresh one counts versions anew)
     last_closed: int = -1
     joining: int = 0
     update_due: bool = False
@@ -318,9 +360,11 @@ class LearnerGate:
         if not {"version", "last_closed", "pending", "update_due"} <= set(rec):
             raise BadMessage("learner status without version, last_closed, pending, update_due")
         check_learner_status(rec)
-        if self.version is not None and rec["version"] < self.version:
-            return  # an older record overtaken by a newer one: versions only grow
+        origin = rec.get("origin", 0)
+        if self.version is not None and rec["version"] < self.version and origin == self.origin:
+            return  # an older record overtaken by a newer one: a learner's versions only grow
         self.version, self.last_closed = rec["version"], rec["last_closed"]
+        self.origin = origin  # (a learner that replaced the last one: its own versions)
         self.joining, self.update_due = rec["pending"], rec["update_due"]
 
     def version_for(self, ep: int) -> int | None:

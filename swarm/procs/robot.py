@@ -341,9 +341,9 @@ class RobotProcess:
         if self.train and self.c.errors == errors:  # (a tick it could not decide: not learnt)
             probs = self.policy.last_probs  # type: ignore[attr-defined]
             logp = float(np.log(max(float(probs[0, r, action]), 1e-30)))
-            mask = int(sum(1 << int(j) for j in np.flatnonzero(heard.present[0])))
-            self.record.append(RolloutTick(traj, mask, chain_ok, action, logp, float(obs.reward),
-                                self.version))
+            self.record.append(RolloutTick(traj, np.packbits(heard.present[0]).tobytes(),
+                                           chain_ok, action, logp, float(obs.reward),
+                                           self.version))
         direct = self.direct is not None  # then the world learns whom it heard from it
         a = Action(obs.ep, obs.t, r, int(action), ms,
                    self.direct.link.bucket() if direct else None,

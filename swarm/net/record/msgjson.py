@@ -179,7 +179,8 @@ def to_json(kind: str, payload: bytes, cfg: WorldConfig) -> dict[str, Any]:
     if kind == "rollout":
         r = learning.RobotRollout.unpack(payload, cfg)
         return {"ep": r.ep, "robot": r.robot, "actions": [t.action for t in r.ticks],
-                "heard": [t.heard for t in r.ticks], "chain_ok": [t.chain_ok for t in r.ticks],
+                "heard": [np.flatnonzero(learning.heard_of(t.heard, cfg.n_robots)).tolist()
+                          for t in r.ticks], "chain_ok": [t.chain_ok for t in r.ticks],
                 "logp": [t.logp for t in r.ticks], "last_reward": [t.last_reward for t in r.ticks],
                 "version": [t.version for t in r.ticks]}
     if kind == "episode":

@@ -325,18 +325,56 @@ class Learner:
         return settled
 
     # --- learning ---------------------------------------------------------------------------
-    def maybe_update(self) -> bool:
+    def _next_batch(self) -> list[int] | None:
+        """Where in `ready` the next batch is: the first `batch` episodes of one seed, the seed
+        whose oldest episode waits longest (a batch's views share one seed, which hint features
+        draw their noise from: a worker's episodes batched with the swarm's were trained on
+        features they were not played with); None until one seed has a batch."""
         if self.lc.gather_only or len(self.ready) < self.tc.batch:
+            return None
+        by_seed: dict[int, list[int]] = {}
+        for k, e in enumerate(self.ready):
+            by_seed.setdefault(e.seed, []).append(k)
+        return next((idx[:self.tc.batch] for idx in by_seed.values()
+                     if len(idx) >= self.tc.batch), None)
+
+    def _batch(self) -> list[EpisodeRollout] | None:
+        """The next batch taken out of `ready`, every tick with a decision in some episode of
+        it (the features of a tick where nobody decided crash): an episode with a tick where
+        every robot was late or down goes only into a batch whose others cover that tick; the
+        episodes that leave a tick of a batch uncovered are dropped, counted rejected."""
+        while (where := self._next_batch()) is not None:
+            batch = [self.ready[k] for k in where]
+            quiet = ~np.stack([e.receivers.any(1) for e in batch])  # [B, T]
+            uncovered = quiet.all(0)
+            if not uncovered.any():
+                self.ready = [e for k, e in enumerate(self.ready) if k not in set(where)]
+                return batch
+            drop = {where[b] for b in np.flatnonzero(quiet[:, uncovered].any(1))}
+            self.c.rejected += len(drop)
+            log.warning("learner dropped %d episode(s) with no decision at tick %d (every robot "
+                        "late or down) that no other episode of its batch covers", len(drop),
+                        int(np.argmax(uncovered)))
+            self.ready = [e for k, e in enumerate(self.ready) if k not in drop]
+        return None
+
+    def maybe_update(self) -> bool:
+        batch = self._batch()
+        if batch is None:
             return False
-        batch, self.ready = self.ready[:self.tc.batch], self.ready[self.tc.batch:]
-        self.c.trained += len(batch)
         t0 = time.perf_counter()
-        roll = rollout_of(batch, self.policy, self.version)
         torch.set_flush_denormal(True)
         try:
+            roll = rollout_of(batch, self.policy, self.version)
             parts = update(self.policy, self.opt, roll, self.tc)
+        except (ValueError, IndexError, RuntimeError) as exc:  # (every check passed: a defect)
+            self.c.rejected += len(batch)
+            log.error("learner dropped a batch of %d episodes it could not train on: %s",
+                      len(batch), str(exc)[:200])
+            return False
         finally:
             torch.set_flush_denormal(False)
+        self.c.trained += len(batch)
         self.version += 1
         self.c.updates += 1
         m = roll.metrics
@@ -405,7 +443,8 @@ class Learner:
         if not force and now - self._last_status < self.lc.status_every:
             return None
         self._last_status = now
-        rec = {"version": self.version, "episodes": self.c.episodes, "updates": self.c.updates,
+        rec = {"version": self.version, "origin": self.origin,  # (a fresh learner: versions anew)
+               "episodes": self.c.episodes, "updates": self.c.updates,
                "pending": len(self.pending), "ready": len(self.ready),
                "stale_used": self.c.stale_used, "stale_dropped": self.c.stale_dropped,
                "incomplete": self.c.incomplete, "bad": self.c.bad,
@@ -414,7 +453,7 @@ class Learner:
                "accounting": self.accounting(),
                # what a lockstep world (swarm.net.learning.LearnerGate) waits for
                "last_closed": self.settled.last,
-               "update_due": not self.lc.gather_only and len(self.ready) >= self.tc.batch,
+               "update_due": self._next_batch() is not None,
                "worker_episodes": self.c.worker_episodes,
                "rollout_bytes": self.c.rollout_bytes,
                "rollout_bytes_per_s": self.c.rollout_bytes / max(now - self.t0, 1e-9),
