@@ -550,6 +550,21 @@ BAD_INPUTS = [
     # they were not up within the start timeout), from a flag or a file
     ["run", "--robots", "4", "--crash", "1"], ["run", "--config", "{tmp}/crash_now.toml"],
     ["eval", "--config", "{tmp}/robot_int.toml"], ["eval", "--config", "{tmp}/robot_list.toml"],
+    # review helper 95: a traceback (a policy list of numbers, a scalar process fault), Python's
+    # words (a robot key that is no id), an empty value run as not given, an output over a file
+    # the command writes, a training file's faults past the flags' checks, one point twice
+    ["repro", "table1", "--out", "{tmp}/ro", "--decisions", "1", "--config", "{tmp}/pol5.toml"],
+    ["eval", "--config", "{tmp}/crash5.toml"], ["eval", "--config", "{tmp}/robotx.toml"],
+    ["eval", "--policy", ",random", "--episodes", "1"],
+    ["bench", "swarm", "--robots", "2", "--secure", ""],
+    ["train", "--init", "", "--out", "{tmp}/t"], ["train", "--model", "", "--out", "{tmp}/t"],
+    ["learner", "--run-id", "x", "--out", "{tmp}/L", "--checkpoint", ""],
+    ["train", "--out", "{tmp}/t", "--faults", '{"overflow": "drop"}'],
+    ["train", "--out", "{tmp}/t", "--faults", '{"partition": ""}'],
+    ["certs", "--out", "{tmp}", "--robots", "1", "--json", "{tmp}/ca.pem"],
+    ["run", "--log-dir", "{tmp}", "--json", "{tmp}/world.log"],
+    ["experiment", "{tmp}/twice.toml", "--out", "{tmp}/x"],
+    ["experiment", "{tmp}/twice.toml", "--out", "{tmp}", "--resume"],
 ]
 
 
@@ -565,6 +580,12 @@ def test_a_bad_input_is_one_line_a_nonzero_exit_and_nothing_left_running(
     (tmp_path / "crash_now.toml").write_text("[world]\nn_robots = 4\n[faults]\ncrash = [1]\n")
     (tmp_path / "robot_int.toml").write_text('[faults.robot]\n"3" = 5\n')
     (tmp_path / "robot_list.toml").write_text("[faults]\nrobot = []\n")
+    (tmp_path / "pol5.toml").write_text("[repro]\npolicies = [5]\n")
+    (tmp_path / "crash5.toml").write_text("[faults]\ncrash = 5\n")
+    (tmp_path / "robotx.toml").write_text("[faults.robot.x]\nloss = 0.1\n")
+    values = "[0, 0.0]" if "{tmp}/x" in args else "[0, 0.1]"  # (--resume: no sweep there)
+    (tmp_path / "twice.toml").write_text(f'[experiment]\nparameter = "loss"\nvalues = {values}'
+                                         '\npolicies = ["random"]\nseeds = [0]\n')
     r = swarm_here(*(a.replace("{tmp}", str(tmp_path)) for a in args), capsys=capsys)
     assert r.returncode in (1, 2), (r.returncode, r.stderr)
     lines = r.stderr.strip().splitlines()
@@ -848,3 +869,25 @@ def test_a_hand_world_stopped_by_ctrl_c_says_so() -> None:
         if world.poll() is None:
             world.kill()
     assert world.returncode == 130 and err.strip().splitlines()[-1] == "swarm: interrupted", err
+
+
+def test_a_refused_run_makes_no_folder_and_a_byte_path_is_shown_escaped(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Review helper 95: `swarm run --log-dir NEW` refused by a later check had made NEW (and
+    `repro --out NEW --json BAD` its NEW); a path holding a byte that is no UTF-8 crashed the
+    tables' "Made by" line after the work, leaving a CSV without its Markdown."""
+    from conftest import swarm_here
+
+    new = tmp_path / "new" / "a"
+    r = swarm_here("run", "--robots", "2", "--policy", "commattn", "--checkpoint",
+                   "checkpoints/vain.pt", "--log-dir", str(new), capsys=capsys)
+    assert r.returncode == 2 and not (tmp_path / "new").exists(), r.stderr
+    r = swarm_here("repro", "table1", "--out", str(new), "--json", str(tmp_path / "no" / "x.json"),
+                   capsys=capsys)
+    assert r.returncode == 2 and not (tmp_path / "new").exists(), r.stderr
+    odd = tmp_path / "caf\udce9"  # (the byte 0xe9 of a Latin-1 name, as Python reads argv)
+    done = subprocess.run([sys.executable, "-m", "swarm.cli", "repro", "table1", "--out",
+                           str(odd), "--policies", "random", "--decisions", "1"], cwd=ROOT,
+                          capture_output=True, timeout=120, check=False)  # (bytes: the path)
+    assert done.returncode == 0, done.stderr[-800:]
+    assert "caf\\xe9" in (odd / "table1.md").read_text()

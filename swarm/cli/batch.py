@@ -192,10 +192,14 @@ def cmd_train(args: argparse.Namespace) -> int:
                           "flags (or [faults]); give one")
     if faults:
         cfg = dataclasses.replace(cfg, faults=json.dumps(faults))
-    elif cfg.faults:  # checked against the team, as the flags are
-        from swarm.net.faults import plan_from_table
-
-        plan_from_table(json.loads(cfg.faults), n_robots=world.n_robots)
+    elif cfg.faults:  # checked as the flags are (an overflow with no cap, an empty partition,
+        # process faults the batched trainer has none of: said, then left out)
+        table = json.loads(cfg.faults)
+        if not isinstance(table, dict):
+            raise ConfigError(f"--faults must be a JSON object of [faults] keys, got {table!r:.40}")
+        checked = batched_faults(fault_table(argparse.Namespace(), {"faults": table},
+                                             world.n_robots), "training")
+        cfg = dataclasses.replace(cfg, faults=json.dumps(checked) if checked else "")
     asked = {*tables.get("train", {}), *given(train_config.TrainConfig, args),
              *(["faults"] if faults else [])}  # what --resume checks against the checkpoint
     ckpt = Path(args.out) / "checkpoint.pt"
@@ -325,8 +329,8 @@ def cmd_repro(args: argparse.Namespace) -> int:
     # every check before the progress display (whose closing would print a blank line)
     items = repro.prepare(repro.expand(args.item), world, cfg)
     check_repro_flags(items, args, cfg)  # (after prepare: `all` drops items it cannot make)
+    output_file(cfg.json)  # (first: a refused --json left --out made)
     output_dir(cfg.out, "--out")  # before the work, which can take hours
-    output_file(cfg.json)
     out, err = _consoles()
     with RichProgress(err) as progress:
         results = repro.run(items, world, cfg, _command(), progress, prepared=True)

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from swarm.cli.common import _checkpoint_pairs, file_tables
+from swarm.cli.common import _checkpoint_pairs, file_tables, output_dir
 from swarm.common.atomic import in_place
 from swarm.common.policy_spec import build_inference
 from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from here)
@@ -27,6 +27,12 @@ INPUT_FLAGS = {"file": "the input file", "config": "--config", "spec": "--spec",
 OUTPUT_FLAGS = {"json": "--json", "episodes_csv": "--episodes-csv", "record": "--record",
                 "out": "--out", "log_dir": "--log-dir", "learner_out": "--learner-out"}
 """Flags (by argparse dest) of every command that name a file or folder it writes."""
+NONEMPTY_FLAGS = {"checkpoint": "--checkpoint", "init": "--init", "curve": "--curve",
+                  "secure": "--secure", "model": "--model", "faults": "--faults",
+                  "imitate": "--imitate", "hint_planner": "--hint-planner"}
+"""Flags whose empty value is refused, not read as not given (`--init ''` trained a fresh
+network, `bench swarm --secure ''` benchmarked the plain mode alone); the other file flags
+say it in their own checks."""
 TRAIN_FLAGS = ("train_batch", "train_algo", "train_ppo_epochs", "learner_out", "rollout_loss",
                "train_sync")
 
@@ -84,6 +90,10 @@ def check_paths(args: argparse.Namespace) -> None:
                        for p in v] if isinstance(v, list) else v
                 for dest, flag in flags.items() if (v := getattr(args, dest, None)) is not None}
 
+    for dest, flag in NONEMPTY_FLAGS.items():
+        v = getattr(args, dest, None)
+        if any(isinstance(x, str) and not x.strip() for x in (v if isinstance(v, list) else [v])):
+            raise ConfigError(f"{flag} is empty: give a value, or leave the flag out")
     inputs, outputs = paths(INPUT_FLAGS), paths(OUTPUT_FLAGS)
     for label, dest, value in _file_keys(args):
         (outputs if dest in OUTPUT_FLAGS else inputs)[label] = value
@@ -291,3 +301,21 @@ def repro_checkpoints(items: list[str], cfg: Any) -> None:
         flags += [flag] if flag not in flags else []
     stray_checkpoints(cfg.checkpoints, names, flags[0] if len(flags) == 1 else
                       f"the policies {', '.join(items)} run")
+
+
+RUN_FILES = ("spec.json", "world_result.json", "initial.pt", "zenoh", "learner")
+"""What a run writes into its log folder beside each process's `NAME.log`
+(`swarm.procs.supervisor`): an output of the run named so was overwritten by it."""
+
+
+def check_run_outputs(args: argparse.Namespace) -> None:
+    """`swarm run`'s folders probed, not made (a run refused by a later check left them
+    behind; the supervisor and the learner make them), and no output of the run named as a
+    file it writes in its log folder (`--json D/world.log` was replaced by the world's log)."""
+    output_dir(args.log_dir, "--log-dir", make=False)
+    for flag, path in (("--json", args.json), ("--record", args.record)):
+        if args.log_dir and path and Path(path).resolve().parent == Path(args.log_dir).resolve() \
+                and (path.endswith(".log") or Path(path).name in RUN_FILES):
+            raise ConfigError(f"{flag} {path} is a file the run writes in --log-dir "
+                              f"{args.log_dir}: name another")
+    output_dir(getattr(args, "learner_out", None), "--learner-out", make=False)

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, NoReturn, Self
 
 from swarm.common.atomic import in_place
-from swarm.common.report import OutputClosed
+from swarm.common.report import OutputClosed, printable
 from world.config import (
     ConfigError,
     WorldConfig,
@@ -228,8 +228,9 @@ def _output_closed() -> None:
 
 
 def _command() -> str:
-    return shlex.join(["swarm", *sys.argv[1:]])
-
+    """The command line as text that writes as UTF-8 (a byte that is none, in a path given as
+    an argument, is shown escaped: it crashed the tables' and the curve's "Made by" line)."""
+    return printable(shlex.join(["swarm", *sys.argv[1:]]))
 
 
 def _ints(text: str | None, flag: str) -> tuple[int, ...] | None:

@@ -20,6 +20,7 @@ from swarm.cli.checks import (
     check_fault_ticks,
     check_not_played,
     check_policy,
+    check_run_outputs,
     check_training,
     status_tick,
 )
@@ -158,8 +159,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             run.start_timeout, START_S_PER_ROBOT * world.n_robots)))
     output_file(args.json)
     check_run_secure(args, run.run_id, world.n_robots, run.train)
-    output_dir(args.log_dir, "--log-dir")
-    output_dir(getattr(args, "learner_out", None), "--learner-out")
+    check_run_outputs(args)
     if args.record is not None:  # the file and the package, before any spawn
         from swarm.net.record.recording import need_mcap
 

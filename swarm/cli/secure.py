@@ -64,6 +64,9 @@ def cmd_certs(args: argparse.Namespace) -> int:
 
     path_name(args.out, "--out")
     output_file(args.json)
+    if args.json and Path(args.json).resolve().parent == Path(args.out).resolve():
+        raise ConfigError(f"--json {args.json} is in --out {args.out}, which holds the "  # (it
+                          "certificates and keys: write it elsewhere")  # replaced ca.pem)
     rep = make_certs(args.out, args.robots, args.workers, args.host, args.days, args.routers)
     out, _ = _consoles()
     t = Table(title=f"swarm certs {args.out}")

@@ -23,12 +23,24 @@ from swarm.common.shipped import ROOT, SEARCHED, SHIPPED
 from world.config import ConfigError, WorldConfig
 
 
+def _entries(spec: str | list[str] | tuple[str, ...]) -> list[str]:
+    """The names of a comma-separated list (or a config file's list), stripped: a name that is
+    no text (`policies = [5]`: a traceback) or an empty entry among others (`,random`, silently
+    dropped) is one line."""
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    odd = [s for s in items if not isinstance(s, str)]
+    if odd:
+        raise ConfigError(f"a policy is named by its name (text), got {odd[0]!r:.40}")
+    if len(items) > 1 and any(not s.strip() for s in items):
+        raise ConfigError(f"an empty policy name in {','.join(items)!r:.80}")
+    return [s.strip() for s in items if s.strip()]
+
+
 def resolve_policies(spec: str | list[str] | tuple[str, ...]) -> list[str]:
     """`all`, one name or a comma-separated list -> registry names (order kept, no repeats: a
     name `all` also brings is taken once; one written twice is a typo, refused)."""
-    items = spec.split(",") if isinstance(spec, str) else list(spec)
     names: list[str] = []
-    written = [s.strip() for s in items if s.strip()]
+    written = _entries(spec)
     if twice := next((n for n in written if written.count(n) > 1), None):
         raise ConfigError(f"policy {twice!r} is named {written.count(twice)} times: each policy "
                           "runs once")
@@ -50,8 +62,7 @@ def labelled_policies(spec: str | list[str] | tuple[str, ...]) -> list[tuple[str
     registry name) in the order written; a plain name is its own label. A label runs one policy
     a second time under a name of its own, e.g. your checkpoint beside the shipped one:
     `commattn,mine=commattn --checkpoint mine=FILE` (paired over the same episodes)."""
-    items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec)
-             if s.strip()]
+    items = _entries(spec)
     plain = [s for s in items if "=" not in s]
     if plain:
         resolve_policies(plain)  # (unknown or repeated names: its one line)

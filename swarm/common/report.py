@@ -173,3 +173,9 @@ def json_line(obj: Any) -> None:
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         raise OutputClosed from None
+
+
+def printable(text: str) -> str:
+    """`text` with the undecodable bytes of arguments (surrogate escapes) shown as \\xNN: a
+    command line that names such a path still writes as UTF-8."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")

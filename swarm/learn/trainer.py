@@ -23,7 +23,7 @@ import torch
 from policies import LEARNED, make_policy
 from policies.checkpoint import load_checkpoint, save_checkpoint
 from policies.learned import LearnedPolicy
-from swarm.common.report import provenance
+from swarm.common.report import printable, provenance
 from swarm.learn.config import TrainConfig, resume_point
 from swarm.learn.curriculum import Curriculum
 from swarm.learn.curves import CurveLog, plot_curve
@@ -88,7 +88,7 @@ def _main(cfg: TrainConfig, world: WorldConfig, out: Path, resume: bool,
         raise ConfigError(f"policy {cfg.policy!r} is not a learned policy")
     curves = CurveLog(out)
     cur = Curriculum()
-    epoch0, upd, elapsed0, commands = 0, 0, 0.0, [" ".join(sys.argv)]
+    epoch0, upd, elapsed0, commands = 0, 0, 0.0, [printable(" ".join(sys.argv))]
     if resume and ckpt_path.exists():
         data = load_checkpoint(ckpt_path)
         cfg, world, tr = resume_point(data, cfg, given, world, world_given, str(out))

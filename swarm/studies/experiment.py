@@ -97,6 +97,9 @@ def run_experiment(sweep: Sweep, out: str | Path, resume: bool = False, overwrit
         raise ConfigError("--resume adds to the sweep in the folder, --overwrite replaces it; "
                           "give one")
     rows = [] if overwrite else _read_rows(csv_path)
+    if resume and not rows and not (out_dir / f"{exp.name}.json").exists():  # (a mistyped --out
+        raise ConfigError(f"--resume: {out_dir} holds no sweep {exp.name}, nothing to resume "
+                          "(without --resume a new sweep starts there)")  # started afresh)
     if rows and not resume:
         raise ConfigError(f"{out_dir} holds the results of sweep {exp.name} ({len(rows)} runs "
                           f"in {csv_path}): resume it (--resume), replace them (--overwrite) "

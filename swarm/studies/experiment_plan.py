@@ -241,7 +241,12 @@ def plan(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
             build_inference(policy.split(":")[0], world, exp.checkpoint(policy))
         except ConfigError as exc:
             raise ConfigError(f"[experiment] policy {policy!r}: {exc}") from None
+    if exp.parameter != "partition" and "partition" in base_faults and \
+            not str(base_faults["partition"]).strip():  # (as `swarm run --config` says it)
+        raise ConfigError("[faults] partition is empty: give the groups (e.g. 0-4/5-9), or "
+                          "leave it out for no partition")
     faults_of: dict[str, dict[str, Any]] = {}
+    points_of: dict[str, Any] = {}  # each value's plan: two values of one plan are one point
     for value in exp.values:
         faults = {**base_faults, exp.parameter: value}
         try:  # as `swarm run` checks a run: its team, ticks and clock
@@ -249,11 +254,14 @@ def plan(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
             check_fault_ticks(faults, run, world, flags=())
             if real is not None:
                 check_real_clock(real, watchdog, faults, run.seed, "[run] watchdog")
-            if exp.parameter in ("overflow", "burst") and not any(
-                    f.bandwidth for f in (plan.default, *plan.per_robot.values())):
+            if exp.parameter in ("overflow", "burst") and not plan.capped:
                 raise ConfigError("it says what a bandwidth cap does; the sweep has no cap "
                                   "(every point would be the same run): give a bandwidth in "
                                   "[faults]")
+            same = points_of.setdefault(repr(plan.to_record()), value)
+            if same is not value:  # (0 and 0.0, "50ms" and "0.05s": one run twice)
+                raise ConfigError(f"it is the point of {same!r} (the same faults): each value "
+                                  "is one point")
         except ConfigError as exc:
             raise ConfigError(f"[experiment] {exp.parameter} = {value!r}: {exc}") from None
         if exp.kernel:  # the kernel does the damage; the radio's fault stays zero

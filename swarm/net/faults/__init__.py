@@ -339,11 +339,19 @@ def _plan(t: dict[str, Any], seed: int, at_once: bool) -> FaultPlan:
     for kind in ("crash", "hang", "restart"):
         items = t.pop(kind, [])
         items = [items] if isinstance(items, str) else items
+        if not isinstance(items, list):  # (`crash = 5`: "'int' object is not iterable")
+            raise ConfigError(f"bad {kind} {items!r:.40}: a list of ROBOT@TICK, e.g. "
+                              f'{kind} = ["1@20"]')
         process += [parse_process(kind, x, at_once) for x in items]
     fseed = t.pop("seed", seed)
     check_seed(fseed, "faults seed")
     default = link_fault_from(t)
-    per_robot = {int(k): link_fault_from(v, default) for k, v in per_robot_t.items()}
+    per_robot = {}
+    for k, v in per_robot_t.items():  # ("x": int()'s own words; "1_0": robot 10; "00": "0")
+        if not (str(k).isdigit() and str(int(k)) == str(k)):
+            raise ConfigError(f"bad robot {str(k)[:20]!r} in [faults.robot]: a robot id, e.g. "
+                              "[faults.robot.3]")
+        per_robot[int(k)] = link_fault_from(v, default)
     per_link = {}
     for k, v in per_link_t.items():
         a, sep, b = str(k).partition("-")
