@@ -676,6 +676,7 @@ def test_a_learner_batches_one_seed_at_a_time(tmp_path: Path) -> None:
     from swarm.learn.config import LearnerConfig
     from swarm.learn.join import episodes_of
     from swarm.learn.rollout import collect
+    from swarm.procs.learning.batches import next_batch
     from swarm.procs.learning.learner import Learner
 
     tc = TrainConfig(batch=2, threads=1)
@@ -683,10 +684,12 @@ def test_a_learner_batches_one_seed_at_a_time(tmp_path: Path) -> None:
                                            out=str(tmp_path / "l")), tc)
     swarm_ep = episodes_of(collect(learner.policy, SMALL, tc.seed, np.arange(1)), 0)
     worker = episodes_of(collect(learner.policy, SMALL, WORKER0, np.arange(3)), 0)
+    assert next_batch([swarm_ep[0], *worker], 2) == [1, 2]
+    assert next_batch([swarm_ep[0], worker[0]], 2) is None
     learner.ready = [swarm_ep[0], *worker]
-    assert learner._next_batch() == [1, 2]
-    learner.ready = [swarm_ep[0], worker[0]]
-    assert learner._next_batch() is None
+    with open_session(ZenohOptions()) as session:
+        learner._declare(session)
+        assert learner.status(force=True)["update_due"]
 
 
 def test_heard_ids_fit_any_team_and_a_lockstep_world_follows_a_fresh_learner() -> None:

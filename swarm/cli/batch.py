@@ -190,16 +190,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     if faults and cfg.faults:
         raise ConfigError("faults given twice: --faults JSON (or [train] faults) and the fault "
                           "flags (or [faults]); give one")
-    if faults:
-        cfg = dataclasses.replace(cfg, faults=json.dumps(faults))
-    elif cfg.faults:  # checked as the flags are (an overflow with no cap, an empty partition,
-        # process faults the batched trainer has none of: said, then left out)
-        table = json.loads(cfg.faults)
-        if not isinstance(table, dict):
-            raise ConfigError(f"--faults must be a JSON object of [faults] keys, got {table!r:.40}")
-        checked = batched_faults(fault_table(argparse.Namespace(), {"faults": table},
-                                             world.n_robots), "training")
-        cfg = dataclasses.replace(cfg, faults=json.dumps(checked) if checked else "")
+    if cfg.faults:  # (a JSON object: TrainConfig) checked as the flags are (an overflow with
+        # no cap, an empty partition; process faults, which batches have not: said, left out)
+        faults = batched_faults(fault_table(argparse.Namespace(), {"faults": json.loads(
+            cfg.faults)}, world.n_robots), "training")
+    cfg = dataclasses.replace(cfg, faults=json.dumps(faults) if faults else "")
     asked = {*tables.get("train", {}), *given(train_config.TrainConfig, args),
              *(["faults"] if faults else [])}  # what --resume checks against the checkpoint
     ckpt = Path(args.out) / "checkpoint.pt"

@@ -59,6 +59,7 @@ from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
+from swarm.procs.learning.batches import next_batch, take_batch
 from swarm.procs.learning.journal import Journal
 from swarm.procs.learning.ledger import Settled, Workers
 from swarm.procs.learning.watch import RunWatch
@@ -325,38 +326,18 @@ class Learner:
         return settled
 
     # --- learning ---------------------------------------------------------------------------
-    def _next_batch(self) -> list[int] | None:
-        """Where in `ready` the next batch is: the first `batch` episodes of one seed, the seed
-        whose oldest episode waits longest (a batch's views share one seed, which hint features
-        draw their noise from: a worker's episodes batched with the swarm's were trained on
-        features they were not played with); None until one seed has a batch."""
-        if self.lc.gather_only or len(self.ready) < self.tc.batch:
-            return None
-        by_seed: dict[int, list[int]] = {}
-        for k, e in enumerate(self.ready):
-            by_seed.setdefault(e.seed, []).append(k)
-        return next((idx[:self.tc.batch] for idx in by_seed.values()
-                     if len(idx) >= self.tc.batch), None)
-
     def _batch(self) -> list[EpisodeRollout] | None:
-        """The next batch taken out of `ready`, every tick with a decision in some episode of
-        it (the features of a tick where nobody decided crash): an episode with a tick where
-        every robot was late or down goes only into a batch whose others cover that tick; the
-        episodes that leave a tick of a batch uncovered are dropped, counted rejected."""
-        while (where := self._next_batch()) is not None:
-            batch = [self.ready[k] for k in where]
-            quiet = ~np.stack([e.receivers.any(1) for e in batch])  # [B, T]
-            uncovered = quiet.all(0)
-            if not uncovered.any():
-                self.ready = [e for k, e in enumerate(self.ready) if k not in set(where)]
-                return batch
-            drop = {where[b] for b in np.flatnonzero(quiet[:, uncovered].any(1))}
-            self.c.rejected += len(drop)
+        """The next batch out of `ready` (`batches.take_batch`: one seed, every tick decided);
+        the episodes that leave a tick of theirs undecided are dropped, counted rejected."""
+        if self.lc.gather_only:
+            return None
+        batch, self.ready, dropped = take_batch(self.ready, self.tc.batch)
+        if dropped:
+            self.c.rejected += len(dropped)
             log.warning("learner dropped %d episode(s) with no decision at tick %d (every robot "
-                        "late or down) that no other episode of its batch covers", len(drop),
-                        int(np.argmax(uncovered)))
-            self.ready = [e for k, e in enumerate(self.ready) if k not in drop]
-        return None
+                        "late or down) that no other episode of its batch covers", len(dropped),
+                        dropped[0])
+        return batch
 
     def maybe_update(self) -> bool:
         batch = self._batch()
@@ -453,7 +434,8 @@ class Learner:
                "accounting": self.accounting(),
                # what a lockstep world (swarm.net.learning.LearnerGate) waits for
                "last_closed": self.settled.last,
-               "update_due": self._next_batch() is not None,
+               "update_due": not self.lc.gather_only and
+               next_batch(self.ready, self.tc.batch) is not None,
                "worker_episodes": self.c.worker_episodes,
                "rollout_bytes": self.c.rollout_bytes,
                "rollout_bytes_per_s": self.c.rollout_bytes / max(now - self.t0, 1e-9),
