@@ -543,6 +543,7 @@ BAD_INPUTS = [
     ["bench", "env", "--json", ""], ["bench", "swarm", "--json", "", "--robots", "2"],
     ["certs", "--out", "", "--robots", "1"],
     ["robot", "--id", "-1", "--run-id", "x"],  # (it waited 30 s for a world first)
+    ["robot", "--id", "1000000", "--run-id", "x"],  # (no team is that large: as long a wait)
     # a config "file" that is a directory or not UTF-8 (exit 1; a 20-line traceback for the 2nd)
     ["eval", "--config", "{tmp}"], ["run", "--config", "{tmp}/latin.toml"],
     ["train", "--out", "{tmp}/t", "--config", "{tmp}/latin.toml"],

@@ -14,7 +14,7 @@ import inspect
 import itertools
 from typing import Any
 
-from world.config import ConfigError, replace
+from world.config import MAX_SIDE, ConfigError, replace
 
 HELP = True
 """Whether `add_flags` gives each flag its field's docstring as help: a process the supervisor
@@ -51,6 +51,10 @@ def robot_id(text: str) -> int:
                                          ) from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"a robot id is >= 0, got {value}")
+    if value >= MAX_SIDE * MAX_SIDE:  # (no team is larger than the largest grid's cells)
+        raise argparse.ArgumentTypeError(f"a robot id is below {MAX_SIDE * MAX_SIDE} (a team has "
+                                         f"at most one robot a cell of a {MAX_SIDE} x {MAX_SIDE} "
+                                         f"grid), got {value}")
     return value
 
 
