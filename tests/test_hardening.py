@@ -558,7 +558,6 @@ BAD_INPUTS = [
     ["eval", "--config", "{tmp}/crash5.toml"], ["eval", "--config", "{tmp}/robotx.toml"],
     ["eval", "--policy", ",random", "--episodes", "1"],
     ["bench", "swarm", "--robots", "2", "--secure", ""],
-    ["train", "--init", "", "--out", "{tmp}/t"], ["train", "--model", "", "--out", "{tmp}/t"],
     ["learner", "--run-id", "x", "--out", "{tmp}/L", "--checkpoint", ""],
     ["train", "--out", "{tmp}/t", "--faults", '{"overflow": "drop"}'],
     ["train", "--out", "{tmp}/t", "--faults", '{"partition": ""}'],

@@ -646,12 +646,17 @@ def test_an_episode_the_update_cannot_take_is_refused_not_a_crash(tmp_path: Path
     learner.open_out()
     with open_session(ZenohOptions()) as session:
         learner._declare(session)
-        learner.ready = [quiet]  # (a batch of 1: nothing covers tick 4)
-        assert not learner.maybe_update() and learner.c.rejected == 1 and not learner.ready
+        learner.ready, learner.c.episodes = [quiet], 1  # (a batch of 1: nothing covers tick 4)
+        assert not learner.maybe_update() and learner.ready == [quiet]  # it waits
         learner.tc = dataclasses.replace(learner.tc, batch=2)
-        learner.ready = [quiet, eps[0]]
+        learner.ready, learner.c.episodes = [quiet, eps[0]], 2
         assert learner.maybe_update() and learner.c.trained == 2 and learner.version == 1
         learner.tc = dataclasses.replace(learner.tc, batch=1)
+        learner.ready, learner.c.episodes = [quiet], 1  # ... until it is too stale to train
+        learner.version = quiet.version + learner.lc.max_staleness + 1
+        assert not learner.maybe_update() and not learner.ready
+        assert (learner.c.stale_dropped, learner.c.episodes, learner.c.rejected) == (1, 0, 0)
+        learner.version = 1
 
         def worker(e: EpisodeRollout) -> None:
             learner.handle("worker", Keys("refuse").worker_episodes(0), e.pack())
@@ -684,12 +689,21 @@ def test_a_learner_batches_one_seed_at_a_time(tmp_path: Path) -> None:
                                            out=str(tmp_path / "l")), tc)
     swarm_ep = episodes_of(collect(learner.policy, SMALL, tc.seed, np.arange(1)), 0)
     worker = episodes_of(collect(learner.policy, SMALL, WORKER0, np.arange(3)), 0)
-    assert next_batch([swarm_ep[0], *worker], 2) == [1, 2]
-    assert next_batch([swarm_ep[0], worker[0]], 2) is None
-    learner.ready = [swarm_ep[0], *worker]
+    assert next_batch([swarm_ep[0], *worker], 2, by_seed=True) == [1, 2]
+    assert next_batch([swarm_ep[0], worker[0]], 2, by_seed=True) is None
+    assert next_batch([swarm_ep[0], worker[0]], 2) == [0, 1]  # (no hint: no seed noise)
+    # episodes each with a tick nobody decided pair up with those that cover it (review 97)
+    a, b, c, d = (dataclasses.replace(worker[k % 3]) for k in range(4))
+    for e, t in ((a, 1), (b, 1), (c, 2), (d, 2)):
+        e.receivers = e.receivers.copy()
+        e.receivers[t] = False
+    assert next_batch([a, b, c, d], 2) == [0, 2] and next_batch([a, b], 2) is None
+    learner.ready = [swarm_ep[0], worker[0]]
     with open_session(ZenohOptions()) as session:
         learner._declare(session)
         assert learner.status(force=True)["update_due"]
+        learner.policy.features.hint = "a hint planner"  # (seed-dependent features)
+        assert not learner.status(force=True)["update_due"]
 
 
 def test_heard_ids_fit_any_team_and_a_lockstep_world_follows_a_fresh_learner() -> None:

@@ -563,6 +563,8 @@ def test_trace_writes_tables_and_figures(recorded: dict[str, Any]) -> None:
 
 # ------------------------------------------------------------------------ a killed recorder
 def test_every_kind_has_a_json_form_that_fits_its_schema() -> None:
+    from swarm.net.learning import RobotRollout, RolloutTick
+
     cfg = WorldConfig(n_robots=3)
     traj = Traj(0, 2, 1, 3, 4, bytes(50), [3, 4], bytes(25)).pack()
     hidden = Hidden(0, 2, 1, 5, bytes(16)).pack()
@@ -572,6 +574,7 @@ def test_every_kind_has_a_json_form_that_fits_its_schema() -> None:
         "radio_hidden": Hidden.miss(0, 2, 1).pack(), "action": Action(0, 2, 1, 7, 0.5).pack(),
         "rstatus": pack_record(K_RSTATUS, {"robot": 1, "ep": 0, "attn": [0.25, 0.75, 0.0],
                                            "attn_t": 2, "bytes": b"\x00"}),
+        "rollout": RobotRollout(0, 1, [RolloutTick(traj, b"\xa0", True, 3, -0.5, 1.0, 2)]).pack(),
     }
     for kind, payload in samples.items():
         obj = msgjson.to_json(kind, payload, cfg)
@@ -579,6 +582,7 @@ def test_every_kind_has_a_json_form_that_fits_its_schema() -> None:
         json.dumps(obj, allow_nan=False)
     assert msgjson.to_json("bundle", samples["bundle"], cfg)["senders"] == [1]
     assert msgjson.to_json("radio_hidden", samples["radio_hidden"], cfg)["miss"] is True
+    assert msgjson.to_json("rollout", samples["rollout"], cfg)["heard"] == [[0, 2]]
     assert set(msgjson.SCHEMAS) >= {Keys("r").kind_of(k)[0] for k in (
         Keys("r").status, Keys("r").result, Keys("r").end, Keys("r").control,
         Keys("r").weights, Keys("r").learner_status, Keys("r").episode,

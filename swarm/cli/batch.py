@@ -12,7 +12,13 @@ from typing import Any
 
 from policies import BASELINES
 from swarm.bench.train import TrainBenchConfig
-from swarm.cli.checks import buildable, check_repro_flags, eval_checkpoints, stray_checkpoints
+from swarm.cli.checks import (
+    buildable,
+    check_out_and_json,
+    check_repro_flags,
+    eval_checkpoints,
+    stray_checkpoints,
+)
 from swarm.cli.common import (
     RichProgress,
     _checkpoint_pairs,
@@ -25,12 +31,11 @@ from swarm.cli.common import (
     add_fault_flags,
     add_world,
     batched_fault_plan,
-    batched_faults,
-    fault_table,
     file_tables,
     merged,
     output_dir,
     output_file,
+    training_faults,
     world_config,
     world_given,
 )
@@ -186,14 +191,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     toml_bools(train_config.TrainConfig, tables.get("train", {}), "[train]")
     base = from_dict(train_config.TrainConfig, tables.get("train", {}), "[train]")
     cfg = train_config.from_args(args, base)
-    faults = batched_faults(fault_table(args, tables, world.n_robots), "training")  # as eval
-    if faults and cfg.faults:
-        raise ConfigError("faults given twice: --faults JSON (or [train] faults) and the fault "
-                          "flags (or [faults]); give one")
-    if cfg.faults:  # (a JSON object: TrainConfig) checked as the flags are (an overflow with
-        # no cap, an empty partition; process faults, which batches have not: said, left out)
-        faults = batched_faults(fault_table(argparse.Namespace(), {"faults": json.loads(
-            cfg.faults)}, world.n_robots), "training")
+    faults = training_faults(args, tables, cfg.faults, world.n_robots)
     cfg = dataclasses.replace(cfg, faults=json.dumps(faults) if faults else "")
     asked = {*tables.get("train", {}), *given(train_config.TrainConfig, args),
              *(["faults"] if faults else [])}  # what --resume checks against the checkpoint
@@ -324,8 +322,7 @@ def cmd_repro(args: argparse.Namespace) -> int:
     # every check before the progress display (whose closing would print a blank line)
     items = repro.prepare(repro.expand(args.item), world, cfg)
     check_repro_flags(items, args, cfg)  # (after prepare: `all` drops items it cannot make)
-    output_file(cfg.json)  # (first: a refused --json left --out made)
-    output_dir(cfg.out, "--out")  # before the work, which can take hours
+    check_out_and_json(cfg.out, cfg.json)  # before the work, which can take hours
     out, err = _consoles()
     with RichProgress(err) as progress:
         results = repro.run(items, world, cfg, _command(), progress, prepared=True)

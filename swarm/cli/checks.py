@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from swarm.cli.common import _checkpoint_pairs, file_tables, output_dir
+from swarm.cli.common import _checkpoint_pairs, file_tables, output_dir, output_file
 from swarm.common.atomic import in_place
 from swarm.common.policy_spec import build_inference
 from swarm.common.spawn import EXIT_INCOMPLETE  # noqa: F401 (the CLI's, from here)
@@ -27,12 +27,11 @@ INPUT_FLAGS = {"file": "the input file", "config": "--config", "spec": "--spec",
 OUTPUT_FLAGS = {"json": "--json", "episodes_csv": "--episodes-csv", "record": "--record",
                 "out": "--out", "log_dir": "--log-dir", "learner_out": "--learner-out"}
 """Flags (by argparse dest) of every command that name a file or folder it writes."""
-NONEMPTY_FLAGS = {"checkpoint": "--checkpoint", "init": "--init", "curve": "--curve",
-                  "secure": "--secure", "model": "--model", "faults": "--faults",
-                  "imitate": "--imitate", "hint_planner": "--hint-planner"}
-"""Flags whose empty value is refused, not read as not given (`--init ''` trained a fresh
-network, `bench swarm --secure ''` benchmarked the plain mode alone); the other file flags
-say it in their own checks."""
+NONEMPTY_FLAGS = {"checkpoint": "--checkpoint", "curve": "--curve", "secure": "--secure"}
+"""Flags whose empty value is refused, not read as not given (`learner --checkpoint ''` started
+from fresh weights, `bench swarm --secure ''` benchmarked the plain mode alone); the other file
+flags say it in their own checks. `train --init ''`, `--model ''`, `--hint-planner ''` and
+`--imitate ''` keep their documented meaning: the default, overriding a config file's value."""
 TRAIN_FLAGS = ("train_batch", "train_algo", "train_ppo_epochs", "learner_out", "rollout_loss",
                "train_sync")
 
@@ -309,13 +308,32 @@ RUN_FILES = ("spec.json", "world_result.json", "initial.pt", "zenoh", "learner")
 
 
 def check_run_outputs(args: argparse.Namespace) -> None:
-    """`swarm run`'s folders probed, not made (a run refused by a later check left them
-    behind; the supervisor and the learner make them), and no output of the run named as a
-    file it writes in its log folder (`--json D/world.log` was replaced by the world's log)."""
-    output_dir(args.log_dir, "--log-dir", make=False)
+    """`swarm run`'s outputs, the last of its checks (the folders are made here: a run refused
+    by a later check left them behind), the folders first (`--json`/`--record` may go in
+    `--log-dir`), and none named as a file the run writes in its log folder (`--json
+    D/world.log` was replaced by the world's log)."""
     for flag, path in (("--json", args.json), ("--record", args.record)):
         if args.log_dir and path and Path(path).resolve().parent == Path(args.log_dir).resolve() \
                 and (path.endswith(".log") or Path(path).name in RUN_FILES):
             raise ConfigError(f"{flag} {path} is a file the run writes in --log-dir "
                               f"{args.log_dir}: name another")
+    output_dir(args.log_dir, "--log-dir", make=False)  # (all probed before any is made)
     output_dir(getattr(args, "learner_out", None), "--learner-out", make=False)
+    output_dir(args.log_dir, "--log-dir")
+    output_dir(getattr(args, "learner_out", None), "--learner-out")
+    output_file(args.json)
+    if args.record is not None:  # the file and the package
+        from swarm.net.record.recording import need_mcap
+
+        need_mcap()
+        output_file(args.record, "--record")
+
+
+def check_out_and_json(out: str, json_path: str | None) -> None:
+    """A folder of outputs (made here) and a JSON summary that may go inside it: the folder is
+    made only once a `--json` outside it is known good (a refused one left it made)."""
+    output_dir(out, "--out", make=False)
+    if json_path and not Path(json_path).resolve().is_relative_to(Path(out).resolve()):
+        output_file(json_path)
+    output_dir(out, "--out")
+    output_file(json_path)

@@ -9,6 +9,7 @@ value is one line on stderr (`swarm: error: ...`) and exit status 2, never a tra
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import re
@@ -426,6 +427,22 @@ def fault_table(args: argparse.Namespace, tables: dict[str, Any],
         raise ConfigError(f"{given[0]} says what a bandwidth cap does; there is no cap (give "
                           "--bandwidth, or a bandwidth in [faults])")
     return table
+
+
+def training_faults(args: argparse.Namespace, tables: dict[str, Any], given_json: str,
+                    n_robots: int) -> dict[str, Any]:
+    """`swarm train`'s faults, from the fault flags (or `[faults]`), or else from `--faults
+    JSON` (or `[train] faults`; a JSON object, TrainConfig checks), either checked as the flags
+    are (an overflow with no cap, an empty partition; process faults, which the batched
+    trainer has not: said, then left out). Both given: one line."""
+    faults = batched_faults(fault_table(args, tables, n_robots), "training")  # as eval
+    if faults and given_json:
+        raise ConfigError("faults given twice: --faults JSON (or [train] faults) and the fault "
+                          "flags (or [faults]); give one")
+    if given_json:
+        faults = batched_faults(fault_table(argparse.Namespace(), {"faults": json.loads(
+            given_json)}, n_robots), "training")
+    return faults
 
 
 def batched_faults(table: dict[str, Any], what: str) -> dict[str, Any]:

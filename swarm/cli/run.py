@@ -157,14 +157,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         # (spawning N interpreters: ~0.3 s of CPU each, on a machine that may be busy)
         run = dataclasses.replace(run, start_timeout=min(3600.0, max(
             run.start_timeout, START_S_PER_ROBOT * world.n_robots)))
-    output_file(args.json)
     check_run_secure(args, run.run_id, world.n_robots, run.train)
-    check_run_outputs(args)
-    if args.record is not None:  # the file and the package, before any spawn
-        from swarm.net.record.recording import need_mcap
-
-        need_mcap()
-        output_file(args.record, "--record")
     check_policy(run, world)
     if args.attention is not None and args.attention >= world.n_robots:  # (None: off)
         raise ConfigError(f"--attention {args.attention}: the team has robots "
@@ -182,6 +175,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         run = dataclasses.replace(run, clock="real")
     if args.secure and netns is not None and netns.transport != "tcp":
         raise ConfigError("--secure needs --netns-transport tcp (TLS runs over TCP)")
+    check_run_outputs(args)  # (last: it makes the folders)
     opts = SuperviseOptions(headless=args.headless, json_path=args.json,
                             log_dir=args.log_dir,
                             netns=netns, secure=args.secure, record=args.record,

@@ -89,7 +89,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "weights": _obj({"policy": {"type": "string"}, "version": INT, "origin": INT, "model": RECORD,
                      "shapes": {"type": "object", "additionalProperties": INTS}},
                     "swarm weights (tensor shapes only: the data is on the msgpack channel)"),
-    "rollout": _obj({"ep": INT, "robot": INT, "actions": INTS, "heard": INTS,
+    "rollout": _obj({"ep": INT, "robot": INT, "actions": INTS,
+                     "heard": {"type": "array", "items": INTS},  # (each tick's ids)
                      "chain_ok": {"type": "array", "items": BOOL}, "logp": NUMS,
                      "last_reward": NUMS, "version": INTS}, "swarm robot episode record"),
     "episode": _obj({"ep": INT, "reward": {"type": "array", "items": NUMS},

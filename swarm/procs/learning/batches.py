@@ -1,11 +1,11 @@
 """Which of a learner's ready episodes make its next batch (`Learner.maybe_update`).
 
-A batch's views share one seed, which hint features draw their tie-break noise from: a batch
-is the first `size` episodes of one seed, the seed whose oldest episode waits longest (a
-worker's episodes batched behind the swarm's were trained on features they were not played
-with). And every tick of a batch must have a decision in some episode of it (the features of
-a tick where nobody decided crash): an episode with a tick where every robot was late or down
-goes only into a batch whose others cover that tick.
+Every tick of a batch must have a decision in some episode of it (the features of a tick where
+nobody decided crash): an episode with a tick where every robot was late or down waits for a
+batch whose other episodes decided at that tick (its staleness bound drops it if none comes).
+With `by_seed` (a network whose hint features draw tie-break noise from the views' one seed),
+a batch holds one seed's episodes, the seed whose oldest episode waits longest: a worker's
+episodes batched behind the swarm's were trained on features they were not played with.
 """
 
 from __future__ import annotations
@@ -15,30 +15,40 @@ import numpy as np
 from swarm.net.learning import EpisodeRollout
 
 
-def next_batch(ready: list[EpisodeRollout], size: int) -> list[int] | None:
-    """Where in `ready` the next batch of `size` is (one seed's first episodes), None until
-    one seed has that many."""
+def by_seed(policy: object) -> bool:
+    """Whether `policy`'s batches must hold one seed (its hint features draw noise from it)."""
+    return getattr(getattr(policy, "features", None), "hint", None) is not None
+
+
+def next_batch(ready: list[EpisodeRollout], size: int, by_seed: bool = False
+               ) -> list[int] | None:
+    """Where in `ready` the next batch of `size` is, None until there is one: the first
+    `size - 1` episodes (of one seed with `by_seed`), then the first after them that leaves no
+    tick of the batch undecided."""
     if len(ready) < size:
         return None
-    by_seed: dict[int, list[int]] = {}
+    groups: dict[int, list[int]] = {}
     for k, e in enumerate(ready):
-        by_seed.setdefault(e.seed, []).append(k)
-    return next((idx[:size] for idx in by_seed.values() if len(idx) >= size), None)
+        groups.setdefault(e.seed if by_seed else 0, []).append(k)
+    for idx in groups.values():
+        if len(idx) < size:
+            continue
+        head = idx[:size - 1]
+        decided = np.zeros(ready[idx[0]].receivers.shape[0], bool)
+        for k in head:
+            decided |= ready[k].receivers.any(1)
+        last = next((k for k in idx[size - 1:] if (decided | ready[k].receivers.any(1)).all()),
+                    None)
+        if last is not None:
+            return [*head, last]
+    return None
 
 
-def take_batch(ready: list[EpisodeRollout], size: int
-               ) -> tuple[list[EpisodeRollout] | None, list[EpisodeRollout], list[int]]:
-    """(the next batch or None, the episodes left ready, the ticks of the episodes dropped):
-    the episodes that leave a tick of their batch with no decision are dropped (the caller
-    counts them rejected, one tick each named), and the batch is looked for again."""
-    dropped: list[int] = []
-    while (where := next_batch(ready, size)) is not None:
-        batch = [ready[k] for k in where]
-        quiet = ~np.stack([e.receivers.any(1) for e in batch])  # [B, T]
-        uncovered = quiet.all(0)
-        if not uncovered.any():
-            return batch, [e for k, e in enumerate(ready) if k not in set(where)], dropped
-        drop = {where[b] for b in np.flatnonzero(quiet[:, uncovered].any(1))}
-        dropped += [int(np.argmax(uncovered))] * len(drop)
-        ready = [e for k, e in enumerate(ready) if k not in drop]
-    return None, ready, dropped
+def take_batch(ready: list[EpisodeRollout], size: int, by_seed: bool = False
+               ) -> tuple[list[EpisodeRollout] | None, list[EpisodeRollout]]:
+    """(the next batch or None, the episodes left waiting)."""
+    where = next_batch(ready, size, by_seed)
+    if where is None:
+        return None, ready
+    taken = set(where)
+    return [ready[k] for k in where], [e for k, e in enumerate(ready) if k not in taken]

@@ -14,22 +14,22 @@ Data flow of one episode (keys in swarm.net.keys):
 - a rollout worker instead puts whole `EpisodeRollout`s on `worker/<k>/episodes`.
 
 The learner joins the first two into an `EpisodeRollout` (the robots' own trajectory messages
-are exactly what their receivers heard, so the tick's `View` is rebuilt bit for bit), stacks
-`batch` of them into the batched trainer's `Rollout`, runs the very same
+are exactly what their receivers heard, so the tick's `View` is rebuilt bit for bit), stacks a
+batch of them (`batches`) into the batched trainer's `Rollout`, runs the very same
 `swarm.learn.update.update`, checkpoints atomically, and only then publishes the new version
 on `learner/weights` (a queryable there serves the current version to late joiners). An update
 is acknowledged when its version is published; a SIGKILLed learner resumes from the
 checkpoint of the last one.
 
 Stale rollouts: an episode's version is the oldest any of its robots acted with. Episodes more
-than `max_staleness` versions behind are dropped and counted (`stale_dropped`); others are used
-(`stale_used` counts them), each decision weighted by the truncated importance ratio
-min(is_clip, pi_now / pi_acted) from the log-probabilities the robots recorded
-(swarm.learn.update.backward); fresh episodes weigh exactly 1.
-"""
+than `max_staleness` versions behind (when they come or while they wait for a batch) are
+dropped, `stale_dropped`; others are used (`stale_used`), each decision weighted by the
+truncated importance ratio min(is_clip, pi_now / pi_acted) of the recorded log-probabilities
+(swarm.learn.update.backward); fresh episodes weigh exactly 1."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import secrets
@@ -59,7 +59,7 @@ from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
-from swarm.procs.learning.batches import next_batch, take_batch
+from swarm.procs.learning.batches import by_seed, next_batch, take_batch
 from swarm.procs.learning.journal import Journal
 from swarm.procs.learning.ledger import Settled, Workers
 from swarm.procs.learning.watch import RunWatch
@@ -327,29 +327,33 @@ class Learner:
 
     # --- learning ---------------------------------------------------------------------------
     def _batch(self) -> list[EpisodeRollout] | None:
-        """The next batch out of `ready` (`batches.take_batch`: one seed, every tick decided);
-        the episodes that leave a tick of theirs undecided are dropped, counted rejected."""
-        if self.lc.gather_only:
-            return None
-        batch, self.ready, dropped = take_batch(self.ready, self.tc.batch)
-        if dropped:
-            self.c.rejected += len(dropped)
-            log.warning("learner dropped %d episode(s) with no decision at tick %d (every robot "
-                        "late or down) that no other episode of its batch covers", len(dropped),
-                        dropped[0])
+        """The next batch out of `ready` (`batches.take_batch`), once the episodes that went
+        stale while they waited (past `max_staleness`) are dropped, counted `stale_dropped`
+        (`--gather-only` keeps none ready)."""
+        fresh = [e for e in self.ready if self.version - e.version <= self.lc.max_staleness]
+        self._left_ready(len(self.ready) - len(fresh), "stale_dropped")
+        batch, self.ready = take_batch(fresh, self.tc.batch, by_seed(self.policy))
         return batch
+
+    def _left_ready(self, n: int, counter: str) -> None:
+        setattr(self.c, counter, getattr(self.c, counter) + n)  # (untrained, out of `ready`:
+        self.c.episodes -= n  # `episodes` is trained or waiting there)
 
     def maybe_update(self) -> bool:
         batch = self._batch()
         if batch is None:
             return False
         t0 = time.perf_counter()
+        net_before = copy.deepcopy(self.policy.net.state_dict())
+        opt_before = copy.deepcopy(self.opt.state_dict())
         torch.set_flush_denormal(True)
         try:
             roll = rollout_of(batch, self.policy, self.version)
             parts = update(self.policy, self.opt, roll, self.tc)
         except (ValueError, IndexError, RuntimeError) as exc:  # (every check passed: a defect)
-            self.c.rejected += len(batch)
+            self.policy.net.load_state_dict(net_before)  # (PPO steps each epoch: none kept)
+            self.opt.load_state_dict(opt_before)
+            self._left_ready(len(batch), "rejected")
             log.error("learner dropped a batch of %d episodes it could not train on: %s",
                       len(batch), str(exc)[:200])
             return False
@@ -434,8 +438,8 @@ class Learner:
                "accounting": self.accounting(),
                # what a lockstep world (swarm.net.learning.LearnerGate) waits for
                "last_closed": self.settled.last,
-               "update_due": not self.lc.gather_only and
-               next_batch(self.ready, self.tc.batch) is not None,
+               "update_due": next_batch(self.ready, self.tc.batch,
+                                        by_seed(self.policy)) is not None,
                "worker_episodes": self.c.worker_episodes,
                "rollout_bytes": self.c.rollout_bytes,
                "rollout_bytes_per_s": self.c.rollout_bytes / max(now - self.t0, 1e-9),
