@@ -882,9 +882,14 @@ def test_a_refused_run_makes_no_folder_and_a_byte_path_is_shown_escaped(
     r = swarm_here("run", "--robots", "2", "--policy", "commattn", "--checkpoint",
                    "checkpoints/vain.pt", "--log-dir", str(new), capsys=capsys)
     assert r.returncode == 2 and not (tmp_path / "new").exists(), r.stderr
-    r = swarm_here("repro", "table1", "--out", str(new), "--json", str(tmp_path / "no" / "x.json"),
-                   capsys=capsys)
-    assert r.returncode == 2 and not (tmp_path / "new").exists(), r.stderr
+    for json_path in (tmp_path / "no" / "x.json", tmp_path):  # (checked before --log-dir made)
+        r = swarm_here("run", "--robots", "2", "--log-dir", str(new), "--json", str(json_path),
+                       capsys=capsys)
+        assert r.returncode == 2 and not (tmp_path / "new").exists(), r.stderr
+    for json_path in (tmp_path / "no" / "x.json", new / "sub" / "x.json"):
+        r = swarm_here("repro", "table1", "--out", str(new), "--json", str(json_path),
+                       capsys=capsys)
+        assert r.returncode == 2 and not (tmp_path / "new").exists(), r.stderr
     odd = tmp_path / "caf\udce9"  # (the byte 0xe9 of a Latin-1 name, as Python reads argv)
     done = subprocess.run([sys.executable, "-m", "swarm.cli", "repro", "table1", "--out",
                            str(odd), "--policies", "random", "--decisions", "1"], cwd=ROOT,

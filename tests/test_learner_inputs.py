@@ -681,7 +681,7 @@ def test_a_learner_batches_one_seed_at_a_time(tmp_path: Path) -> None:
     from swarm.learn.config import LearnerConfig
     from swarm.learn.join import episodes_of
     from swarm.learn.rollout import collect
-    from swarm.procs.learning.batches import next_batch
+    from swarm.procs.learning.batches import next_batch, take_batch
     from swarm.procs.learning.learner import Learner
 
     tc = TrainConfig(batch=2, threads=1)
@@ -698,6 +698,12 @@ def test_a_learner_batches_one_seed_at_a_time(tmp_path: Path) -> None:
         e.receivers = e.receivers.copy()
         e.receivers[t] = False
     assert next_batch([a, b, c, d], 2) == [0, 2] and next_batch([a, b], 2) is None
+    e = dataclasses.replace(a, receivers=a.receivers.copy())
+    e.receivers[2] = False  # (quiet at ticks 1 and 2: review helper 98)
+    assert next_batch([e, b, c], 2) == [1, 2]
+    # with four batches' worth waiting and no batch to be made of them, the oldest go
+    _, left, stale, blocked = take_batch([a] * 8, 2, False, 0, 1)
+    assert (len(left), stale, blocked) == (7, 0, 1)
     learner.ready = [swarm_ep[0], worker[0]]
     with open_session(ZenohOptions()) as session:
         learner._declare(session)

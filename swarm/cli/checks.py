@@ -317,23 +317,28 @@ def check_run_outputs(args: argparse.Namespace) -> None:
                 and (path.endswith(".log") or Path(path).name in RUN_FILES):
             raise ConfigError(f"{flag} {path} is a file the run writes in --log-dir "
                               f"{args.log_dir}: name another")
-    output_dir(args.log_dir, "--log-dir", make=False)  # (all probed before any is made)
-    output_dir(getattr(args, "learner_out", None), "--learner-out", make=False)
-    output_dir(args.log_dir, "--log-dir")
-    output_dir(getattr(args, "learner_out", None), "--learner-out")
-    output_file(args.json)
-    if args.record is not None:  # the file and the package
+    folders = {"--log-dir": args.log_dir, "--learner-out": getattr(args, "learner_out", None)}
+    for flag, path in folders.items():  # (all probed before any is made)
+        output_dir(path, flag, make=False)
+    if args.record is not None:  # the package
         from swarm.net.record.recording import need_mcap
 
         need_mcap()
-        output_file(args.record, "--record")
+    made = [Path(p).resolve() for p in folders.values() if p]
+    for flag, path in (("--json", args.json), ("--record", args.record)):
+        if path and Path(path).resolve().parent not in made:  # (else: once its folder is)
+            output_file(path, flag)
+    for flag, path in folders.items():
+        output_dir(path, flag)
+    output_file(args.json)
+    output_file(args.record, "--record")
 
 
 def check_out_and_json(out: str, json_path: str | None) -> None:
     """A folder of outputs (made here) and a JSON summary that may go inside it: the folder is
     made only once a `--json` outside it is known good (a refused one left it made)."""
     output_dir(out, "--out", make=False)
-    if json_path and not Path(json_path).resolve().is_relative_to(Path(out).resolve()):
-        output_file(json_path)
+    if json_path and Path(json_path).resolve().parent != Path(out).resolve():
+        output_file(json_path)  # (in --out itself: checked once --out is made)
     output_dir(out, "--out")
     output_file(json_path)

@@ -59,7 +59,7 @@ from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, EpisodeRollout, RobotRollout
 from swarm.net.messages import BIG, K_LSTATUS, BadMessage, pack_record
 from swarm.net.zconfig import ZenohOptions, open_session
-from swarm.procs.learning.batches import by_seed, next_batch, take_batch
+from swarm.procs.learning.batches import by_seed, fresh, next_batch, take_batch
 from swarm.procs.learning.journal import Journal
 from swarm.procs.learning.ledger import Settled, Workers
 from swarm.procs.learning.watch import RunWatch
@@ -327,17 +327,18 @@ class Learner:
 
     # --- learning ---------------------------------------------------------------------------
     def _batch(self) -> list[EpisodeRollout] | None:
-        """The next batch out of `ready` (`batches.take_batch`), once the episodes that went
-        stale while they waited (past `max_staleness`) are dropped, counted `stale_dropped`
-        (`--gather-only` keeps none ready)."""
-        fresh = [e for e in self.ready if self.version - e.version <= self.lc.max_staleness]
-        self._left_ready(len(self.ready) - len(fresh), "stale_dropped")
-        batch, self.ready = take_batch(fresh, self.tc.batch, by_seed(self.policy))
+        """The next batch (`batches.take_batch`); the episodes it leaves out, counted."""
+        batch, self.ready, stale, blocked = take_batch(
+            self.ready, self.tc.batch, by_seed(self.policy), self.version, self.lc.max_staleness)
+        self._left_ready(stale, "stale_dropped")
+        self._left_ready(blocked, "rejected")
+        if blocked:
+            log.warning("learner dropped %d episode(s) no batch takes (undecided ticks)", blocked)
         return batch
 
-    def _left_ready(self, n: int, counter: str) -> None:
-        setattr(self.c, counter, getattr(self.c, counter) + n)  # (untrained, out of `ready`:
-        self.c.episodes -= n  # `episodes` is trained or waiting there)
+    def _left_ready(self, n: int, counter: str) -> None:  # (`episodes`: trained or ready)
+        setattr(self.c, counter, getattr(self.c, counter) + n)
+        self.c.episodes -= n
 
     def maybe_update(self) -> bool:
         batch = self._batch()
@@ -433,13 +434,12 @@ class Learner:
                "pending": len(self.pending), "ready": len(self.ready),
                "stale_used": self.c.stale_used, "stale_dropped": self.c.stale_dropped,
                "incomplete": self.c.incomplete, "bad": self.c.bad,
-               "late_records": self.c.late_records,
-               **(self.inbox.dropped if self.inbox is not None else {}),
+               "late_records": self.c.late_records, **(self.inbox.dropped if self.inbox else {}),
                "accounting": self.accounting(),
                # what a lockstep world (swarm.net.learning.LearnerGate) waits for
                "last_closed": self.settled.last,
-               "update_due": next_batch(self.ready, self.tc.batch,
-                                        by_seed(self.policy)) is not None,
+               "update_due": next_batch(fresh(self.ready, self.version, self.lc.max_staleness),
+                                        self.tc.batch, by_seed(self.policy)) is not None,
                "worker_episodes": self.c.worker_episodes,
                "rollout_bytes": self.c.rollout_bytes,
                "rollout_bytes_per_s": self.c.rollout_bytes / max(now - self.t0, 1e-9),
