@@ -70,6 +70,9 @@ def check_exists(path: Path) -> None:
     was looked for in: an experiment file's paths are the current directory's, not its own)."""
     if path.is_dir():
         raise CheckpointError(f"checkpoint {path} is a directory, not a checkpoint file")
+    if path.exists() and not path.is_file():  # (/dev/null, a FIFO: "not found" misled)
+        raise CheckpointError(f"checkpoint {path} is a special file (a device or FIFO), not a "
+                              "checkpoint file")
     if not path.is_file():
         where = "" if path.is_absolute() else f" (relative to {Path.cwd()})"
         repo = Path(__file__).resolve().parents[1] / path  # (a result file's relative paths

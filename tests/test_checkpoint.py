@@ -183,3 +183,11 @@ def test_a_relative_path_a_result_names_is_found_in_the_repository_hint(
     with pytest.raises(CheckpointError) as err:  # (no hint for a file the repository lacks)
         check_exists(Path("checkpoints/none.pt"))
     assert "repository" not in str(err.value)
+
+
+def test_a_special_file_is_no_checkpoint_and_is_not_called_missing() -> None:
+    """`--checkpoint /dev/null` said "checkpoint not found" (review helper 95)."""
+    from policies.checkpoint import check_exists
+
+    with pytest.raises(CheckpointError, match="/dev/null is a special file"):
+        check_exists(Path("/dev/null"))
