@@ -807,6 +807,36 @@ def test_a_world_status_must_fit_the_run_before_a_process_fault_fires_on_it() ->
                                "faults": lines}, big, first_episode=2, episodes=4)
 
 
+def test_link_keys_of_a_large_team_are_parsed_as_the_small_ones_are_looked_up(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past LINK_KEYS_HELD robots a status's link keys are parsed, not looked up in a set of
+    every key (10^6 strings for 1,000 robots): both ways take and refuse the same keys."""
+    from swarm.net import records
+    from swarm.net.messages import BadMessage
+
+    keys = ["0-1", "19-0", "20-1", "1-20", "01-2", "0-01", "-1-2", "1-2-3", "1-", "-", "",
+            "\uff11-2", "+1-2", " 1-2", "1-2 ", "1_0-2", "7", "99999999999999999999999-1",
+            "1-2\n3-4", "1-2\n"]
+    small = [records._is_link_key(k, 20) for k in keys]
+    assert small == [True, True] + [False] * 18
+    assert [records._parsed_keys({k: 1}, 20) for k in keys] == small
+    assert records._parsed_keys(dict.fromkeys(keys[:2]), 20)
+    assert not records._parsed_keys(dict.fromkeys(keys[:3]), 20)
+    monkeypatch.setattr(records, "LINK_KEYS_HELD", 0)
+    assert [records._is_link_key(k, 20) for k in keys] == small
+    assert not records._is_link_key(7, 20)
+    monkeypatch.undo()
+    team = 300
+    records._link_keys.cache_clear()
+    assert team > records.LINK_KEYS_HELD
+    links = {f"{j}-{(j + 1) % team}": [1, 2, 3, 4] for j in range(team)}
+    records._status_panels({"links": links}, team)
+    for bad in ("300-1", "03-1", "1-2-3", "\uff11-2", "1-2\n3-4", 5):
+        with pytest.raises(BadMessage, match="SENDER-RECEIVER"):
+            records._status_panels({"links": {**links, bad: [1, 2, 3, 4]}}, team)
+    assert records._link_keys.cache_info().currsize == 0  # (no set of 90,000 keys made)
+
+
 def test_swarm_version_names_the_package_and_the_commit(
         capsys: pytest.CaptureFixture[str]) -> None:
     """`swarm --version` (there was none): the installed version and the source tree's commit,
