@@ -525,7 +525,7 @@ BAD_INPUTS = [
     ["learner", "--run-id", "x", "--out", "{tmp}/l", "--zenoh-mode", "client", "--connect",
      "tcp/127.0.0.1:1"],
     ["robot", "--id", "0", "--run-id", "x", "--zenoh-mode", "client", "--connect",
-     "tcp/127.0.0.1:1"],
+     "tcp/127.0.0.1:1", "--wait", "0.5"],  # (a client tries its router for --wait seconds)
     ["train", "--out", "{tmp}/t", "--lr", "nan"], ["train", "--out", "{tmp}/t", "--epochs", "0"],
     ["eval", "--policy", "nope"], ["eval", "--json", "{tmp}"], ["eval", "--seed", "-1"],
     ["eval", "--seed", "99999999999999999999"], ["bench", "policy", "--seed", "-1"],
@@ -880,6 +880,39 @@ def test_a_hand_robot_whose_world_dies_says_so(tmp_path: Path) -> None:
     said = [line for line in err.splitlines() if line.startswith("swarm robot:")]
     assert robot.returncode == 3 and len(said) == 1 and "run handgone" in said[0], err
     assert "Traceback" not in err, err
+
+
+@pytest.mark.procs
+def test_a_client_robot_typed_before_its_world_waits_for_it() -> None:
+    """`swarm robot --zenoh-mode client` started before its world's router listens (two
+    commands typed back to back): it tries again for its --wait, joins and plays the run (Zenoh
+    fails a client's open at once: it exited 1 in a second, whatever --wait said)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        hub = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "robot", "--id", "0", "--run-id", "early",
+         "--zenoh-mode", "client", "--connect", hub, "--wait", "60"], cwd=ROOT,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    world = None
+    try:
+        time.sleep(2.0)  # (the robot is up and finds nobody listening)
+        assert robot.poll() is None, robot.communicate()[1]
+        world = subprocess.Popen(
+            [sys.executable, "-m", "swarm.cli", "world", "--run-id", "early", "--robots", "1",
+             "--policy", "nearest-frontier", "--episodes", "1", "--zenoh-mode", "router",
+             "--listen", hub], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True)
+        _, err = robot.communicate(timeout=120)
+        _, werr = world.communicate(timeout=60)
+    finally:
+        for p in (robot, world):
+            if p is not None and p.poll() is None:
+                p.kill()
+    assert robot.returncode == 0, err[-1500:]
+    assert world.returncode == 0, werr[-1500:]
 
 
 @pytest.mark.procs

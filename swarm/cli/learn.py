@@ -181,7 +181,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--max-batches", type=int, default=0,
                    help="stop after this many (default 0: never)")
     p.add_argument("--wait", type=float, default=30.0, metavar="S",
-                   help="seconds to wait for the learner, in [0.1, 3600] (default 30)")
+                   help="seconds to wait for the learner, in [0.1, 3600] (default 30); a "
+                        "client waits as long for its router to listen")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
     add_secure_flag(p)

@@ -319,7 +319,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
             rec["at_tick"] = args.at_tick
     if process:
         rec["process"] = process
-    with open_session(opts) as session:
+    with open_session(opts, args.wait) as session:
         # the run's tick, from its status (an operator of a --secure run may not read it)
         ticks: list[int] = []
         timed = [int(t.rpartition("@")[2]) for t in process if "@" in t]  # ROBOT@TICK
@@ -487,7 +487,8 @@ def add_robot_parser(sub: Any) -> None:
     p.add_argument("--id", type=robot_id, required=True, help="robot id 0..N-1")
     p.add_argument("--run-id", required=True, help="the run to join (printed by `swarm world`)")
     p.add_argument("--wait", type=float, default=30.0, metavar="S",
-                   help="seconds to wait for the world, in [0.1, 3600] (default 30)")
+                   help="seconds to wait for the world, in [0.1, 3600] (default 30); a client "
+                        "waits as long for its router to listen")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO")
     zconfig.add_arguments(p)
     add_secure_flag(p)

@@ -13,6 +13,7 @@ import json
 import re
 import socket
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -164,19 +165,35 @@ def zenoh_reason(exc: BaseException) -> str:
     return (m.group(1) if m else text).strip()
 
 
+CONNECT_RETRY_S = 0.25
+"""How often a client tries its router again while it waits for it (`open_session`'s wait)."""
+
+
 @contextmanager
-def open_session(opts: ZenohOptions) -> Iterator[zenoh.Session]:
+def open_session(opts: ZenohOptions, wait: float = 0.0) -> Iterator[zenoh.Session]:
     """`with open_session(opts) as session:` a session for these options, closed on the way out.
-    A refused connection is one line, not a traceback; a close that fails (Zenoh's "close
-    operation timed out" on a link that lost its peer, under kernel loss) is a warning line,
-    never the process's error: it was raised from the `with`, hid the error that ended the body
-    (a world with no robot up) and failed the run of a robot that had done its work."""
+    A client tries its router again for up to `wait` seconds (the command's `--wait`): Zenoh
+    fails a client's open at once when nothing listens yet, where a peer or a router keeps
+    trying in the background, so a robot, rollout worker, recorder or `swarm fault` started
+    right after its router (typed back to back) exited 1 before the router was up. A refused
+    connection is then one line, not a traceback; a close that fails (Zenoh's "close operation
+    timed out" on a link that lost its peer, under kernel loss) is a warning line, never the
+    process's error: it was raised from the `with`, hid the error that ended the body (a world
+    with no robot up) and failed the run of a robot that had done its work."""
     conf = opts.to_config()
-    try:
-        session = zenoh.open(conf)
-    except zenoh.ZError as exc:
-        where = ", ".join(opts.connect or opts.listen) or "defaults"
-        raise RuntimeError(f"cannot open a Zenoh session ({where}): {zenoh_reason(exc)}") from None
+    deadline = time.monotonic() + wait
+    while True:
+        try:
+            session = zenoh.open(conf)
+            break
+        except zenoh.ZError as exc:
+            if opts.mode == "client" and time.monotonic() + CONNECT_RETRY_S < deadline:
+                time.sleep(CONNECT_RETRY_S)
+                continue
+            where = ", ".join(opts.connect or opts.listen) or "defaults"
+            within = f" within {wait:g} s" if opts.mode == "client" and wait > 0 else ""
+            raise RuntimeError(f"cannot open a Zenoh session ({where}){within}: "
+                               f"{zenoh_reason(exc)}") from None
     try:
         yield session
     finally:

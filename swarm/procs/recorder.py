@@ -234,5 +234,5 @@ def run_tick(head: tuple[Any, Any] | None, rec: RunRecord, last: int | None) -> 
 def main(run_id: str, out: str, zopts: ZenohOptions, wait_world: float = 30.0,
          flush_s: float = 0.5, wait_said: float | None = None) -> dict[str, Any]:
     """Open a session and record run `run_id` into `out`."""
-    with open_session(zopts) as session:
+    with open_session(zopts, wait_world) as session:
         return Recorder(run_id, out, session, wait_world, flush_s, wait_said).run()

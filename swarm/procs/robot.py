@@ -479,7 +479,7 @@ def main(robot: int, run_id: str, zopts: ZenohOptions, wait_world: float = 30.0,
          settle: float = 0.0) -> RobotCounters:
     """Join run `run_id` as robot `robot`: act until the run ends (WorldLeft: its world left)."""
     keys = Keys(run_id)
-    with open_session(zopts) as session:
+    with open_session(zopts, wait_world) as session:
         rec = join_run(session, keys, robot, wait_world, settle)
         cfg, run = rec.world, rec.run
         # learned policies act in numpy (policies.infer): no robot process imports torch

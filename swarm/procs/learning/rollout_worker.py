@@ -58,7 +58,7 @@ def main(run_id: str, zopts: ZenohOptions, worker_id: int = 0, batch: int = 16,
     check_worker(worker_id, batch, threads, max_batches, wait)
     keys = Keys(run_id)
     torch.set_num_threads(threads)
-    with open_session(zopts) as session:
+    with open_session(zopts, wait) as session:
         opened = time.monotonic()
         rec = query(session, keys.learner_config, wait,
                     lambda b: RunRecord.unpack(b, "the learner's run record"),
