@@ -114,6 +114,28 @@ def test_each_robot_decides_its_copies_as_the_radio_does(table: dict) -> None:
     assert bool(tally.faulted_links()) == bool(table)
 
 
+def test_a_trajectory_copy_after_the_robot_took_its_tick_is_counted_stale() -> None:
+    """A copy of this tick that comes after `heard` took the tick's (the wait for it ran out on
+    the wall clock: a peer stalled) ends in `stale`, as one of an older tick does; it was
+    dropped at the next tick counted nowhere (review helper 99: nine copies of a 12-robot run
+    in no counter). Copies `heard` took are not counted again."""
+    cfg = WorldConfig(n_robots=3)
+    n, keys = cfg.n_robots, Keys("st")
+    links = [DirectLink(cfg, i, plan_from_table({}, 0, n), 0.2) for i in range(n)]
+    rng = np.random.default_rng(3)
+    pos = np.array([[1, 1], [1, 2], [2, 1]])
+    for link in links:
+        link.begin(Obs(0, 1, link.robot, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
+    stamped = {j: links[j].stamp(K_TRAJ, _traj(cfg, 0, 1, j, pos, rng)) for j in range(n)}
+    link = links[0]
+    link.offer(keys.direct(1), stamped[1])
+    assert not link.traj_complete() and len(link.heard()) == 2  # (its own and robot 1's)
+    link.offer(keys.direct(2), stamped[2])  # robot 2's, after the wait ran out
+    assert link.stale == 0
+    link.begin(Obs(0, 2, 0, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
+    assert link.stale == 1 and link.record()["stale"] == 1
+
+
 def test_a_lost_hidden_state_is_known_without_waiting_for_it() -> None:
     cfg = WorldConfig(n_robots=3)
     plan = plan_from_table({"loss": 1.0}, 1, 3)

@@ -19,7 +19,7 @@ from conftest import ROOT, swarm
 from policies import make_policy
 from swarm.learn.evaluate import evaluate
 from swarm.net.faults import plan_from_table
-from world.config import WorldConfig
+from world.config import ConfigError, WorldConfig
 
 CKPT = str(ROOT / "checkpoints" / "commattn.pt")
 # each fault kind, and all of them at once; tick 0.2 virtual seconds: traj deadline 160 ms,
@@ -352,3 +352,25 @@ def test_the_world_drops_a_process_fault_change_as_its_supervisor_does() -> None
         world.token(r, True)
     world.due(40)
     assert not world.held(2) and not world.held(1)
+
+
+def test_a_predecessors_slot_in_virtual_time_is_at_least_half_the_budget() -> None:
+    """On the real clock robot r waits for its predecessor until (r + 1) / N of the way to its
+    deadline (a lost message costs one slot, never the whole budget downstream). In virtual time
+    a lost or late message is said at once, so a slot runs out only on a stalled predecessor:
+    robot 1 of 12 gave up after 2/12 of the watchdog, and a stall that long on a loaded machine
+    changed its decision with no timeout counted (review helper 99). No slot ends before half
+    the budget there; a watchdog under MIN_WATCHDOG_S is refused."""
+    from swarm.procs.robot import VIRTUAL_HOP_FLOOR
+    from swarm.procs.robot_status import hop_deadline
+    from swarm.procs.runconfig import MIN_WATCHDOG_S, RunConfig
+
+    assert hop_deadline(0.0, 12.0, 1, 12) == 2.0  # the real clock's slots
+    assert hop_deadline(0.0, 12.0, 10, 12) == 11.0
+    assert hop_deadline(0.0, 12.0, 1, 12, VIRTUAL_HOP_FLOOR) == 6.0
+    assert hop_deadline(0.0, 12.0, 10, 12, VIRTUAL_HOP_FLOOR) == 11.0  # (later slots as before)
+    slots = [hop_deadline(0.0, 1.0, r, 12, VIRTUAL_HOP_FLOOR) for r in range(12)]
+    assert slots == sorted(slots)  # a predecessor (a lower id) never gives up after its successor
+    assert RunConfig(watchdog=MIN_WATCHDOG_S).watchdog == 0.5
+    with pytest.raises(ConfigError, match=r"watchdog must lie in \[0.5, 3600.0\], got 0.25"):
+        RunConfig(watchdog=0.25)

@@ -103,6 +103,7 @@ class DirectLink:
         self.decided: set[tuple[int, int, int]] = set()  # hidden copies decided before arrival
         self.early: dict[tuple[int, int, int], int] = {}  # their fate as far as draws tell
         self.stale = 0  # messages of a tick this robot had already left
+        self.used: set[tuple[int, int, int, int]] = set()  # trajectory copies `heard` took
         self.overflow = 0  # messages refused because too many were held
         self.boot = secrets.randbits(62)  # this incarnation: a restarted robot counts anew
 
@@ -137,7 +138,10 @@ class DirectLink:
         for key in [k for k in self.store if (k[1], k[2]) < (self.ep, self.t)]:
             del self.store[key]  # others' hidden states, copies that came after it decided
             self.arrived.pop(key, None)
-        self.decided, self.early = set(), {}
+            # a trajectory copy that came after `heard` took the tick's (its wait ran out on
+            # the wall clock, or it never took them): stale, as one of an older tick is
+            self.stale += key[0] == K_TRAJ and key not in self.used
+        self.decided, self.early, self.used = set(), {}, set()
 
     def own_deadline(self, kind: int) -> float:
         """Real clock: when a message of `kind` (K_TRAJ or K_HIDDEN) of this tick is late, in
@@ -249,6 +253,7 @@ class DirectLink:
                 continue
             st, msg = got
             assert isinstance(msg, Traj)
+            self.used.add((K_TRAJ, self.ep, self.t, j))
             present[j] = True
             pos[j] = (msg.y, msg.x)
             q[j] = math.nan if st.queue_ms == DROPPED_Q else st.queue_ms

@@ -56,6 +56,7 @@ log = logging.getLogger("swarm.robot")
 ROLLOUT_STREAM = 7  # counter-based noise stream of the rollout-loss fault
 STALL_S = 0.5  # a wait that overran its timeout by this much means the process was stopped
 REJOIN_S = 10.0  # how long a robot that just stalled waits for the world's token to come back
+VIRTUAL_HOP_FLOOR = 0.5  # virtual clock: no predecessor's slot ends before half the budget
 GONE_S = 1.0  # how long any other robot waits before it takes a vanished token for the world's end
 
 
@@ -374,8 +375,9 @@ class RobotProcess:
             hidden = None
             if pred >= 0:
                 w0 = time.perf_counter()
+                floor = VIRTUAL_HOP_FLOOR if self.run_cfg.clock == "virtual" else 0.0
                 hidden = self._wait("hidden", obs.ep, obs.t, pred,
-                                    hop_deadline(t_recv, deadline, r, cfg.n_robots))
+                                    hop_deadline(t_recv, deadline, r, cfg.n_robots, floor))
                 self.c.wait_ms += 1e3 * (time.perf_counter() - w0)
                 if hidden is None or len(hidden.state) != 4 * self.policy.state_size or \
                         not self.policy.state_ok(hidden.vector(), obs.t):

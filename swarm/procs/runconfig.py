@@ -57,7 +57,10 @@ class RunConfig:
     world waits for a tick's actions before stepping without the missing ones."""
     watchdog: float = 10.0
     """Virtual clock: wall seconds the world waits for a hung or slow robot before it steps
-    without it (counted as a timeout); nobody waits this long for a lost message."""
+    without it (counted as a timeout); nobody waits this long for a lost message. At least
+    MIN_WATCHDOG_S: a robot gives up on a predecessor's hidden-state message (or, with direct
+    delivery, a peer's trajectory message) after a share of it, by the wall clock, so a short
+    one let a loaded machine change decisions with no timeout counted."""
     restart_crashed: bool = False
     """A robot process that dies is started again. On the virtual clock a crash of the fault
     plan (or a live one) at tick t is then followed by a restart at t + 1: the world waits for
@@ -98,7 +101,7 @@ class RunConfig:
         check("start_timeout", 1e-3, 3600.0)
         check("pace", 0.0, 1000.0)
         check("rollout_loss", 0.0, 1.0)
-        check("watchdog", 0.01, 3600.0)
+        check("watchdog", MIN_WATCHDOG_S, 3600.0)
         if self.clock not in ("virtual", "real"):
             raise ConfigError(f"clock must be 'virtual' or 'real', got {self.clock!r}")
         if self.delivery not in ("radio", "direct"):
@@ -158,6 +161,10 @@ def check_fault_ticks(faults: dict[str, Any], run: RunConfig, world: WorldConfig
                           "or the restart a later tick")
 
 
+MIN_WATCHDOG_S = 0.5
+"""The shortest `--watchdog` taken (it was 0.01 s: at 0.1-0.25 s a 12-robot CommAttn run
+differed from its batched twin on a loaded machine, no timeout counted; review helper 99). Half
+the default 1 s lease: a watchdog still catches a stopped robot before its token goes."""
 MAX_WORKERS = 4096
 """Rollout workers whose next episode a learner keeps (`RunRecord.workers`); one of a further id
 still works, but starts from its seed's episode 0 when restarted."""
