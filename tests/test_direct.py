@@ -118,7 +118,8 @@ def test_a_trajectory_copy_after_the_robot_took_its_tick_is_counted_stale() -> N
     """A copy of this tick that comes after `heard` took the tick's (the wait for it ran out on
     the wall clock: a peer stalled) ends in `stale`, as one of an older tick does; it was
     dropped at the next tick counted nowhere (review helper 99: nine copies of a 12-robot run
-    in no counter). Copies `heard` took are not counted again."""
+    in no counter). Copies `heard` took are not counted again, nor those of a tick it never
+    took."""
     cfg = WorldConfig(n_robots=3)
     n, keys = cfg.n_robots, Keys("st")
     links = [DirectLink(cfg, i, plan_from_table({}, 0, n), 0.2) for i in range(n)]
@@ -134,6 +135,16 @@ def test_a_trajectory_copy_after_the_robot_took_its_tick_is_counted_stale() -> N
     assert link.stale == 0
     link.begin(Obs(0, 2, 0, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
     assert link.stale == 1 and link.record()["stale"] == 1
+    # a tick it never took (its bundle missed): its own copy and the peers' on-time ones are
+    # not stale (the tick counts as `missed` in the robot's counters)
+    for j in (1, 2):
+        links[j].begin(Obs(0, 2, j, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
+    stamped = {j: links[j].stamp(K_TRAJ, _traj(cfg, 0, 2, j, pos, rng)) for j in (1, 2)}
+    link.stamp(K_TRAJ, _traj(cfg, 0, 2, 0, pos, rng))
+    for j in (1, 2):
+        link.offer(keys.direct(j), stamped[j])
+    link.begin(Obs(0, 3, 0, 1, 1, bytes(25), 0.0, False, 1e3, b"\xe0"))
+    assert link.stale == 1
 
 
 def test_a_lost_hidden_state_is_known_without_waiting_for_it() -> None:

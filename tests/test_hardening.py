@@ -882,6 +882,24 @@ def test_a_hand_robot_whose_world_dies_says_so(tmp_path: Path) -> None:
     assert "Traceback" not in err, err
 
 
+def test_a_client_waits_only_while_nothing_listens() -> None:
+    """A client retries its open only while no TCP listener answers at its endpoints: a
+    listening router that refuses it (another CA's certificate) is said at once, not after the
+    whole --wait as if nobody were there (review helper 101)."""
+    import socket
+
+    from swarm.net.zconfig import _listening
+
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+        port = srv.getsockname()[1]
+        assert _listening(f"tcp/127.0.0.1:{port}") and _listening(f"tls/127.0.0.1:{port}")
+    assert not _listening(f"tcp/127.0.0.1:{port}")  # (closed now)
+    assert _listening("quic/127.0.0.1:1") and _listening("udp/127.0.0.1:1")  # (no handshake)
+    assert not _listening("tcp/not a host:7447")
+
+
 @pytest.mark.procs
 def test_a_client_robot_typed_before_its_world_waits_for_it() -> None:
     """`swarm robot --zenoh-mode client` started before its world's router listens (two

@@ -46,7 +46,7 @@ from swarm.common.report import OutputClosed, json_line, provenance
 from swarm.net import zconfig
 from swarm.net.inbox import put_once
 from swarm.net.zconfig import open_session
-from swarm.procs.runconfig import RunConfig, RunRecord
+from swarm.procs.runconfig import RunConfig, RunRecord, check_new_run
 from world.config import ConfigError, from_dict, to_dict, toml_bools
 
 
@@ -125,7 +125,7 @@ def run_config(args: argparse.Namespace, tables: dict[str, Any]) -> RunConfig:
         data["greedy"] = False
     data.setdefault("run_id", f"r{secrets.token_hex(4)}")
     try:
-        return from_dict(RunConfig, data, "[run]")
+        return check_new_run(from_dict(RunConfig, data, "[run]"))
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
 

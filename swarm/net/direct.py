@@ -104,6 +104,7 @@ class DirectLink:
         self.early: dict[tuple[int, int, int], int] = {}  # their fate as far as draws tell
         self.stale = 0  # messages of a tick this robot had already left
         self.used: set[tuple[int, int, int, int]] = set()  # trajectory copies `heard` took
+        self.took: tuple[int, int] | None = None  # the (episode, tick) `heard` took last
         self.overflow = 0  # messages refused because too many were held
         self.boot = secrets.randbits(62)  # this incarnation: a restarted robot counts anew
 
@@ -138,9 +139,11 @@ class DirectLink:
         for key in [k for k in self.store if (k[1], k[2]) < (self.ep, self.t)]:
             del self.store[key]  # others' hidden states, copies that came after it decided
             self.arrived.pop(key, None)
-            # a trajectory copy that came after `heard` took the tick's (its wait ran out on
-            # the wall clock, or it never took them): stale, as one of an older tick is
-            self.stale += key[0] == K_TRAJ and key not in self.used
+            # a peer's trajectory copy that came after `heard` took the tick's (its wait ran
+            # out on the wall clock): stale, as one of an older tick is (a tick it never took,
+            # missed or before a restart, counts its copies nowhere, as before)
+            self.stale += key[0] == K_TRAJ and key[3] != self.robot and \
+                (key[1], key[2]) == self.took and key not in self.used
         self.decided, self.early, self.used = set(), {}, set()
 
     def own_deadline(self, kind: int) -> float:
@@ -242,6 +245,7 @@ class DirectLink:
         included): range at the senders' true cells, then each copy's fate; every copy
         counted once."""
         n, c = self.n, self.counters
+        self.took = (self.ep, self.t)
         present = np.zeros(n, dtype=bool)
         pos = np.zeros((n, 2), dtype=np.int64)
         q = np.zeros(n)

@@ -150,7 +150,7 @@ def _is_link_key(k: Any, n: int) -> bool:
 
 
 _KEY = r"(?:0|[1-9][0-9]{0,9})-(?:0|[1-9][0-9]{0,9})"
-_KEYS = re.compile(f"{_KEY}(?:\n{_KEY})*")
+_KEYS = re.compile(f"{_KEY}(?:\n{_KEY})*+")  # (possessive: no backtracking stack)
 
 
 def _parsed_keys(links: dict[Any, Any], n: int) -> bool:

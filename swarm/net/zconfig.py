@@ -172,14 +172,14 @@ CONNECT_RETRY_S = 0.25
 @contextmanager
 def open_session(opts: ZenohOptions, wait: float = 0.0) -> Iterator[zenoh.Session]:
     """`with open_session(opts) as session:` a session for these options, closed on the way out.
-    A client tries its router again for up to `wait` seconds (the command's `--wait`): Zenoh
-    fails a client's open at once when nothing listens yet, where a peer or a router keeps
-    trying in the background, so a robot, rollout worker, recorder or `swarm fault` started
-    right after its router (typed back to back) exited 1 before the router was up. A refused
-    connection is then one line, not a traceback; a close that fails (Zenoh's "close operation
-    timed out" on a link that lost its peer, under kernel loss) is a warning line, never the
-    process's error: it was raised from the `with`, hid the error that ended the body (a world
-    with no robot up) and failed the run of a robot that had done its work."""
+    A client tries its router again for up to `wait` seconds (the command's `--wait`) while
+    nothing listens at its endpoints: Zenoh fails a client's open at once then, where a peer or
+    a router keeps trying in the background, so a robot, rollout worker, recorder or `swarm
+    fault` started right after its router (typed back to back) exited 1 before it was up. A
+    refused connection is then one line, not a traceback; a close that fails (Zenoh's "close
+    operation timed out" on a link that lost its peer, under kernel loss) is a warning line,
+    never the process's error: it was raised from the `with`, hid the error that ended the
+    body (a world with no robot up) and failed the run of a robot that had done its work."""
     conf = opts.to_config()
     deadline = time.monotonic() + wait
     while True:
@@ -187,11 +187,12 @@ def open_session(opts: ZenohOptions, wait: float = 0.0) -> Iterator[zenoh.Sessio
             session = zenoh.open(conf)
             break
         except zenoh.ZError as exc:
-            if opts.mode == "client" and time.monotonic() + CONNECT_RETRY_S < deadline:
+            waits = opts.mode == "client" and not any(map(_listening, opts.connect))
+            if waits and time.monotonic() + CONNECT_RETRY_S < deadline:
                 time.sleep(CONNECT_RETRY_S)
                 continue
             where = ", ".join(opts.connect or opts.listen) or "defaults"
-            within = f" within {wait:g} s" if opts.mode == "client" and wait > 0 else ""
+            within = f" within {round(wait, 1):g} s" if waits and wait > 0 else ""
             raise RuntimeError(f"cannot open a Zenoh session ({where}){within}: "
                                f"{zenoh_reason(exc)}") from None
     try:
@@ -202,6 +203,22 @@ def open_session(opts: ZenohOptions, wait: float = 0.0) -> Iterator[zenoh.Sessio
         except zenoh.ZError as exc:
             print(f"swarm: warning: the Zenoh session did not close cleanly: {zenoh_reason(exc)}",
                   file=sys.stderr, flush=True)
+
+
+def _listening(endpoint: str) -> bool:
+    """Whether something accepts a TCP connection at an IP endpoint (tcp, tls, ws; quic and udp
+    are taken as listening: no handshake to try). A client retries only while nothing listens:
+    a refusal by a listening router (another CA's certificate, a bad TLS file) is said at once,
+    not after the whole wait as if the router were absent."""
+    proto, _, rest = endpoint.partition("/")
+    if proto not in ("tcp", "tls", "ws"):
+        return True
+    host, _, port = re.split(r"[?#]", rest, maxsplit=1)[0].rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=0.5):
+            return True
+    except (OSError, ValueError):
+        return False
 
 
 def free_port(host: str = "127.0.0.1") -> int:

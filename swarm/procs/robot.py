@@ -375,9 +375,11 @@ class RobotProcess:
             hidden = None
             if pred >= 0:
                 w0 = time.perf_counter()
-                floor = VIRTUAL_HOP_FLOOR if self.run_cfg.clock == "virtual" else 0.0
-                hidden = self._wait("hidden", obs.ep, obs.t, pred,
-                                    hop_deadline(t_recv, deadline, r, cfg.n_robots, floor))
+                # virtual: the slots count from the bundle, as the deadline does
+                virtual = self.run_cfg.clock == "virtual"
+                base = deadline - 0.95 * obs.budget_ms / 1e3 if virtual else t_recv
+                hidden = self._wait("hidden", obs.ep, obs.t, pred, hop_deadline(
+                    base, deadline, r, cfg.n_robots, VIRTUAL_HOP_FLOOR if virtual else 0.0))
                 self.c.wait_ms += 1e3 * (time.perf_counter() - w0)
                 if hidden is None or len(hidden.state) != 4 * self.policy.state_size or \
                         not self.policy.state_ok(hidden.vector(), obs.t):

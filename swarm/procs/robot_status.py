@@ -148,11 +148,14 @@ def hop_deadline(t_recv: float, deadline: float, robot: int, n: int,
     breaks one link, never the whole budget of every robot downstream (the deadline cascade of
     waiting until the tick deadline, see docs/DECISIONS.md).
 
-    `floor`: no slot ends before that share of the way (the virtual clock's 0.5: there a lost
-    or late message is said at once, `Hidden.miss`, so a slot runs out only on a stalled
-    predecessor, and an early robot's 2/N of the watchdog let a stall of a second or two change
-    its decision with no timeout counted)."""
-    return t_recv + (deadline - t_recv) * max((robot + 1) / max(n, 1), floor)
+    `floor`: the slots spread over the rest of the way from that share on, `floor + (1 -
+    floor) * (robot + 1) / n` (the virtual clock's 0.5: there a lost or late message is said at
+    once, `Hidden.miss`, so a slot runs out only on a stalled predecessor, and an early robot's
+    2/N of the watchdog let a stall of a second or two change its decision with no timeout
+    counted). Still one slot apart: a floor shared by the early robots (max(share, floor))
+    broke every link up to the middle of the chain behind one stalled robot."""
+    share = floor + (1.0 - floor) * (robot + 1) / max(n, 1)
+    return t_recv + (deadline - t_recv) * share
 
 
 def fetch_config(session: zenoh.Session, keys: Keys, timeout: float) -> RunRecord:

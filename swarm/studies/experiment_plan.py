@@ -15,7 +15,12 @@ from typing import Any
 from swarm.common.policy_spec import build_inference
 from swarm.net.faults import LINK_KEYS, parse_rate, plan_from_table
 from swarm.net.kernel.netns import NetnsConfig, check_tools
-from swarm.procs.runconfig import RunConfig, check_fault_ticks, check_real_clock
+from swarm.procs.runconfig import (
+    RunConfig,
+    check_fault_ticks,
+    check_new_run,
+    check_real_clock,
+)
 from world.config import (
     ConfigError,
     WorldConfig,
@@ -207,7 +212,7 @@ def load(path: str, episodes: int | None = None, seeds: tuple[int, ...] | None =
             raise ConfigError(f"--episodes must be >= 1, got {episodes}")
         run_t["episodes"] = episodes
     try:
-        run = from_dict(RunConfig, run_t, "[run]")
+        run = check_new_run(from_dict(RunConfig, run_t, "[run]"))
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     if run.train:  # (its world waited a minute for a learner no sweep starts, then failed)
