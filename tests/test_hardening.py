@@ -931,6 +931,19 @@ def test_a_client_robot_typed_before_its_world_waits_for_it() -> None:
                 p.kill()
     assert robot.returncode == 0, err[-1500:]
     assert world.returncode == 0, werr[-1500:]
+    # interrupted while it waits for its router: one line and 130, as every command
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "robot", "--id", "0", "--run-id", "early",
+         "--zenoh-mode", "client", "--connect", hub, "--wait", "60"], cwd=ROOT,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(2.0)
+        robot.send_signal(signal.SIGINT)
+        _, err = robot.communicate(timeout=30)
+    finally:
+        if robot.poll() is None:
+            robot.kill()
+    assert robot.returncode == 130 and err.strip() == "swarm: interrupted", err
 
 
 @pytest.mark.procs

@@ -267,7 +267,9 @@ def cmd_robot(args: argparse.Namespace) -> int:
         zopts = secure_options(args, zconfig.from_args(args), f"robot-{args.id}", args.run_id)
         robot_main(args.id, args.run_id, zopts, wait_world=args.wait,  # (a supervisor starts
                    settle=0.0 if supervised() else CLAIM_SETTLE_S)  # each id once)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # (by hand: said, as every other command does; a supervised
+        if not supervised():    # robot's stop is its supervisor's, which says why)
+            print("swarm: interrupted", file=sys.stderr)
         return 130
     except WorldLeft as exc:
         print(f"swarm robot: {exc}", file=sys.stderr)
