@@ -97,6 +97,13 @@ def check_readable(path: Path) -> None:
         raise CheckpointError(f"checkpoint {path} is unreadable: {exc}") from None
     if bad is not None:
         raise CheckpointError(f"checkpoint {path} is unreadable: Bad CRC-32 for file {bad!r}")
+    with zipfile.ZipFile(path) as z:  # (torch.save writes ARCHIVE/version and ARCHIVE/data.pkl)
+        names = z.namelist()
+    if not any(n.endswith("/version") for n in names) or \
+            not any(n.endswith("/data.pkl") for n in names):  # (else PyTorch's own words, or
+        raise CheckpointError(                               # "pickle data was truncated")
+            f"checkpoint {path} is unreadable: not a torch checkpoint file (a zip archive "
+            "without torch.save's version record and data)")
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:

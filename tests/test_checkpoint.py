@@ -100,6 +100,19 @@ def test_both_readers_call_a_truncated_checkpoint_not_a_torch_file(tmp_path: Pat
             reader(cut)
 
 
+def test_both_readers_call_a_foreign_zip_not_a_torch_file(tmp_path: Path) -> None:
+    """A zip archive torch.save did not write (no version record) is refused in the readers'
+    own words: torch.load said `Expected hasRecord("version") to be true` and asked for a
+    bug report, the numpy reader "pickle data was truncated"."""
+    foreign = tmp_path / "foreign.pt"
+    with zipfile.ZipFile(foreign, "w") as z:
+        z.writestr("archive/data.pkl", b"garbage")
+    for reader in (load_checkpoint, read_checkpoint):
+        with pytest.raises(CheckpointError, match="not a torch checkpoint file .a zip archive "
+                                                  "without torch.save's version record"):
+            reader(foreign)
+
+
 def test_both_readers_refuse_a_checkpoint_with_flipped_bytes(tmp_path: Path) -> None:
     """torch.load does not check the zip's CRCs: a checkpoint with bytes flipped inside a
     tensor loaded, and `swarm eval` ran other weights (0.912 for 0.920), while the numpy
