@@ -326,7 +326,8 @@ class RobotProcess:
         heard = bundle.msgs
         t0, waited, errors = time.perf_counter(), self.c.wait_ms, self.c.errors
         try:
-            action, chain_ok = self.decide(obs, heard, t_recv, deadline, bundle.succ)
+            # the predecessor slots count from the deadline's start (the bundle in virtual time)
+            action, chain_ok = self.decide(obs, heard, deadline - budget, deadline, bundle.succ)
         except Exception as exc:  # a view no world would send (or a policy's bug) must not take
             self.c.errors += 1  # the robot down, nor hold the tick up: it stays in place
             log.error("robot %d could not decide at tick %d (it stays): %s: %s", r, obs.t,
@@ -359,7 +360,7 @@ class RobotProcess:
             if obs.t % 5 == 0 or self.attn is not None:
                 self.status()
 
-    def decide(self, obs: Obs, heard: TrajMessages, t_recv: float, deadline: float,
+    def decide(self, obs: Obs, heard: TrajMessages, t_start: float, deadline: float,
                succ: list[int] | None = None) -> tuple[int, bool]:
         """The action (and whether the predecessor's hidden-state message was used) of this
         robot at `obs`'s tick from what it heard; chained policies wait for the predecessor.
@@ -375,11 +376,9 @@ class RobotProcess:
             hidden = None
             if pred >= 0:
                 w0 = time.perf_counter()
-                # virtual: the slots count from the bundle, as the deadline does
-                virtual = self.run_cfg.clock == "virtual"
-                base = deadline - 0.95 * obs.budget_ms / 1e3 if virtual else t_recv
-                hidden = self._wait("hidden", obs.ep, obs.t, pred, hop_deadline(
-                    base, deadline, r, cfg.n_robots, VIRTUAL_HOP_FLOOR if virtual else 0.0))
+                floor = VIRTUAL_HOP_FLOOR if self.run_cfg.clock == "virtual" else 0.0
+                hidden = self._wait("hidden", obs.ep, obs.t, pred,
+                                    hop_deadline(t_start, deadline, r, cfg.n_robots, floor))
                 self.c.wait_ms += 1e3 * (time.perf_counter() - w0)
                 if hidden is None or len(hidden.state) != 4 * self.policy.state_size or \
                         not self.policy.state_ok(hidden.vector(), obs.t):
