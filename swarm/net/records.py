@@ -142,11 +142,7 @@ def _is_link_key(k: Any, n: int) -> bool:
     leading zero)."""
     if n <= LINK_KEYS_HELD:
         return isinstance(k, str) and k in _link_keys(n)
-    if not isinstance(k, str) or len(k) > 24:
-        return False
-    parts = k.split("-")
-    return len(parts) == 2 and all(p.isascii() and p.isdigit() and str(int(p)) == p
-                                   and int(p) < n for p in parts)
+    return _parsed_keys({k: None}, n)
 
 
 _KEY = r"(?:0|[1-9][0-9]{0,9})-(?:0|[1-9][0-9]{0,9})"
@@ -154,7 +150,8 @@ _KEYS = re.compile(f"{_KEY}(?:\n{_KEY})*+")  # (possessive: no backtracking stac
 
 
 def _parsed_keys(links: dict[Any, Any], n: int) -> bool:
-    """`_is_link_key` of every key, in one regex match and C-level int parsing: 62 ms for the
+    """Whether every key is "j-i" for robots j, i < n, in one regex match and C-level int
+    parsing (what `_is_link_key` asks of one key past LINK_KEYS_HELD robots): 62 ms for the
     89,700 links of 300 robots, against 367 ms key by key (a set lookup: 52 ms for 256 robots'
     65,280)."""
     try:
