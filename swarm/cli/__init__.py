@@ -86,6 +86,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def run_as_child(argv: Sequence[str] | None = None) -> int:
+    """main() as a child process runs it (`python -m swarm.cli`, or forked by the fork server);
+    returns the exit status.
+
+    A stop signal arriving while the interpreter shuts down (the supervisor stopping every
+    child at once) must not print a KeyboardInterrupt traceback from threading's shutdown. The
+    signals are ignored inside the same `try` as main() returns in: one that lands between the
+    two (it did, in a clean secure run's robot log) is the stop this child was about to obey."""
+    code = 130
+    try:
+        code = main(argv)
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, signal.SIG_IGN)
+    except KeyboardInterrupt:
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, signal.SIG_IGN)
+    return code
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `swarm` console script; returns the exit status."""
     # a child of `swarm run` goes when its supervisor goes, SIGKILL included (with a deadline);

@@ -1,13 +1,15 @@
 """`swarm run`: spawn the world and N robot processes, supervise them, show the live dashboard.
 
-Every child is a fresh interpreter (subprocess, never fork: a forked Zenoh session hangs). The
-world listens on a free loopback port; robots and the supervisor's own session connect to it.
-Ctrl-C (or any exit) SIGINTs every child, then SIGKILLs what is left after 2 s: no process of
-the run outlives it. With `--netns` (swarm/net/kernel/netns.py) each process has a network
-namespace of its own, joined by veth pairs, and the kernel applies the link faults."""
+The world and the robots are forked by the run's fork server (`swarm.common.forkserver`: it
+never opens a Zenoh session, so a fork is safe), the other children are fresh interpreters; all
+are the supervisor's own children. The world listens on a free loopback port; robots and the
+supervisor's own session connect to it. Ctrl-C (or any exit) SIGINTs every child, then SIGKILLs
+what is left after 2 s: no process of the run outlives it. With `--netns` each process has a
+network namespace of its own, joined by veth pairs, and the kernel applies the link faults."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -23,6 +25,7 @@ import zenoh
 from rich.console import Console
 from rich.live import Live
 
+from swarm.common import forkserver
 from swarm.common.atomic import write_json
 from swarm.common.policy_spec import effective_checkpoint, shown
 from swarm.common.procstat import ProcSampler, process_age
@@ -31,11 +34,9 @@ from swarm.common.spawn import (
     child_env,
     child_result,
     claim_run,
-    cli_args,
     last_error,
     registry,
     release_run,
-    start_child,
     stop_children,
     stops_held,
     tidy_interrupted,
@@ -108,6 +109,7 @@ class Supervisor:
                                                 self.log_dir / "zenoh", *extra)
         self.world: subprocess.Popen[bytes] | None = None
         self.children: list[subprocess.Popen[bytes]] = []  # every one spawned (`_spawn`)
+        self.forks: forkserver.ForkServer | None = None  # the robots' fork server
         self.fleet = Fleet(self._spawn_robot, self.log_dir, run.restart_crashed)
         self.robots = self.fleet.procs  # robot id -> its running process
         self.inbox: Inbox | None = None
@@ -128,9 +130,9 @@ class Supervisor:
         zfile = str(self.zfiles[identity_of(name)]) if self.zfiles else None  # --secure's TLS
         zopts = dataclasses.replace(zopts, cfg=[*zopts.cfg, *self.zcfg], config_file=zfile)
         with stops_held():  # (every child ever spawned is in `children`, so stopped at the end)
-            self.children.append(start_child([*prefix, *cli_args(*args, *zopts.to_args())], env=env,
-                                            stdout=subprocess.DEVNULL, stderr=err,
-                                            stdin=subprocess.DEVNULL))
+            self.children.append(forkserver.child(None if ns else self.forks, prefix,
+                                                  [*args, *zopts.to_args()], env, err))
+        err.close()
         return self.children[-1]
 
     def _spawn_robot(self, i: int) -> subprocess.Popen[bytes]:
@@ -164,6 +166,9 @@ class Supervisor:
             listen = self.topo.world_listen(self.port)
         write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
+        if self.topo is None:  # (no fork into a namespace: `ip netns exec` starts a process)
+            self.forks = forkserver.start(child_env(), self.log_dir, self.run_cfg.run_id)
+            self.children += [self.forks.proc] if self.forks else []
         self.world = self._spawn(["world", "--spec", str(spec), "--run-id", self.run_cfg.run_id,
                                   "--json", str(self.tmp / "world_result.json")], "world",
                                  ZenohOptions("router", listen=listen), ns)
@@ -189,16 +194,13 @@ class Supervisor:
         return t0
 
     def stop_all(self, grace: float = 2.0) -> None:
-        procs = list(dict.fromkeys(p for p in [self.world, *self.robots.values(), self.learner,
-                                               self.recorder, *self.routers, *self.children]
-                                   if p is not None))
+        if self.forks is not None:  # (it ends; what it forked is in `children`)
+            self.forks.close()
         for p in self.fleet.halted():  # a stopped process cannot take SIGINT
             p.send_signal(signal.SIGCONT)
-        try:
+        with contextlib.suppress(OSError):
             registry(self.run_cfg.run_id).unlink()
-        except OSError:
-            pass
-        stop_children(procs, grace)
+        stop_children(list(self.children), grace)  # (every one ever started)
 
     def _handle(self, kind: str, key: str, payload: bytes | None) -> None:
         v = self.view

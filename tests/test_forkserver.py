@@ -1,0 +1,103 @@
+"""The robots' fork server (`swarm.common.forkserver`): forked robots are the supervisor's own
+children with their own command lines, a run forked equals the same run spawned, and the server
+takes a bad request or a command line too long for it without going down."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import ROOT, swarm, swarm_started
+from test_swarm import run_procs
+
+
+def _cmdline(pid: int) -> list[bytes]:
+    return Path(f"/proc/{pid}/cmdline").read_bytes().rstrip(b"\0").split(b"\0")
+
+
+def _ppid(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
+@pytest.mark.procs
+def test_forked_robots_are_the_supervisors_children_with_their_command_lines(
+        tmp_path: Path) -> None:
+    """While a run plays: every robot's parent is the supervisor (adopted: it waits for them and
+    signals them as for any child), its /proc command line is a spawned robot's, and the fork
+    server is one thread that names the run; an interrupted run leaves none of them."""
+    proc = swarm_started("run", "--headless", "--robots", "3", "--policy", "nearest-frontier",
+                         "--episodes", "500", "--seed", "2", "--run-id", "forked1", "--json",
+                         str(tmp_path / "r.json"))
+    try:
+        pids = run_procs("forked1")
+        robots = {p: _cmdline(p) for p in pids if b"robot" in _cmdline(p)}
+        servers = [p for p in pids if b"swarm.cli.forkserver" in _cmdline(p)]
+        assert len(robots) == 3 and len(servers) == 1, {p: _cmdline(p) for p in pids}
+        for pid, cmd in robots.items():
+            assert _ppid(pid) == proc.pid
+            assert cmd[:5] == [sys.executable.encode(), b"-m", b"swarm.cli", b"robot", b"--id"]
+            assert cmd[cmd.index(b"--run-id") + 1] == b"forked1"
+        assert {cmd[5] for cmd in robots.values()} == {b"0", b"1", b"2"}
+        assert _ppid(servers[0]) == proc.pid
+        assert len(os.listdir(f"/proc/{servers[0]}/task")) == 1  # (a fork copies one thread)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    assert run_procs("forked1") == []
+
+
+@pytest.mark.procs
+def test_a_run_forked_equals_the_same_run_spawned(tmp_path: Path) -> None:
+    """`SWARM_FORKSERVER=0`: every robot its own interpreter; the seeded run is the same, to
+    its message counts."""
+    res = {}
+    for mode in ("1", "0"):
+        out = tmp_path / f"r{mode}.json"
+        r = swarm("run", "--headless", "--robots", "4", "--policy", "commattn", "--episodes",
+                  "2", "--seed", "3", "--horizon", "12", "--json", str(out),
+                  env={"SWARM_FORKSERVER": mode})
+        assert r.returncode == 0, r.stderr[-2000:]
+        res[mode] = json.loads(out.read_text())
+    keys = ("elratio_mean", "reward_mean", "collisions_mean", "messages")
+    assert {k: res["1"][k] for k in keys} == {k: res["0"][k] for k in keys}
+    msgs = {m: {i: (s["msgs_in"], s["msgs_out"]) for i, s in r["robot_status"].items()}
+            for m, r in res.items()}
+    assert msgs["1"] == msgs["0"]
+
+
+_SERVER_SCRIPT = """
+import os, socket, sys
+from pathlib import Path
+from swarm.common import forkserver
+from swarm.common.spawn import child_env
+folder = Path(sys.argv[1])
+fs = forkserver.start(child_env(), folder, "fsX")
+socket.send_fds(fs.sock, [b"not json"], [0, 1, 2])
+print("bad", fs.sock.recv(64).decode())
+err = os.open(folder / "child.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND)
+print("long", fs.spawn(["robot", "x" * forkserver.PAD], child_env(), err))
+p = fs.spawn(["robot", "--run-id", "fsX"], child_env(), err)
+print("child", p.wait(60), p.pid != fs.proc.pid)
+fs.close()
+print("server", fs.proc.wait(10))
+"""
+
+
+@pytest.mark.procs
+def test_the_server_drops_a_bad_request_and_serves_on(tmp_path: Path) -> None:
+    """A request that is not one is dropped (said in the server's log, answered 0); a command
+    line longer than the server's pad is not forked (None: the supervisor spawns it); a child
+    still forks after both, writes its stderr where it was told, and its exit status reaches
+    the process that asked (its subreaper); the server ends when its socket closes."""
+    r = subprocess.run([sys.executable, "-c", _SERVER_SCRIPT, str(tmp_path)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split("\n")[:4] == ["bad 0", "long None", "child 2 True", "server 0"], r.stdout
+    assert "bad request dropped" in (tmp_path / "forkserver.log").read_text()
+    assert "the following arguments are required: --id" in (tmp_path / "child.log").read_text()
