@@ -355,9 +355,9 @@ def test_the_supervisors_death_ends_every_process_of_its_run(
     try:
         hub_of(run_id, proc)
         deadline = time.monotonic() + 60
-        while len(run_pids(run_id)) < 6 and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert len(run_pids(run_id)) >= 6
+        while len(run_pids(run_id)) < 7 and time.monotonic() < deadline:
+            time.sleep(0.2)  # (supervisor, fork server, world, three robots, learner)
+        assert len(run_pids(run_id)) >= 7
         proc.send_signal(sig)
         deadline = time.monotonic() + 10
         while run_pids(run_id) and time.monotonic() < deadline:

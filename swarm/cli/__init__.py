@@ -86,6 +86,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+_prebuilt: list[argparse.ArgumentParser] = []
+"""The parser of a supervised child, built once before it was forked (`prebuild_parser`)."""
+
+
+def prebuild_parser() -> None:
+    """In the fork server: the parser its children take (each builds none of its own)."""
+    flags.HELP = False
+    _prebuilt.append(build_parser())
+
+
 def run_as_child(argv: Sequence[str] | None = None) -> int:
     """main() as a child process runs it (`python -m swarm.cli`, or forked by the fork server);
     returns the exit status.
@@ -129,7 +139,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         for line in SKIPPED:
             print(f"swarm: warning: {line}", file=sys.stderr)
-    parser = build_parser()
+    parser = _prebuilt.pop() if _prebuilt and supervised else build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:  # named after the subcommand whose --help lists what it takes
         prog = " ".join(["swarm", *(getattr(args, k, None) or "" for k in ("command", "what"))])

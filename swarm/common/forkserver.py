@@ -97,43 +97,51 @@ class ForkServer:
         if not prctl(_PR_SET_CHILD_SUBREAPER, 1):
             raise OSError("cannot become a child subreaper")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-        with log.open("ab") as err:
+        one = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+        with log.open("ab") as err:  # (one BLAS thread whatever the user's: a fork copies one)
             self.proc: subprocess.Popen[bytes] = start_child(
                 [sys.executable, "-m", MODULE, str(theirs.fileno()), run_id, "-" * PAD],
-                env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
+                env={**env, **one}, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
                 pass_fds=[theirs.fileno()])
         theirs.close()
         self.sock: socket.socket | None = ours
         self.log = log
 
     def spawn(self, args: list[str], env: dict[str, str], stderr: int,
-              timeout: float = 30.0) -> subprocess.Popen[bytes] | None:
+              timeout: float = 10.0) -> subprocess.Popen[bytes] | None:
         """The `swarm.cli` child of `args` (`swarm world` or `swarm robot`), forked; None
-        for another command, or if the server cannot (then never again): the caller spawns
-        it."""
+        for another command, or if the server cannot (then never again: it is killed, and a
+        child it forks too late is never told to go): the caller spawns it."""
         if self.sock is None or args[0] not in FORKED or not fits(args):
             return None
         null = os.open(os.devnull, os.O_RDWR)
+        go, said = os.pipe()  # (the child runs once we hold its pid: `said` gets a byte)
         try:
             req = json.dumps({"args": args, "env": env}).encode()
             self.sock.settimeout(timeout)
-            socket.send_fds(self.sock, [req], [null, null, stderr])
+            socket.send_fds(self.sock, [req], [null, null, stderr, go])
             reply = self.sock.recv(64)
             pid = int(reply) if reply.isdigit() else 0
+            if pid > 0:
+                os.write(said, b"g")
         except (OSError, ValueError):
             pid = 0
         finally:
-            os.close(null)
+            for f in (null, go, said):
+                os.close(f)
         if pid <= 0:
             self.close()
+            self.proc.kill()  # (reaped with the run's other children)
             return None
         return Forked(pid, cli_args(*args))
 
     def close(self) -> None:
-        """The server ends (its socket's end); the children it forked run on."""
+        """The server ends (its socket's end); the children it forked run on, adopted (and the
+        process that asked is no one's subreaper from here: it may run more runs)."""
         if self.sock is not None:
             self.sock.close()
             self.sock = None
+            prctl(_PR_SET_CHILD_SUBREAPER, 0)
 
 
 def child(forks: ForkServer | None, prefix: list[str], args: list[str], env: dict[str, str],
@@ -145,13 +153,17 @@ def child(forks: ForkServer | None, prefix: list[str], args: list[str], env: dic
                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
 
 
-def start(env: dict[str, str], log_dir: Path, run_id: str) -> ForkServer | None:
-    """A run's fork server (log: `forkserver.log`), or None where there is none (not Linux,
-    `SWARM_FORKSERVER=0`, no subreaper)."""
+def start(env: dict[str, str], log_dir: Path, run_id: str,
+          children: list[subprocess.Popen[bytes]]) -> ForkServer | None:
+    """A run's fork server (log: `forkserver.log`), its process appended to `children` (the
+    caller's, stopped at its end), or None where there is none (not Linux, `SWARM_FORKSERVER=0`,
+    no subreaper)."""
     if not wanted():
         return None
     try:
-        return ForkServer(env, log_dir / "forkserver.log", run_id)
+        server = ForkServer(env, log_dir / "forkserver.log", run_id)
+        children.append(server.proc)
+        return server
     except OSError as exc:
         print(f"swarm: warning: no fork server ({exc}); every robot its own interpreter",
               file=sys.stderr, flush=True)

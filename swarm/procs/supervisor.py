@@ -166,9 +166,9 @@ class Supervisor:
             listen = self.topo.world_listen(self.port)
         write_json(registry(self.run_cfg.run_id), {"hub": self.hub, "pid": os.getpid()})
         t0 = time.monotonic()
-        if self.topo is None:  # (no fork into a namespace: `ip netns exec` starts a process)
-            self.forks = forkserver.start(child_env(), self.log_dir, self.run_cfg.run_id)
-            self.children += [self.forks.proc] if self.forks else []
+        with stops_held():  # (none into a namespace: `ip netns exec` starts a process)
+            self.forks = None if self.topo else forkserver.start(
+                child_env(), self.log_dir, self.run_cfg.run_id, self.children)
         self.world = self._spawn(["world", "--spec", str(spec), "--run-id", self.run_cfg.run_id,
                                   "--json", str(self.tmp / "world_result.json")], "world",
                                  ZenohOptions("router", listen=listen), ns)
