@@ -21,7 +21,7 @@ import zenoh
 
 from policies.base import Policy
 from swarm.common.policy_spec import build_inference
-from swarm.net.inbox import Inbox, publisher, replies, tally
+from swarm.net.inbox import LAST_PUT_S, Inbox, publisher, replies, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import RobotRollout, RolloutTick, Weights
 from swarm.net.messages import (
@@ -473,6 +473,7 @@ class RobotProcess:
             if self.ended:  # (what the world sent just before its end comes after it too)
                 count_after_end(self.inbox, self.c)
             self.status(final=True)  # the counters a run's result reports of this robot
+            time.sleep(LAST_PUT_S)
             return self.c
         finally:
             self.inbox.close()

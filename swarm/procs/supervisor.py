@@ -64,7 +64,7 @@ from swarm.net.zconfig import ZenohOptions, free_port
 from swarm.procs.dashboard import SwarmView, render
 from swarm.procs.fleet import Fleet, finish_recorder, how_it_ended, recording_result
 from swarm.procs.learning.supervised import drain, learner_left, learner_result
-from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions
+from swarm.procs.runconfig import RunConfig, RunRecord, SuperviseOptions, leave_grace
 from swarm.procs.status_order import StatusOrder
 from world.config import ConfigError, WorldConfig, to_dict
 
@@ -454,10 +454,10 @@ class Supervisor:
                     f"not up within {timeout:g} s" if code is None else how_it_ended(code))
                 raise RuntimeError(f"the recorder did not start: {why} (logs in {self.log_dir})")
 
-    def _late_status(self, grace: float = 2.0) -> None:
-        """Wait (up to `grace` s) for what can reach us after the result on a loaded machine:
-        the last tick's status and each running robot's final counts (not a snapshot)."""
-        want, deadline = int((self.result or {}).get("ticks", 0)), time.monotonic() + grace
+    def _late_status(self) -> None:
+        """Wait (`leave_grace`) for the last tick's status and running robots' final counts."""
+        want = int((self.result or {}).get("ticks", 0))
+        deadline = time.monotonic() + leave_grace(self.cfg.n_robots)
         while time.monotonic() < deadline and (self.view.ticks_done < want or not self.view.final(
                 i for i, p in self.robots.items() if p.poll() is None or p.returncode == 0)):
             self._pump_inbox(0.05)

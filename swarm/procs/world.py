@@ -27,7 +27,7 @@ from swarm.learn.evaluate import EvalResult
 from swarm.net.direct import DirectTally
 from swarm.net.faults import plan_from_table
 from swarm.net.faults.control import MAX_PENDING, FaultSchedule, check_control
-from swarm.net.inbox import Event, Inbox, Outbox, check_free, publisher, tally
+from swarm.net.inbox import LAST_PUT_S, Event, Inbox, Outbox, check_free, publisher, tally
 from swarm.net.keys import Keys
 from swarm.net.learning import EpisodeRecord, LearnerGate
 from swarm.net.messages import (
@@ -47,7 +47,7 @@ from swarm.net.messages import (
 from swarm.net.presence import Presence
 from swarm.net.radio import Radio, TickInbox, chain_times, has_all
 from swarm.net.zconfig import ZenohOptions, open_session
-from swarm.procs.runconfig import RunConfig, RunRecord
+from swarm.procs.runconfig import RunConfig, RunRecord, leave_grace
 from world import core
 from world.config import ConfigError, WorldConfig
 
@@ -440,10 +440,10 @@ class WorldProcess:
                 while not self.stop and self._pump(deadline):
                     pass
             self._put(self.keys.end, pack_record(K_RESULT, {"run_id": rc.run_id}))
-            deadline = time.monotonic() + 2.0  # robots' final statuses route through this
-            while self.presence.tokens and self._pump(deadline):  # session: up until they left
+            deadline = time.monotonic() + leave_grace(self.cfg.n_robots)  # robots' final
+            while self.presence.tokens and self._pump(deadline):  # statuses route through it
                 pass
-            time.sleep(0.05)  # let the result and the end leave before the session closes
+            time.sleep(LAST_PUT_S)  # the result and the end leave before the session closes
             return result
         finally:
             self.inbox.close()
