@@ -46,7 +46,7 @@ def test_forked_robots_are_the_supervisors_children_with_their_command_lines(
         next(line for line in proc.stdout if line.startswith('{"status"'))
         pids = run_procs("forked1")
         robots = {p: _cmdline(p) for p in pids if b"robot" in _cmdline(p)}
-        servers = [p for p in pids if b"swarm.cli.forkserver" in _cmdline(p)]
+        servers = [p for p in pids if b"--fork-server" in _cmdline(p)]
         assert len(robots) == 3 and len(servers) == 1, {p: _cmdline(p) for p in pids}
         for pid, cmd in robots.items():
             assert _ppid(pid) == proc.pid

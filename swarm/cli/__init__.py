@@ -87,11 +87,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 _prebuilt: list[argparse.ArgumentParser] = []
-"""The parser of a supervised child, built once before it was forked (`prebuild_parser`)."""
+"""The parser of a supervised child, built once before it was forked (`preload_child`)."""
 
 
-def prebuild_parser() -> None:
-    """In the fork server: the parser its children take (each builds none of its own)."""
+def preload_child() -> None:
+    """In the fork server (`swarm.common.forkserver`), before it forks: what the world and a
+    robot import (not torch: a robot runs its network in numpy), and the parser a supervised
+    child takes (each built its own: ~480 flags, 0.05-0.3 CPU-s)."""
+    import policies.belief  # noqa: F401
+    import policies.grid_search  # noqa: F401
+    import policies.infer.policy  # noqa: F401
+    import swarm.procs.robot  # noqa: F401
+    import swarm.procs.robot_status  # noqa: F401
+    import swarm.procs.world  # noqa: F401
+
     flags.HELP = False
     _prebuilt.append(build_parser())
 

@@ -1,37 +1,44 @@
-"""A run's fork server: one interpreter that loads a robot's modules once and forks every robot
-of the run from itself, so a robot starts in milliseconds instead of ~0.4 CPU-s of interpreter
-start and imports (numpy, zenoh, the CLI) each: 40 CPU-s for a team of 100, most of a short
-run's CPU (docs/DECISIONS.md, "Robots forked from a fork server").
+"""A run's fork server: one interpreter that loads what the world and a robot import once and
+forks the world and every robot of the run from itself, so each starts in milliseconds instead
+of ~0.4 CPU-s of interpreter start and imports (numpy, zenoh, the CLI and its parser): 80 CPU-s
+for a team of 200, most of a short run's CPU (docs/DECISIONS.md, "Robots forked from a fork
+server"). The supervisor's end (`ForkServer`, `child`) and the server's loop (`serve`, run by
+`python -m swarm.cli --fork-server`, which preloads the CLI's modules: `swarm.cli.preload_child`).
 
-A forked robot is what a spawned one is, to everyone who looks: a child of the supervisor (the
+A forked child is what a spawned one is, to everyone who looks: a child of the supervisor (the
 server forks twice and the supervisor is the children's subreaper, so it waits for them, sees
 their exit codes and signals them as before, through an ordinary `subprocess.Popen`), with its
-own environment, standard streams and signal state, and its command line in /proc (written over
-the server's argv, which the supervisor pads for it). The server never opens a Zenoh session nor
-starts a thread (a fork copies only the calling thread); it ends when its socket closes, or with
-its supervisor. Where it cannot serve (it died, a command line too long for its pad) the robot
-is spawned as its own interpreter, as without it.
+own environment, standard streams and the signal state a spawned child has, and its command
+line in /proc (written over the server's argv, which the supervisor pads for it). The server
+never opens a Zenoh session nor starts a thread (a fork copies only the calling thread); it ends
+when its socket closes, or with its supervisor. Where it cannot serve (another command, a
+namespace, a command line too long for its pad, a server that failed) the child is spawned as
+its own interpreter, as without it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from swarm.common.spawn import cli_args, start_child
+from swarm.common.spawn import PARENT_ENV, PR_SET_PDEATHSIG, cli_args, start_child
 
 PAD = 8192
 """Bytes of argv the server starts with: the room for its children's command lines."""
 _PR_SET_CHILD_SUBREAPER = 36
-MODULE = "swarm.cli.forkserver"
-"""The server itself (it runs the CLI: it belongs to `swarm.cli`)."""
+_MAX_REQUEST = 1 << 20
+SERVE = "--fork-server"
+"""`python -m swarm.cli --fork-server FD RUN_ID PAD`: the server (`swarm/cli/__main__.py`)."""
 FORKED = ("world", "robot")
 """The commands it forks (what it loads); the others, the learner's torch say, are spawned."""
 ENV = "SWARM_FORKSERVER"
@@ -100,7 +107,7 @@ class ForkServer:
         one = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
         with log.open("ab") as err:  # (one BLAS thread whatever the user's: a fork copies one)
             self.proc: subprocess.Popen[bytes] = start_child(
-                [sys.executable, "-m", MODULE, str(theirs.fileno()), run_id, "-" * PAD],
+                cli_args(SERVE, str(theirs.fileno()), run_id, "-" * PAD),
                 env={**env, **one}, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
                 pass_fds=[theirs.fileno()])
         theirs.close()
@@ -168,3 +175,92 @@ def start(env: dict[str, str], log_dir: Path, run_id: str,
         print(f"swarm: warning: no fork server ({exc}); every robot its own interpreter",
               file=sys.stderr, flush=True)
         return None
+
+
+def _request(msg: bytes, fds: list[int]) -> tuple[list[str], dict[str, str]]:
+    req = json.loads(msg)
+    args = [str(a) for a in req["args"]]
+    env = {str(k): str(v) for k, v in req["env"].items()}
+    if len(fds) != 4:
+        raise ValueError(f"four descriptors expected, got {len(fds)}")
+    return args, env
+
+
+def _fork(args: list[str], env: dict[str, str], fds: list[int], sock: socket.socket
+          ) -> tuple[int, bool]:
+    """(the child's pid or 0, False) here; (0, True) in the child, which runs once adopted and
+    told to go. A middle process forks it and exits: the child is then the supervisor's (its
+    subreaper's); the pid is sent once the middle is reaped, so adopted. The child waits on its
+    go descriptor for the supervisor's byte, sent once it holds the pid: a child the supervisor
+    gave up on (a reply that came too late) reads EOF and exits, never a second robot."""
+    r, w = os.pipe()
+    middle = os.fork()
+    if middle == 0:  # (never back into the server's loop: a second server)
+        try:
+            child = os.fork()
+        except BaseException:
+            os._exit(1)
+        if child:
+            with contextlib.suppress(OSError):
+                os.write(w, str(child).encode())
+            os._exit(0)
+        try:
+            os.close(r)
+            os.close(w)
+            sock.close()
+            if os.read(fds[3], 1) != b"g":
+                os._exit(0)
+            for i, f in enumerate(fds):
+                if i < 3:
+                    os.dup2(f, i)
+                os.close(f)
+            os.environ.clear()
+            os.environ.update(env)
+            set_cmdline(cli_args(*args))
+        except BaseException:
+            os._exit(1)
+        return 0, True
+    os.close(w)
+    try:
+        pid = os.read(r, 32)
+    finally:
+        os.close(r)
+        os.waitpid(middle, 0)
+    return int(pid) if pid.isdigit() else 0, False
+
+
+def serve(fd: int, run_id: str, preload: Callable[[], None]) -> list[str] | None:
+    """The server's loop, once `preload` has loaded what its children import; returns a forked
+    child's argv (in that child), None at the end. A
+    request that is not one, or a fork that fails, is answered 0 (the supervisor then spawns
+    its children) and said in the server's log."""
+    parent = os.environ.get(PARENT_ENV, "")
+    supervisor = int(parent) if parent.isdigit() else os.getppid()
+    prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != supervisor:  # (it died before prctl took effect)
+        return None
+    set_cmdline(cli_args(SERVE, str(fd), run_id))
+    sock = socket.socket(fileno=fd)
+    preload()
+    while True:
+        try:
+            msg, fds, _, _ = socket.recv_fds(sock, _MAX_REQUEST, 4)
+        except OSError:
+            return None
+        if not msg:  # (the supervisor's end closed)
+            return None
+        pid = 0
+        try:
+            args, env = _request(msg, fds)
+            pid, child = _fork(args, env, fds, sock)
+            if child:
+                return args
+        except Exception as exc:  # (a bad request, a fork refused: EAGAIN)
+            print(f"swarm fork server: request dropped: {exc!r}", file=sys.stderr, flush=True)
+        for f in fds:
+            with contextlib.suppress(OSError):
+                os.close(f)
+        try:
+            sock.send(str(pid).encode())
+        except OSError:
+            return None
