@@ -97,9 +97,10 @@ fs = forkserver.start(child_env(), folder, "fsX", [])
 socket.send_fds(fs.sock, [b"not json"], [0, 1, 2])
 print("bad", fs.sock.recv(64).decode())
 err = os.open(folder / "child.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND)
-print("long", fs.spawn(["robot", "x" * forkserver.PAD], child_env(), err))
-p = fs.spawn(["robot", "--run-id", "fsX"], child_env(), err)
-print("child", p.wait(60), p.pid != fs.proc.pid)
+kids = []
+print("long", fs.spawn(["robot", "x" * forkserver.PAD], child_env(), err, kids), kids)
+print("forked", fs.spawn(["robot", "--run-id", "fsX"], child_env(), err, kids), len(kids))
+print("child", kids[0].wait(60), kids[0].pid != fs.proc.pid)
 late = os.open(folder / "late.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND)
 go, said = os.pipe()
 req = json.dumps({"args": ["robot", "--run-id", "fsX"], "env": child_env()}).encode()
@@ -116,15 +117,15 @@ print("server", fs.proc.wait(10))
 @pytest.mark.procs
 def test_the_server_drops_a_bad_request_and_serves_on(tmp_path: Path) -> None:
     """A request that is not one is dropped (said in the server's log, answered 0); a command
-    line longer than the server's pad is not forked (None: the supervisor spawns it); a child
+    line longer than the server's pad is not forked (False: the supervisor spawns it); a child
     still forks after both, writes its stderr where it was told, and its exit status reaches
     the process that asked (its subreaper); a child whose go byte never comes (the asker gave
     up on it) exits without running the CLI; the server ends when its socket closes."""
     r = subprocess.run([sys.executable, "-c", _SERVER_SCRIPT, str(tmp_path)], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert r.stdout.split("\n")[:5] == ["bad 0", "long None", "child 2 True", "given up 0",
-                                        "server 0"], r.stdout
+    assert r.stdout.split("\n")[:6] == ["bad 0", "long False []", "forked True 1", "child 2 True",
+                                        "given up 0", "server 0"], r.stdout
     assert "request dropped" in (tmp_path / "forkserver.log").read_text()
     assert (tmp_path / "late.log").read_text() == ""  # (it never ran the CLI)
     assert "the following arguments are required: --id" in (tmp_path / "child.log").read_text()

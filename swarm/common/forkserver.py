@@ -31,7 +31,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from swarm.common.spawn import PARENT_ENV, PR_SET_PDEATHSIG, cli_args, start_child
+from swarm.common.spawn import PARENT_ENV, PR_SET_PDEATHSIG, cli_args, start_child, stops_held
 
 PAD = 8192
 """Bytes of argv the server starts with: the room for its children's command lines."""
@@ -105,42 +105,52 @@ class ForkServer:
             raise OSError("cannot become a child subreaper")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         one = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-        with log.open("ab") as err:  # (one BLAS thread whatever the user's: a fork copies one)
-            self.proc: subprocess.Popen[bytes] = start_child(
-                cli_args(SERVE, str(theirs.fileno()), run_id, "-" * PAD),
-                env={**env, **one}, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
-                pass_fds=[theirs.fileno()])
-        theirs.close()
+        try:
+            with log.open("ab") as err:  # (one BLAS thread whatever the user's: a fork copies one)
+                self.proc: subprocess.Popen[bytes] = start_child(
+                    cli_args(SERVE, str(theirs.fileno()), run_id, "-" * PAD),
+                    env={**env, **one}, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                    stderr=err, pass_fds=[theirs.fileno()])
+        except BaseException:
+            ours.close()
+            prctl(_PR_SET_CHILD_SUBREAPER, 0)
+            raise
+        finally:
+            theirs.close()
         self.sock: socket.socket | None = ours
         self.log = log
 
     def spawn(self, args: list[str], env: dict[str, str], stderr: int,
-              timeout: float = 10.0) -> subprocess.Popen[bytes] | None:
-        """The `swarm.cli` child of `args` (`swarm world` or `swarm robot`), forked; None
-        for another command, or if the server cannot (then never again: it is killed, and a
-        child it forks too late is never told to go): the caller spawns it."""
+              children: list[subprocess.Popen[bytes]], timeout: float = 10.0) -> bool:
+        """Whether the `swarm.cli` child of `args` (`swarm world` or `swarm robot`) was forked
+        and appended to `children`; False for another command, or if the server cannot (then
+        never again: it is killed): the caller spawns it. A stop while the server answers (its
+        first answer waits for its imports) is raised at once: a child forked meanwhile is never
+        told to go (it exits), and from the pid on to its place in `children` stops are held."""
         if self.sock is None or args[0] not in FORKED or not fits(args):
-            return None
+            return False
         null = os.open(os.devnull, os.O_RDWR)
         go, said = os.pipe()  # (the child runs once we hold its pid: `said` gets a byte)
+        pid = 0
         try:
             req = json.dumps({"args": args, "env": env}).encode()
             self.sock.settimeout(timeout)
             socket.send_fds(self.sock, [req], [null, null, stderr, go])
             reply = self.sock.recv(64)
-            pid = int(reply) if reply.isdigit() else 0
-            if pid > 0:
-                os.write(said, b"g")
+            with stops_held():
+                if reply.isdigit() and int(reply) > 0:
+                    os.write(said, b"g")
+                    pid = int(reply)
+                    children.append(Forked(pid, cli_args(*args)))
         except (OSError, ValueError):
-            pid = 0
-        finally:
+            pass
+        finally:  # (no pid, or a stop before it came: the socket is out of step, never again)
             for f in (null, go, said):
                 os.close(f)
-        if pid <= 0:
-            self.close()
-            self.proc.kill()  # (reaped with the run's other children)
-            return None
-        return Forked(pid, cli_args(*args))
+            if pid <= 0:
+                self.close()
+                self.proc.kill()  # (reaped with the run's other children)
+        return pid > 0
 
     def close(self) -> None:
         """The server ends (its socket's end); the children it forked run on, adopted (and the
@@ -152,12 +162,16 @@ class ForkServer:
 
 
 def child(forks: ForkServer | None, prefix: list[str], args: list[str], env: dict[str, str],
-          stderr: BinaryIO) -> subprocess.Popen[bytes]:
-    """The `swarm.cli` child of `args`: forked by `forks` where it can, else spawned (after
-    `prefix`: `ip netns exec NS`), stdin and stdout /dev/null, stderr to `stderr`."""
-    forked = forks.spawn(args, env, stderr.fileno()) if forks is not None else None
-    return forked or start_child([*prefix, *cli_args(*args)], env=env, stderr=stderr,
-                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+          stderr: BinaryIO, children: list[subprocess.Popen[bytes]]) -> subprocess.Popen[bytes]:
+    """The `swarm.cli` child of `args`, appended to `children` (every child ever started is
+    there, so stopped at the end: stops are held from its fork to there): forked by `forks`
+    where it can, else spawned (after `prefix`: `ip netns exec NS`); stdin and stdout
+    /dev/null, stderr to `stderr`."""
+    if forks is None or not forks.spawn(args, env, stderr.fileno(), children):
+        with stops_held():
+            children.append(start_child([*prefix, *cli_args(*args)], env=env, stderr=stderr,
+                                        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL))
+    return children[-1]
 
 
 def start(env: dict[str, str], log_dir: Path, run_id: str,

@@ -24,14 +24,14 @@ T = TypeVar("T")
 DEFAULT_MAX_BYTES = 4 << 20  # far above any message of a run (weights of the largest net: ~1 MB)
 DEFAULT_MAX_EVENTS = 100_000
 WAIT_SLICE_S = 0.25
-LAST_PUT_S = 0.05
-"""What a process that leaves gives its last puts to go out before its session closes: Zenoh
-batches them, and a close drops what is still queued (without it, 12-61 of 200 robots' final
-statuses never reached their supervisor, on two cores)."""
 """The longest a process's main thread sleeps in one piece while waiting for an event. A signal
 (SIGTERM from a supervisor's death, Ctrl-C) may be taken by any thread of the process, most often
 one of Zenoh's; its Python handler then runs only when the main thread next wakes. One long
 wait made a world outlive its supervisor for the whole robot start-up timeout."""
+LAST_PUT_S = 0.05
+"""What a process that leaves gives its last puts to go out before its session closes: Zenoh
+batches them, and a close drops what is still queued (without it, 12-61 of 200 robots' final
+statuses never reached their supervisor, on two cores)."""
 
 
 class Event(NamedTuple):

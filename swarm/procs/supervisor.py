@@ -129,11 +129,11 @@ class Supervisor:
         prefix = self.topo.exec_prefix(ns) if self.topo is not None and ns else []
         zfile = str(self.zfiles[identity_of(name)]) if self.zfiles else None  # --secure's TLS
         zopts = dataclasses.replace(zopts, cfg=[*zopts.cfg, *self.zcfg], config_file=zfile)
-        with stops_held():  # (every child ever spawned is in `children`, so stopped at the end)
-            self.children.append(forkserver.child(None if ns else self.forks, prefix,
-                                                  [*args, *zopts.to_args()], env, err))
-        err.close()
-        return self.children[-1]
+        try:  # (appended to `children`, so stopped at the end)
+            return forkserver.child(None if ns else self.forks, prefix, [*args, *zopts.to_args()],
+                                    env, err, self.children)
+        finally:
+            err.close()
 
     def _spawn_robot(self, i: int) -> subprocess.Popen[bytes]:
         hub, ns = self.hub, None
