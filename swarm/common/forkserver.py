@@ -245,9 +245,9 @@ def _fork(args: list[str], env: dict[str, str], fds: list[int], sock: socket.soc
 
 def serve(fd: int, run_id: str, preload: Callable[[], None]) -> list[str] | None:
     """The server's loop, once `preload` has loaded what its children import; returns a forked
-    child's argv (in that child), None at the end. A
-    request that is not one, or a fork that fails, is answered 0 (the supervisor then spawns
-    its children) and said in the server's log."""
+    child's argv (in that child), None at the end. A request that is not one, or a fork that
+    fails, is answered 0 (the supervisor then spawns its children) and said in the server's
+    log."""
     parent = os.environ.get(PARENT_ENV, "")
     supervisor = int(parent) if parent.isdigit() else os.getppid()
     prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
