@@ -109,7 +109,7 @@ class Supervisor:
                                                 self.log_dir / "zenoh", *extra)
         self.world: subprocess.Popen[bytes] | None = None
         self.children: list[subprocess.Popen[bytes]] = []  # every one spawned (`_spawn`)
-        self.forks: forkserver.ForkServer | None = None  # the robots' fork server
+        self.forks: forkserver.ForkServer | None = None  # forks the world and robots
         self.fleet = Fleet(self._spawn_robot, self.log_dir, run.restart_crashed)
         self.robots = self.fleet.procs  # robot id -> its running process
         self.inbox: Inbox | None = None
