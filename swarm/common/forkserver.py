@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import gc
 import json
 import os
 import signal
@@ -256,6 +257,8 @@ def serve(fd: int, run_id: str, preload: Callable[[], None]) -> list[str] | None
     set_cmdline(cli_args(SERVE, str(fd), run_id))
     sock = socket.socket(fileno=fd)
     preload()
+    gc.collect()
+    gc.freeze()  # (what it loaded: never traversed by a child's collections, nor copied by them)
     while True:
         try:
             msg, fds, _, _ = socket.recv_fds(sock, _MAX_REQUEST, 4)
