@@ -7,7 +7,7 @@ import sys
 from swarm.cli import preload_child, run_as_child
 from swarm.common.forkserver import SERVE, serve
 
-if len(sys.argv) > 3 and sys.argv[1] == SERVE:
+if len(sys.argv) > 3 and sys.argv[1] == SERVE and sys.argv[2].isdigit():  # (else: refused)
     argv = serve(int(sys.argv[2]), sys.argv[3], preload_child)
     if argv is None:  # (the server's end)
         sys.exit(0)

@@ -32,7 +32,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from swarm.common.spawn import PARENT_ENV, PR_SET_PDEATHSIG, cli_args, start_child, stops_held
+from swarm.common.spawn import (
+    PARENT_ENV,
+    PR_SET_PDEATHSIG,
+    cli_args,
+    prctl,
+    start_child,
+    stops_held,
+)
 
 PAD = 8192
 """Bytes of argv the server starts with: the room for its children's command lines."""
@@ -48,13 +55,6 @@ ENV = "SWARM_FORKSERVER"
 
 def wanted() -> bool:
     return os.environ.get(ENV, "1") != "0" and sys.platform == "linux"
-
-
-def prctl(option: int, value: int) -> bool:
-    try:
-        return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        return False
 
 
 def _argv_area() -> tuple[int, int]:
@@ -255,7 +255,11 @@ def serve(fd: int, run_id: str, preload: Callable[[], None]) -> list[str] | None
     if os.getppid() != supervisor:  # (it died before prctl took effect)
         return None
     set_cmdline(cli_args(SERVE, str(fd), run_id))
-    sock = socket.socket(fileno=fd)
+    try:
+        sock = socket.socket(fileno=fd)
+    except OSError as exc:  # (started by hand with a descriptor that is not its socket)
+        print(f"swarm: error: --fork-server {fd}: not a socket ({exc.strerror})", file=sys.stderr)
+        raise SystemExit(2) from None
     preload()
     gc.collect()
     gc.freeze()  # (what it loaded: never traversed by a child's collections, nor copied by them)

@@ -98,6 +98,14 @@ def supervised() -> bool:
     return os.environ.get(PARENT_ENV, "").isdigit()
 
 
+def prctl(option: int, value: int) -> bool:
+    """Linux's prctl(option, value); False where it failed or there is none."""
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
 def die_with_parent() -> bool:
     """In a child started by a supervisor: SIGTERM when the supervisor dies, however it dies,
     and SHUTDOWN_GRACE_S to unwind. False (nothing done) in a process no supervisor started."""
@@ -105,10 +113,7 @@ def die_with_parent() -> bool:
         return False
     parent = os.environ[PARENT_ENV]
     terminate_as_interrupt(grace=True)
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
-    except (OSError, AttributeError):  # not Linux: the parent's own cleanup still runs
+    if not prctl(PR_SET_PDEATHSIG, signal.SIGTERM):  # not Linux: the parent's cleanup still runs
         return True
     if os.getppid() != int(parent):  # it died before prctl took effect
         os.kill(os.getpid(), signal.SIGTERM)
