@@ -328,10 +328,14 @@ def test_a_process_fault_to_a_world_by_hand_is_refused_and_a_link_fault_goes(
     """A world started by hand has no supervisor to kill or stop a robot: `swarm fault --crash`
     / `--hang` to it is one line and exit 2 with nothing sent (it printed the control and exited
     0, and nothing happened); a link fault still goes, and applies."""
+    import contextlib
+    import threading
+
     import zenoh
 
+    from swarm.common import spawn
     from swarm.net.keys import Keys
-    from swarm.net.messages import K_CONTROL, pack_record
+    from swarm.net.messages import K_CONTROL, K_STATUS, pack_record, unpack_record
     from swarm.net.zconfig import ZenohOptions, free_port
 
     run_id, hub, out = "handpf", f"tcp/127.0.0.1:{free_port()}", tmp_path / "w.json"
@@ -343,7 +347,18 @@ def test_a_process_fault_to_a_world_by_hand_is_refused_and_a_link_fault_goes(
                               cwd=ROOT, stdout=subprocess.DEVNULL,
                               stderr=log.open("w"))  # noqa: SIM115
              for log, args in zip(logs, commands, strict=True)]
-    try:
+    try:  # both robots in the run first (robots by hand join seconds after the world plays)
+        spawn.wait_port("127.0.0.1", int(hub.rsplit(":", 1)[1]), procs[0], 60.0)
+        both = threading.Event()
+
+        def seen(sample: zenoh.Sample) -> None:
+            with contextlib.suppress(Exception):  # (any record but a status with both alive)
+                if unpack_record(sample.payload.to_bytes(), K_STATUS)["alive"] == [True, True]:
+                    both.set()
+
+        with zenoh.open(ZenohOptions(connect=[hub]).to_config()) as s:
+            s.declare_subscriber(Keys(run_id).status, seen)
+            assert both.wait(60), [log.read_text()[-500:] for log in logs]
         bad = [subprocess.Popen([sys.executable, "-m", "swarm.cli", "fault", "--run", run_id,
                                  "--connect", hub, "--wait", "60", *args], cwd=ROOT,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
