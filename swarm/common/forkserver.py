@@ -122,7 +122,7 @@ class ForkServer:
         self.log = log
 
     def spawn(self, args: list[str], env: dict[str, str], stderr: int,
-              children: list[subprocess.Popen[bytes]], timeout: float = 10.0) -> bool:
+              children: list[subprocess.Popen[bytes]], timeout: float = 30.0) -> bool:
         """Whether the `swarm.cli` child of `args` (`swarm world` or `swarm robot`) was forked
         and appended to `children`; False for another command, or if the server cannot (then
         never again: it is killed): the caller spawns it. A stop while the server answers (its
